@@ -1,0 +1,1 @@
+"""Classical trackers from the papers, as reference policies and comparison trackers."""
