@@ -72,6 +72,14 @@ def _as_batch(a) -> np.ndarray:
     return np.atleast_1d(np.asarray(a, dtype=np.float64))
 
 
+def _mT(A: np.ndarray) -> np.ndarray:
+    return np.swapaxes(A, -1, -2)
+
+
+def _sym(A: np.ndarray) -> np.ndarray:
+    return 0.5 * (A + _mT(A))
+
+
 def transition_cv(dt_s) -> np.ndarray:
     """Constant-velocity transition matrices ``F (B,4,4)`` for time steps ``dt_s (B,)``."""
     dt = _as_batch(dt_s)
@@ -125,9 +133,7 @@ def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray, u: np.nd
     x_prior = np.einsum("...ij,...j->...i", F, x)
     if u is not None:
         x_prior = x_prior + u
-    P_prior = F @ P @ np.swapaxes(F, -1, -2) + Q
-    P_prior = 0.5 * (P_prior + np.swapaxes(P_prior, -1, -2))
-    return x_prior, P_prior
+    return x_prior, _sym(F @ P @ _mT(F) + Q)
 
 
 def inv2(S: np.ndarray):
@@ -162,23 +168,22 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, detected=
     if detected is None:
         detected = np.ones(x.shape[:-1], dtype=bool)
     detected = np.asarray(detected, dtype=bool)
-    hx = x[..., :2]
-    # Missed plots are replaced by harmless values so that no NaN enters the arithmetic.
-    nu = np.where(detected[..., None], z - hx, 0.0)
+    # Missed plots are replaced by harmless values so that no NaN enters the arithmetic; a zero gain then
+    # leaves x and P bit-for-bit unchanged.
+    nu = np.where(detected[..., None], z - x[..., :2], 0.0)
     R = np.where(detected[..., None, None], R, np.eye(2))
-    S = P[..., :2, :2] + R
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    S = _sym(P[..., :2, :2] + R)
     S_inv, det = inv2(S)
-    K = P[..., :, :2] @ S_inv  # (...,4,2)
+    K = np.where(detected[..., None, None], P[..., :, :2] @ S_inv, 0.0)  # P H^T S^-1, (...,4,2)
     x_post = x + np.einsum("...ij,...j->...i", K, nu)
-    IKH = np.broadcast_to(np.eye(4), P.shape).copy()
-    IKH[..., :, :2] -= K
-    P_post = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    P_post = 0.5 * (P_post + np.swapaxes(P_post, -1, -2))
-    nis = np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
+    # Joseph form with H = [I 0]: M = (I - K H) P, P+ = M (I - K H)^T + K R K^T = M + (K R - M H^T) K^T,
+    # where M H^T = P H^T - K (H P H^T) is formed directly (contiguous 4x2 products are the cheap ones).
+    M = P - K @ P[..., :2, :]
+    MHt = P[..., :, :2] - K @ P[..., :2, :2]
+    P_post = _sym(M + (K @ R - MHt) @ _mT(K))
+    n0, n1 = nu[..., 0], nu[..., 1]
+    nis = n0 * n0 * S_inv[..., 0, 0] + 2.0 * n0 * n1 * S_inv[..., 0, 1] + n1 * n1 * S_inv[..., 1, 1]
     loglik = -0.5 * (nis + 2.0 * _LOG_2PI + np.log(det))
-    P_post = np.where(detected[..., None, None], P_post, P)
-    x_post = np.where(detected[..., None], x_post, x)
     return UpdateResult(x_post, P_post, nu, S, np.where(detected, nis, 0.0), np.where(detected, loglik, 0.0))
 
 
