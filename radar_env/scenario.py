@@ -1,0 +1,515 @@
+"""Truth trajectories (scenarios) in the 2-D plane: exact piecewise kinematics and user trajectories.
+
+Conventions (docs/architecture.md): metres, seconds, radians; x east, y north; state ``[x, y, vx, vy]``;
+heading clockwise from north; turn rate positive = clockwise = right turn.
+
+A scenario answers, for any array of times ``t_s`` inside ``[0, duration_s]``:
+
+* ``states_at(t_s) -> (K, 4)`` true state,
+* ``accelerations_at(t_s) -> (K, 2)`` true acceleration (m/s^2),
+* ``turn_rates_at(t_s) -> (K,)`` heading rate (rad/s),
+* ``maneuvering_at(t_s) -> (K,)`` bool, True while the aircraft turns or changes speed.
+
+Two kinds:
+
+* :class:`SegmentScenario`: straight legs, coordinated turns (constant speed and turn rate) and longitudinal
+  accelerations (constant heading). Each segment is integrated in closed form from the state at its start:
+
+  - turn (``omega``, including 0 = straight), with ``theta = omega * tau``::
+
+        vx(tau) =  vx cos(theta) + vy sin(theta)        x(tau) = x + vx sin(theta)/omega + vy (1 - cos(theta))/omega
+        vy(tau) = -vx sin(theta) + vy cos(theta)        y(tau) = y - vx (1 - cos(theta))/omega + vy sin(theta)/omega
+
+    which is ``filters.transition_ct(tau, omega) @ state`` (used here, so the truth and the CT filter share one
+    formula);
+  - longitudinal acceleration ``a`` along the unit velocity ``u``: ``v = u (s + a tau)``,
+    ``p = p0 + u (s tau + a tau^2 / 2)``.
+
+  No Euler steps anywhere: the state at any time is exact to rounding.
+* :class:`TrajectoryScenario`: a user trajectory given as samples ``t_s, x_m, y_m, vx_m_s, vy_m_s`` (arrays or a
+  CSV file), interpolated by a cubic Hermite spline that matches both positions and velocities at the samples;
+  acceleration is the spline's second derivative.
+
+:func:`random_scenario` draws a whole scenario (and a radar site position for it) from a seeded generator.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from .filters import transition_ct
+from .units import DEG, G0_M_S2, KNOT_M_S
+
+__all__ = [
+    "Segment",
+    "SegmentScenario",
+    "ScenarioBuilder",
+    "TrajectoryScenario",
+    "RandomScenarioConfig",
+    "random_scenario",
+    "place_radar_site",
+    "MIN_SPEED_M_S",
+]
+
+MIN_SPEED_M_S = 10.0
+"""Lowest speed a scenario may reach (m/s); headings and turn rates are undefined near zero speed."""
+
+
+def _check_finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
+    v = float(value)
+    ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
+    if not ok:
+        lb = "(" if lo_open else "["
+        raise ValueError(f"{name} must be a finite number in {lb}{lo}, {hi}], got {value!r}")
+    return v
+
+
+# ---------------------------------------------------------------------------------------------------- segments
+@dataclass(frozen=True)
+class Segment:
+    """One piece of a piecewise trajectory.
+
+    Args:
+        duration_s: length of the segment, > 0.
+        turn_rate_rad_s: heading rate during the segment (positive = right turn); 0 for straight or accelerating.
+        accel_m_s2: longitudinal acceleration (speed change rate); must be 0 when ``turn_rate_rad_s`` != 0.
+    """
+
+    duration_s: float
+    turn_rate_rad_s: float = 0.0
+    accel_m_s2: float = 0.0
+
+    def __post_init__(self):
+        _check_finite("Segment.duration_s", self.duration_s, 0.0, math.inf, lo_open=True)
+        _check_finite("Segment.turn_rate_rad_s", self.turn_rate_rad_s, -math.pi, math.pi)
+        _check_finite("Segment.accel_m_s2", self.accel_m_s2, -100 * G0_M_S2, 100 * G0_M_S2)
+        if self.turn_rate_rad_s != 0.0 and self.accel_m_s2 != 0.0:
+            raise ValueError("Segment: a segment is a coordinated turn (turn_rate_rad_s != 0) or a speed change "
+                             "(accel_m_s2 != 0), not both; split it into two segments")
+
+
+class SegmentScenario:
+    """Piecewise truth: straight legs, coordinated turns and speed changes, integrated exactly.
+
+    Args:
+        initial_state: ``[x_m, y_m, vx_m_s, vy_m_s]`` at ``t = 0``; speed >= ``MIN_SPEED_M_S``.
+        segments: sequence of :class:`Segment`, flown in order from ``t = 0``.
+        name: label used in tables and plots.
+        maneuver_threshold_m_s2: ``maneuvering_at`` is True where the true acceleration exceeds this (m/s^2).
+    """
+
+    def __init__(self, initial_state, segments, name="segments", maneuver_threshold_m_s2=0.05 * G0_M_S2):
+        x0 = np.asarray(initial_state, dtype=np.float64).reshape(-1)
+        if x0.shape != (4,) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"initial_state must be 4 finite numbers [x_m, y_m, vx_m_s, vy_m_s], got {initial_state!r}")
+        segs = tuple(segments)
+        if not segs:
+            raise ValueError("segments must contain at least one Segment")
+        for s in segs:
+            if not isinstance(s, Segment):
+                raise ValueError(f"segments must contain Segment objects, got {type(s).__name__}")
+        self.name = str(name)
+        self.maneuver_threshold_m_s2 = float(maneuver_threshold_m_s2)
+        self.segments = segs
+        n = len(segs)
+        self._t0 = np.zeros(n)
+        self._x0 = np.zeros((n, 4))
+        self._w = np.array([s.turn_rate_rad_s for s in segs])
+        self._a = np.array([s.accel_m_s2 for s in segs])
+        t, x = 0.0, x0.copy()
+        for i, s in enumerate(segs):
+            speed = math.hypot(x[2], x[3])
+            if speed < MIN_SPEED_M_S - 1e-9:
+                raise ValueError(f"segment {i}: speed {speed:.3f} m/s at its start is below MIN_SPEED_M_S = "
+                                 f"{MIN_SPEED_M_S} m/s")
+            self._t0[i], self._x0[i] = t, x
+            end_speed = speed + s.accel_m_s2 * s.duration_s
+            if end_speed < MIN_SPEED_M_S - 1e-9:
+                raise ValueError(f"segment {i}: accel_m_s2={s.accel_m_s2} for {s.duration_s} s would bring the "
+                                 f"speed to {end_speed:.3f} m/s, below MIN_SPEED_M_S = {MIN_SPEED_M_S} m/s")
+            x = self._propagate(np.array([i]), np.array([s.duration_s]))[0]
+            t += s.duration_s
+        self.duration_s = t
+        self.final_state = x
+
+    # -------------------------------------------------------------------------------------------- evaluation
+    def _propagate(self, idx, tau):
+        """State at ``tau`` seconds into segments ``idx`` (arrays of equal shape (K,)) -> (K, 4)."""
+        x0 = self._x0[idx]
+        w, a = self._w[idx], self._a[idx]
+        out = np.einsum("kij,kj->ki", transition_ct(tau, w), x0)
+        acc = a != 0.0
+        if np.any(acc):
+            v = x0[acc, 2:]
+            s = np.hypot(v[:, 0], v[:, 1])
+            u = v / s[:, None]
+            ta = tau[acc]
+            out[acc, :2] = x0[acc, :2] + u * (s * ta + 0.5 * a[acc] * ta * ta)[:, None]
+            out[acc, 2:] = u * (s + a[acc] * ta)[:, None]
+        return out
+
+    def _locate(self, t_s):
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        tol = 1e-9 * max(1.0, self.duration_s)
+        if t.size and (not np.all(np.isfinite(t)) or t.min() < -tol or t.max() > self.duration_s + tol):
+            raise ValueError(f"times must lie in [0, duration_s = {self.duration_s}] s, got range "
+                             f"[{t.min()}, {t.max()}]")
+        t = np.clip(t, 0.0, self.duration_s)
+        idx = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self.segments) - 1)
+        return t, idx, t - self._t0[idx]
+
+    def states_at(self, t_s):
+        """True states ``[x, y, vx, vy]`` at times ``t_s`` (K,) -> (K, 4)."""
+        _, idx, tau = self._locate(t_s)
+        return self._propagate(idx, tau)
+
+    def accelerations_at(self, t_s):
+        """True accelerations (m/s^2) -> (K, 2): ``omega * (vy, -vx)`` in turns, ``a * u`` in speed changes."""
+        _, idx, tau = self._locate(t_s)
+        x = self._propagate(idx, tau)
+        w, a = self._w[idx], self._a[idx]
+        s = np.hypot(x[:, 2], x[:, 3])
+        ax = w * x[:, 3] + a * x[:, 2] / s
+        ay = -w * x[:, 2] + a * x[:, 3] / s
+        return np.stack([ax, ay], axis=-1)
+
+    def turn_rates_at(self, t_s):
+        """True heading rate (rad/s, positive = right turn) -> (K,)."""
+        _, idx, _ = self._locate(t_s)
+        return self._w[idx].copy()
+
+    def maneuvering_at(self, t_s):
+        """True where the aircraft turns or changes speed with acceleration above the threshold -> (K,) bool."""
+        acc = self.accelerations_at(t_s)
+        return np.hypot(acc[:, 0], acc[:, 1]) > self.maneuver_threshold_m_s2
+
+    def __repr__(self):
+        return f"SegmentScenario(name={self.name!r}, segments={len(self.segments)}, duration_s={self.duration_s:g})"
+
+
+class ScenarioBuilder:
+    """Fluent construction of a :class:`SegmentScenario` in user units.
+
+    Example::
+
+        sc = (ScenarioBuilder(position_m=(0, 0), speed_kt=350, heading_deg=90)
+              .straight(290).turn(90, accel_g=2).straight(280).turn(-90, rate_deg_s=3).straight(100)
+              .build("two_turns"))
+
+    ``turn(heading_change_deg, ...)``: positive = right (clockwise), negative = left; give exactly one of
+    ``rate_deg_s`` (magnitude of the turn rate) or ``accel_g`` (lateral acceleration at the current speed).
+    ``change_speed(to_speed_m_s, accel_m_s2)``: straight-line speed change at ``|accel_m_s2|``.
+    """
+
+    def __init__(self, position_m=(0.0, 0.0), speed_m_s=None, heading_deg=0.0, *, speed_kt=None):
+        if (speed_m_s is None) == (speed_kt is None):
+            raise ValueError("ScenarioBuilder: give exactly one of speed_m_s or speed_kt")
+        speed = float(speed_m_s) if speed_m_s is not None else float(speed_kt) * KNOT_M_S
+        _check_finite("speed_m_s", speed, MIN_SPEED_M_S, 3000.0)
+        h = _check_finite("heading_deg", heading_deg) * DEG
+        px, py = (float(v) for v in position_m)
+        self.initial_state = np.array([px, py, speed * math.sin(h), speed * math.cos(h)])
+        self._speed = speed
+        self.segments: list[Segment] = []
+
+    def straight(self, duration_s):
+        self.segments.append(Segment(duration_s))
+        return self
+
+    def turn(self, heading_change_deg, *, rate_deg_s=None, accel_g=None):
+        dh = _check_finite("heading_change_deg", heading_change_deg, -3600.0, 3600.0) * DEG
+        if dh == 0.0:
+            raise ValueError("heading_change_deg must be non-zero")
+        if (rate_deg_s is None) == (accel_g is None):
+            raise ValueError("turn: give exactly one of rate_deg_s or accel_g")
+        if rate_deg_s is not None:
+            w = _check_finite("rate_deg_s", rate_deg_s, 0.0, 180.0, lo_open=True) * DEG
+        else:
+            w = _check_finite("accel_g", accel_g, 0.0, 100.0, lo_open=True) * G0_M_S2 / self._speed
+        self.segments.append(Segment(abs(dh) / w, turn_rate_rad_s=math.copysign(w, dh)))
+        return self
+
+    def change_speed(self, to_speed_m_s, accel_m_s2):
+        to = _check_finite("to_speed_m_s", to_speed_m_s, MIN_SPEED_M_S, 3000.0)
+        a = _check_finite("accel_m_s2", abs(accel_m_s2), 0.0, 100 * G0_M_S2, lo_open=True)
+        if to == self._speed:
+            return self
+        self.segments.append(Segment(abs(to - self._speed) / a, accel_m_s2=math.copysign(a, to - self._speed)))
+        self._speed = to
+        return self
+
+    def build(self, name="segments"):
+        return SegmentScenario(self.initial_state, self.segments, name=name)
+
+
+# ---------------------------------------------------------------------------------------------------- user data
+class TrajectoryScenario:
+    """A user trajectory: samples of position and velocity, interpolated by a cubic Hermite spline.
+
+    Args:
+        t_s, x_m, y_m, vx_m_s, vy_m_s: 1-D arrays of equal length >= 2, finite, ``t_s`` strictly increasing.
+            Times are shifted so that the scenario starts at 0.
+        name: label.
+        maneuver_threshold_m_s2: acceleration above which ``maneuvering_at`` is True.
+
+    The spline reproduces the given positions and velocities at the samples; between them it is the unique
+    cubic matching both, so the velocity is continuous and the acceleration piecewise linear.
+    """
+
+    def __init__(self, t_s, x_m, y_m, vx_m_s, vy_m_s, name="trajectory", maneuver_threshold_m_s2=0.05 * G0_M_S2):
+        cols = {"t_s": t_s, "x_m": x_m, "y_m": y_m, "vx_m_s": vx_m_s, "vy_m_s": vy_m_s}
+        arr = {}
+        for k, v in cols.items():
+            a = np.asarray(v, dtype=np.float64).reshape(-1)
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"trajectory column {k} has non-finite values at rows "
+                                 f"{np.flatnonzero(~np.isfinite(a))[:5].tolist()}")
+            arr[k] = a
+        n = arr["t_s"].size
+        if n < 2:
+            raise ValueError(f"a trajectory needs at least 2 samples, got {n}")
+        for k, a in arr.items():
+            if a.size != n:
+                raise ValueError(f"trajectory column {k} has {a.size} values, t_s has {n}")
+        dt = np.diff(arr["t_s"])
+        if np.any(dt <= 0):
+            i = int(np.flatnonzero(dt <= 0)[0])
+            raise ValueError(f"trajectory t_s must be strictly increasing; row {i + 1} (t_s={arr['t_s'][i + 1]}) "
+                             f"does not follow row {i} (t_s={arr['t_s'][i]})")
+        speed = np.hypot(arr["vx_m_s"], arr["vy_m_s"])
+        if speed.min() < MIN_SPEED_M_S:
+            i = int(np.argmin(speed))
+            raise ValueError(f"trajectory speed must stay >= {MIN_SPEED_M_S} m/s; row {i} has {speed[i]:.3f} m/s")
+        self.name = str(name)
+        self.maneuver_threshold_m_s2 = float(maneuver_threshold_m_s2)
+        t = arr["t_s"] - arr["t_s"][0]
+        self.t_samples_s = t
+        self.duration_s = float(t[-1])
+        self._sx = CubicHermiteSpline(t, arr["x_m"], arr["vx_m_s"])
+        self._sy = CubicHermiteSpline(t, arr["y_m"], arr["vy_m_s"])
+        self.final_state = self.states_at(np.array([self.duration_s]))[0]
+
+    @classmethod
+    def from_csv(cls, path, name=None, **kwargs):
+        """Read a CSV with header ``t_s,x_m,y_m,vx_m_s,vy_m_s`` (extra columns ignored).
+
+        Raises ``ValueError`` naming the file, line and column for a missing column or a non-numeric value."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"trajectory file {str(path)!r} does not exist")
+        need = ["t_s", "x_m", "y_m", "vx_m_s", "vy_m_s"]
+        with path.open(newline="") as f:
+            reader = csv.reader(f)
+            try:
+                header = [h.strip() for h in next(reader)]
+            except StopIteration:
+                raise ValueError(f"{path}: empty file; expected header {','.join(need)}") from None
+            missing = [c for c in need if c not in header]
+            if missing:
+                raise ValueError(f"{path}: line 1: missing column(s) {missing}; expected header {','.join(need)}")
+            pos = [header.index(c) for c in need]
+            rows = []
+            for line_no, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                vals = []
+                for c, j in zip(need, pos):
+                    try:
+                        vals.append(float(row[j]))
+                    except (IndexError, ValueError):
+                        cell = row[j] if j < len(row) else "<missing>"
+                        raise ValueError(f"{path}: line {line_no}, column {c!r}: cannot read {cell!r} as a "
+                                         "number") from None
+                rows.append(vals)
+        if len(rows) < 2:
+            raise ValueError(f"{path}: needs at least 2 data rows, got {len(rows)}")
+        a = np.array(rows)
+        try:
+            return cls(*a.T, name=name or path.stem, **kwargs)
+        except ValueError as e:
+            raise ValueError(f"{path}: {e} (data rows start at line 2)") from None
+
+    def _check(self, t_s):
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        tol = 1e-9 * max(1.0, self.duration_s)
+        if t.size and (not np.all(np.isfinite(t)) or t.min() < -tol or t.max() > self.duration_s + tol):
+            raise ValueError(f"times must lie in [0, duration_s = {self.duration_s}] s")
+        return np.clip(t, 0.0, self.duration_s)
+
+    def states_at(self, t_s):
+        t = self._check(t_s)
+        return np.stack([self._sx(t), self._sy(t), self._sx(t, 1), self._sy(t, 1)], axis=-1)
+
+    def accelerations_at(self, t_s):
+        t = self._check(t_s)
+        return np.stack([self._sx(t, 2), self._sy(t, 2)], axis=-1)
+
+    def turn_rates_at(self, t_s):
+        """Heading rate ``(vy ax - vx ay) / speed^2`` (rad/s, positive = right turn)."""
+        t = self._check(t_s)
+        vx, vy, ax, ay = self._sx(t, 1), self._sy(t, 1), self._sx(t, 2), self._sy(t, 2)
+        return (vy * ax - vx * ay) / np.maximum(vx * vx + vy * vy, MIN_SPEED_M_S ** 2)
+
+    def maneuvering_at(self, t_s):
+        acc = self.accelerations_at(t_s)
+        return np.hypot(acc[:, 0], acc[:, 1]) > self.maneuver_threshold_m_s2
+
+    def __repr__(self):
+        return f"TrajectoryScenario(name={self.name!r}, samples={self.t_samples_s.size}, duration_s={self.duration_s:g})"
+
+
+# ---------------------------------------------------------------------------------------------------- random
+def _range_field(lo, hi):
+    return field(default=(lo, hi))
+
+
+@dataclass(frozen=True)
+class RandomScenarioConfig:
+    """Parameters of :func:`random_scenario` (every range is ``(low, high)``, drawn uniformly).
+
+    Attributes:
+        speed_kt: initial speed, knots. Default (100, 600).
+        n_legs: number of straight legs, integers inclusive. Default (3, 6); legs are joined by maneuvers.
+        leg_duration_s: straight-leg length. Default (30, 300).
+        turn_accel_g: lateral acceleration of a turn, g. Default (0.5, 7).
+        max_turn_rate_deg_s: turn rate cap (a 7 g turn at 100 kt would be 77 deg/s); turns above it are flown at
+            the cap. Default 20.
+        turn_heading_change_deg: magnitude of a turn's heading change. Default (10, 270); direction 50/50.
+        speed_change_probability: probability that a maneuver also includes a speed change (before the turn).
+            Default 0.2.
+        speed_change_accel_g: longitudinal acceleration of a speed change, g. Default (0.1, 0.5).
+        range_km: allowed range from the radar over the whole flight, km. Default (10, 150).
+        site_candidates: number of candidate radar positions tried; the one that keeps the flight in range the
+            longest is chosen and the scenario is cut at its first exit. Default 64.
+        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120.
+    """
+
+    speed_kt: tuple = _range_field(100.0, 600.0)
+    n_legs: tuple = _range_field(3, 6)
+    leg_duration_s: tuple = _range_field(30.0, 300.0)
+    turn_accel_g: tuple = _range_field(0.5, 7.0)
+    max_turn_rate_deg_s: float = 20.0
+    turn_heading_change_deg: tuple = _range_field(10.0, 270.0)
+    speed_change_probability: float = 0.2
+    speed_change_accel_g: tuple = _range_field(0.1, 0.5)
+    range_km: tuple = _range_field(10.0, 150.0)
+    site_candidates: int = 64
+    min_duration_s: float = 120.0
+
+    _LIMITS = {
+        "speed_kt": (20.0, 3000.0), "n_legs": (1, 50), "leg_duration_s": (1.0, 3600.0),
+        "turn_accel_g": (0.01, 20.0), "turn_heading_change_deg": (1.0, 720.0),
+        "speed_change_accel_g": (0.001, 5.0), "range_km": (0.1, 1000.0),
+    }
+
+    def __post_init__(self):
+        for name, (lo, hi) in self._LIMITS.items():
+            v = getattr(self, name)
+            if not (isinstance(v, (tuple, list)) and len(v) == 2):
+                raise ValueError(f"RandomScenarioConfig.{name} must be a (low, high) pair in [{lo}, {hi}], got {v!r}")
+            a, b = (float(x) for x in v)
+            if not (lo <= a <= b <= hi):
+                raise ValueError(f"RandomScenarioConfig.{name} must satisfy {lo} <= low <= high <= {hi}, got {v!r}")
+        _check_finite("RandomScenarioConfig.max_turn_rate_deg_s", self.max_turn_rate_deg_s, 0.0, 180.0, lo_open=True)
+        _check_finite("RandomScenarioConfig.speed_change_probability", self.speed_change_probability, 0.0, 1.0)
+        _check_finite("RandomScenarioConfig.site_candidates", self.site_candidates, 1, 100000)
+        _check_finite("RandomScenarioConfig.min_duration_s", self.min_duration_s, 1.0, 1e5)
+        if float(self.n_legs[0]) != int(self.n_legs[0]) or float(self.n_legs[1]) != int(self.n_legs[1]):
+            raise ValueError(f"RandomScenarioConfig.n_legs must be integers, got {self.n_legs!r}")
+
+    @classmethod
+    def from_dict(cls, d):
+        """Build from a dict, rejecting unknown keys with a ``ValueError`` that lists the valid ones."""
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(d) - set(names))
+        if unknown:
+            raise ValueError(f"unknown RandomScenarioConfig key(s) {unknown}; valid keys: {names}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def _draw_segments(rng, cfg, speed):
+    """Legs and maneuvers in a fixed draw order (one uniform per quantity)."""
+    segs = []
+    n_legs = int(rng.integers(int(cfg.n_legs[0]), int(cfg.n_legs[1]) + 1))
+    lo_v, hi_v = (v * KNOT_M_S for v in cfg.speed_kt)
+    for i in range(n_legs):
+        segs.append(Segment(rng.uniform(*cfg.leg_duration_s)))
+        if i == n_legs - 1:
+            break
+        change = rng.uniform() < cfg.speed_change_probability
+        new_speed = rng.uniform(lo_v, hi_v)
+        accel = rng.uniform(*cfg.speed_change_accel_g) * G0_M_S2
+        g = rng.uniform(*cfg.turn_accel_g)
+        dh = rng.uniform(*cfg.turn_heading_change_deg) * DEG * (1.0 if rng.uniform() < 0.5 else -1.0)
+        if change and abs(new_speed - speed) > 1e-6:
+            segs.append(Segment(abs(new_speed - speed) / accel, accel_m_s2=math.copysign(accel, new_speed - speed)))
+            speed = new_speed
+        w = min(g * G0_M_S2 / speed, cfg.max_turn_rate_deg_s * DEG)
+        segs.append(Segment(abs(dh) / w, turn_rate_rad_s=math.copysign(w, dh)))
+    return segs
+
+
+def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=1.0):
+    """Choose a radar position for ``scenario`` so that the flight stays within ``range_m`` for as long as possible.
+
+    ``n_candidates`` positions are drawn around the track's start (distance uniform in ``range_m``, direction
+    uniform); the one whose annulus contains the flight longest from ``t = 0`` wins (ties: first drawn).
+    Returns ``(site_xy_m (2,), in_range_until_s)``; ``in_range_until_s`` is the time of the first exit (or the
+    scenario's duration)."""
+    lo, hi = range_m
+    t = np.arange(0.0, scenario.duration_s + 1e-9, grid_dt_s)
+    if t[-1] < scenario.duration_s:
+        t = np.append(t, scenario.duration_s)
+    p = scenario.states_at(t)[:, :2]
+    d = rng.uniform(lo, hi, size=n_candidates)
+    a = rng.uniform(0.0, 2 * np.pi, size=n_candidates)
+    sites = p[0] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
+    r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])  # (C, K)
+    out = (r < lo) | (r > hi)
+    first_out = np.where(out.any(axis=1), out.argmax(axis=1), t.size)
+    best = int(np.argmax(first_out))
+    until = scenario.duration_s if first_out[best] == t.size else float(t[max(first_out[best] - 1, 0)])
+    return sites[best], until
+
+
+def random_scenario(rng, config=None, max_tries=50):
+    """Draw a random scenario and a radar site for it.
+
+    Fixed draw order: initial speed, heading, segments (see :class:`RandomScenarioConfig`), then the radar site.
+    A flight that leaves the radar's range annulus is cut at its first exit; if less than
+    ``config.min_duration_s`` remains, the whole draw is repeated (at most ``max_tries`` times, all from ``rng``).
+
+    Returns:
+        (scenario, site_xy_m): a :class:`SegmentScenario` starting at the origin and the radar position (2,).
+    """
+    cfg = config or RandomScenarioConfig()
+    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+    for _ in range(max_tries):
+        speed = rng.uniform(*cfg.speed_kt) * KNOT_M_S
+        heading = rng.uniform(0.0, 2 * np.pi)
+        segs = _draw_segments(rng, cfg, speed)
+        x0 = np.array([0.0, 0.0, speed * math.sin(heading), speed * math.cos(heading)])
+        sc = SegmentScenario(x0, segs, name="random")
+        site, until = place_radar_site(rng, sc, tuple(v * 1e3 for v in cfg.range_km), int(cfg.site_candidates))
+        if until >= cfg.min_duration_s:
+            if until < sc.duration_s:
+                sc = _truncate(sc, until)
+            return sc, site
+    raise RuntimeError(f"random_scenario: no draw stayed in range for min_duration_s={cfg.min_duration_s} s in "
+                       f"{max_tries} tries; widen range_km or shorten legs")
+
+
+def _truncate(sc, t_end):
+    """The same flight cut at ``t_end`` (s)."""
+    segs = []
+    for s, t0 in zip(sc.segments, sc._t0):
+        if t0 >= t_end:
+            break
+        segs.append(Segment(min(s.duration_s, t_end - t0), s.turn_rate_rad_s, s.accel_m_s2))
+    return SegmentScenario(sc._x0[0], segs, name=sc.name, maneuver_threshold_m_s2=sc.maneuver_threshold_m_s2)
