@@ -455,7 +455,7 @@ def _draw_segments(rng, cfg, speed):
     return segs
 
 
-def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=1.0):
+def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=2.0):
     """Choose a radar position for ``scenario`` so that the flight stays within ``range_m`` for as long as possible.
 
     ``n_candidates`` positions are drawn around the track's start (distance uniform in ``range_m``, direction

@@ -1,0 +1,513 @@
+"""RadarTrack-v0: choose the Kalman filter's process-noise level every radar look.
+
+The Gymnasium layer over the simulation and the tracking chain. :class:`RadarTrackEnv` is the single env,
+:class:`RadarTrackVectorEnv` the native batched vector env; both run the same batched core (:class:`_Core`), which
+runs the one tracking chain (:class:`radar_env.tracking.Tracker`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import VectorEnv
+from gymnasium.vector.utils import batch_space
+from gymnasium.vector.vector_env import AutoresetMode
+
+from .catalog import SCENARIO_NAMES, Setup, make_setup
+from .episode import draw_episode
+from .observation import DEFAULT_FEATURES, FEATURE_SPECS, ObservationLayout, measurement_sigma_m
+from .radar import Radar, atc_radar
+from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario, place_radar_site
+from .tracking import Tracker
+from .units import G0_M_S2
+
+__all__ = ["RadarTrackEnv", "RadarTrackVectorEnv", "EnvConfig", "DEFAULT_Q_LEVELS_G"]
+
+RENDER_MODES = ()
+"""Render modes available (the radar-scope display is not built yet)."""
+
+DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
+"""13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
+(j = 0) and 2 g (j = 6), from 0.00182 g to 8.11 g."""
+
+
+# ---------------------------------------------------------------------------------------------------- config
+@dataclass(frozen=True)
+class EnvConfig:
+    """Every argument of RadarTrack-v0 (see the env docstring). Built by :meth:`from_kwargs`, which validates."""
+
+    scenario: object = "random"
+    radar: object = None
+    random_config: object = None
+    action_type: str = "discrete"
+    q_levels_g: tuple = DEFAULT_Q_LEVELS_G
+    features: tuple = DEFAULT_FEATURES
+    warmup_scans: int = 12
+    warmup_q_g: float = 0.03
+    reward_type: str = "squared"
+    reward_clip: float = 100.0
+    track_loss_gate_sigma: float = 30.0
+    n_adrian: int = 4
+    window_kim_lee: int = 12
+    fma_weight: float = 0.1
+    render_mode: object = None
+
+    @classmethod
+    def from_kwargs(cls, **kwargs):
+        valid = [f.name for f in fields(cls)]
+        unknown = sorted(set(kwargs) - set(valid))
+        if unknown:
+            raise ValueError(f"RadarTrack-v0: unknown argument(s) {unknown}; valid arguments: {valid}")
+        cfg = cls(**kwargs)
+        cfg._validate()
+        return cfg
+
+    def _validate(self):
+        def rng_check(name, v, lo, hi, integer=False):
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+            ok = ok and math.isfinite(float(v)) and lo <= float(v) <= hi and (not integer or float(v) == int(v))
+            if not ok:
+                kind = "an integer" if integer else "a number"
+                raise ValueError(f"RadarTrack-v0: {name} must be {kind} in [{lo}, {hi}], got {v!r}")
+
+        if self.action_type not in ("discrete", "continuous"):
+            raise ValueError(f"RadarTrack-v0: action_type must be 'discrete' or 'continuous', got {self.action_type!r}")
+        lv = np.asarray(self.q_levels_g, dtype=np.float64) if np.ndim(self.q_levels_g) == 1 else None
+        if (lv is None or lv.size < 2 or not np.all(np.isfinite(lv)) or np.any(lv <= 0) or np.any(lv > 100)
+                or np.any(np.diff(lv) <= 0)):
+            raise ValueError("RadarTrack-v0: q_levels_g must be >= 2 strictly increasing values in (0, 100] g, got "
+                             f"{self.q_levels_g!r}")
+        ObservationLayout(self.features)  # raises for unknown / repeated names
+        rng_check("warmup_scans", self.warmup_scans, 0, 1000, integer=True)
+        rng_check("warmup_q_g", self.warmup_q_g, 0.0, 100.0)
+        if self.reward_type not in ("squared", "absolute"):
+            raise ValueError(f"RadarTrack-v0: reward_type must be 'squared' or 'absolute', got {self.reward_type!r}")
+        rng_check("reward_clip", self.reward_clip, 1e-3, 1e9)
+        rng_check("track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
+        rng_check("n_adrian", self.n_adrian, 1, 50, integer=True)
+        rng_check("window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
+        rng_check("fma_weight", self.fma_weight, 1e-6, 1.0)
+        if self.render_mode not in (None, *RENDER_MODES):
+            raise ValueError(f"RadarTrack-v0: render_mode must be one of {[None, *RENDER_MODES]}, got "
+                             f"{self.render_mode!r}")
+        if self.radar is not None and not isinstance(self.radar, Radar):
+            raise ValueError(f"RadarTrack-v0: radar must be a radar_env.radar.Radar or None, got {type(self.radar).__name__}")
+        if self.random_config is not None and not isinstance(self.random_config, (dict, RandomScenarioConfig)):
+            raise ValueError("RadarTrack-v0: random_config must be a dict or RandomScenarioConfig")
+        resolve_scenario(self.scenario)  # raises for unknown names / bad files
+
+    @property
+    def random_scenario_config(self):
+        rc = self.random_config
+        return RandomScenarioConfig.from_dict(rc) if isinstance(rc, dict) else rc
+
+
+def resolve_scenario(scenario):
+    """Normalise the ``scenario`` argument: a name in ``SCENARIO_NAMES``, a CSV path, a :class:`Setup`, or a
+    scenario object. Returns a name (str), a Setup, or a scenario object."""
+    if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)):
+        return scenario
+    if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")):
+        return TrajectoryScenario.from_csv(scenario)
+    if isinstance(scenario, str):
+        if scenario.startswith("adsb:"):
+            from .adsb_scenarios import resolve_adsb
+            return resolve_adsb(scenario)
+        if scenario not in SCENARIO_NAMES:
+            raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, a "
+                             "'.csv' trajectory file (columns t_s,x_m,y_m,vx_m_s,vy_m_s), a Setup or a scenario "
+                             "object")
+        return scenario
+    raise ValueError(f"RadarTrack-v0: scenario must be a name, a .csv path, a Setup or a scenario object, got "
+                     f"{type(scenario).__name__}")
+
+
+def draw_setup_and_episode(scenario, radar, random_config, rng):
+    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only."""
+    sc = resolve_scenario(scenario)
+    if isinstance(sc, str):
+        setup = make_setup(sc, rng, random_config, radar)
+    elif isinstance(sc, Setup):
+        setup = sc if radar is None else Setup(sc.scenario, radar)
+    else:
+        if radar is None:
+            site, _ = place_radar_site(rng, sc)
+            setup = Setup(sc, atc_radar(position_m=tuple(site)))
+        else:
+            setup = Setup(sc, radar)
+    return draw_episode(setup.scenario, setup.radar, rng)
+
+
+# ---------------------------------------------------------------------------------------------------- batched core
+class _Core:
+    """N tracks stepped together: actions -> q -> tracking chain -> observation, reward, end flags, info."""
+
+    def __init__(self, n, cfg: EnvConfig):
+        self.n, self.cfg = n, cfg
+        self.levels_m_s2 = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+        self.q_min, self.q_max = self.levels_m_s2[0], self.levels_m_s2[-1]
+        self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
+        self.tracker = Tracker(n, warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2,
+                               n_adrian=cfg.n_adrian, window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
+        self.q_prev = np.full(n, cfg.warmup_q_g * G0_M_S2)
+        self.rngs = [None] * n
+        self.last_out = None
+        self._lq0, self._lq1 = math.log10(self.q_min), math.log10(self.q_max)
+
+    # ---- actions
+    def action_to_q(self, action):
+        a = np.asarray(action)
+        if self.cfg.action_type == "discrete":
+            a = a.reshape(self.n) if a.size == self.n else a
+            if a.shape != (self.n,) or not np.all(np.isfinite(a.astype(np.float64))) or np.any(a != np.round(a)):
+                raise ValueError(f"action must be {self.n} integer(s) in [0, {len(self.levels_m_s2) - 1}], got "
+                                 f"{action!r}")
+            ai = a.astype(np.int64)
+            if np.any(ai < 0) or np.any(ai >= len(self.levels_m_s2)):
+                raise ValueError(f"action must be in [0, {len(self.levels_m_s2) - 1}] (Discrete("
+                                 f"{len(self.levels_m_s2)})), got {action!r}")
+            return self.levels_m_s2[ai]
+        a = a.astype(np.float64).reshape(-1)
+        if a.size != self.n or not np.all(np.isfinite(a)) or np.any(np.abs(a) > 1.0 + 1e-6):
+            raise ValueError(f"action must be {self.n} finite value(s) in [-1, 1] (Box(-1, 1)), got {action!r}")
+        a = np.clip(a, -1.0, 1.0)
+        return 10.0 ** (self._lq0 + 0.5 * (a + 1.0) * (self._lq1 - self._lq0))
+
+    # ---- episodes
+    def reset_rows(self, rows, scenario=None):
+        eps = [draw_setup_and_episode(self.cfg.scenario if scenario is None else scenario, self.cfg.radar,
+                                      self.cfg.random_scenario_config, self.rngs[r]) for r in rows]
+        out = self.tracker.load(rows, eps)
+        self.q_prev[rows] = self.cfg.warmup_q_g * G0_M_S2
+        obs = self.layout.encode(out, self.q_prev[rows])
+        info = self._info(out, self._reward_terms(out, np.zeros(len(rows), dtype=bool), np.zeros(len(rows))))
+        return obs, info, out
+
+    def step(self, action):
+        q = self.action_to_q(action)
+        out = self.tracker.step(q)
+        self.q_prev = q.copy()
+        err_norm = self._normalised_error(out)
+        lost = err_norm > self.cfg.track_loss_gate_sigma
+        remaining = (self.tracker.n_looks - self.tracker.k).astype(np.float64)
+        terms = self._reward_terms(out, lost, remaining, err_norm)
+        reward = sum(terms.values())
+        terminated = lost
+        truncated = out.done & ~lost
+        obs = self.layout.encode(out, q)
+        info = self._info(out, terms)
+        info["track_lost"] = lost
+        self.last_out = out
+        return obs, reward, terminated, truncated, info
+
+    # ---- reward
+    def _normalised_error(self, out):
+        r = np.hypot(out.truth[:, 0] - out.site_xy_m[:, 0], out.truth[:, 1] - out.site_xy_m[:, 1])
+        sig = measurement_sigma_m(r, out.range_noise_std_m, out.bearing_noise_std_rad)
+        return np.hypot(out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]) / sig
+
+    def _reward_terms(self, out, lost, remaining, err_norm=None):
+        e = self._normalised_error(out) if err_norm is None else err_norm
+        clip = self.cfg.reward_clip
+        pos = -np.minimum(e * e if self.cfg.reward_type == "squared" else e, clip)
+        return {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
+
+    # ---- info
+    def _info(self, out, terms):
+        x = out.x
+        return {
+            "truth": out.truth.copy(),
+            "estimate": x.copy(),
+            "covariance": out.P.copy(),
+            "measurement": out.z_m.copy(),
+            "measurement_covariance": out.R_m2.copy(),
+            "polar": np.stack([out.range_m, out.bearing_rad, out.radial_velocity_m_s], axis=-1),
+            "q": out.q_m_s2.copy(),
+            "dt": out.dt_s.copy(),
+            "detected": out.detected.copy(),
+            "maneuvering": out.maneuvering.copy(),
+            "time_s": out.t_s.copy(),
+            "reward_terms": {k: v.copy() for k, v in terms.items()},
+            "track_lost": np.zeros(x.shape[0], dtype=bool),
+        }
+
+
+
+# ---------------------------------------------------------------------------------------------------- single env
+class RadarTrackEnv(gym.Env):
+    r"""Choose a tracking Kalman filter's process-noise level at every radar look.
+
+    ## Description
+
+    A surveillance radar looks at an aircraft every few seconds and reports range, bearing and radial velocity,
+    each with noise. A Kalman filter with a constant-velocity model tracks it. Its process-noise level ``q``
+    decides how much it trusts the model: a low ``q`` gives a smooth track on straight legs but lags in a turn;
+    a high ``q`` follows the turn but is noisy on the legs. The agent chooses ``q`` for every prediction, from
+    features of the filter's innovations (never from the truth). Each step runs the chain once::
+
+        q = action -> dt = t_k - t_{k-1} -> F(dt), Q(dt, q) -> predict -> update with plot k (or predict through
+        a missed look) -> features -> observation, reward
+
+    The episode (truth trajectory, every plot's noise and detection) is drawn whole at ``reset`` from the env's
+    seeded generator, so a seed fixes the episode bit for bit and the evaluation replays the same plots through
+    classical trackers (common random numbers).
+
+    ## Action Space
+
+    ``action_type="discrete"`` (default): ``Discrete(13)``; action ``i`` selects ``q = q_levels_g[i]`` g with
+    the default levels ``0.03 * (2/0.03)^(j/6)`` g, ``j = -4 .. 8``:
+
+    | action | 0 | 1 | 2 | 3 | 4 | 5 | 6 | 7 | 8 | 9 | 10 | 11 | 12 |
+    |---|---|---|---|---|---|---|---|---|---|---|---|---|---|
+    | q (g) | 0.0018 | 0.0037 | 0.0074 | 0.0149 | **0.03** | 0.060 | 0.122 | 0.245 | 0.494 | 0.994 | **2.0** | 4.03 | 8.11 |
+
+    (0.03 g and 2 g are Bizup's low and high levels.) ``action_type="continuous"``: ``Box(-1, 1, (1,))`` mapped
+    to ``log10 q`` linearly over the same range, ``q = q_min (q_max/q_min)^((a+1)/2)``.
+
+    ## Observation Space
+
+    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 14 below), scaled and
+    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``).
+
+    | Num | Name | Unit | Scaling | Min | Max |
+    |---|---|---|---|---|---|
+    | 0 | nu_along: innovation along the predicted track / its std | 1 | x/5 | -1 | 1 |
+    | 1 | nu_cross: innovation across the track (+ = right) / its std | 1 | x/5 | -1 | 1 |
+    | 2 | nis: normalised innovation squared | 1 | log10(1+x)/3 | 0 | 1 |
+    | 3 | c_min_g: Bizup's minimum centripetal acceleration | g | x/8 | 0 | 1 |
+    | 4 | turn_rate_alg1_deg_s: Adrian algorithm 1 (n = 4) | deg/s | x/20 | -1 | 1 |
+    | 5 | turn_rate_alg2_deg_s: Adrian algorithm 2 (n = 4) | deg/s | x/20 | -1 | 1 |
+    | 6 | fma_innovation_km: fading-memory average of abs(innovation), weight 0.1 | km | x/20 | 0 | 1 |
+    | 7 | kim_lee_q_g: sqrt of Kim & Lee's phi over a 12-look window | g | x/8 | 0 | 1 |
+    | 8 | speed_m_s: estimated speed | m/s | x/400 | 0 | 1 |
+    | 9 | range_km: estimated range | km | x/200 | 0 | 1 |
+    | 10 | dt_s: time since the previous look | s | x/20 | 0 | 1 |
+    | 11 | pos_std_ratio: filter position std / measurement std | 1 | x/3 | 0 | 1 |
+    | 12 | q_prev_g: q of the last prediction | g | action map | -1 | 1 |
+    | 13 | detected: the last look gave a plot | 1 | x | 0 | 1 |
+
+    Measurement-based features hold their last value through a missed look.
+
+    ## Rewards
+
+    With ``e = |estimated position - true position| / sigma_m``, where ``sigma_m = sqrt((sr^2 + (r sb)^2)/2)``
+    is the per-axis RMS noise of a plot at the true range ``r``, the reward per step is
+    ``-min(e^2, reward_clip)`` (``reward_type="squared"``, default; aligned with position RMSE) or
+    ``-min(e, reward_clip)`` (``"absolute"``). When the track is lost (below), the step also gets
+    ``-reward_clip * (looks remaining)``, the worst case of finishing the episode. The terms are in
+    ``info["reward_terms"]`` (``position_error``, ``track_lost``). Evaluation metrics do not use the reward.
+
+    ## Starting State
+
+    At ``reset`` an episode is drawn (a random scenario by default: 100-600 kt, 3-6 legs, 0.5-7 g turns,
+    ranges 10-150 km, Adrian's ATC radar: T = 5 s, 0.04 NM, 0.07 deg). The track starts from the first two
+    detected plots (two-hit start), then ``warmup_scans`` looks are filtered at ``warmup_q_g`` (Bizup: 12 at
+    0.03 g). The first observation describes the last warm-up look.
+
+    ## Episode End
+
+    * Termination: the track is lost, ``e > track_loss_gate_sigma`` (default 30); ``info["track_lost"]`` is True.
+    * Truncation: the scenario's last radar look has been processed.
+
+    ## Arguments
+
+    ``gym.make("RadarTrack-v0", **kwargs)``; every argument is validated and an unknown one raises ``ValueError``.
+
+    * ``scenario``: ``"random"`` (default), a name from ``radar_env.catalog.SCENARIO_NAMES`` (``bizup2002``,
+      ``adrian_flower``, ``kim_lee_accel``, ``seed002_course_changes``, ``seed002_two_radars``), a path to a
+      ``.csv`` trajectory (``t_s,x_m,y_m,vx_m_s,vy_m_s``), a ``Setup`` or a scenario object. ``reset(options=
+      {"scenario": ...})`` overrides it for that reset only.
+    * ``radar``: a ``radar_env.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
+      user trajectory, the ATC radar placed by ``place_radar_site``).
+    * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios.
+    * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
+    * ``features``: tuple of observation names (table above).
+    * ``warmup_scans`` (12, in [0, 1000]), ``warmup_q_g`` (0.03).
+    * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``track_loss_gate_sigma`` (30).
+    * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 10}
+
+    def __init__(self, **kwargs):
+        self.config = EnvConfig.from_kwargs(**kwargs)
+        self.render_mode = self.config.render_mode
+        self._core = _Core(1, self.config)
+        n_act = len(self.config.q_levels_g)
+        self.action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
+                             else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
+        lay = self._core.layout
+        self.observation_space = spaces.Box(lay.low, lay.high, dtype=np.float32)
+        self.q_levels_m_s2 = self._core.levels_m_s2.copy()
+        self._needs_reset = True
+
+    @property
+    def layout(self):
+        """The :class:`radar_env.observation.ObservationLayout` of this env's observations."""
+        return self._core.layout
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        scenario = options.pop("scenario", None)
+        if options:
+            raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
+        self._core.rngs[0] = self.np_random
+        obs, info, _ = self._core.reset_rows(np.array([0]), scenario)
+        self._needs_reset = False
+        return obs[0], _row(info, 0)
+
+    def step(self, action):
+        if self._needs_reset:
+            raise RuntimeError("RadarTrack-v0: call reset() before step() (and after an episode ends)")
+        a = np.asarray(action)
+        if a.size != 1:
+            raise ValueError(f"action must be a single value ({self.action_space}), got {action!r}")
+        obs, rew, term, trunc, info = self._core.step(a.reshape(1))
+        self._needs_reset = bool(term[0] or trunc[0])
+        if self.render_mode == "human":
+            self.render()
+        return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _row(info, 0)
+
+    def episode(self):
+        """The current episode's stored looks (``Tracker.look_data`` views for row 0)."""
+        return {f: self._core.tracker.look_data(f)[0, : self._core.tracker.n_looks[0]]
+                for f in ("t_s", "truth", "z_m", "detected")}
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("RadarTrack-v0: render() called without a render_mode; pass render_mode to gym.make")
+            return None
+        from .render import render_frame  # lazy: matplotlib only when rendering
+        return render_frame(self)
+
+
+_SCALAR_INFO = ("q", "dt", "detected", "maneuvering", "track_lost", "time_s")
+
+
+def _row(info, i):
+    """Row ``i`` of a batched info dict, with Python scalars for the scalar keys and reward terms."""
+    out = {k: v[i] for k, v in info.items() if not isinstance(v, dict)}
+    for k in _SCALAR_INFO:
+        out[k] = out[k].item()
+    out["reward_terms"] = {k: float(v[i]) for k, v in info["reward_terms"].items()}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------- vector env
+class RadarTrackVectorEnv(VectorEnv):
+    """Native batched vector version of RadarTrack-v0 (``gym.make_vec(..., vectorization_mode=
+    "vector_entry_point")``): N tracks in one set of numpy arrays, same-step autoreset.
+
+    On the step where row i ends, the returned observation is the first observation of its next episode, and
+    ``info["final_obs"][i]`` / ``info["final_info"]`` hold the last observation and info of the finished one
+    (``info["_final_obs"]`` is the mask of rows that ended). Seeding: ``reset(seed=s)`` seeds row i with
+    ``s + i``, as Gymnasium's ``SyncVectorEnv`` does, so row i equals ``RadarTrackEnv`` reset with ``s + i``.
+    All other arguments as :class:`RadarTrackEnv`.
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs=1, **kwargs):
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        kwargs.pop("max_episode_steps", None)
+        self.config = EnvConfig.from_kwargs(**kwargs)
+        if self.config.render_mode is not None:
+            raise ValueError("RadarTrackVectorEnv does not render; use the single env")
+        self.num_envs = int(num_envs)
+        self._core = _Core(self.num_envs, self.config)
+        n_act = len(self.config.q_levels_g)
+        self.single_action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
+                                    else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
+        lay = self._core.layout
+        self.single_observation_space = spaces.Box(lay.low, lay.high, dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._all = np.arange(self.num_envs)
+        self._started = False
+
+    @property
+    def layout(self):
+        return self._core.layout
+
+    def reset(self, *, seed=None, options=None):
+        options = dict(options or {})
+        scenario = options.pop("scenario", None)
+        if options:
+            raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
+        if seed is not None or not self._started:
+            self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
+        obs, info, _ = self._core.reset_rows(self._all, scenario)
+        self._started = True
+        return obs, _with_masks(info)
+
+    def step(self, actions):
+        if not self._started:
+            raise RuntimeError("RadarTrackVectorEnv: call reset() before step()")
+        core = self._core
+        a = np.asarray(actions)
+        if self.config.action_type == "continuous":
+            a = a.reshape(self.num_envs, -1)[:, 0] if a.size == self.num_envs else a
+        obs, rew, term, trunc, info = core.step(a)
+        done = term | trunc
+        if np.any(done):
+            rows = np.flatnonzero(done)
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for r in rows:
+                final_obs[r] = obs[r].copy()
+            final_info = _with_masks(info, done)
+            new_obs, new_info, _ = core.reset_rows(rows)
+            obs = obs.copy()
+            obs[rows] = new_obs
+            info = _merge_rows(info, new_info, rows)
+            info["final_obs"] = final_obs
+            info["_final_obs"] = done.copy()
+            info["final_info"] = final_info
+            info["_final_info"] = done.copy()
+        return obs, rew, term, trunc, _with_masks(info)
+
+
+def _merge_rows(info, new, rows):
+    out = {}
+    for k, v in info.items():
+        if isinstance(v, dict):
+            out[k] = _merge_rows(v, new[k], rows)
+        else:
+            a = np.array(v, copy=True)
+            a[rows] = new[k]
+            out[k] = a
+    return out
+
+
+def _with_masks(info, mask=None):
+    out = {}
+    for k, v in info.items():
+        if k.startswith("_") or k in ("final_obs", "final_info"):
+            out[k] = v
+            continue
+        if isinstance(v, dict):
+            out[k] = _with_masks(v, mask)
+        else:
+            out[k] = v
+        n = len(v[next(iter(v))]) if isinstance(v, dict) else len(v)
+        out["_" + k] = np.ones(n, dtype=bool) if mask is None else mask.copy()
+    return out

@@ -1,0 +1,156 @@
+"""Observation features: names, physical units, scaling to the Box, and decoding back to physical units.
+
+Every observation entry is one feature of the tracking chain's output (never the truth), scaled to [-1, 1] or
+[0, 1] and clipped there. :class:`ObservationLayout` builds the vector for a chosen list of names and decodes an
+observation back to physical units (the classical reference policies read their features this way, so a rule
+sees exactly what an agent sees, clipping included).
+
+=====================  =========  =======================================================  ========  ==========
+name                   unit       meaning                                                  scaling   obs range
+=====================  =========  =======================================================  ========  ==========
+``nu_along``           sigma      innovation along the predicted track, normalised         x / 5     [-1, 1]
+``nu_cross``           sigma      innovation across the track (+ = right of track)         x / 5     [-1, 1]
+``nis``                1          normalised innovation squared (chi^2, 2 dof)             log10(1+x)/3  [0, 1]
+``c_min_g``            g          Bizup's minimum centripetal acceleration                 x / 8     [0, 1]
+``turn_rate_alg1_deg_s``  deg/s   Adrian algorithm 1 (plot headings n apart, + = right)    x / 20    [-1, 1]
+``turn_rate_alg2_deg_s``  deg/s   Adrian algorithm 2 (filtered headings n apart)           x / 20    [-1, 1]
+``fma_innovation_km``  km         fading-memory average of abs(innovation) (Bizup's CKF)   x / 20    [0, 1]
+``kim_lee_q_g``        g          sqrt(max(phi, 0)), Kim & Lee's sliding-window q          x / 8     [0, 1]
+``speed_m_s``          m/s        estimated speed                                          x / 400   [0, 1]
+``range_km``           km         estimated range from the site of the last look           x / 200   [0, 1]
+``dt_s``               s          time since the previous look                             x / 20    [0, 1]
+``pos_std_ratio``      1          filter position std / measurement std (per axis RMS)     x / 3     [0, 1]
+``q_prev_g``           g          process-noise level used for the last prediction         log-map   [-1, 1]
+``detected``           1          1 if the last look gave a plot                           x         [0, 1]
+=====================  =========  =======================================================  ========  ==========
+
+``q_prev_g`` uses the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .units import G0_M_S2
+
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "ObservationLayout", "measurement_sigma_m"]
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    name: str
+    unit: str
+    low: float
+    high: float
+    kind: str      # "linear": obs = phys / scale; "log10p": obs = log10(1 + phys) / scale; "logq": action map
+    scale: float
+    description: str
+
+
+FEATURE_SPECS = {s.name: s for s in [
+    FeatureSpec("nu_along", "sigma", -1, 1, "linear", 5.0, "normalised along-track innovation"),
+    FeatureSpec("nu_cross", "sigma", -1, 1, "linear", 5.0, "normalised cross-track innovation (+ right)"),
+    FeatureSpec("nis", "1", 0, 1, "log10p", 3.0, "normalised innovation squared"),
+    FeatureSpec("c_min_g", "g", 0, 1, "linear", 8.0, "Bizup c_min"),
+    FeatureSpec("turn_rate_alg1_deg_s", "deg/s", -1, 1, "linear", 20.0, "Adrian algorithm 1 turn rate"),
+    FeatureSpec("turn_rate_alg2_deg_s", "deg/s", -1, 1, "linear", 20.0, "Adrian algorithm 2 turn rate"),
+    FeatureSpec("fma_innovation_km", "km", 0, 1, "linear", 20.0, "fading-memory average of |innovation|"),
+    FeatureSpec("kim_lee_q_g", "g", 0, 1, "linear", 8.0, "Kim & Lee sliding-window q"),
+    FeatureSpec("speed_m_s", "m/s", 0, 1, "linear", 400.0, "estimated speed"),
+    FeatureSpec("range_km", "km", 0, 1, "linear", 200.0, "estimated range"),
+    FeatureSpec("dt_s", "s", 0, 1, "linear", 20.0, "time since the previous look"),
+    FeatureSpec("pos_std_ratio", "1", 0, 1, "linear", 3.0, "filter position std / measurement std"),
+    FeatureSpec("q_prev_g", "g", -1, 1, "logq", 1.0, "q used for the last prediction"),
+    FeatureSpec("detected", "1", 0, 1, "linear", 1.0, "last look detected"),
+]}
+
+DEFAULT_FEATURES = tuple(FEATURE_SPECS)
+
+
+def measurement_sigma_m(range_m, range_noise_std_m, bearing_noise_std_rad):
+    """Per-axis RMS measurement noise of a converted plot, ``sqrt((sr^2 + (r sb)^2) / 2)`` (m)."""
+    return np.sqrt(0.5 * (range_noise_std_m ** 2 + (range_m * bearing_noise_std_rad) ** 2))
+
+
+class ObservationLayout:
+    """Encode tracking-chain outputs into an observation vector and decode it back.
+
+    Args:
+        names: feature names (subset of ``FEATURE_SPECS``, no repeats).
+        q_min_m_s2, q_max_m_s2: the action range, for ``q_prev_g``.
+    """
+
+    def __init__(self, names=DEFAULT_FEATURES, q_min_m_s2=0.003 * G0_M_S2, q_max_m_s2=8 * G0_M_S2):
+        names = tuple(names)
+        if not names:
+            raise ValueError(f"features must name at least one of {list(FEATURE_SPECS)}")
+        bad = [n for n in names if n not in FEATURE_SPECS]
+        if bad:
+            raise ValueError(f"unknown feature(s) {bad}; valid: {list(FEATURE_SPECS)}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"features contains repeats: {list(names)}")
+        self.names = names
+        self.specs = [FEATURE_SPECS[n] for n in names]
+        self.low = np.array([s.low for s in self.specs], dtype=np.float32)
+        self.high = np.array([s.high for s in self.specs], dtype=np.float32)
+        self._lq0, self._lq1 = np.log10(q_min_m_s2 / G0_M_S2), np.log10(q_max_m_s2 / G0_M_S2)
+        self._index = {n: i for i, n in enumerate(names)}
+
+    def __contains__(self, name):
+        return name in self._index
+
+    def physical(self, out, q_prev_m_s2):
+        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput`."""
+        f = out.features
+        sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
+        vals = {
+            "nu_along": lambda: f["nu_along"],
+            "nu_cross": lambda: f["nu_cross"],
+            "nis": lambda: f["nis"],
+            "c_min_g": lambda: f["c_min_m_s2"] / G0_M_S2,
+            "turn_rate_alg1_deg_s": lambda: np.degrees(f["turn_rate_alg1_rad_s"]),
+            "turn_rate_alg2_deg_s": lambda: np.degrees(f["turn_rate_alg2_rad_s"]),
+            "fma_innovation_km": lambda: f["fma_innovation_m"] / 1e3,
+            "kim_lee_q_g": lambda: np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2,
+            "speed_m_s": lambda: f["speed_m_s"],
+            "range_km": lambda: f["range_m"] / 1e3,
+            "dt_s": lambda: out.dt_s,
+            "pos_std_ratio": lambda: np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig,
+            "q_prev_g": lambda: np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2,
+            "detected": lambda: out.detected.astype(np.float64),
+        }
+        return np.stack([np.broadcast_to(vals[n](), out.dt_s.shape) for n in self.names], axis=-1)
+
+    def encode_physical(self, phys):
+        """(n, F) physical values -> (n, F) float32 observation, clipped to the Box."""
+        phys = np.asarray(phys, dtype=np.float64)
+        obs = np.empty_like(phys)
+        for j, s in enumerate(self.specs):
+            v = phys[..., j]
+            if s.kind == "linear":
+                obs[..., j] = v / s.scale
+            elif s.kind == "log10p":
+                obs[..., j] = np.log10(1.0 + np.maximum(v, 0.0)) / s.scale
+            else:  # logq
+                lq = np.log10(np.maximum(v, 1e-12))
+                obs[..., j] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
+        obs = np.nan_to_num(obs, nan=0.0)
+        return np.clip(obs, self.low, self.high).astype(np.float32)
+
+    def encode(self, out, q_prev_m_s2):
+        return self.encode_physical(self.physical(out, q_prev_m_s2))
+
+    def decode(self, obs, name):
+        """Physical value of feature ``name`` from observations ``obs`` (..., F) (clipped values stay clipped)."""
+        if name not in self._index:
+            raise ValueError(f"feature {name!r} is not in this observation; it has {list(self.names)}")
+        s = self.specs[self._index[name]]
+        v = np.asarray(obs, dtype=np.float64)[..., self._index[name]]
+        if s.kind == "linear":
+            return v * s.scale
+        if s.kind == "log10p":
+            return 10.0 ** (v * s.scale) - 1.0
+        return 10.0 ** (self._lq0 + (v + 1.0) * 0.5 * (self._lq1 - self._lq0))
+

@@ -1,0 +1,264 @@
+"""The tracking chain, written once: look -> dt -> F, Q(q) -> predict -> update -> features.
+
+:class:`Tracker` runs B tracks side by side (batch axis first), one per episode row. Every consumer uses it: the
+single env is a Tracker of batch 1, the native vector env a Tracker of batch N, the q-choosing classical trackers
+and learned policies are stepped through it by the evaluation, and the IMM and the clairvoyant bound start from
+its track initiation.
+
+One step of row ``b`` processes the next look ``k`` of its episode::
+
+    dt        = t[k] - t_last                           (s; irregular with several sites, 0 allowed)
+    F         = F_cv(dt)             or F_ct(dt, omega) when a turn rate is supplied (Adrian's turn-rate KF)
+    Q         = q^2 Gamma Gamma^T    (q from the caller: the agent's action, a rule, or the warm-up level)
+    x-, P-    = predict(x, P, F, Q [, u])               (u: known input, only for the clairvoyant bound)
+    x+, P+    = update(x-, P-, z[k], R[k], detected[k]) (a missed look predicts through)
+    features  = FeatureBank.update(...)                 (normalised innovations, c_min, turn rates, ...)
+
+Track start (Bizup section 3.3, used for every tracker so that comparisons are apart from start-up): two-hit
+initialisation from the first two detected looks (position from the second, velocity by differencing), then
+``warmup_scans`` looks filtered at ``warmup_q_m_s2`` (Bizup: 12 at 0.03 g). :meth:`Tracker.load` does both and
+returns the output of the last warm-up look, from which the first choice of q is made.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .episode import Episode
+from .features import FeatureBank
+from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
+from .units import G0_M_S2
+
+__all__ = ["Tracker", "StepOutput", "init_looks", "MAX_Q_M_S2"]
+
+MAX_Q_M_S2 = 100.0 * G0_M_S2
+"""Largest process-noise level the chain accepts (m/s^2)."""
+
+_LOOK_FIELDS = ("t_s", "site_xy_m", "range_m", "range_noise_std_m", "bearing_noise_std_rad", "truth", "truth_accel_m_s2", "truth_turn_rate_rad_s", "maneuvering",
+                "detected", "bearing_rad", "radial_velocity_m_s", "z_m", "R_m2")
+
+
+class StepOutput(NamedTuple):
+    """What one step produced for the stepped rows (leading axis = those rows)."""
+
+    look_index: np.ndarray      # (n,) index k of the look just processed
+    t_s: np.ndarray             # (n,)
+    dt_s: np.ndarray            # (n,) time since the previous look
+    q_m_s2: np.ndarray          # (n,) process-noise level used for this prediction
+    x_prior: np.ndarray         # (n,4)
+    P_prior: np.ndarray         # (n,4,4)
+    x: np.ndarray               # (n,4) posterior
+    P: np.ndarray               # (n,4,4)
+    nu: np.ndarray              # (n,2) innovation (0 where missed)
+    S: np.ndarray               # (n,2,2)
+    nis: np.ndarray             # (n,) (0 where missed)
+    detected: np.ndarray        # (n,) bool
+    z_m: np.ndarray             # (n,2) converted plot (NaN where missed)
+    R_m2: np.ndarray            # (n,2,2)
+    site_xy_m: np.ndarray       # (n,2)
+    range_m: np.ndarray         # (n,) measured polar values of the plot (NaN where missed)
+    bearing_rad: np.ndarray     # (n,)
+    radial_velocity_m_s: np.ndarray  # (n,)
+    range_noise_std_m: np.ndarray      # (n,) sigmas of the site that looked
+    bearing_noise_std_rad: np.ndarray  # (n,)
+    truth: np.ndarray           # (n,4) -- for rewards and metrics only, never for the policy
+    truth_accel_m_s2: np.ndarray  # (n,2)
+    maneuvering: np.ndarray     # (n,) bool
+    features: dict              # name -> (n,) arrays (see FeatureBank.update)
+    done: np.ndarray            # (n,) bool, the episode's last look was processed
+
+
+def init_looks(detected, t_s):
+    """Indices of the two looks used for the two-hit start: the first detection and the next detection at a
+    strictly later time. Returns ``(i1, i2)`` or raises ``ValueError`` if there are not two."""
+    det = np.flatnonzero(detected)
+    if det.size < 2:
+        raise ValueError("an episode needs at least two detected looks for the two-hit track start")
+    i1 = int(det[0])
+    later = det[t_s[det] > t_s[i1]]
+    if later.size == 0:
+        raise ValueError("an episode needs two detected looks at different times for the two-hit track start")
+    return i1, int(later[0])
+
+
+def _bank_update(bank, rows, **inputs):
+    """``bank.update(**inputs)`` for a subset of rows (index array; None = all rows).
+
+    The bank's per-row state (every array, or dict of arrays, with leading length B) is gathered into a bank of
+    batch n, updated, and scattered back, so rows outside ``rows`` are untouched. Used when only some rows step
+    (track start of freshly reset rows in the vector env)."""
+    if rows is None:
+        return bank.update(**inputs)
+    B, n = bank.B, rows.size
+    sub = object.__new__(type(bank))
+    per_row = {}
+    for name, v in vars(bank).items():
+        if isinstance(v, np.ndarray) and v.shape[:1] == (B,):
+            per_row[name] = None
+            setattr(sub, name, v[rows])
+        elif isinstance(v, dict) and v and all(isinstance(a, np.ndarray) and a.shape[:1] == (B,) for a in v.values()):
+            per_row[name] = list(v)
+            setattr(sub, name, {k: a[rows] for k, a in v.items()})
+        else:
+            setattr(sub, name, v)
+    sub.B = n
+    sub._rows = np.arange(n)
+    out = sub.update(**inputs)
+    for name, keys in per_row.items():
+        if name == "_rows":
+            continue
+        if keys is None:
+            getattr(bank, name)[rows] = getattr(sub, name)
+        else:
+            for k in keys:
+                getattr(bank, name)[k][rows] = getattr(sub, name)[k]
+    return out
+
+
+class Tracker:
+    """B Kalman tracks over B episodes, stepped together (see module docstring).
+
+    Args:
+        batch_size: number of rows B.
+        warmup_scans: looks filtered at ``warmup_q_m_s2`` after the two-hit start (Bizup: 12), >= 0.
+        warmup_q_m_s2: process-noise level during warm-up (Bizup: 0.03 g).
+        n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.features.FeatureBank`.
+    """
+
+    def __init__(self, batch_size, warmup_scans=12, warmup_q_m_s2=0.03 * G0_M_S2, n_adrian=4, window_kim_lee=12,
+                 fma_weight=0.1):
+        self.B = int(batch_size)
+        if self.B < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
+        self.warmup_scans = int(warmup_scans)
+        if not 0 <= self.warmup_scans <= 1000:
+            raise ValueError(f"warmup_scans must be in [0, 1000], got {warmup_scans!r}")
+        self.warmup_q_m_s2 = float(warmup_q_m_s2)
+        if not 0.0 <= self.warmup_q_m_s2 <= MAX_Q_M_S2:
+            raise ValueError(f"warmup_q_m_s2 must be in [0, {MAX_Q_M_S2}], got {warmup_q_m_s2!r}")
+        self.bank = FeatureBank(self.B, n_adrian=n_adrian, window_kim_lee=window_kim_lee, fma_weight=fma_weight)
+        self._cap = 0
+        self._data = {}
+        self.n_looks = np.zeros(self.B, dtype=np.int64)
+        self.k = np.zeros(self.B, dtype=np.int64)          # next look to process
+        self.t_last = np.zeros(self.B)
+        self.x = np.zeros((self.B, 4))
+        self.P = np.tile(np.eye(4), (self.B, 1, 1))
+        self.names = [""] * self.B
+
+    # ------------------------------------------------------------------------------------------ episode data
+    def _ensure_capacity(self, K, like: Episode):
+        if K <= self._cap:
+            return
+        new = {}
+        for f in _LOOK_FIELDS:
+            a = getattr(like, f)
+            arr = np.zeros((self.B, K) + a.shape[1:], dtype=a.dtype)
+            if f in self._data:
+                arr[:, : self._cap] = self._data[f]
+            new[f] = arr
+        self._data, self._cap = new, K
+
+    def load(self, rows, episodes):
+        """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
+        :class:`StepOutput` for those rows (in the order of ``rows``)."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        episodes = list(episodes)
+        if rows.size != len(episodes):
+            raise ValueError(f"got {rows.size} rows and {len(episodes)} episodes")
+        self._ensure_capacity(max(e.n_looks for e in episodes), episodes[0])
+        z1, R1, t1, z2, R2, t2 = [], [], [], [], [], []
+        for r, e in zip(rows, episodes):
+            i1, i2 = init_looks(e.detected, e.t_s)
+            need = i2 + 1 + max(self.warmup_scans, 1)
+            if e.n_looks < need:
+                raise ValueError(f"episode {e.name!r} has {e.n_looks} looks; the track start needs {need} "
+                                 f"(two hits at looks {i1} and {i2}, then {self.warmup_scans} warm-up looks)")
+            K = e.n_looks
+            for f in _LOOK_FIELDS:
+                self._data[f][r, :K] = getattr(e, f)
+                self._data[f][r, K:] = self._data[f][r, K - 1]   # pad: repeat the last look, not detected
+            self._data["detected"][r, K:] = False
+            self.n_looks[r], self.names[r] = K, e.name
+            self.k[r], self.t_last[r] = i2 + 1, e.t_s[i2]
+            z1.append(e.z_m[i1]); R1.append(e.R_m2[i1]); t1.append(e.t_s[i1])
+            z2.append(e.z_m[i2]); R2.append(e.R_m2[i2]); t2.append(e.t_s[i2])
+        z1, R1, t1, z2, R2, t2 = map(np.array, (z1, R1, t1, z2, R2, t2))
+        x0, P0 = two_point_init(z1, R1, t1, z2, R2, t2)
+        self.x[rows], self.P[rows] = x0, P0
+        mask = np.zeros(self.B, dtype=bool)
+        mask[rows] = True
+        plots = np.zeros((self.B, 2, 2))
+        times = np.zeros((self.B, 2))
+        plots[rows, 0], plots[rows, 1], times[rows, 0], times[rows, 1] = z1, z2, t1, t2
+        xfull = np.zeros((self.B, 4))
+        tfull = np.zeros(self.B)
+        xfull[rows], tfull[rows] = x0, t2
+        self.bank.reset(mask, plots_xy=plots, plot_times_s=times, x=xfull, t_s=tfull)
+        out = None
+        for _ in range(max(self.warmup_scans, 1)):
+            out = self.step(np.full(rows.size, self.warmup_q_m_s2), rows=rows)
+        return out
+
+    # ------------------------------------------------------------------------------------------ the chain
+    def step(self, q_m_s2, rows=None, turn_rate_rad_s=None, known_input=False) -> StepOutput:
+        """Process the next look of ``rows`` (all rows if None) with process-noise level ``q_m_s2`` (m/s^2).
+
+        Args:
+            q_m_s2: (n,) or scalar, in [0, MAX_Q_M_S2]; a ``ValueError`` names the bad value otherwise.
+            rows: index array of the rows to step (default all).
+            turn_rate_rad_s: (n,) or None. If given, predict with the coordinated-turn ``F_ct(dt, omega)``.
+            known_input: if True, add the true motion not explained by ``F`` (``u = x_true[k] - F x_true[k-1]``):
+                the clairvoyant bound's known-input KF. Never used by a policy.
+        """
+        sel = np.arange(self.B) if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
+        n = sel.size
+        q = np.broadcast_to(np.asarray(q_m_s2, dtype=np.float64), (n,))
+        if not np.all(np.isfinite(q)) or np.any(q < 0) or np.any(q > MAX_Q_M_S2):
+            bad = q[~(np.isfinite(q) & (q >= 0) & (q <= MAX_Q_M_S2))][0]
+            raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {bad!r}")
+        k = self.k[sel]
+        if np.any(k >= self.n_looks[sel]):
+            raise ValueError("step() called on a row whose episode has ended; load a new episode first")
+        d = self._data
+        look = {f: d[f][sel, k] for f in _LOOK_FIELDS}
+        t = look["t_s"]
+        dt = t - self.t_last[sel]
+        F = transition_cv(dt) if turn_rate_rad_s is None else transition_ct(dt, turn_rate_rad_s)
+        Q = process_noise(dt, q)
+        x_prev, P_prev = self.x[sel], self.P[sel]
+        u = None
+        if known_input:
+            prev_truth = d["truth"][sel, k - 1]
+            u = look["truth"] - np.einsum("bij,bj->bi", F, prev_truth)
+        x_prior, P_prior = predict(x_prev, P_prev, F, Q, u)
+        upd = update(x_prior, P_prior, look["z_m"], look["R_m2"], look["detected"])
+        feats = _bank_update(
+            self.bank, None if rows is None else sel, x_prev=x_prev, x_prior=x_prior, P_post_prev=P_prev, F=F, R=np.where(look["detected"][:, None, None],
+                                                                                 look["R_m2"], 0.0),
+            nu=upd.nu, S=upd.S, x_post=upd.x, z=np.nan_to_num(look["z_m"]), t_s=t, dt_s=dt,
+            bearing_rad=np.nan_to_num(look["bearing_rad"]),
+            radial_velocity_m_s=np.nan_to_num(look["radial_velocity_m_s"]), detected=look["detected"],
+            site_xy=look["site_xy_m"])
+        self.x[sel], self.P[sel], self.t_last[sel] = upd.x, upd.P, t
+        self.k[sel] = k + 1
+        return StepOutput(
+            look_index=k, t_s=t, dt_s=dt, q_m_s2=q.copy(), x_prior=x_prior, P_prior=P_prior, x=upd.x, P=upd.P,
+            nu=upd.nu, S=upd.S, nis=upd.nis, detected=look["detected"], z_m=look["z_m"], R_m2=look["R_m2"],
+            site_xy_m=look["site_xy_m"], range_m=look["range_m"], bearing_rad=look["bearing_rad"],
+            radial_velocity_m_s=look["radial_velocity_m_s"], range_noise_std_m=look["range_noise_std_m"],
+            bearing_noise_std_rad=look["bearing_noise_std_rad"], truth=look["truth"], truth_accel_m_s2=look["truth_accel_m_s2"],
+            maneuvering=look["maneuvering"], features=feats, done=self.k[sel] >= self.n_looks[sel])
+
+    # ------------------------------------------------------------------------------------------ helpers
+    def remaining_looks(self):
+        """(B,) looks left to process per row."""
+        return self.n_looks - self.k
+
+    def look_data(self, name):
+        """The stored (B, K_cap, ...) array of one look field (read-only view), e.g. ``"truth"``."""
+        v = self._data[name].view()
+        v.flags.writeable = False
+        return v
