@@ -69,11 +69,14 @@ def _f64(a):
 
 
 def wrap_angle(a):
-    """Wrap angles (rad) to the half-open interval (-pi, pi]: ``pi - ((pi - a) mod 2pi)``."""
+    """Wrap angles (rad) to the half-open interval (-pi, pi]: ``pi - ((pi - a) mod 2pi)``; exact identity for
+    angles already in (-pi, pi]."""
     a = _f64(a)
     r = np.pi - np.mod(np.pi - a, TWO_PI)
     # mod can round up to exactly 2pi for tiny negative arguments -> r == -pi; move it to +pi.
-    return np.where(r <= -np.pi, r + TWO_PI, r)
+    r = np.where(r <= -np.pi, r + TWO_PI, r)
+    # angles already inside are returned unchanged (pi - (pi - a) loses up to 1 ulp of a).
+    return np.where((a > -np.pi) & (a <= np.pi), a, r)
 
 
 def heading_rad(vx, vy):
