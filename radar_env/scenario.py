@@ -377,6 +377,8 @@ class RandomScenarioConfig:
         speed_kt: initial speed, knots. Default (100, 600).
         n_legs: number of straight legs, integers inclusive. Default (3, 6); legs are joined by maneuvers.
         leg_duration_s: straight-leg length. Default (30, 300).
+        first_leg_min_s: the first leg lasts at least this long, so that the track start (two hits and 12 warm-up
+            looks, 70 s at T = 5 s) happens on a straight leg as in Bizup's comparison. Default 90.
         turn_accel_g: lateral acceleration of a turn, g. Default (0.5, 7).
         max_turn_rate_deg_s: turn rate cap (a 7 g turn at 100 kt would be 77 deg/s); turns above it are flown at
             the cap. Default 20.
@@ -393,6 +395,7 @@ class RandomScenarioConfig:
     speed_kt: tuple = _range_field(100.0, 600.0)
     n_legs: tuple = _range_field(3, 6)
     leg_duration_s: tuple = _range_field(30.0, 300.0)
+    first_leg_min_s: float = 90.0
     turn_accel_g: tuple = _range_field(0.5, 7.0)
     max_turn_rate_deg_s: float = 20.0
     turn_heading_change_deg: tuple = _range_field(10.0, 270.0)
@@ -420,6 +423,7 @@ class RandomScenarioConfig:
         _check_finite("RandomScenarioConfig.speed_change_probability", self.speed_change_probability, 0.0, 1.0)
         _check_finite("RandomScenarioConfig.site_candidates", self.site_candidates, 1, 100000)
         _check_finite("RandomScenarioConfig.min_duration_s", self.min_duration_s, 1.0, 1e5)
+        _check_finite("RandomScenarioConfig.first_leg_min_s", self.first_leg_min_s, 0.0, 1e5)
         if float(self.n_legs[0]) != int(self.n_legs[0]) or float(self.n_legs[1]) != int(self.n_legs[1]):
             raise ValueError(f"RandomScenarioConfig.n_legs must be integers, got {self.n_legs!r}")
 
@@ -439,7 +443,8 @@ def _draw_segments(rng, cfg, speed):
     n_legs = int(rng.integers(int(cfg.n_legs[0]), int(cfg.n_legs[1]) + 1))
     lo_v, hi_v = (v * KNOT_M_S for v in cfg.speed_kt)
     for i in range(n_legs):
-        segs.append(Segment(rng.uniform(*cfg.leg_duration_s)))
+        leg = rng.uniform(*cfg.leg_duration_s)
+        segs.append(Segment(max(leg, cfg.first_leg_min_s) if i == 0 else leg))
         if i == n_legs - 1:
             break
         change = rng.uniform() < cfg.speed_change_probability

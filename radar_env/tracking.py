@@ -161,9 +161,10 @@ class Tracker:
             new[f] = arr
         self._data, self._cap = new, K
 
-    def load(self, rows, episodes):
+    def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
-        :class:`StepOutput` for those rows (in the order of ``rows``)."""
+        :class:`StepOutput` for those rows (in the order of ``rows``). ``known_input`` is passed to the warm-up
+        steps (only the clairvoyant bound uses it)."""
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
         episodes = list(episodes)
         if rows.size != len(episodes):
@@ -199,7 +200,7 @@ class Tracker:
         self.bank.reset(mask, plots_xy=plots, plot_times_s=times, x=xfull, t_s=tfull)
         out = None
         for _ in range(max(self.warmup_scans, 1)):
-            out = self.step(np.full(rows.size, self.warmup_q_m_s2), rows=rows)
+            out = self.step(np.full(rows.size, self.warmup_q_m_s2), rows=rows, known_input=known_input)
         return out
 
     # ------------------------------------------------------------------------------------------ the chain

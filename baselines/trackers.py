@@ -1,0 +1,324 @@
+"""Comparison trackers: whole filters run on recorded measurement streams, batched over episodes.
+
+Every tracker here starts exactly like the env (two-hit start, then the warm-up looks at 0.03 g, through
+:class:`radar_env.tracking.Tracker`), then runs its own logic on the same looks, and returns a :class:`TrackRun`:
+per-look estimates and covariances in the same (B, K, ...) layout, so the evaluation compares them look by look on
+identical plots (common random numbers).
+
+Kinds:
+
+* :func:`run_q_policy` -- the tracking chain with q chosen each look by a function of the observation: reference
+  policies (:mod:`baselines.policies`) and learned stable-baselines3 policies run through it alike.
+* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_step`).
+* :func:`run_turn_rate_kf` -- Adrian's KF with ``F(omega)`` fed by algorithm 1 or 2.
+* :func:`run_reinit` -- seed 002's re-initialising KF.
+* :func:`run_clairvoyant` -- the known-input KF (the physical limit) and :func:`run_oracle_q` (q = |a_true|).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from radar_env.env import EnvConfig
+from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
+from radar_env.observation import ObservationLayout
+from radar_env.tracking import Tracker
+from radar_env.units import DEG, G0_M_S2
+
+__all__ = ["TrackRun", "run_q_policy", "run_imm", "run_turn_rate_kf", "run_reinit", "run_clairvoyant",
+           "run_oracle_q", "IMMSpec", "IMM2_BIZUP", "IMM3_CT"]
+
+
+@dataclass
+class TrackRun:
+    """Per-look output of one tracker on B episodes (K = longest episode; NaN / False where not produced).
+
+    Attributes:
+        name: tracker name.
+        x: (B, K, 4) posterior estimates.
+        P: (B, K, 4, 4) their covariances.
+        start_index: (B,) first look after the track start (two hits + warm-up); metrics use looks >= it.
+        q_m_s2: (B, K) process-noise level used for the look (NaN for trackers without one).
+        declared: (B, K) bool maneuver declarations, or None for trackers that do not declare.
+        extra: named (B, K) series for plots (c_min, turn rate, mode probability ...).
+    """
+
+    name: str
+    x: np.ndarray
+    P: np.ndarray
+    start_index: np.ndarray
+    q_m_s2: np.ndarray
+    declared: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def _tracker(episodes, cfg: EnvConfig, known_input=False):
+    B = len(episodes)
+    tr = Tracker(B, warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2, n_adrian=cfg.n_adrian,
+                 window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
+    out = tr.load(np.arange(B), episodes, known_input=known_input)
+    return tr, out
+
+
+class _Recorder:
+    def __init__(self, name, B, K, extra=()):
+        self.run = TrackRun(name, np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan),
+                            np.zeros(B, dtype=np.int64), np.full((B, K), np.nan))
+        for e in extra:
+            self.run.extra[e] = np.full((B, K), np.nan)
+
+    def put(self, rows, k, x, P, q=None, **extra):
+        self.run.x[rows, k] = x
+        self.run.P[rows, k] = P
+        if q is not None:
+            self.run.q_m_s2[rows, k] = q
+        for name, v in extra.items():
+            self.run.extra[name][rows, k] = v
+
+
+def _loop(tr, out, step_fn):
+    """Step the rows still running (``step_fn(rows) -> StepOutput``) until every row has processed its last look."""
+    active = ~out.done
+    while active.any():
+        rows = np.flatnonzero(active)
+        active[rows] = ~step_fn(rows).done
+
+
+# ------------------------------------------------------------------------------------------------ q policies
+def run_q_policy(episodes, choose_q, name="policy", cfg: EnvConfig | None = None, declare=None):
+    """Run the tracking chain with ``q = choose_q(obs_rows)`` (m/s^2) each look.
+
+    ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does), so a
+    learned policy sees here what it saw in training. ``declare(obs_rows) -> bool`` records maneuver declarations
+    (optional)."""
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg)
+    lv = np.asarray(cfg.q_levels_g) * G0_M_S2
+    layout = ObservationLayout(cfg.features, lv[0], lv[-1])
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
+    declared = np.zeros((B, K), dtype=bool) if declare is not None else None
+    q_prev = np.full(B, cfg.warmup_q_g * G0_M_S2)
+    obs = layout.encode(out, q_prev)
+    rows0 = np.arange(B)
+    rec.put(rows0, out.look_index, out.x, out.P, out.q_m_s2, **_feature_extra(out))
+    rec.run.start_index[:] = out.look_index + 1
+
+    def step(rows):
+        o_rows = obs[rows]
+        q = np.clip(np.asarray(choose_q(o_rows), dtype=np.float64).reshape(rows.size), 0.0, 100 * G0_M_S2)
+        if declared is not None:
+            declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
+        o = tr.step(q, rows=None if rows.size == B else rows)
+        obs[rows] = layout.encode(o, q)
+        rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
+        return o
+
+    _loop(tr, out, step)
+    rec.run.declared = declared
+    return rec.run
+
+
+def _feature_extra(o):
+    f = o.features
+    return {"c_min_g": f["c_min_m_s2"] / G0_M_S2, "turn_rate_alg1_deg_s": np.degrees(f["turn_rate_alg1_rad_s"]),
+            "turn_rate_alg2_deg_s": np.degrees(f["turn_rate_alg2_rad_s"])}
+
+
+# ------------------------------------------------------------------------------------------------ IMM
+@dataclass(frozen=True)
+class IMMSpec:
+    """IMM modes: process-noise levels (m/s^2), turn rates (rad/s, 0 = CV), transition matrix ``Pi[i, j] =
+    P(j | i)`` per look, initial mode probabilities, and the index of the "maneuver" modes (for declarations)."""
+
+    q_m_s2: tuple
+    turn_rate_rad_s: tuple
+    Pi: tuple
+    mu0: tuple
+    maneuver_modes: tuple
+
+    def __post_init__(self):
+        M = len(self.q_m_s2)
+        Pi = np.asarray(self.Pi, dtype=np.float64)
+        if len(self.turn_rate_rad_s) != M or Pi.shape != (M, M) or len(self.mu0) != M:
+            raise ValueError("IMMSpec: q_m_s2, turn_rate_rad_s, Pi (M x M) and mu0 must agree on M modes")
+        if np.any(Pi < 0) or not np.allclose(Pi.sum(axis=1), 1.0):
+            raise ValueError("IMMSpec: Pi rows must be probabilities summing to 1")
+        if not np.isclose(sum(self.mu0), 1.0) or min(self.mu0) < 0:
+            raise ValueError("IMMSpec: mu0 must be probabilities summing to 1")
+
+
+IMM2_BIZUP = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 2.0 * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
+                     Pi=((0.9, 0.1), (0.9, 0.1)), mu0=(0.9, 0.1), maneuver_modes=(1,))
+"""Bizup's 2-mode IMM: (0.03 g)^2 / (2 g)^2; "the a priori probability of a maneuver is always 0.1", read as a
+memoryless transition matrix whose rows are both (0.9, 0.1)."""
+
+IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
+                  turn_rate_rad_s=(0.0, -3.0 * DEG, 3.0 * DEG),
+                  Pi=((0.90, 0.05, 0.05), (0.10, 0.90, 0.0), (0.10, 0.0, 0.90)), mu0=(0.8, 0.1, 0.1),
+                  maneuver_modes=(1, 2))
+"""CV / CT-left / CT-right IMM at 3 deg/s (Adrian's description of common practice); the mode noises (0.03 g CV,
+0.1 g CT as in Adrian's KF) and the transition matrix are our choices."""
+
+
+def run_imm(episodes, spec: IMMSpec, name="imm", cfg: EnvConfig | None = None):
+    """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate)."""
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg)
+    B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
+    rec = _Recorder(name, B, K, extra=("maneuver_probability",))
+    declared = np.zeros((B, K), dtype=bool)
+    rec.put(np.arange(B), out.look_index, out.x, out.P)
+    rec.run.start_index[:] = out.look_index + 1
+    x_m = np.repeat(tr.x[:, None], M, axis=1)
+    P_m = np.repeat(tr.P[:, None], M, axis=1)
+    log_mu = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (B, 1)))
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
+    q = np.asarray(spec.q_m_s2, dtype=np.float64)
+    w = np.asarray(spec.turn_rate_rad_s, dtype=np.float64)
+    man = list(spec.maneuver_modes)
+    active = ~out.done
+    d = {f: tr.look_data(f) for f in ("t_s", "z_m", "R_m2", "detected")}
+    while active.any():
+        rows = np.flatnonzero(active)
+        k = tr.k[rows]
+        t = d["t_s"][rows, k]
+        dt = t - tr.t_last[rows]
+        F = transition_ct(np.repeat(dt[:, None], M, 1), np.broadcast_to(w, (rows.size, M)))
+        Q = process_noise(np.repeat(dt[:, None], M, 1), np.broadcast_to(q, (rows.size, M)))
+        res = imm_step(log_mu[rows], x_m[rows], P_m[rows], log_Pi, F, Q, d["z_m"][rows, k], d["R_m2"][rows, k],
+                       d["detected"][rows, k])
+        log_mu[rows], x_m[rows], P_m[rows] = res.log_mu, res.x_modes, res.P_modes
+        p_man = np.exp(res.log_mu[:, man]).sum(axis=1)
+        rec.put(rows, k, res.x, res.P, maneuver_probability=p_man)
+        declared[rows, k] = p_man > 0.5
+        tr.t_last[rows], tr.k[rows] = t, k + 1
+        active[rows] = tr.k[rows] < tr.n_looks[rows]
+    rec.run.declared = declared
+    return rec.run
+
+
+# ------------------------------------------------------------------------------------------------ Adrian
+def run_turn_rate_kf(episodes, algorithm=2, q_m_s2=0.1 * G0_M_S2, name=None, cfg: EnvConfig | None = None):
+    """Adrian's turn-rate KF: predict with ``F(omega_{k-1})`` where omega is the latest estimate of algorithm 1
+    (plot headings n apart) or 2 (filtered headings n apart), ``q`` = 0.1 g as in the paper; ``n = cfg.n_adrian``.
+    Before an estimate is available the filter is CV."""
+    if algorithm not in (1, 2):
+        raise ValueError(f"algorithm must be 1 or 2, got {algorithm!r}")
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg)
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name or f"adrian{algorithm}", B, K, extra=("turn_rate_deg_s",))
+    rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
+    rec.run.start_index[:] = out.look_index + 1
+    key = f"turn_rate_alg{algorithm}_rad_s"
+    omega = np.zeros(B)
+
+    def step(rows):
+        o = tr.step(np.full(rows.size, q_m_s2), rows=None if rows.size == B else rows,
+                    turn_rate_rad_s=omega[rows])
+        valid = o.features[f"turn_rate_alg{algorithm}_valid"]
+        omega[rows] = np.where(valid, o.features[key], 0.0)
+        rec.put(rows, o.look_index, o.x, o.P, o.q_m_s2, turn_rate_deg_s=np.degrees(omega[rows]))
+        return o
+
+    _loop(tr, out, step)
+    return rec.run
+
+
+# ------------------------------------------------------------------------------------------------ seed 002
+def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name="reinit",
+               cfg: EnvConfig | None = None):
+    """Seed 002's maneuver response: a KF at ``q``; when the Mahalanobis distance of the plot from the prediction
+    exceeds ``n_sigma`` (``NIS > n_sigma^2``) on ``consecutive`` detected looks in a row, the maneuver is declared and
+    the track re-initialised from the latest two plots (two-hit start)."""
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg)
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name, B, K)
+    declared = np.zeros((B, K), dtype=bool)
+    rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
+    rec.run.start_index[:] = out.look_index + 1
+    run_len = np.zeros(B, dtype=np.int64)
+    last_plot = np.full((B, 2), np.nan)       # latest detected plot (z, R, t) per row, for the re-start
+    last_R = np.tile(np.eye(2), (B, 1, 1))
+    last_t = np.full(B, np.nan)
+    d = {f: tr.look_data(f) for f in ("z_m", "R_m2", "t_s", "detected")}
+    # the latest plot before the warm-up ended
+    for b in range(B):
+        det = np.flatnonzero(d["detected"][b, : tr.k[b]])
+        i = det[-1]
+        last_plot[b], last_R[b], last_t[b] = d["z_m"][b, i], d["R_m2"][b, i], d["t_s"][b, i]
+
+    def step(rows):
+        o = tr.step(np.full(rows.size, q_m_s2), rows=None if rows.size == B else rows)
+        far = o.detected & (o.nis > n_sigma ** 2)
+        run_len[rows] = np.where(o.detected, np.where(far, run_len[rows] + 1, 0), run_len[rows])
+        fire = run_len[rows] >= consecutive
+        x, P = o.x.copy(), o.P.copy()
+        if fire.any():
+            fr = rows[fire]
+            ok = np.isfinite(last_t[fr]) & (o.t_s[fire] > last_t[fr])
+            if ok.any():
+                x0, P0 = two_point_init(last_plot[fr][ok], last_R[fr][ok], last_t[fr][ok], o.z_m[fire][ok],
+                                        o.R_m2[fire][ok], o.t_s[fire][ok])
+                idx = np.flatnonzero(fire)[ok]
+                x[idx], P[idx] = x0, P0
+                tr.x[fr[ok]], tr.P[fr[ok]] = x0, P0
+            run_len[fr] = 0
+        declared[rows, o.look_index] = fire
+        upd = o.detected
+        last_plot[rows[upd]], last_R[rows[upd]], last_t[rows[upd]] = o.z_m[upd], o.R_m2[upd], o.t_s[upd]
+        rec.put(rows, o.look_index, x, P, o.q_m_s2)
+        return o
+
+    _loop(tr, out, step)
+    rec.run.declared = declared
+    return rec.run
+
+
+# ------------------------------------------------------------------------------------------------ bounds
+def run_clairvoyant(episodes, name="clairvoyant", q_m_s2=0.0, cfg: EnvConfig | None = None):
+    """The physical limit for a q-chooser: a CV KF that is told the true maneuver as a known input
+    ``u_k = x_true[k] - F(dt) x_true[k-1]`` (turn rate and speed change exactly), with ``q`` = 0, from the first
+    warm-up look on (so a maneuver during the warm-up does not leave it a start-up error the others can correct).
+    Its error is the measurement noise filtered by a CV filter that never lags."""
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg, known_input=True)
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name, B, K)
+    rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
+    rec.run.start_index[:] = out.look_index + 1
+
+    def step(rows):
+        o = tr.step(np.full(rows.size, q_m_s2), rows=None if rows.size == B else rows, known_input=True)
+        rec.put(rows, o.look_index, o.x, o.P, o.q_m_s2)
+        return o
+
+    _loop(tr, out, step)
+    return rec.run
+
+
+def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg: EnvConfig | None = None):
+    """A CV KF told the true acceleration magnitude every look: ``q = max(|a_true(t_k)|, floor)`` for the
+    prediction to look k (it still does not know the direction, so it lags and is noisy like any q-chooser)."""
+    cfg = cfg or EnvConfig()
+    tr, out = _tracker(episodes, cfg)
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name, B, K)
+    rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
+    rec.run.start_index[:] = out.look_index + 1
+    acc = tr.look_data("truth_accel_m_s2")
+
+    def step(rows):
+        a = acc[rows, tr.k[rows]]
+        q = np.maximum(np.hypot(a[:, 0], a[:, 1]), floor_g * G0_M_S2)
+        o = tr.step(q, rows=None if rows.size == B else rows)
+        rec.put(rows, o.look_index, o.x, o.P, q)
+        return o
+
+    _loop(tr, out, step)
+    return rec.run
