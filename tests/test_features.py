@@ -488,3 +488,81 @@ def test_bank_outputs_finite_for_degenerate_inputs(seed, n, N, B):
             assert val.shape == (B,), key
             assert np.all(np.isfinite(val)), key
         assert np.all(out["c_min_m_s2"] >= 0.0) and np.all(out["kim_lee_q2_m2_s4"] >= 0.0)
+
+
+def test_nis_chi_square_mean_and_variance():
+    rng = np.random.default_rng(14)
+    B = 40000
+    S = _spd(rng, B, 2, 30.0)
+    L = np.linalg.cholesky(S)
+    nu = np.einsum("bij,bj->bi", L, rng.standard_normal((B, 2)))
+    v = ft.nis(nu, S)
+    # chi-square with 2 dof: mean 2, variance 4
+    assert abs(v.mean() - 2.0) < 5 * np.sqrt(4.0 / B)
+    assert abs(v.var() - 4.0) < 0.25
+
+
+def test_c_min_rotation_invariant_and_mirror_symmetric():
+    """Rotating the whole scene (site, target, velocities) leaves c_min unchanged; reflecting it (x -> -x) turns a
+    right turn into a left turn with the same c_min."""
+    rng = np.random.default_rng(15)
+    B = 1000
+    x0, omega, dt, site, _ = _random_turn_cases(rng, B)
+    cm, _, _ = _cmin_case(x0, omega, dt, site)
+    a = rng.uniform(-np.pi, np.pi, B)
+    c, s = np.cos(a), np.sin(a)
+
+    def rot(p):
+        return np.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], 1)
+
+    x0r = np.concatenate([rot(x0[:, :2]), rot(x0[:, 2:])], 1)
+    cmr, _, _ = _cmin_case(x0r, omega, dt, rot(site))
+    np.testing.assert_allclose(cmr, cm, rtol=1e-6, atol=1e-9)
+    flip = np.array([-1.0, 1.0, -1.0, 1.0])
+    cmm, _, _ = _cmin_case(x0 * flip, -omega, dt, site * flip[:2])
+    np.testing.assert_allclose(cmm, cm, rtol=1e-6, atol=1e-9)
+
+
+def test_bank_matches_formula_functions_with_misses():
+    """The bank's ring buffers reproduce the stand-alone formulas fed with manually kept histories: FMA over
+    detected |nu|, Kim & Lee S_hat = mean of the last N detected outer products, c_min / NIS / along-cross of the
+    current scan, and the eq-17 fallback. F given as one (4,4) matrix and site as (2,) (broadcast forms)."""
+    rng = np.random.default_rng(16)
+    B, N, sD = 5, 4, 3.0
+    bank = ft.FeatureBank(B, n_adrian=2, window_kim_lee=N, sigma_D2_m2_s4=sD, fma_weight=0.2)
+    t = np.zeros(B)
+    fma = np.zeros(B)
+    hist = [[] for _ in range(B)]
+    site = np.array([1e4, -2e4])
+    signs = set()
+    for k in range(30):
+        inp = _random_inputs(rng, B, t, p_det=0.6)
+        inp["dt_s"] = np.full(B, 4.0)
+        inp["t_s"] = t + 4.0
+        inp["F"] = kf.transition_cv(4.0)[0]
+        inp["site_xy"] = site
+        inp["nu"] = inp["nu"] * 3.0  # innovations comparable to S0, so phi takes both signs
+        t = inp["t_s"]
+        out = bank.update(**inp)
+        det, nu = inp["detected"], inp["nu"]
+        fma = np.where(det, 0.8 * fma + 0.2 * np.hypot(nu[:, 0], nu[:, 1]), fma)
+        np.testing.assert_allclose(out["fma_innovation_m"], fma, rtol=1e-12)
+        S0 = ft.innovation_cov_without_process_noise(inp["F"], inp["P_post_prev"], inp["R"])
+        for i in range(B):
+            if det[i]:
+                hist[i].append(np.outer(nu[i], nu[i]))
+                np.testing.assert_allclose(out["nis"][i], ft.nis(nu[i:i + 1], inp["S"][i:i + 1])[0], rtol=1e-12)
+                cm = ft.c_min_m_s2(inp["x_prev"][i:i + 1], inp["bearing_rad"][i:i + 1],
+                                   inp["radial_velocity_m_s"][i:i + 1], 4.0)[0]
+                assert out["c_min_m_s2"][i] == pytest.approx(cm, rel=1e-12, abs=1e-300)
+                nac = ft.normalized_innovation_along_cross(nu[i:i + 1], inp["S"][i:i + 1], inp["x_prior"][i:i + 1, 2:])
+                np.testing.assert_allclose([out["nu_along"][i], out["nu_cross"][i]], nac[0], rtol=1e-12)
+                if len(hist[i]) >= N:
+                    S_hat = np.mean(hist[i][-N:], axis=0)
+                    phi = ft.kim_lee_phi_2d(S_hat[None], S0[i:i + 1], 4.0)[0]
+                    assert out["kim_lee_phi_m2_s4"][i] == pytest.approx(phi, rel=1e-9, abs=1e-9)
+                    assert out["kim_lee_q2_m2_s4"][i] == pytest.approx(phi if phi >= 0 else sD, rel=1e-9, abs=1e-9)
+                    signs.add(bool(phi >= 0))
+        np.testing.assert_allclose(out["range_m"], np.hypot(*(inp["x_post"][:, :2] - site).T))
+    assert any(len(h) > N for h in hist)
+    assert signs == {True, False}  # both branches of eq 17 exercised
