@@ -1,0 +1,296 @@
+r"""Konle's speed/heading EKF on differential measurements (seed 001), batched over tracks.
+
+State ``s = [v, phi, a, omega]``: speed (m/s), heading (rad, clockwise from north), along-track acceleration
+(m/s^2), turn rate (rad/s, positive = clockwise = right turn). Measurements: the differential
+``z = (dr, dalpha) = (r2 - r1, wrap(alpha2 - alpha1))`` of two consecutive plots ``(r1, alpha1, t1)``,
+``(r2, alpha2, t2)`` of the SAME sensor, valid at ``t_m = (t1 + t2)/2`` (eq 15 of section 2.6). A constant
+registration (azimuth or range) bias of a sensor cancels in the differences, which is the point of the method.
+
+Conventions versus the paper
+----------------------------
+* The paper's azimuth alpha and heading phi are both radar azimuths (clockwise from north), i.e. ours. With the
+  unit vector ``u(theta) = (sin theta, cos theta)`` (east, north) and straight motion over ``dt`` the exact
+  geometry gives, with ``c = v dt``, ``A = c sin(phi - alpha1)``, ``Bc = r1 + c cos(phi - alpha1)``:
+  ``dr = hypot(A, Bc) - r1`` and ``dalpha = atan2(A, Bc)``. These are identical to eq 4
+  (``dr = v dt cos(phi - alpha2) - r1 (1 - cos(alpha2 - alpha1))``) and eq 5
+  (``dalpha = arcsin(v dt sin(phi - alpha1) / r2)``) without approximation, and their derivatives with
+  ``r1, alpha1`` held fixed are exactly eqs 6-9 (``alpha2``, ``r2`` evaluated at the prediction). So the paper's
+  sign conventions agree with ours; nothing is flipped. The chord of a constant turn points along the heading at
+  the chord's mid-time, which is why the measurement is valid at ``t_m``; its length is ``v dt sinc(omega dt/2)``
+  (taken as ``v dt``: a 0.3 % speed bias at 3 deg/s and dt = 5 s).
+* Initialization eqs 16 and 18 print ``phi = arctan(dy/dx)`` (a mathematical, counter-clockwise-from-east angle);
+  in our (and the radar's) convention the chord heading is ``atan2(dx, dy)``. Section 2.7 re-uses the numbers
+  15-21 of section 2.6; "init eq N" below means section 2.7's.
+* Eq 10 lost its layout: ``R = diag(2 sigma_r^2, 2 sigma_alpha^2)`` (each difference carries two plot errors).
+* Eq 14's ``P+ = (I - K H) P-`` is replaced by the Joseph form (same value in exact arithmetic, stays SPD).
+
+Readings of what the paper leaves open (parameters, documented here)
+--------------------------------------------------------------------
+* System model eqs 1-2: ``v += a dt exp(-dt/tau1)``, ``phi += omega dt exp(-dt/tau2)``; the maneuver states are
+  read as relaxing, ``a *= exp(-dt/tau1)``, ``omega *= exp(-dt/tau2)``. The paper gives no values for the
+  relaxation times (they "depend on the maneuver state"); defaults ``tau = inf`` (no relaxation, unbiased on a
+  constant turn). The error propagation matrix ``Phi^c`` of eq 11 is not specified; the same (linear) ``Phi``
+  is used: ``P- = Phi (P+ + Q) Phi^T`` (eq 11).
+* System noise (section 2.5): ``Q = diag(0, 0, Q33, Q44)`` with a base white-noise part ``q_accel^2 |dt|``,
+  ``q_turn^2 |dt|``, plus the maneuver increment "derived from the current measurement triple": the
+  acceleration ``a3`` and turn rate ``omega3`` of init eqs 15-20 applied to the current plot and the two before
+  it from the same sensor; the increment is ``max(0, |a3| - gate sigma_a3)^2`` (and likewise for omega), with
+  ``sigma_a3 = sqrt(6) sigma_p / (dt dtm)`` and ``sigma_omega3 = sqrt(6) sigma_p / (d dtm)`` the noise-only
+  standard deviations of the triple estimates (``sigma_p = max(sigma_r, r sigma_alpha)``, ``d`` the chord
+  length, ``dtm`` the mid-time difference): the increment is zero ("non maneuver detection") unless the triple
+  shows a maneuver above the noise.
+* Time order (eqs 16-19): the paper rolls the filter back and re-processes. Here each differential is processed
+  when its second plot arrives, at its validity time ``t_m``: the filter is propagated (forwards or, for an
+  out-of-sequence differential from a slower sensor, backwards without process noise) to ``t_m`` and updated
+  there. This is a cheaper approximation of the roll-back that keeps every output causal. The output at scan
+  ``k`` is the estimate propagated to ``t_k``.
+* Three-plot start (init eqs 15-21): the first sensor of a track that collects three consecutive plots starts
+  it with ``(v2, phi2, a, omega)`` at the mid-time of the last pair and ``P = (P0^-1 + H^T R^-1 H)^-1`` (eq 21)
+  with the default covariance ``P0``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from radar_env.features import wrap_angle
+from radar_env.filters import inv2
+
+__all__ = ["run_konle", "KonleResult", "konle_measurement", "konle_transition", "blend_speed_heading"]
+
+DEFAULT_P0_DIAG = (100.0**2, 1.0**2, 5.0**2, 0.05**2)
+"""Default covariance of init eq 21: speed (m/s)^2, heading rad^2, accel (m/s^2)^2, turn rate (rad/s)^2."""
+
+
+def konle_transition(dt_s, tau_accel_s=np.inf, tau_turn_s=np.inf):
+    """System matrix ``Phi (B,4,4)`` of eqs 1-3 for time steps ``dt_s (B,)`` (may be negative)."""
+    dt = np.atleast_1d(np.asarray(dt_s, dtype=np.float64))
+    e1 = np.exp(-dt / tau_accel_s)
+    e2 = np.exp(-dt / tau_turn_s)
+    Phi = np.zeros(dt.shape + (4, 4))
+    Phi[..., 0, 0] = Phi[..., 1, 1] = 1.0
+    Phi[..., 0, 2] = dt * e1
+    Phi[..., 1, 3] = dt * e2
+    Phi[..., 2, 2] = e1
+    Phi[..., 3, 3] = e2
+    return Phi
+
+
+def konle_measurement(state, r1_m, alpha1_rad, dt_s):
+    """Predicted differential ``h(x) = (dr, dalpha)`` (...,2) and its Jacobian ``H`` (...,2,4) (eqs 4-9).
+
+    Args:
+        state: (...,4) ``[v, phi, a, omega]``; r1_m, alpha1_rad: the first plot of the pair; dt_s = t2 - t1.
+    """
+    v, phi = state[..., 0], state[..., 1]
+    dt = np.asarray(dt_s, dtype=np.float64)
+    r1 = np.asarray(r1_m, dtype=np.float64)
+    d = phi - np.asarray(alpha1_rad, dtype=np.float64)
+    sd, cd = np.sin(d), np.cos(d)
+    c = v * dt
+    A = c * sd
+    Bc = r1 + c * cd
+    r2 = np.hypot(A, Bc)
+    h = np.stack([r2 - r1, np.arctan2(A, Bc)], axis=-1)
+    dA = np.stack([dt * sd, c * cd], axis=-1)  # d/d(v, phi)
+    dB = np.stack([dt * cd, -c * sd], axis=-1)
+    H = np.zeros(state.shape[:-1] + (2, 4))
+    H[..., 0, :2] = (A[..., None] * dA + Bc[..., None] * dB) / r2[..., None]  # eqs 6, 7
+    H[..., 1, :2] = (Bc[..., None] * dA - A[..., None] * dB) / (r2 * r2)[..., None]  # eqs 8, 9
+    return h, H
+
+
+class KonleResult(NamedTuple):
+    """Output of :func:`run_konle`; NaN before a track's three-plot start."""
+
+    speed_m_s: np.ndarray  # (B,K)
+    heading_rad: np.ndarray  # (B,K) clockwise from north, in (-pi, pi]
+    accel_m_s2: np.ndarray  # (B,K)
+    turn_rate_rad_s: np.ndarray  # (B,K) positive = clockwise
+    speed_var_m2_s2: np.ndarray  # (B,K)
+    heading_var_rad2: np.ndarray  # (B,K)
+    x: np.ndarray  # (B,K,4) [v, phi, a, omega] at t_k
+    P: np.ndarray  # (B,K,4,4)
+    initialized: np.ndarray  # (B,K) bool
+
+
+def _sensor_ids(site_xy_m, B, K):
+    flat = np.asarray(site_xy_m, dtype=np.float64).reshape(-1, 2)
+    _, inv = np.unique(flat, axis=0, return_inverse=True)
+    return inv.reshape(B, K)
+
+
+def run_konle(t_s, site_xy_m, range_m, bearing_rad, detected=None, range_std_m=50.0, bearing_std_rad=1e-3,
+              sensor_id=None, tau_accel_s=np.inf, tau_turn_s=np.inf, q_accel_m_s3=0.05, q_turn_rad_s2=1e-4,
+              maneuver_gate=3.0, P0_diag=DEFAULT_P0_DIAG) -> KonleResult:
+    """Run Konle's speed/heading EKF over a plot stream.
+
+    Args:
+        t_s: (K,) or (B,K) plot times, non-decreasing along K.
+        site_xy_m: (B,K,2) or (K,2) position of the site that made plot k.
+        range_m, bearing_rad: (B,K) polar plots (NaN allowed where not detected). Bearing clockwise from north.
+        detected: (B,K) bool or None.
+        range_std_m, bearing_std_rad: plot noise std, scalar or (B,K) (R of eq 10 doubles the variances).
+        sensor_id: (B,K) int or None (then sensors are told apart by their site position).
+        tau_accel_s, tau_turn_s: relaxation times of eqs 1-2 (default no relaxation).
+        q_accel_m_s3, q_turn_rad_s2: base white-noise spectral std of acceleration and turn rate.
+        maneuver_gate: noise-sigma gate of the triple-based maneuver increment of Q (np.inf disables it).
+        P0_diag: default covariance of init eq 21.
+    Returns:
+        :class:`KonleResult` with per-scan ``(B,K)`` speed, heading, acceleration, turn rate and variances.
+    """
+    r_all = np.asarray(range_m, dtype=np.float64)
+    B, K = r_all.shape
+    t = np.broadcast_to(np.asarray(t_s, dtype=np.float64), (B, K))
+    site = np.broadcast_to(np.asarray(site_xy_m, dtype=np.float64), (B, K, 2))
+    al_all = np.asarray(bearing_rad, dtype=np.float64)
+    det = np.ones((B, K), bool) if detected is None else np.broadcast_to(np.asarray(detected, bool), (B, K))
+    det = det & np.isfinite(r_all) & np.isfinite(al_all)
+    sr = np.broadcast_to(np.asarray(range_std_m, dtype=np.float64), (B, K))
+    sa = np.broadcast_to(np.asarray(bearing_std_rad, dtype=np.float64), (B, K))
+    sid = _sensor_ids(site, B, K) if sensor_id is None else np.broadcast_to(np.asarray(sensor_id), (B, K))
+    S = int(sid.max()) + 1
+    P0_inv = np.diag(1.0 / np.asarray(P0_diag, dtype=np.float64))
+    bi = np.arange(B)
+
+    # per (track, sensor) memory of the last two plots: [t, r, alpha, x, y]
+    mem1 = np.full((B, S, 5), np.nan)
+    mem2 = np.full((B, S, 5), np.nan)
+    x = np.zeros((B, 4))
+    P = np.tile(np.diag(np.asarray(P0_diag, dtype=np.float64)), (B, 1, 1))
+    t_f = np.zeros(B)
+    init = np.zeros(B, dtype=bool)
+
+    X = np.full((B, K, 4), np.nan)
+    PX = np.full((B, K, 4, 4), np.nan)
+    INIT = np.zeros((B, K), bool)
+
+    def _q(dt, extra_a2, extra_w2):
+        Q = np.zeros(dt.shape + (4, 4))
+        adt = np.abs(dt)
+        Q[..., 2, 2] = q_accel_m_s3**2 * adt + extra_a2
+        Q[..., 3, 3] = q_turn_rad_s2**2 * adt + extra_w2
+        return Q
+
+    for k in range(K):
+        dk = det[:, k]
+        s_k = sid[:, k]
+        r2 = np.where(dk, r_all[:, k], 1.0)
+        a2 = np.where(dk, al_all[:, k], 0.0)
+        t2 = t[:, k]
+        p2 = site[:, k] + r2[:, None] * np.stack([np.sin(a2), np.cos(a2)], axis=-1)
+        m1 = mem1[bi, s_k]
+        m0 = mem2[bi, s_k]
+        has_pair = dk & np.isfinite(m1[:, 0])
+        has_triple = has_pair & np.isfinite(m0[:, 0])
+        t1, r1, al1 = m1[:, 0], m1[:, 1], m1[:, 2]
+        dt12 = np.where(has_pair, t2 - t1, 1.0)
+        t_m = np.where(has_pair, 0.5 * (t1 + t2), t_f)
+
+        # triple estimates (init eqs 15-20)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d01 = m1[:, 3:5] - m0[:, 3:5]
+            d12 = p2 - m1[:, 3:5]
+            L1, L2 = np.hypot(d01[:, 0], d01[:, 1]), np.hypot(d12[:, 0], d12[:, 1])
+            dt01 = t1 - m0[:, 0]
+            v1, v2 = L1 / dt01, L2 / dt12
+            h1, h2 = np.arctan2(d01[:, 0], d01[:, 1]), np.arctan2(d12[:, 0], d12[:, 1])
+            dtm = 0.5 * (t2 - m0[:, 0])
+            a3 = (v2 - v1) / dtm
+            w3 = wrap_angle(h2 - h1) / dtm
+            sig_p = np.maximum(sr[:, k], r2 * sa[:, k])
+            sig_a3 = np.sqrt(6.0) * sig_p / (0.5 * (dt01 + dt12) * dtm)
+            sig_w3 = np.sqrt(6.0) * sig_p / (np.maximum(0.5 * (L1 + L2), 1e-9) * dtm)
+            ex_a2 = np.where(has_triple, np.maximum(0.0, np.abs(a3) - maneuver_gate * sig_a3), 0.0) ** 2
+            ex_w2 = np.where(has_triple, np.maximum(0.0, np.abs(w3) - maneuver_gate * sig_w3), 0.0) ** 2
+        ex_a2 = np.nan_to_num(ex_a2)
+        ex_w2 = np.nan_to_num(ex_w2)
+
+        z = np.stack([r2 - np.where(has_pair, r1, 0.0), wrap_angle(a2 - np.where(has_pair, al1, 0.0))], axis=-1)
+        R = np.zeros((B, 2, 2))
+        R[:, 0, 0] = 2.0 * sr[:, k] ** 2  # eq 10
+        R[:, 1, 1] = 2.0 * sa[:, k] ** 2
+        r1s = np.where(has_pair, r1, 1.0)
+        al1s = np.where(has_pair, al1, 0.0)
+
+        # --- three-plot start
+        start = has_triple & ~init
+        if np.any(start):
+            xs = np.stack([v2, h2, a3, w3], axis=-1)[start]
+            _, Hs = konle_measurement(xs, r1s[start], al1s[start], dt12[start])
+            Rinv = np.linalg.inv(R[start])
+            info = P0_inv + np.swapaxes(Hs, -1, -2) @ Rinv @ Hs  # eq 21
+            x[start] = xs
+            P[start] = np.linalg.inv(info)
+            t_f[start] = t_m[start]
+            init = init | start
+
+        # --- EKF update at t_m with the differential
+        upd = has_pair & init & ~start
+        if np.any(upd):
+            dtp = np.where(upd, t_m - t_f, 0.0)
+            Phi = konle_transition(dtp, tau_accel_s, tau_turn_s)
+            fwd = (dtp > 0)[:, None, None]
+            Q = np.where(fwd, _q(dtp, ex_a2, ex_w2), 0.0)
+            x_pr = np.einsum("bij,bj->bi", Phi, x)
+            P_pr = Phi @ (P + Q) @ np.swapaxes(Phi, -1, -2)  # eq 11
+            h, H = konle_measurement(x_pr, r1s, al1s, dt12)
+            nu = z - h
+            nu[:, 1] = wrap_angle(nu[:, 1])
+            Sm = H @ P_pr @ np.swapaxes(H, -1, -2) + R
+            S_inv, _ = inv2(Sm)
+            Kg = P_pr @ np.swapaxes(H, -1, -2) @ S_inv  # eq 12
+            x_up = x_pr + np.einsum("bij,bj->bi", Kg, nu)  # eq 13
+            IKH = np.eye(4) - Kg @ H
+            P_up = IKH @ P_pr @ np.swapaxes(IKH, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)  # eq 14 (Joseph)
+            P_up = 0.5 * (P_up + np.swapaxes(P_up, -1, -2))
+            x_up[:, 1] = wrap_angle(x_up[:, 1])
+            x = np.where(upd[:, None], x_up, x)
+            P = np.where(upd[:, None, None], P_up, P)
+            t_f = np.where(upd, t_m, t_f)
+
+        # --- memory of this sensor's plots
+        new = np.stack([t2, r2, a2, p2[:, 0], p2[:, 1]], axis=-1)
+        bd = bi[dk]
+        mem2[bd, s_k[dk]] = mem1[bd, s_k[dk]]
+        mem1[bd, s_k[dk]] = new[dk]
+
+        # --- output at t_k
+        dto = t2 - t_f
+        Phi_o = konle_transition(dto, tau_accel_s, tau_turn_s)
+        Q_o = np.where((dto > 0)[:, None, None], _q(dto, 0.0, 0.0), 0.0)
+        xo = np.einsum("bij,bj->bi", Phi_o, x)
+        xo[:, 1] = wrap_angle(xo[:, 1])
+        Po = Phi_o @ (P + Q_o) @ np.swapaxes(Phi_o, -1, -2)
+        X[init, k] = xo[init]
+        PX[init, k] = Po[init]
+        INIT[:, k] = init
+
+    return KonleResult(X[..., 0], X[..., 1], X[..., 2], X[..., 3], PX[..., 0, 0], PX[..., 1, 1], X, PX, INIT)
+
+
+def blend_speed_heading(x_kf, speed_m_s, heading_rad, weight=0.75):
+    """Replace ``weight`` (Konle: 75 %) of a position KF's speed and heading by Konle's estimates.
+
+    Args:
+        x_kf: (...,4) ``[x, y, vx, vy]``; speed_m_s, heading_rad: (...) Konle's estimates (NaN = not started,
+            then the KF state is returned unchanged).
+    Returns:
+        (...,4) with positions unchanged and ``vx = s sin h``, ``vy = s cos h`` for the blended
+        ``s = (1-w) s_kf + w s_konle`` and ``h = h_kf + w wrap(h_konle - h_kf)`` (blended along the short arc).
+    """
+    x_kf = np.asarray(x_kf, dtype=np.float64)
+    s_kf = np.hypot(x_kf[..., 2], x_kf[..., 3])
+    h_kf = np.arctan2(x_kf[..., 2], x_kf[..., 3])
+    sp = np.asarray(speed_m_s, dtype=np.float64)
+    hd = np.asarray(heading_rad, dtype=np.float64)
+    ok = np.isfinite(sp) & np.isfinite(hd)
+    w = float(weight)
+    s = (1.0 - w) * s_kf + w * np.where(ok, sp, s_kf)
+    h = h_kf + w * wrap_angle(np.where(ok, hd, h_kf) - h_kf)
+    out = x_kf.copy()
+    out[..., 2] = np.where(ok, s * np.sin(h), x_kf[..., 2])
+    out[..., 3] = np.where(ok, s * np.cos(h), x_kf[..., 3])
+    return out
