@@ -123,7 +123,8 @@ def test_registration_bias_cancels_in_differentials():
     for bias_deg in (0.0, 0.2):
         r = r_true + nr
         b = b_true + na + np.where(s == 0, bias_deg * DEG, 0.0)
-        kon = run_konle(t, site, r, b, det, range_std_m=sr, bearing_std_rad=sa)
+        # straight-flight tuning (low turn-rate noise), as restrictive as the position KF's q = 0.5 m/s^2
+        kon = run_konle(t, site, r, b, det, range_std_m=sr, bearing_std_rad=sa, q_turn_rad_s2=1e-4)
         z = site + r[..., None] * np.stack([np.sin(b), np.cos(b)], axis=-1)
         J = np.zeros((B, K, 2, 2))
         J[..., 0, 0], J[..., 0, 1] = np.sin(b), r * np.cos(b)
@@ -142,6 +143,32 @@ def test_registration_bias_cancels_in_differentials():
     assert abs(d_kon) < 0.05
     assert d_kf > 0.2
     assert res[0.2]["konle_speed_rmse_m_s"] < 1.1 * res[0.0]["konle_speed_rmse_m_s"]
+
+
+def test_noisy_turn_no_divergence():
+    """200 m/s east, then a 3 deg/s right turn for 60 s (180 deg), then straight; one radar, T = 5 s."""
+    T = 5.0
+    t = np.arange(0.0, 500.0, T)
+    p0 = np.array([-40e3, 60e3])
+    pA, _ = _truth(np.minimum(t, 200.0), p0, 200.0, 90 * DEG, 0.0)  # straight leg, frozen after 200 s
+    p200 = p0 + 200.0 * 200.0 * np.array([1.0, 0.0])
+    pB, hB = _truth(np.clip(t - 200.0, 0.0, 60.0), p200, 200.0, 90 * DEG, 3 * DEG)  # turn, frozen after 260 s
+    pC, _ = _truth(np.maximum(t - 260.0, 0.0), np.zeros(2), 200.0, 270 * DEG, 0.0)  # displacement after 260 s
+    p = np.where((t < 200)[:, None], pA, pB + pC)
+    h = np.where(t < 200, 90 * DEG, hB)
+    site = np.zeros((t.size, 2))
+    r0, b0 = _polar(p, site)
+    rng = np.random.default_rng(2)
+    B, sr, sa = 20, 40.0, 0.1 * DEG
+    r = r0 + sr * rng.standard_normal((B, t.size))
+    b = b0 + sa * rng.standard_normal((B, t.size))
+    k = run_konle(t, site, r, b, range_std_m=sr, bearing_std_rad=sa)
+    e = wrap_angle(k.heading_rad - h) / DEG
+    seg = {n: float(np.sqrt(np.mean(e[:, (t >= a) & (t < c)] ** 2)))
+           for n, (a, c) in dict(straight=(100, 200), turn=(200, 270), after=(270, 350), late=(350, 500)).items()}
+    print("noisy 3 deg/s turn, Konle heading RMSE (deg):", seg)
+    assert seg["turn"] < 10.0 and seg["late"] < 5.0 and seg["straight"] < 5.0
+    assert np.all(np.abs(e[:, t > 350]) < 30.0)  # no 180-degree flips
 
 
 def test_blend_speed_heading():
