@@ -99,3 +99,18 @@ def test_noise_only_variance_matches_simulation():
     r = run_alpha_beta(t, z, sigma_m=10.0, alpha=a, beta=b)
     S = np.mean(r.nu_m[:, 200:, 0] ** 2)
     assert abs(S / noise_only_innovation_variance(a, b, 10.0) - 1) < 0.05
+
+
+def test_batched_equals_per_track():
+    rng = np.random.default_rng(5)
+    B, K = 4, 40
+    t = np.cumsum(rng.uniform(0.5, 3.0, (B, K)), axis=1)
+    z = np.cumsum(rng.normal(0, 300.0, (B, K, 2)), axis=1)
+    det = rng.random((B, K)) > 0.3
+    sig = rng.uniform(20.0, 200.0, (B, K, 2))
+    full = run_alpha_beta(t, z, det, sigma_m=sig, q_m_s2=3.0, adaptive=True, window=5)
+    for b in range(B):
+        one = run_alpha_beta(t[b:b + 1], z[b:b + 1], det[b:b + 1], sigma_m=sig[b:b + 1], q_m_s2=3.0,
+                             adaptive=True, window=5)
+        np.testing.assert_allclose(one.x, full.x[b:b + 1], rtol=1e-12, equal_nan=True)
+        np.testing.assert_allclose(one.P, full.P[b:b + 1], rtol=1e-12, equal_nan=True)

@@ -181,3 +181,22 @@ def test_blend_speed_heading():
     y = np.array([0.0, 0.0, np.sin(179 * DEG), np.cos(179 * DEG)])
     o = blend_speed_heading(y, 1.0, -179 * DEG, weight=0.5)
     assert np.isclose(abs(np.arctan2(o[2], o[3])), np.pi)
+
+
+def test_batched_equals_per_track_with_misses():
+    rng = np.random.default_rng(9)
+    t, s, site = _stream([(0.0, 0.0), (30e3, 10e3)], [5.0, 7.0], [0.0, 3.0], 150.0)
+    B, K = 4, t.size
+    r = np.empty((B, K))
+    b = np.empty((B, K))
+    for i in range(B):
+        p, _ = _truth(t, np.array([-20e3, 40e3]) + 1e3 * i, 150.0 + 30 * i, 0.5 * i, 0.01 * (i - 1.5))
+        r[i], b[i] = _polar(p, site)
+    r += 30.0 * rng.standard_normal((B, K))
+    b += 1e-3 * rng.standard_normal((B, K))
+    det = rng.random((B, K)) > 0.2
+    full = run_konle(t, site, np.where(det, r, np.nan), b, det, range_std_m=30.0, bearing_std_rad=1e-3)
+    for i in range(B):
+        one = run_konle(t, site, r[i:i + 1], b[i:i + 1], det[i:i + 1], range_std_m=30.0, bearing_std_rad=1e-3)
+        np.testing.assert_allclose(one.x, full.x[i:i + 1], rtol=1e-10, atol=1e-12, equal_nan=True)
+        np.testing.assert_array_equal(one.initialized, full.initialized[i:i + 1])
