@@ -10,7 +10,7 @@ name               rule                                                         
 =================  =====================================================================================  ==========
 ``kf_low``         q = 0.03 g                                                                              Bizup
 ``kf_high``        q = 2 g                                                                                 Bizup
-``kf_tuned``       q = the constant minimising position RMSE on the training distribution (``tuning``)    ours
+``kf_tuned``       q = the constant minimising position RMSE on training seeds (``baselines/tuned.json``)  ours
 ``kf_blair``       q = Blair's rule of thumb, 0.5 * a_max .. a_max; here 0.5 * 7 g (the random max)       Blair
 ``cmin``           q = 0.03 g while c_min < 1 g, else q = c_min  (Q = c_min^2 I)                            Bizup 3.3
 ``ckf``            q = 0.03 g while FMA(|nu|) < 5 NM, else 2 g                                              Bizup/Schutz
@@ -25,12 +25,10 @@ import numpy as np
 from radar_env.observation import ObservationLayout
 from radar_env.units import G0_M_S2, NM_M
 
-__all__ = ["ReferencePolicy", "ConstantQPolicy", "CminPolicy", "CKFPolicy", "KimLeePolicy", "make_policy",
-           "POLICY_NAMES", "TUNED_KF_Q_G", "BLAIR_Q_G"]
+from .tuned_params import tuned_parameters
 
-TUNED_KF_Q_G = 0.5
-"""Constant q (g) of ``kf_tuned``: the grid minimiser of position RMSE over training seeds of the random
-scenario distribution, found by ``python -m baselines.tuning kf`` (see README, "How the baselines were tuned")."""
+__all__ = ["ReferencePolicy", "ConstantQPolicy", "CminPolicy", "CKFPolicy", "KimLeePolicy", "make_policy",
+           "POLICY_NAMES", "BLAIR_Q_G"]
 
 BLAIR_Q_G = 0.5 * 7.0
 """Blair's rule of thumb for a white-noise-acceleration filter: 0.5 a_max <= q <= a_max; lower end for the
@@ -158,7 +156,7 @@ def make_policy(name, layout, action_type="continuous", q_levels_m_s2=None):
     if name == "kf_high":
         return ConstantQPolicy(layout, action_type, q_levels_m_s2, 2.0, name)
     if name == "kf_tuned":
-        return ConstantQPolicy(layout, action_type, q_levels_m_s2, TUNED_KF_Q_G, name)
+        return ConstantQPolicy(layout, action_type, q_levels_m_s2, tuned_parameters()["kf"]["q_g"], name)
     if name == "kf_blair":
         return ConstantQPolicy(layout, action_type, q_levels_m_s2, BLAIR_Q_G, name)
     classes = {"cmin": CminPolicy, "ckf": CKFPolicy, "kim_lee": KimLeePolicy}

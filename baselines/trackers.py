@@ -322,3 +322,66 @@ def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg: EnvConfig | None 
 
     _loop(tr, out, step)
     return rec.run
+
+
+# ------------------------------------------------------------------------------------------------ alpha-beta, Konle
+def _common_start(tr):
+    """First look after the common track start, per row (what every other tracker's metrics start from)."""
+    return tr.k.copy()
+
+
+def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg: EnvConfig | None = None):
+    """Kim & Lee's alpha-beta trackers on the converted plots, one per axis (:func:`baselines.alpha_beta.
+    run_alpha_beta`): the conventional one with fixed Kalata gains from ``q`` (default: the tuned constant-q KF's
+    q) or the adaptive one (fudge factor from a 12-look innovation window). Per-axis sigma from the plot's R.
+    The alpha-beta starts from its own two-plot start; metrics use the same looks as every other tracker."""
+    from radar_env.episode import stack_episodes
+
+    from .alpha_beta import run_alpha_beta
+    from .tuned_params import tuned_parameters
+
+    cfg = cfg or EnvConfig()
+    batch = stack_episodes(episodes)
+    tr, _ = _tracker(episodes, cfg)
+    q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
+    R = np.where(batch.detected[..., None, None], batch.R_m2, np.eye(2))
+    res = run_alpha_beta(batch.t_s, batch.z_m, batch.detected, R_m2=R, q_m_s2=q, adaptive=adaptive,
+                         window=cfg.window_kim_lee)
+    nm = name or ("alpha_beta_adaptive" if adaptive else "alpha_beta")
+    qq = res.q_m_s2.mean(axis=-1) if adaptive else np.full(batch.valid.shape, q)
+    return TrackRun(nm, np.where(batch.valid[..., None], res.x, np.nan), res.P, _common_start(tr),
+                    np.where(batch.valid, qq, np.nan))
+
+
+def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg: EnvConfig | None = None):
+    """Konle's speed/heading EKF on differential plots of each sensor (:func:`baselines.konle.run_konle`), run
+    beside the position KF (the tracking chain at ``q``, default the tuned constant q) and replacing ``weight``
+    (75%) of the KF's speed and heading after every look. The KF covariance is left as the KF computed it."""
+    from radar_env.episode import stack_episodes
+
+    from .konle import blend_speed_heading, run_konle
+    from .tuned_params import tuned_parameters
+
+    cfg = cfg or EnvConfig()
+    batch = stack_episodes(episodes)
+    sr = np.where(batch.detected, batch.range_noise_std_m, 1.0)
+    sb = np.where(batch.detected, batch.bearing_noise_std_rad, 1e-3)
+    kon = run_konle(batch.t_s, batch.site_xy_m, np.nan_to_num(batch.range_m), np.nan_to_num(batch.bearing_rad),
+                    batch.detected, range_std_m=sr, bearing_std_rad=sb, sensor_id=batch.site_index)
+    q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
+    tr, out = _tracker(episodes, cfg)
+    B, K = tr.B, int(tr.n_looks.max())
+    rec = _Recorder(name, B, K)
+    rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
+    rec.run.start_index[:] = out.look_index + 1
+
+    def step(rows):
+        o = tr.step(np.full(rows.size, q), rows=None if rows.size == B else rows)
+        k = o.look_index
+        x = blend_speed_heading(o.x, kon.speed_m_s[rows, k], kon.heading_rad[rows, k], weight)
+        tr.x[rows] = x
+        rec.put(rows, k, x, o.P, o.q_m_s2)
+        return o
+
+    _loop(tr, out, step)
+    return rec.run

@@ -1,0 +1,84 @@
+"""Comparison trackers by stable name: ``run_tracker(name, episodes) -> TrackRun``.
+
+Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_bizup``, ``imm3_ct``, ``kf_tuned``,
+``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
+``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``. ``policy`` (a learned
+policy) is resolved by the evaluation, which owns the model loading.
+
+Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
+``baselines/tuned.json``, written by ``python -m baselines.tuning`` on training seeds only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radar_env.env import EnvConfig
+from radar_env.observation import ObservationLayout
+from radar_env.units import G0_M_S2
+
+from . import trackers as T
+from .policies import BLAIR_Q_G, CKFPolicy, CminPolicy, ConstantQPolicy, KimLeePolicy
+from .tuned_params import TUNED_PATH, tuned_parameters
+
+__all__ = ["TRACKER_NAMES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
+
+def tuned_imm2_spec():
+    p = tuned_parameters()["imm2"]
+    stay_low, stay_high = p["p_stay_low"], p["p_stay_high"]
+    return T.IMMSpec(q_m_s2=(p["q_low_g"] * G0_M_S2, p["q_high_g"] * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
+                     Pi=((stay_low, 1 - stay_low), (1 - stay_high, stay_high)), mu0=(0.9, 0.1),
+                     maneuver_modes=(1,))
+
+
+def _layout(cfg):
+    lv = np.asarray(cfg.q_levels_g) * G0_M_S2
+    return ObservationLayout(cfg.features, lv[0], lv[-1]), lv
+
+
+def _policy_run(cls, name, **kw):
+    def run(episodes, cfg):
+        layout, lv = _layout(cfg)
+        pol = cls(layout, "continuous", lv, **kw)
+        declare = getattr(pol, "declared", None)
+        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=declare)
+    return run
+
+
+def _const(name, q_g_fn):
+    def run(episodes, cfg):
+        layout, lv = _layout(cfg)
+        pol = ConstantQPolicy(layout, "continuous", lv, q_g=q_g_fn(), name=name)
+        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg)
+    return run
+
+
+_RUNNERS = {
+    "imm2": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec(), "imm2", cfg),
+    "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
+    "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
+    "kf_tuned": _const("kf_tuned", lambda: tuned_parameters()["kf"]["q_g"]),
+    "kf_low": _const("kf_low", lambda: 0.03),
+    "kf_high": _const("kf_high", lambda: 2.0),
+    "kf_blair": _const("kf_blair", lambda: BLAIR_Q_G),
+    "cmin": _policy_run(CminPolicy, "cmin"),
+    "ckf": _policy_run(CKFPolicy, "ckf"),
+    "kim_lee": _policy_run(KimLeePolicy, "kim_lee"),
+    "reinit": lambda eps, cfg: T.run_reinit(eps, cfg=cfg),
+    "adrian1": lambda eps, cfg: T.run_turn_rate_kf(eps, 1, cfg=cfg),
+    "adrian2": lambda eps, cfg: T.run_turn_rate_kf(eps, 2, cfg=cfg),
+    "alpha_beta": lambda eps, cfg: T.run_alpha_beta_tracker(eps, False, cfg=cfg),
+    "alpha_beta_adaptive": lambda eps, cfg: T.run_alpha_beta_tracker(eps, True, cfg=cfg),
+    "konle": lambda eps, cfg: T.run_konle_tracker(eps, cfg=cfg),
+    "clairvoyant": lambda eps, cfg: T.run_clairvoyant(eps, cfg=cfg),
+    "oracle_q": lambda eps, cfg: T.run_oracle_q(eps, cfg=cfg),
+}
+
+TRACKER_NAMES = ("policy",) + tuple(_RUNNERS)
+
+
+def run_tracker(name, episodes, cfg: EnvConfig | None = None):
+    """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.episode.Episode`)."""
+    if name not in _RUNNERS:
+        raise ValueError(f"unknown tracker {name!r}; valid: {list(TRACKER_NAMES)}")
+    return _RUNNERS[name](list(episodes), cfg or EnvConfig())
