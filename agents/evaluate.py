@@ -163,7 +163,7 @@ def format_table(results, reference="imm2"):
             "lost", f"/{reference} [95% CI]")
     for suite, res in results.items():
         lines.append(f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run ==")
-        lines.append(f"{"tracker":20s} {cols[0]:>24s} {cols[1]:>9s} {cols[2]:>8s} {cols[3]:>9s} {cols[4]:>8s} "
+        lines.append(f"{'tracker':20s} {cols[0]:>24s} {cols[1]:>9s} {cols[2]:>8s} {cols[3]:>9s} {cols[4]:>8s} "
                      f"{cols[5]:>8s} {cols[6]:>6s} {cols[7]:>5s} {cols[8]:>5s} {cols[9]:>22s}")
         ratios = res.get(f"ratio_vs_{reference}", {})
         for t, m in res["trackers"].items():
