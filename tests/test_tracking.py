@@ -1,0 +1,210 @@
+"""Tracker: two-hit start and warm-up, row subsets equal to full-batch steps (bitwise), missed looks, the
+known-input bound, and errors."""
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from radar_env.catalog import make_setup
+from radar_env.episode import draw_episode
+from radar_env.filters import predict, process_noise, transition_cv, two_point_init, update
+from radar_env.radar import atc_radar
+from radar_env.tracking import MAX_Q_M_S2, Tracker, init_looks
+from radar_env.units import G0_M_S2
+
+
+def _episode(seed, name="random", pd=None):
+    rng = np.random.default_rng(seed)
+    radar = None if pd is None else atc_radar(detection_probability=pd)
+    setup = make_setup(name, rng, radar=radar)
+    return draw_episode(setup.scenario, setup.radar, rng)
+
+
+def _miss(ep, idx):
+    """A copy of ``ep`` with the looks ``idx`` missed (NaN plot, as draw_episode marks a miss)."""
+    det, z, R = ep.detected.copy(), ep.z_m.copy(), ep.R_m2.copy()
+    r, b, v = ep.range_m.copy(), ep.bearing_rad.copy(), ep.radial_velocity_m_s.copy()
+    det[idx] = False
+    for a in (z, R, r, b, v):
+        a[idx] = np.nan
+    return dataclasses.replace(ep, detected=det, z_m=z, R_m2=R, range_m=r, bearing_rad=b, radial_velocity_m_s=v)
+
+
+def _assert_out_equal(a, b, rows_a=None, rows_b=None):
+    """StepOutput ``a`` (optionally its rows ``rows_a``) equals ``b`` (its rows ``rows_b``) bit for bit, features
+    included."""
+    for name in a._fields:
+        va, vb = getattr(a, name), getattr(b, name)
+        if name == "features":
+            assert va.keys() == vb.keys()
+            for k in va:
+                x = np.asarray(va[k]) if rows_a is None else np.asarray(va[k])[rows_a]
+                y = np.asarray(vb[k]) if rows_b is None else np.asarray(vb[k])[rows_b]
+                assert x.tobytes() == y.tobytes(), f"feature {k}"
+            continue
+        x = np.asarray(va) if rows_a is None else np.asarray(va)[rows_a]
+        y = np.asarray(vb) if rows_b is None else np.asarray(vb)[rows_b]
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), name
+
+
+# ------------------------------------------------------------------------------------------------ track start
+@pytest.mark.parametrize("warmup", [0, 1, 5, 12])
+def test_load_two_hit_start_then_warmup(warmup):
+    ep = _miss(_episode(3), [0, 2])  # first two detected looks are 1 and 3
+    i1, i2 = init_looks(ep.detected, ep.t_s)
+    assert (i1, i2) == (1, 3)
+    q0 = 0.03 * G0_M_S2
+    tr = Tracker(1, warmup_scans=warmup, warmup_q_m_s2=q0)
+    out = tr.load([0], [ep])
+    n_steps = max(warmup, 1)
+    assert tr.k[0] == i2 + 1 + n_steps
+    assert out.look_index[0] == i2 + n_steps
+    np.testing.assert_array_equal(out.q_m_s2, [q0])
+    # the same chain written out: two_point_init of looks i1, i2, then n_steps predict/update at q0
+    x, P = two_point_init(ep.z_m[[i1]], ep.R_m2[[i1]], ep.t_s[[i1]], ep.z_m[[i2]], ep.R_m2[[i2]], ep.t_s[[i2]])
+    np.testing.assert_array_equal(x[0, :2], ep.z_m[i2])
+    t_last = ep.t_s[i2]
+    for k in range(i2 + 1, i2 + 1 + n_steps):
+        dt = np.array([ep.t_s[k] - t_last])
+        xp, Pp = predict(x, P, transition_cv(dt), process_noise(dt, np.array([q0])))
+        u = update(xp, Pp, ep.z_m[[k]], ep.R_m2[[k]], ep.detected[[k]])
+        x, P, t_last = u.x, u.P, ep.t_s[k]
+    np.testing.assert_allclose(tr.x, x, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(tr.P, P, rtol=1e-12, atol=1e-9)
+
+
+def test_two_hit_start_state_before_warmup():
+    """The prior of the first warm-up look is the prediction of two_point_init of the first two detections."""
+    ep = _miss(_episode(8), [1])
+    i1, i2 = init_looks(ep.detected, ep.t_s)
+    assert (i1, i2) == (0, 2)
+    tr = Tracker(1, warmup_scans=1, warmup_q_m_s2=0.0)
+    out = tr.load([0], [ep])
+    x0, P0 = two_point_init(ep.z_m[[i1]], ep.R_m2[[i1]], ep.t_s[[i1]], ep.z_m[[i2]], ep.R_m2[[i2]], ep.t_s[[i2]])
+    dt = ep.t_s[i2 + 1] - ep.t_s[i2]
+    np.testing.assert_allclose(out.x_prior, x0 @ transition_cv(np.array([dt]))[0].T, rtol=1e-13)
+    np.testing.assert_allclose(out.dt_s, [dt])
+
+
+# ------------------------------------------------------------------------------------------------ row subsets
+def test_step_rows_subset_equals_full_batch_bitwise():
+    eps = [_episode(s, pd=0.85) for s in range(4)]
+    full = Tracker(4)
+    full.load(np.arange(4), eps)
+    sub = copy.deepcopy(full)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = rng.uniform(0, 5 * G0_M_S2, 4)
+        a = full.step(q)
+        rows = np.array([2, 0])
+        b = sub.step(q[rows], rows=rows)
+        _assert_out_equal(a, b, rows_a=rows)
+        rest = np.array([3, 1])
+        c = sub.step(q[rest], rows=rest)
+        _assert_out_equal(a, c, rows_a=rest)
+    for name in ("x", "P", "k", "t_last"):
+        assert getattr(full, name).tobytes() == getattr(sub, name).tobytes(), name
+    for name, v in vars(full.bank).items():
+        if isinstance(v, np.ndarray):
+            assert v.tobytes() == getattr(sub.bank, name).tobytes(), f"bank.{name}"
+
+
+def test_load_subset_equals_single_tracker():
+    """Loading one row of a running batch (the vector env's autoreset) leaves the others alone and equals a
+    fresh batch-1 tracker on that episode."""
+    eps = [_episode(s) for s in range(3)]
+    tr = Tracker(3)
+    tr.load(np.arange(3), eps)
+    for _ in range(5):
+        tr.step(np.full(3, 0.5 * G0_M_S2))
+    before = copy.deepcopy(tr)
+    new = _episode(99, pd=0.9)
+    out = tr.load([1], [new])
+    one = Tracker(1)
+    ref = one.load([0], [new])
+    _assert_out_equal(out, ref)
+    for _ in range(10):
+        a = tr.step(np.full(3, 0.2 * G0_M_S2))
+        b = one.step(np.full(1, 0.2 * G0_M_S2))
+        c = before.step(np.full(3, 0.2 * G0_M_S2))
+        _assert_out_equal(a, b, rows_a=[1])
+        _assert_out_equal(a, c, rows_a=[0, 2], rows_b=[0, 2])
+
+
+# ------------------------------------------------------------------------------------------------ missed looks
+def test_missed_look_predicts_through():
+    ep = _episode(5)
+    tr = Tracker(1)
+    tr.load([0], [ep])
+    k = int(tr.k[0])
+    tr2 = Tracker(1)
+    tr2.load([0], [_miss(ep, [k, k + 1])])
+    for _ in range(2):
+        x_prev, P_prev, t_prev = tr2.x.copy(), tr2.P.copy(), tr2.t_last.copy()
+        q = np.array([0.7 * G0_M_S2])
+        out = tr2.step(q)
+        dt = ep.t_s[out.look_index] - t_prev
+        xp, Pp = predict(x_prev, P_prev, transition_cv(dt), process_noise(dt, q))
+        assert not out.detected[0] and np.isnan(out.z_m).all()
+        np.testing.assert_array_equal(out.x, out.x_prior)
+        np.testing.assert_array_equal(out.P, out.P_prior)
+        np.testing.assert_allclose(out.x, xp, rtol=1e-14)
+        np.testing.assert_allclose(out.P, Pp, rtol=1e-14)
+        assert out.nis[0] == 0 and np.all(out.nu == 0)
+        assert np.all(np.isfinite([v for v in out.features.values()]))
+    out = tr2.step(q)  # next detected look updates again
+    assert out.detected[0] and not np.array_equal(out.x, out.x_prior)
+
+
+# ------------------------------------------------------------------------------------------------ known input
+def _rmse(tracker, ep, q, **kw):
+    tracker.load([0], [ep], **kw)
+    err = []
+    while tracker.remaining_looks()[0] > 0:
+        out = tracker.step(np.array([q]), **kw)
+        err.append(out.x[0, :2] - out.truth[0, :2])
+    return float(np.sqrt(np.mean(np.sum(np.square(err), axis=1))))
+
+
+@pytest.mark.parametrize("name", ["bizup2002", "kim_lee_accel"])
+def test_known_input_beats_plain_cv_on_turns(name):
+    setup = make_setup(name)
+    ep = draw_episode(setup.scenario, setup.radar, np.random.default_rng(0))
+    known = _rmse(Tracker(1), ep, 0.0, known_input=True)
+    plain0 = _rmse(Tracker(1), ep, 0.0)
+    plain_hi = _rmse(Tracker(1), ep, 2 * G0_M_S2)
+    assert known < 0.5 * plain0
+    assert known < plain_hi
+
+
+# ------------------------------------------------------------------------------------------------ errors
+def test_errors():
+    ep = _episode(1)
+    tr = Tracker(2)
+    tr.load([0, 1], [ep, _episode(2)])
+    for bad in (-1.0, np.nan, np.inf, MAX_Q_M_S2 * 1.01):
+        with pytest.raises(ValueError, match="q_m_s2"):
+            tr.step(np.array([bad, 1.0]))
+    # a failed step changes nothing
+    k = tr.k.copy()
+    with pytest.raises(ValueError):
+        tr.step(np.array([1.0, -1.0]))
+    np.testing.assert_array_equal(tr.k, k)
+    # stepping a finished row
+    while tr.remaining_looks()[0] > 0:
+        tr.step(1.0, rows=[0])
+    with pytest.raises(ValueError, match="ended"):
+        tr.step(1.0, rows=[0])
+    with pytest.raises(ValueError, match="ended"):
+        tr.step(np.ones(2))
+    tr.step(1.0, rows=[1])  # the other row still steps
+    # fewer than two detections
+    one_hit = _miss(ep, np.arange(1, ep.n_looks))
+    with pytest.raises(ValueError, match="two"):
+        Tracker(1).load([0], [one_hit])
+    with pytest.raises(ValueError):
+        Tracker(0)
+    with pytest.raises(ValueError, match="warmup_scans"):
+        Tracker(1, warmup_scans=-1)
