@@ -421,3 +421,35 @@ def test_random_and_extreme_actions_stay_finite(action_type):
         assert np.all(np.linalg.eigvalsh(P) > 0)
         assert np.all(np.isfinite(info["estimate"]))
     assert ends >= n  # many episodes (incl. lost tracks) went through
+
+
+# ------------------------------------------------------------------------------------------------ copies
+def test_pickle_and_deepcopy_continue_identically():
+    import copy
+    import pickle
+    env = RadarTrackEnv(radar=atc_radar(detection_probability=0.9))
+    env.reset(seed=9)
+    for a in (3, 7, 1):
+        env.step(a)
+    clones = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
+    for a in [12, 0, 5] * 20:
+        ref = env.step(a)
+        for c in clones:
+            got = c.step(a)
+            assert all(_bytes_equal(x, y) for x, y in zip(ref, got))
+        if ref[2] or ref[3]:
+            break
+
+
+def test_vector_reset_options_and_seed_list():
+    venv = RadarTrackVectorEnv(num_envs=2)
+    o1, _ = venv.reset(seed=[5, 9])
+    env = RadarTrackEnv()
+    assert env.reset(seed=9)[0].tobytes() == o1[1].tobytes()
+    _, info = venv.reset(seed=0, options={"scenario": "bizup2002"})
+    bizup = make_setup("bizup2002").scenario
+    np.testing.assert_array_equal(info["truth"], bizup.states_at(info["time_s"]))
+    with pytest.raises(ValueError, match="sceanrio"):
+        venv.reset(options={"sceanrio": "bizup2002"})
+    with pytest.raises(ValueError, match="num_envs"):
+        venv.reset(seed=[1, 2, 3])
