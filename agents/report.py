@@ -50,10 +50,33 @@ def markdown_tables(results, reference="imm2"):
     return "\n".join(out)
 
 
+HEADLINE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "oracle_q", "clairvoyant")
+
+
+def headline(results, has_policy):
+    """Compact table for the README: position RMSE (m) and ratio to imm2 with 95% CIs, per suite."""
+    names = [t for t in HEADLINE_TRACKERS if t != "policy" or has_policy]
+    lines = ["| suite | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for suite, res in results.items():
+        cells = []
+        for t in names:
+            m = res["trackers"].get(t)
+            r = res.get("ratio_vs_imm2", {}).get(t)
+            if m is None:
+                cells.append("-")
+            elif t == "imm2" or r is None:
+                cells.append(f"{m['pos_rmse_m']:.0f}")
+            else:
+                cells.append(f"{m['pos_rmse_m']:.0f} ({r[0]:.2f} [{r[1][0]:.2f}, {r[1][1]:.2f}])")
+        lines.append(f"| {suite} ({res['runs']} runs) | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m agents.report", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
+    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update README.md")
     args = ap.parse_args(argv)
     docs = Path(args.docs)
     t0 = time.time()
@@ -83,6 +106,9 @@ def main(argv=None):
         markdown_tables(results),
     ]
     (docs / "results.md").write_text("\n".join(text))
+    if args.readme:
+        from .readme_blocks import replace_block
+        replace_block("headline", headline(results, policy is not None))
     (docs / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
     print("\n".join(text))
 

@@ -1,0 +1,18 @@
+"""Replace generated blocks in README.md between ``<!-- name:start -->`` and ``<!-- name:end -->`` markers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def replace_block(name, text, path=README):
+    """Put ``text`` between the markers of block ``name``; ``ValueError`` if the markers are missing."""
+    path = Path(path)
+    s = path.read_text()
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in s or end not in s:
+        raise ValueError(f"{path} has no {start} ... {end} block")
+    a, b = s.index(start) + len(start), s.index(end)
+    path.write_text(s[:a] + "\n" + text.strip() + "\n" + s[b:])
