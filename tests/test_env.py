@@ -451,5 +451,9 @@ def test_vector_reset_options_and_seed_list():
     np.testing.assert_array_equal(info["truth"], bizup.states_at(info["time_s"]))
     with pytest.raises(ValueError, match="sceanrio"):
         venv.reset(options={"sceanrio": "bizup2002"})
+    # reset() without a seed continues each row's generator (reproducible from the first seed)
+    a, b = RadarTrackVectorEnv(num_envs=2), RadarTrackVectorEnv(num_envs=2)
+    a.reset(seed=4), b.reset(seed=4)
+    assert a.reset()[0].tobytes() == b.reset()[0].tobytes()
     with pytest.raises(ValueError, match="num_envs"):
         venv.reset(seed=[1, 2, 3])

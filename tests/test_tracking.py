@@ -82,9 +82,16 @@ def test_two_hit_start_state_before_warmup():
     assert (i1, i2) == (0, 2)
     tr = Tracker(1, warmup_scans=1, warmup_q_m_s2=0.0)
     out = tr.load([0], [ep])
-    x0, P0 = two_point_init(ep.z_m[[i1]], ep.R_m2[[i1]], ep.t_s[[i1]], ep.z_m[[i2]], ep.R_m2[[i2]], ep.t_s[[i2]])
+    # closed form of the two-hit start (written out here, independent of filters.two_point_init)
+    T = ep.t_s[i2] - ep.t_s[i1]
+    R1, R2 = ep.R_m2[i1], ep.R_m2[i2]
+    x0 = np.concatenate([ep.z_m[i2], (ep.z_m[i2] - ep.z_m[i1]) / T])
+    P0 = np.block([[R2, R2 / T], [R2 / T, (R1 + R2) / T**2]])
     dt = ep.t_s[i2 + 1] - ep.t_s[i2]
-    np.testing.assert_allclose(out.x_prior, x0 @ transition_cv(np.array([dt]))[0].T, rtol=1e-13)
+    F = np.eye(4)
+    F[0, 2] = F[1, 3] = dt
+    np.testing.assert_allclose(out.x_prior[0], F @ x0, rtol=1e-12)
+    np.testing.assert_allclose(out.P_prior[0], F @ P0 @ F.T, rtol=1e-10)  # q = 0: no process noise
     np.testing.assert_allclose(out.dt_s, [dt])
 
 
