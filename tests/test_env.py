@@ -457,3 +457,57 @@ def test_vector_reset_options_and_seed_list():
     assert a.reset()[0].tobytes() == b.reset()[0].tobytes()
     with pytest.raises(ValueError, match="num_envs"):
         venv.reset(seed=[1, 2, 3])
+
+
+# ------------------------------------------------------------------------------------------------ reward formula
+@pytest.mark.parametrize("reward_type", ["squared", "absolute"])
+def test_reward_formula_against_truth(reward_type):
+    """Bizup's radar sits at the origin: e = |estimate - truth| / sqrt((sr^2 + (r sb)^2) / 2), r = |truth|."""
+    setup = make_setup("bizup2002")
+    site = setup.radar.sites[0]
+    clip = 7.0 if reward_type == "squared" else 2.0
+    env = gym.make(ENV_ID, scenario="bizup2002", reward_type=reward_type, reward_clip=clip,
+                   track_loss_gate_sigma=1e6)
+    env.reset(seed=0)
+    clipped = False
+    for a in [12, 0, 6] * 20:
+        _, r, te, tr, info = env.step(a)
+        rng_m = np.hypot(*info["truth"][:2])
+        sig = np.sqrt(0.5 * (site.range_noise_std_m ** 2 + (rng_m * site.bearing_noise_std_rad) ** 2))
+        e = np.hypot(*(info["estimate"][:2] - info["truth"][:2])) / sig
+        expected = -min(e * e if reward_type == "squared" else e, clip)
+        assert r == pytest.approx(expected, rel=1e-9)
+        assert info["reward_terms"]["track_lost"] == 0.0
+        clipped |= expected == -clip
+        if te or tr:
+            break
+    assert clipped, "the clip was never reached (action 0 in a 2 g turn should exceed it)"
+
+
+# ------------------------------------------------------------------------------------------------ vs Gymnasium
+def test_native_vector_env_equals_gymnasium_sync_vector_env():
+    """Gymnasium's own SyncVectorEnv (same-step autoreset) over the single env gives the same rollout."""
+    from gymnasium.vector import AutoresetMode
+    n = 2
+    native = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", scenario="kim_lee_accel")
+    sync = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="sync", scenario="kim_lee_accel",
+                        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP})
+    o1, _ = native.reset(seed=3)
+    o2, _ = sync.reset(seed=3)
+    assert o1.tobytes() == o2.tobytes()
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(190):
+        acts = rng.integers(0, 13, n)
+        o1, r1, te1, tr1, i1 = native.step(acts)
+        o2, r2, te2, tr2, i2 = sync.step(acts)
+        assert o1.tobytes() == o2.tobytes()
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(te1, te2)
+        np.testing.assert_array_equal(tr1, tr2)
+        np.testing.assert_array_equal(i1["estimate"], i2["estimate"])
+        if (te1 | tr1).any():
+            ends += 1
+            for j in np.flatnonzero(te1 | tr1):
+                assert i1["final_obs"][j].tobytes() == i2["final_obs"][j].tobytes()
+    assert ends >= 2
