@@ -267,3 +267,39 @@ def test_two_aircraft_encounter_seeded_and_validated():
         ap.two_aircraft_encounter(9, True)
     with pytest.raises(ValueError):
         ap.two_aircraft_encounter(np.random.default_rng(0), True, crossing_angle_range_rad=(0.0, 1.0))
+
+
+def test_simulate_intercept_miss_is_min_over_simulated_interval_only():
+    # head-on, closing at 500 m/s from 10 km, but only 10 s simulated: the gap at the end is 5 km
+    t = np.arange(11) * 1.0
+    truth = np.stack([np.zeros(11), 10000.0 - 100.0 * t], -1)
+    states = np.concatenate([truth, np.tile([0.0, -100.0], (11, 1))], -1)
+    r = ap.simulate_intercept(truth, states, t, [0.0, 0.0], 400.0, 10.0)
+    assert r.miss_distance_m == pytest.approx(5000.0) and np.isinf(r.capture_time_s)
+
+
+def test_simulate_intercept_matches_dense_sampling():
+    rng = np.random.default_rng(10)
+    t, truth, states = _straight_target(20, 40, 5.0, rng)
+    noisy = states + rng.normal(0, 1, states.shape) * np.array([300.0, 300.0, 30.0, 30.0])
+    r_cap = 100.0
+    r = ap.simulate_intercept(truth, noisy, t, [0.0, 0.0], 400.0, r_cap)
+    tg = np.linspace(t[0], t[-1], 39 * 2000 + 1)
+    step = tg[1] - tg[0]
+    d = np.empty((20, tg.size))
+    for b in range(20):
+        ix = np.interp(tg, t, r.interceptor_xy_m[b, :, 0]) - np.interp(tg, t, truth[b, :, 0])
+        iy = np.interp(tg, t, r.interceptor_xy_m[b, :, 1]) - np.interp(tg, t, truth[b, :, 1])
+        d[b] = np.hypot(ix, iy)
+    dmin = d.min(1)
+    assert np.all(dmin >= r.miss_distance_m - 1e-6)
+    assert np.all(dmin - r.miss_distance_m <= 600.0 * step + 1e-6)
+    hit = d <= r_cap
+    first = np.where(hit.any(1), tg[np.argmax(hit, 1)], np.inf)
+    fin = np.isfinite(first)
+    assert fin.sum() > 5 and (~fin).sum() > 0
+    assert np.all(np.isfinite(r.capture_time_s[fin]))
+    assert np.all(np.abs(first[fin] - r.capture_time_s[fin]) <= step + 1e-9)
+    # captures the grid missed can only be grazing ones
+    grazing = np.isfinite(r.capture_time_s) & ~fin
+    assert np.all(dmin[grazing] - r_cap < 600.0 * step)
