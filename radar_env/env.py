@@ -29,8 +29,8 @@ from .units import G0_M_S2
 
 __all__ = ["RadarTrackEnv", "RadarTrackVectorEnv", "EnvConfig", "DEFAULT_Q_LEVELS_G"]
 
-RENDER_MODES = ()
-"""Render modes available (the radar-scope display is not built yet)."""
+RENDER_MODES = ("rgb_array", "human")
+"""Render modes of the single env: a radar-scope picture (radar_env/render.py, needs matplotlib)."""
 
 DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
 """13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
@@ -337,7 +337,7 @@ class RadarTrackEnv(gym.Env):
     * v0: initial version.
     """
 
-    metadata = {"render_modes": [], "render_fps": 10}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 10}
 
     def __init__(self, **kwargs):
         self.config = EnvConfig.from_kwargs(**kwargs)
@@ -365,7 +365,11 @@ class RadarTrackEnv(gym.Env):
         self._core.rngs[0] = self.np_random
         obs, info, _ = self._core.reset_rows(np.array([0]), scenario)
         self._needs_reset = False
-        return obs[0], _row(info, 0)
+        info = _row(info, 0)
+        self._history = [(info["estimate"], info["covariance"], info["q"], info["time_s"], obs[0])]
+        if self.render_mode == "human":
+            self.render()
+        return obs[0], info
 
     def step(self, action):
         if self._needs_reset:
@@ -375,16 +379,33 @@ class RadarTrackEnv(gym.Env):
             raise ValueError(f"action must be a single value ({self.action_space}), got {action!r}")
         obs, rew, term, trunc, info = self._core.step(a.reshape(1))
         self._needs_reset = bool(term[0] or trunc[0])
+        info = _row(info, 0)
+        if self.render_mode is not None:
+            self._history.append((info["estimate"], info["covariance"], info["q"], info["time_s"], obs[0]))
         if self.render_mode == "human":
             self.render()
-        return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _row(info, 0)
+        return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), info
 
     def episode(self):
         """The current episode's stored looks (``Tracker.look_data`` views for row 0)."""
         return {f: self._core.tracker.look_data(f)[0, : self._core.tracker.n_looks[0]]
                 for f in ("t_s", "truth", "z_m", "detected")}
 
+    def _render_state(self):
+        """What the scope shows: looks processed so far, the track history and the latest features."""
+        tr = self._core.tracker
+        k = int(tr.k[0])
+        det = tr.look_data("detected")[0, :k]
+        est, P, q, t, obs = self._history[-1]
+        feats = {n: float(self.layout.decode(obs, n)) for n in ("c_min_g", "nis", "turn_rate_alg1_deg_s",
+                                                                 "turn_rate_alg2_deg_s") if n in self.layout}
+        return {"truth": tr.look_data("truth")[0, :k, :2], "plots": tr.look_data("z_m")[0, :k][det],
+                "sites": np.unique(tr.look_data("site_xy_m")[0, :k], axis=0),
+                "estimates": np.array([h[0] for h in self._history]), "P": P, "q_m_s2": q, "time_s": t,
+                "features": feats}
+
     def render(self):
+        """A radar-scope frame: RGB array ``radar_env.render.FRAME_SHAPE`` (``rgb_array``) or a window (``human``)."""
         if self.render_mode is None:
             gym.logger.warn("RadarTrack-v0: render() called without a render_mode; pass render_mode to gym.make")
             return None

@@ -1,0 +1,90 @@
+"""Radar-scope picture of a RadarTrack-v0 episode (matplotlib, imported lazily by the env).
+
+One frame shows the radar site(s) with range rings, the true path so far, the plots, the track with its
+2-sigma position ellipse, and the current q and features as text. ``render_frame(env)`` returns an RGB array of
+shape ``FRAME_SHAPE`` for ``render_mode="rgb_array"`` (usable with ``gymnasium.wrappers.RecordVideo``), or draws
+into a window for ``"human"``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .units import G0_M_S2
+
+__all__ = ["render_frame", "FRAME_SHAPE"]
+
+FRAME_SHAPE = (640, 640, 3)
+_BG, _FG, _DIM = "#03140a", "#39ff88", "#1d6b3f"
+
+
+def _import_matplotlib():
+    try:
+        import matplotlib
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError as e:  # pragma: no cover - depends on the install
+        raise ImportError("rendering RadarTrack-v0 needs matplotlib: pip install -e '.[plot]'") from e
+    return matplotlib, Figure, FigureCanvasAgg
+
+
+def _ellipse(x, P, n_sigma=2.0, n=60):
+    w, V = np.linalg.eigh(0.5 * (P[:2, :2] + P[:2, :2].T))
+    a = np.linspace(0, 2 * np.pi, n)
+    circle = np.stack([np.cos(a), np.sin(a)])
+    pts = V @ (np.sqrt(np.maximum(w, 0.0))[:, None] * circle) * n_sigma
+    return x[0] + pts[0], x[1] + pts[1]
+
+
+def render_frame(env):
+    """Draw the current state of ``env`` (a :class:`radar_env.env.RadarTrackEnv`)."""
+    _, Figure, FigureCanvasAgg = _import_matplotlib()
+    st = env._render_state()
+    if getattr(env, "_fig", None) is None:
+        h, w, _ = FRAME_SHAPE
+        env._fig = Figure(figsize=(w / 100, h / 100), dpi=100, facecolor=_BG)
+        env._canvas = FigureCanvasAgg(env._fig)
+    fig = env._fig
+    fig.clear()
+    ax = fig.add_axes([0.02, 0.02, 0.96, 0.96], facecolor=_BG)
+    km = 1e-3
+    truth, plots, est = st["truth"] * km, st["plots"] * km, st["estimates"] * km
+    centre = est[-1, :2] if len(est) else truth[-1, :2]
+    half = max(15.0, 1.3 * np.max(np.abs(truth[:, :2] - centre)) if len(truth) else 15.0)
+    half = min(half, 60.0)
+    for s in st["sites"] * km:
+        r_far = np.hypot(*(centre - s)) + half
+        for r in np.arange(10.0, r_far + 10.0, 10.0):
+            a = np.linspace(0, 2 * np.pi, 361)
+            ax.plot(s[0] + r * np.sin(a), s[1] + r * np.cos(a), color=_DIM, lw=0.6)
+        ax.plot(*s, "^", color=_FG, ms=9)
+    ax.plot(truth[:, 0], truth[:, 1], "-", color="white", lw=1.0, alpha=0.7, label="truth")
+    ax.plot(plots[:, 0], plots[:, 1], ".", color="#ffd24d", ms=4, label="plots")
+    if len(est):
+        ax.plot(est[:, 0], est[:, 1], "-", color=_FG, lw=1.5, label="track")
+        ex, ey = _ellipse(st["estimates"][-1], st["P"])
+        ax.plot(ex * km, ey * km, "-", color="#ff5577", lw=1.2, label="2-sigma")
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_aspect("equal")
+    ax.tick_params(colors=_DIM, labelsize=7)
+    for sp in ax.spines.values():
+        sp.set_color(_DIM)
+    txt = (f"t = {st['time_s']:.0f} s   q = {st['q_m_s2'] / G0_M_S2:.3g} g\n"
+           + "\n".join(f"{k} = {v:.3g}" for k, v in st["features"].items()))
+    ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", ha="left", color=_FG, family="monospace",
+            fontsize=8)
+    ax.legend(loc="lower right", fontsize=7, facecolor=_BG, edgecolor=_DIM, labelcolor=_FG)
+    env._canvas.draw()
+    frame = np.asarray(env._canvas.buffer_rgba())[..., :3].copy()
+    if env.render_mode == "human":
+        import matplotlib.pyplot as plt
+        if getattr(env, "_human_fig", None) is None:
+            env._human_fig, env._human_ax = plt.subplots(figsize=(6.4, 6.4))
+            plt.ion()
+        env._human_ax.clear()
+        env._human_ax.imshow(frame)
+        env._human_ax.axis("off")
+        plt.pause(1.0 / env.metadata["render_fps"])
+        return None
+    return frame
