@@ -344,9 +344,10 @@ def test_make_vec_native():
     np.testing.assert_allclose(rew, info["reward_terms"]["position_error"] + info["reward_terms"]["track_lost"])
 
 
-def _compare_vector_row_to_single(seed, row, num_envs, n_steps, action_type="discrete", scenario="kim_lee_accel"):
-    venv = RadarTrackVectorEnv(num_envs=num_envs, scenario=scenario, action_type=action_type)
-    env = RadarTrackEnv(scenario=scenario, action_type=action_type)
+def _compare_vector_row_to_single(seed, row, num_envs, n_steps, action_type="discrete", scenario="kim_lee_accel",
+                                  **kwargs):
+    venv = RadarTrackVectorEnv(num_envs=num_envs, scenario=scenario, action_type=action_type, **kwargs)
+    env = RadarTrackEnv(scenario=scenario, action_type=action_type, **kwargs)
     vo, vi = venv.reset(seed=seed)
     so, si = env.reset(seed=seed + row)
     assert vo[row].tobytes() == so.tobytes()
@@ -385,7 +386,8 @@ def test_vector_one_env_equals_single_env_across_boundary(action_type):
 
 def test_vector_row_i_equals_single_env_seeded_s_plus_i():
     for row in (0, 2, 3):
-        _compare_vector_row_to_single(seed=100, row=row, num_envs=4, n_steps=95, scenario="random")
+        _compare_vector_row_to_single(seed=100, row=row, num_envs=4, n_steps=95, scenario="random",
+                                      radar=atc_radar(detection_probability=0.8))
 
 
 def test_vector_bad_actions_and_step_before_reset():
