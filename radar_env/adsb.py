@@ -551,7 +551,7 @@ def load_trajectory(flight, segment="longest", *, dt_s=1.0, max_gap_s=20.0, min_
         tg, xg, yg, vx, vy = (tg[a:b] - tg[a], xg[a:b], yg[a:b], vx[a:b], vy[a:b])
         keep = (r.t_s >= t0) & (r.t_s <= t0 + tg[-1])
         r = r.take(keep)
-        splines = tuple(_Shifted(sp_, float(t0 - r0)) for sp_, r0 in zip(splines, (t0_raw, t0_raw)))
+        splines = tuple(_Shifted(sp_, t0 - t0_raw) for sp_ in splines)
     chk = velocity_check(r, splines, t0_s=t0)
     lon0 = (lon0 + 180.0) % 360.0 - 180.0
     return AdsbTrajectory(tg, xg, yg, vx, vy, flight_id=flight_id, segment=piece.index, lat0_deg=lat0,
