@@ -188,6 +188,7 @@ def intercept_course(interceptor_pos_m, interceptor_speed_m_s, target_pos_m, tar
       :math:`t = c / (\sqrt{h^2 - ac} - h)` (smaller positive root, any sign of :math:`a`, no cancellation).
     * :math:`h \ge 0` and :math:`a < 0` (interceptor faster): :math:`t = (h + \sqrt{h^2 - ac}) / (-a)`.
     * otherwise (target at least as fast and opening, or faster and passing too far): infeasible.
+      An exactly tangent case (:math:`h^2 = ac`, target faster) counts as feasible; rounding can tip it either way.
 
     The heading is that of the aim point :math:`\Delta p + v_T t`: ``atan2(aim_x, aim_y)``. When infeasible,
     ``feasible = False``, ``time_to_intercept_s = inf`` and the heading points at the target's current position
