@@ -34,8 +34,9 @@ __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLIC
 
 BUNDLED_POLICY = Path(__file__).with_name("bundled") / "policy.zip"
 DEFAULT_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-DEFAULT_RUNS = {"random": 200, "adrian_flower": 10}
-"""Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run); others: 50."""
+DEFAULT_RUNS = {"random": 200, "adrian_flower": 10, "adsb_calibration": 24}
+"""Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run; the ADS-B suite flies each of
+its 24 flights once); others: 50 (``adsb:<flight>``: 10)."""
 
 
 # ------------------------------------------------------------------------------------------------ policies
@@ -212,7 +213,7 @@ def build_parser(prog="radar-track evaluate"):
     ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
                                  "measurement streams (common random numbers).")
     ap.add_argument("--scenario", action="append", metavar="NAME",
-                    help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)} or adsb:<flight> "
+                    help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)}, adsb_calibration or adsb:<flight> "
                          f"(default: {', '.join(DEFAULT_SUITES)})")
     ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
                     help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (repeatable)")
@@ -253,7 +254,7 @@ def main(argv=None, prog="radar-track evaluate"):
     suites = []
     try:
         for n in names:
-            runs = args.runs or DEFAULT_RUNS.get(n, 50)
+            runs = args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50)
             suites.append((n, draw_suite(n, runs, seed=args.seed)))
         for f in args.trajectory or []:
             suites.append((Path(f).stem, draw_suite(f, args.runs or 50, seed=args.seed)))

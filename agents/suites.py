@@ -37,6 +37,9 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
         raise ValueError(f"runs must be >= 1, got {runs!r}")
     key = scenario if isinstance(scenario, str) else getattr(scenario, "name", "custom")
     resolved = resolve_scenario(scenario)
+    if hasattr(resolved, "setup"):   # a pool (adsb_calibration): run i flies member i mod n, every member once
+        return [draw_setup_and_episode(resolved.setup(i), radar, None, suite_rng(key, seed + i))
+                for i in range(int(runs))]
     return [draw_setup_and_episode(resolved, radar, random_config, suite_rng(key, seed + i)) for i in range(int(runs))]
 
 

@@ -111,16 +111,17 @@ class EnvConfig:
 def resolve_scenario(scenario):
     """Normalise the ``scenario`` argument: a name in ``SCENARIO_NAMES``, a CSV path, a :class:`Setup`, or a
     scenario object. Returns a name (str), a Setup, or a scenario object."""
-    if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)):
+    if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)) or hasattr(scenario, "draw_setup"):
         return scenario
     if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")):
         return TrajectoryScenario.from_csv(scenario)
     if isinstance(scenario, str):
-        if scenario.startswith("adsb:"):
+        if scenario.startswith("adsb:") or scenario == "adsb_calibration":
             from .adsb_scenarios import resolve_adsb
             return resolve_adsb(scenario)
         if scenario not in SCENARIO_NAMES:
-            raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, a "
+            raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, "
+                             "'adsb_calibration', 'adsb:<flight>', a "
                              "'.csv' trajectory file (columns t_s,x_m,y_m,vx_m_s,vy_m_s), a Setup or a scenario "
                              "object")
         return scenario
@@ -133,6 +134,9 @@ def draw_setup_and_episode(scenario, radar, random_config, rng):
     sc = resolve_scenario(scenario)
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
+    elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
+        setup = sc.draw_setup(rng)
+        setup = setup if radar is None else Setup(setup.scenario, radar)
     elif isinstance(sc, Setup):
         setup = sc if radar is None else Setup(sc.scenario, radar)
     else:
@@ -442,7 +446,12 @@ class RadarTrackVectorEnv(VectorEnv):
     def __init__(self, num_envs=1, **kwargs):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        kwargs.pop("max_episode_steps", None)
+        # gym.make_vec passes the spec's / caller's max_episode_steps; apply it as gym.make's TimeLimit does
+        # (truncated once a row has taken that many steps) rather than dropping it silently.
+        max_steps = kwargs.pop("max_episode_steps", None)
+        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or max_steps < 1):
+            raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_steps!r}")
+        self.max_episode_steps = None if max_steps is None else int(max_steps)
         self.config = EnvConfig.from_kwargs(**kwargs)
         if self.config.render_mode is not None:
             raise ValueError("RadarTrackVectorEnv does not render; use the single env")
@@ -456,6 +465,7 @@ class RadarTrackVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._all = np.arange(self.num_envs)
+        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._started = False
 
     @property
@@ -478,6 +488,7 @@ class RadarTrackVectorEnv(VectorEnv):
         if seed is not None or not self._started:
             self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
         obs, info, _ = self._core.reset_rows(self._all, scenario)
+        self._elapsed[:] = 0
         self._started = True
         return obs, _with_masks(info)
 
@@ -489,7 +500,11 @@ class RadarTrackVectorEnv(VectorEnv):
         if self.config.action_type == "continuous":
             a = a.reshape(self.num_envs, -1)[:, 0] if a.size == self.num_envs else a
         obs, rew, term, trunc, info = core.step(a)
+        self._elapsed += 1
+        if self.max_episode_steps is not None:
+            trunc = trunc | (self._elapsed >= self.max_episode_steps)
         done = term | trunc
+        self._elapsed[done] = 0
         if np.any(done):
             rows = np.flatnonzero(done)
             final_obs = np.full(self.num_envs, None, dtype=object)
