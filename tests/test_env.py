@@ -513,3 +513,22 @@ def test_native_vector_env_equals_gymnasium_sync_vector_env():
             for j in np.flatnonzero(te1 | tr1):
                 assert i1["final_obs"][j].tobytes() == i2["final_obs"][j].tobytes()
     assert ends >= 2
+
+
+def test_max_episode_steps_truncates_like_time_limit():
+    """gym.make_vec passes max_episode_steps to the vector entry point: it must truncate as gym.make's TimeLimit."""
+    venv = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=7)
+    env = gym.make(ENV_ID, max_episode_steps=7)
+    vo, _ = venv.reset(seed=0)
+    so, _ = env.reset(seed=0)
+    for t in range(1, 16):
+        vo, vr, vte, vtr, vi = venv.step(np.array([3, 3]))
+        so, sr, ste, strn, si = env.step(3)
+        assert vtr[0] == strn == (t % 7 == 0)
+        assert vtr.tolist() == [strn, strn]
+        if strn:
+            assert vi["_final_obs"].all()
+            so, _ = env.reset()
+        assert vo[0].tobytes() == so.tobytes() and vr[0] == sr
+    with pytest.raises(ValueError, match="max_episode_steps"):
+        RadarTrackVectorEnv(num_envs=1, max_episode_steps=0)
