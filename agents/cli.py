@@ -9,6 +9,7 @@ USAGE = """usage: radar-track <command> [options]
 commands:
   evaluate   compare learned policies and classical trackers on identical measurement streams
   tune       re-tune the classical baselines (constant-q KF, 2-mode IMM) on training seeds
+  train      train a q-choosing policy (PPO, DQN, SAC) on RadarTrack-v0 (random scenarios, training seeds)
 
 'radar-track <command> --help' shows the options of a command."""
 
@@ -26,6 +27,10 @@ def main(argv=None):
     if cmd == "tune":
         from baselines.tuning import main as tune_main
         tune_main(rest)
+        return 0
+    if cmd == "train":
+        from .train import main as train_main
+        train_main(rest)
         return 0
     print(f"radar-track: unknown command {cmd!r}\n\n{USAGE}", file=sys.stderr)
     return 2

@@ -1,0 +1,162 @@
+"""Training callbacks: score the policy against the tuned 2-mode IMM during training and keep the best model.
+
+:class:`ImmRatioEvalCallback` runs the current policy (deterministic) through the same tracking chain the
+evaluation uses (:func:`baselines.trackers.run_q_policy`) on a fixed selection suite of random scenarios drawn
+from the TRAINING seed range (``SELECTION_SEED_BASE + i``, default 900_000 + i: inside ``[0, 1_000_000)``,
+disjoint from the rollout streams, which come from ``seeding.np_random(seed + row)`` generators, and never the
+held-out evaluation seeds ``>= 10_000_000``). It logs ``eval/rmse_ratio_imm2`` (pooled position RMSE of the policy
+/ imm2 on identical plots) to TensorBoard and saves the best model with its ``env_config.json`` beside it, so
+``radar-track evaluate --policy <run>/best/policy.zip`` loads it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from baselines.registry import run_tracker
+from baselines.trackers import run_q_policy
+from radar_env.env import EnvConfig
+from radar_env.episode import stack_episodes
+from radar_env.units import G0_M_S2
+
+from .metrics import errors, region_masks
+from .suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
+
+__all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
+
+SELECTION_SEED_BASE = 900_000
+
+
+def pooled_rmse(batch, run):
+    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.metrics.evaluate_run`)."""
+    used = region_masks(batch, run.start_index)["used"]
+    ep, _ = errors(batch, run)
+    return float(np.sqrt(np.mean(np.nan_to_num(ep[used]) ** 2)))
+
+
+def model_choose_q(model, cfg: EnvConfig):
+    """``choose_q(obs (n, F)) -> q (n,)`` m/s^2 for an SB3 model (deterministic), as :func:`agents.evaluate.load_policy`."""
+    levels = np.asarray(cfg.q_levels_g) * G0_M_S2
+    l0, l1 = np.log10(levels[0]), np.log10(levels[-1])
+
+    def choose_q(obs):
+        act, _ = model.predict(obs.astype(np.float32), deterministic=True)
+        act = np.asarray(act)
+        if cfg.action_type == "discrete":
+            return levels[act.reshape(-1).astype(np.int64)]
+        a = np.clip(act.reshape(obs.shape[0], -1)[:, 0], -1, 1)
+        return 10.0 ** (l0 + 0.5 * (a + 1.0) * (l1 - l0))
+
+    return choose_q
+
+
+class ImmRatioEvalCallback(BaseCallback):
+    """Every ``eval_freq`` env steps (summed over the vector env's rows), score the policy / imm2 RMSE ratio.
+
+    Args:
+        env_kwargs: the env's keyword arguments (JSON-able; ``env_config.json`` of the saved model).
+        eval_freq: env steps between evaluations.
+        scenarios: ``{suite name: runs}``; ``"random"`` is the selection criterion, the others are logged.
+        seed: base seed of the selection suites (training range, disjoint from the rollouts).
+        best_dir: where the best model goes (``policy.zip`` + ``env_config.json``); None: do not save.
+    """
+
+    def __init__(self, env_kwargs, eval_freq=50_000, scenarios=None, seed=SELECTION_SEED_BASE, best_dir=None,
+                 verbose=1):
+        super().__init__(verbose)
+        scenarios = dict(scenarios or {"random": 100})
+        last = int(seed) + max(scenarios.values())
+        if int(seed) < TRAIN_SEEDS.start or last > TRAIN_SEEDS.stop or last > EVAL_SEED_BASE:
+            raise ValueError(f"selection seeds must lie in the training range {TRAIN_SEEDS}, got {seed}..{last}")
+        self.env_kwargs = dict(env_kwargs)
+        self.cfg = EnvConfig.from_kwargs(**{k: tuple(v) if isinstance(v, list) else v
+                                            for k, v in self.env_kwargs.items()})
+        self.eval_freq = int(eval_freq)
+        self.best_dir = None if best_dir is None else Path(best_dir)
+        self.primary = "random" if "random" in scenarios else next(iter(scenarios))
+        self.suites = {}
+        for name, runs in scenarios.items():
+            rc = self.cfg.random_scenario_config if name == "random" else None
+            eps = draw_suite(name, runs, seed=int(seed), random_config=rc)
+            batch = stack_episodes(eps)
+            self.suites[name] = (eps, batch, pooled_rmse(batch, run_tracker("imm2", eps)))
+        self.best_ratio = np.inf
+        self.history = []
+        self._next = self.eval_freq
+
+    def _on_step(self):
+        if self.num_timesteps >= self._next:
+            self._next += self.eval_freq
+            self.evaluate_now()
+        return True
+
+    def _on_training_end(self):
+        if not self.history or self.history[-1]["timesteps"] != self.num_timesteps:
+            self.evaluate_now()
+
+    def evaluate_now(self):
+        t0 = time.time()
+        choose_q = model_choose_q(self.model, self.cfg)
+        row = {"timesteps": int(self.num_timesteps)}
+        for name, (eps, batch, imm_rmse) in self.suites.items():
+            run = run_q_policy(eps, choose_q, "policy", self.cfg)
+            rmse = pooled_rmse(batch, run)
+            ratio = rmse / imm_rmse
+            row[f"{name}_rmse_m"], row[f"{name}_ratio_imm2"] = rmse, ratio
+            tag = "" if name == self.primary else f"_{name}"
+            self.logger.record(f"eval/rmse_ratio_imm2{tag}", ratio)
+            if name == self.primary:
+                self.logger.record("eval/pos_rmse_m", rmse)
+                self.logger.record("eval/imm2_pos_rmse_m", imm_rmse)
+                q = run.q_m_s2[np.isfinite(run.q_m_s2)] / G0_M_S2
+                if q.size:
+                    self.logger.record("eval/median_q_g", float(np.median(q)))
+        ratio = row[f"{self.primary}_ratio_imm2"]
+        row["eval_s"] = time.time() - t0
+        improved = ratio < self.best_ratio
+        if improved:
+            self.best_ratio = ratio
+            if self.best_dir is not None:
+                self.best_dir.mkdir(parents=True, exist_ok=True)
+                self.model.save(self.best_dir / "policy.zip")
+                (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
+                (self.best_dir / "selection.json").write_text(json.dumps(row, indent=1))
+        row["best"] = bool(improved)
+        self.history.append(row)
+        self.logger.record("eval/best_rmse_ratio_imm2", self.best_ratio)
+        if self.verbose:
+            others = " ".join(f"{k}={v:.3f}" for k, v in row.items() if k.endswith("_ratio_imm2"))
+            print(f"[eval @ {self.num_timesteps}] policy/imm2 {others} ({row['eval_s']:.1f} s)"
+                  f"{' *best*' if improved else ''}", flush=True)
+        return row
+
+
+class EnvTimeCallback(BaseCallback):
+    """Logs the share of wall time spent inside the env (``adapter.env_time_s``) to TensorBoard."""
+
+    def __init__(self, adapter, log_every=10_000):
+        super().__init__(0)
+        self.adapter, self.log_every = adapter, int(log_every)
+        self.t0 = None
+        self._next = self.log_every
+
+    def _on_training_start(self):
+        self.t0 = time.perf_counter()
+        self.env_t0 = self.adapter.env_time_s
+
+    def share(self):
+        wall = time.perf_counter() - self.t0
+        return (self.adapter.env_time_s - self.env_t0) / wall if wall > 0 else float("nan"), wall
+
+    def _on_step(self):
+        if self.num_timesteps >= self._next:
+            self._next += self.log_every
+            s, wall = self.share()
+            self.logger.record("time/env_share", s)
+            self.logger.record("time/env_steps_per_s", self.num_timesteps / max(wall, 1e-9))
+        return True

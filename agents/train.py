@@ -1,0 +1,215 @@
+"""Train a q-choosing policy on RadarTrack-v0 with stable-baselines3 (PPO, DQN or SAC).
+
+``radar-track train --algo ppo [--action-type discrete|continuous] [--timesteps N] [--n-envs N] [--seed S]
+[--out runs/] [--env-kwargs JSON] [--hp KEY=VALUE ...]``
+
+Hyperparameters come from ``agents/hyperparams/<algo>.toml`` (table ``"RadarTrack-v0"``, rl-zoo3 style); the
+command line overrides ``n_timesteps``, ``n_envs``, env arguments (``--env-kwargs``, merged over the file's
+``env_kwargs``) and any other key (``--hp gamma=0.9``, the value parsed as JSON, else kept as a string).
+
+Rollouts run on the native batched vector env (:class:`radar_env.env.RadarTrackVectorEnv`) through the SB3
+adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
+``[0, 1_000_000)``). The run folder ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
+
+* ``policy.zip`` (final model) and ``env_config.json`` beside it (``radar-track evaluate --policy`` reads both);
+* ``best/policy.zip`` + ``best/env_config.json`` + ``best/selection.json``: the model with the lowest position
+  RMSE ratio to the tuned IMM on the selection suite (training-range seeds 900_000 + i, see
+  :mod:`agents.callbacks`);
+* ``config.json`` (hyperparameters used), ``args.json``, ``command.txt``, ``summary.json`` (wall time, env share of
+  wall time, selection history), ``checkpoints/``, ``tb/`` (TensorBoard), ``vecnormalize.pkl`` if rewards were
+  normalised (rewards only: the observation is already scaled, so evaluation needs no statistics).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .suites import TRAIN_SEEDS
+
+__all__ = ["main", "load_hyperparams", "train", "ALGOS", "ENV_ID"]
+
+ENV_ID = "RadarTrack-v0"
+ALGOS = ("ppo", "dqn", "sac")
+HP_DIR = Path(__file__).with_name("hyperparams")
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
+_SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
+            "eval_runs", "eval_scenarios", "checkpoint_freq")
+
+
+def load_hyperparams(algo, path=None):
+    """The ``RadarTrack-v0`` table of ``agents/hyperparams/<algo>.toml`` (or ``path``)."""
+    path = Path(path) if path else HP_DIR / f"{algo}.toml"
+    with open(path, "rb") as f:
+        table = tomllib.load(f)
+    if ENV_ID not in table:
+        raise ValueError(f"{path}: no [\"{ENV_ID}\"] table")
+    return table[ENV_ID]
+
+
+def _schedule(v):
+    """A number, or ``"lin_<x>"``: linear decay from x to 0 over training."""
+    if isinstance(v, str) and v.startswith("lin_"):
+        x0 = float(v[4:])
+        return lambda progress_remaining: progress_remaining * x0
+    return float(v) if isinstance(v, (int, float)) else v
+
+
+def _policy_kwargs(pk):
+    import torch.nn as nn
+    pk = dict(pk or {})
+    if "activation_fn" in pk:
+        name = pk["activation_fn"]
+        if name not in ACTIVATIONS:
+            raise ValueError(f"policy_kwargs.activation_fn must be one of {ACTIVATIONS}, got {name!r}")
+        pk["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU,
+                               "silu": nn.SiLU}[name]
+    return pk
+
+
+def _parse_hp(items):
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise SystemExit(f"error: --hp expects KEY=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None):
+    """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder."""
+    import torch
+    import stable_baselines3 as sb3
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .callbacks import EnvTimeCallback, ImmRatioEvalCallback
+    from .sb3_vec import make_sb3_vec_env
+
+    torch.set_num_threads(1)
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    hp = dict(hp)
+    env_kwargs = dict(hp.get("env_kwargs") or {})
+    if env_kwargs.get("scenario", "random") != "random":
+        raise ValueError("training uses the random scenario generator only (env_kwargs.scenario must be 'random')")
+    env_kwargs.pop("scenario", None)
+    act = env_kwargs.setdefault("action_type", "continuous" if algo == "sac" else "discrete")
+    if algo == "dqn" and act != "discrete":
+        raise ValueError("DQN needs action_type='discrete'")
+    if algo == "sac" and act != "continuous":
+        raise ValueError("SAC needs action_type='continuous'")
+    n_envs, n_timesteps = int(hp.get("n_envs", 16)), int(hp.get("n_timesteps", 1_000_000))
+    seed = int(seed)
+    if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
+        raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
+    (run / "args.json").write_text(json.dumps(args or {}, indent=1))
+    (run / "command.txt").write_text((command or "") + "\n")
+    (run / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+
+    env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
+    if hp.get("normalize_reward", False):
+        gamma = float(hp.get("gamma", 0.99))
+        env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=gamma)
+
+    kwargs = {k: v for k, v in hp.items() if k not in _SPECIAL}
+    for k in ("learning_rate", "clip_range"):
+        if k in kwargs:
+            kwargs[k] = _schedule(kwargs[k])
+    cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
+    model = cls(hp.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=0,
+                tensorboard_log=str(run / "tb"), policy_kwargs=_policy_kwargs(hp.get("policy_kwargs")), **kwargs)
+
+    scenarios = hp.get("eval_scenarios") or {"random": int(hp.get("eval_runs", 100))}
+    eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,
+                                   best_dir=run / "best", verbose=verbose)
+    time_cb = EnvTimeCallback(adapter)
+    ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
+    ckpt = CheckpointCallback(ckpt_freq, str(run / "checkpoints"), name_prefix=algo)
+    t0 = time.perf_counter()
+    model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
+                tb_log_name=algo)
+    wall = time.perf_counter() - t0
+    model.save(run / "policy.zip")
+    if isinstance(env, VecNormalize):
+        env.save(str(run / "vecnormalize.pkl"))
+    eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
+    summary = {
+        "timesteps": int(model.num_timesteps), "wall_s": wall, "env_s": adapter.env_time_s,
+        "env_share_of_wall": adapter.env_time_s / wall, "selection_eval_s": eval_s,
+        "env_share_of_wall_excluding_selection": adapter.env_time_s / max(wall - eval_s, 1e-9),
+        "steps_per_s": model.num_timesteps / wall, "best_selection_ratio_imm2": eval_cb.best_ratio,
+        "selection_history": eval_cb.history,
+    }
+    (run / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    if verbose:
+        print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
+              f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
+              f" excluding selection evals); best selection ratio policy/imm2 {eval_cb.best_ratio:.3f}")
+    env.close()
+    return run
+
+
+def build_parser(prog="radar-track train"):
+    ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
+                                 "scenarios, training seeds) with stable-baselines3.")
+    ap.add_argument("--algo", required=True, choices=ALGOS)
+    ap.add_argument("--action-type", choices=("discrete", "continuous"),
+                    help="default: the hyperparameter file's (discrete for PPO/DQN, continuous for SAC)")
+    ap.add_argument("--timesteps", type=int, help="total env steps (default: the file's n_timesteps)")
+    ap.add_argument("--n-envs", type=int, help="rows of the vector env (default: the file's n_envs)")
+    ap.add_argument("--seed", type=int, default=0, help="row i of the vector env is seeded seed + i (training range)")
+    ap.add_argument("--out", default="runs", help="parent folder of the run folder (default ./runs)")
+    ap.add_argument("--name", help="run folder name (default <algo>_<action>_s<seed>_<time>)")
+    ap.add_argument("--env-kwargs", default="{}", help="JSON dict of RadarTrack-v0 arguments, merged over the file's")
+    ap.add_argument("--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (value as JSON)")
+    ap.add_argument("--hyperparams", help="TOML file to read instead of agents/hyperparams/<algo>.toml")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--quiet", action="store_true")
+    return ap
+
+
+def main(argv=None, prog="radar-track train"):
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(prog).parse_args(argv)
+    hp = load_hyperparams(args.algo, args.hyperparams)
+    try:
+        ek = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
+    if not isinstance(ek, dict):
+        raise SystemExit("error: --env-kwargs must be a JSON object")
+    hp.update(_parse_hp(args.hp))
+    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    if args.action_type:
+        hp["env_kwargs"]["action_type"] = args.action_type
+    if args.timesteps is not None:
+        hp["n_timesteps"] = args.timesteps
+    if args.n_envs is not None:
+        hp["n_envs"] = args.n_envs
+    command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
+    try:
+        return train(args.algo, hp, seed=args.seed, out=args.out, progress=not args.no_progress,
+                     verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+
+
+if __name__ == "__main__":
+    main(prog="python -m agents.train")
