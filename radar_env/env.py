@@ -111,16 +111,17 @@ class EnvConfig:
 def resolve_scenario(scenario):
     """Normalise the ``scenario`` argument: a name in ``SCENARIO_NAMES``, a CSV path, a :class:`Setup`, or a
     scenario object. Returns a name (str), a Setup, or a scenario object."""
-    if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)):
+    if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)) or hasattr(scenario, "draw_setup"):
         return scenario
     if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")):
         return TrajectoryScenario.from_csv(scenario)
     if isinstance(scenario, str):
-        if scenario.startswith("adsb:"):
+        if scenario.startswith("adsb:") or scenario == "adsb_calibration":
             from .adsb_scenarios import resolve_adsb
             return resolve_adsb(scenario)
         if scenario not in SCENARIO_NAMES:
-            raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, a "
+            raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, "
+                             "'adsb_calibration', 'adsb:<flight>', a "
                              "'.csv' trajectory file (columns t_s,x_m,y_m,vx_m_s,vy_m_s), a Setup or a scenario "
                              "object")
         return scenario
@@ -133,6 +134,9 @@ def draw_setup_and_episode(scenario, radar, random_config, rng):
     sc = resolve_scenario(scenario)
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
+    elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
+        setup = sc.draw_setup(rng)
+        setup = setup if radar is None else Setup(setup.scenario, radar)
     elif isinstance(sc, Setup):
         setup = sc if radar is None else Setup(sc.scenario, radar)
     else:
