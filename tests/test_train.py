@@ -1,0 +1,138 @@
+"""Training pipeline: the SB3 adapter equals DummyVecEnv over the single env, PPO/DQN/SAC train end to end and
+their saved models run in ``radar-track evaluate``, the bundled policy acts deterministically."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
+
+from agents import evaluate as ev  # noqa: E402
+from agents.callbacks import ImmRatioEvalCallback  # noqa: E402
+from agents.cli import main as cli_main  # noqa: E402
+from agents.sb3_vec import make_sb3_vec_env  # noqa: E402
+from agents.train import load_hyperparams, main as train_main, train  # noqa: E402
+from radar_env.env import RadarTrackEnv  # noqa: E402
+
+
+def _assert_info_equal(i1, i2):
+    assert set(i1) == set(i2), set(i1) ^ set(i2)
+    for k in i1:
+        if isinstance(i1[k], dict):
+            assert i1[k] == i2[k], k
+        else:
+            assert np.array_equal(np.asarray(i1[k]), np.asarray(i2[k])), k
+
+
+@pytest.mark.parametrize("action_type", ["discrete", "continuous"])
+def test_adapter_matches_dummy_vec_env_across_episode_ends(action_type):
+    n, seed = 3, 11
+    kw = {"action_type": action_type, "warmup_scans": 2}
+    vec, _ = make_sb3_vec_env(n, kw, seed=seed, monitor=False, full_info=True)
+    lean, _ = make_sb3_vec_env(n, kw, seed=seed, monitor=False)
+    dummy = DummyVecEnv([lambda: RadarTrackEnv(**kw) for _ in range(n)])
+    dummy.seed(seed)
+    assert dummy._seeds == vec._seeds == [seed + i for i in range(n)]
+    o1, o2, o3 = vec.reset(), dummy.reset(), lean.reset()
+    assert np.array_equal(o1, o2) and np.array_equal(o3, o2)
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(700):
+        if action_type == "discrete":
+            a = rng.integers(0, 13, n)
+        else:
+            a = rng.uniform(-1, 1, (n, 1)).astype(np.float32)
+        r1, r2, r3 = vec.step(a), dummy.step(a), lean.step(a)
+        for x, y, z in zip(r1[:3], r2[:3], r3[:3]):
+            assert np.array_equal(x, y) and np.array_equal(z, y)
+        for i1, i2, i3 in zip(r1[3], r2[3], r3[3]):
+            _assert_info_equal(i1, i2)
+            assert i3["TimeLimit.truncated"] == i2["TimeLimit.truncated"]
+            if "terminal_observation" in i2:
+                assert np.array_equal(i3["terminal_observation"], i2["terminal_observation"])
+            else:
+                assert "terminal_observation" not in i3
+        ends += int(r2[2].sum())
+    assert ends >= 6  # crossed several episode boundaries (about 170 looks per random episode)
+
+
+def test_adapter_seed_none_and_attrs():
+    vec, adapter = make_sb3_vec_env(2, {}, seed=None, monitor=True)
+    obs = vec.reset()
+    assert obs.shape == (2, 14) and obs.dtype == np.float32
+    assert vec.get_attr("render_mode") == [None, None]
+    assert vec.env_is_wrapped(object) == [False, False]
+    obs, rew, done, infos = vec.step(np.array([4, 4]))
+    assert rew.shape == (2,) and len(infos) == 2 and adapter.env_time_s > 0
+
+
+def _tiny(algo):
+    hp = load_hyperparams(algo)
+    hp.update(n_envs=4, n_timesteps=2048, eval_freq=1024, eval_runs=4, checkpoint_freq=1024)
+    if algo == "ppo":
+        hp.update(n_steps=128, batch_size=128, n_epochs=2)
+    else:
+        hp.update(learning_starts=256, buffer_size=5000, batch_size=64)
+    if algo == "dqn":
+        hp.update(target_update_interval=500)
+    hp["env_kwargs"] = {**hp["env_kwargs"], "warmup_scans": 4}
+    return hp
+
+
+@pytest.mark.parametrize("algo", ["ppo", "dqn", "sac"])
+def test_train_end_to_end_and_evaluate(algo, tmp_path, capsys):
+    run = train(algo, _tiny(algo), seed=3, out=tmp_path, progress=False, verbose=0, run_name=algo)
+    for f in ("policy.zip", "env_config.json", "config.json", "args.json", "command.txt", "summary.json",
+              "best/policy.zip", "best/env_config.json", "best/selection.json"):
+        assert (run / f).is_file(), f
+    assert any((run / "checkpoints").iterdir()) and any((run / "tb").iterdir())
+    assert (run / "vecnormalize.pkl").is_file()
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["timesteps"] >= 2048 and 0 < summary["env_share_of_wall"] < 1
+    assert np.isfinite(summary["best_selection_ratio_imm2"])
+    env_cfg = json.loads((run / "env_config.json").read_text())
+    assert env_cfg["action_type"] == ("continuous" if algo == "sac" else "discrete")
+    for p in (run / "policy.zip", run / "best" / "policy.zip"):
+        res = ev.main(["--policy", str(p), "--scenario", "random", "--runs", "2", "--no-plots", "--quiet",
+                       "--trackers", "policy,imm2"])
+        m = res["random"]["trackers"]["policy"]
+        assert np.isfinite(m["pos_rmse_m"]) and m["runs"] == 2
+    capsys.readouterr()
+
+
+def test_cli_train_branch_and_errors(tmp_path, capsys):
+    assert cli_main(["train", "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--out", str(tmp_path),
+                     "--name", "cli", "--no-progress", "--quiet", "--hp", "n_steps=128", "--hp", "batch_size=64",
+                     "--hp", "n_epochs=1", "--hp", "eval_runs=2", "--hp", "eval_freq=256",
+                     "--env-kwargs", '{"reward_type": "absolute"}']) == 0
+    cmd = (tmp_path / "cli" / "command.txt").read_text()
+    assert cmd.startswith("radar-track train --algo ppo") and "absolute" in cmd
+    assert json.loads((tmp_path / "cli" / "env_config.json").read_text())["reward_type"] == "absolute"
+    with pytest.raises(SystemExit, match="DQN needs"):
+        train_main(["--algo", "dqn", "--action-type", "continuous", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="training seeds"):
+        train_main(["--algo", "ppo", "--seed", "10000000", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="random"):
+        train_main(["--algo", "ppo", "--env-kwargs", '{"scenario": "bizup2002"}', "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="training range"):
+        ImmRatioEvalCallback({}, scenarios={"random": 2}, seed=10_000_000)
+    capsys.readouterr()
+
+
+@pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
+def test_bundled_policy_loads_and_is_deterministic():
+    choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
+    env = RadarTrackEnv(**{f: getattr(cfg, f) for f in ("action_type", "q_levels_g", "features", "reward_type")})
+    obs = [env.reset(seed=5)[0]]
+    for _ in range(40):
+        obs.append(env.step(env.action_space.sample() if env.config.action_type == "discrete"
+                            else np.zeros(1, np.float32))[0])
+    obs = np.stack(obs)
+    q1, q2 = choose_q(obs), choose_q(obs.copy())
+    assert np.array_equal(q1, q2) and np.all(np.isfinite(q1)) and np.all(q1 > 0)
+    assert ev.BUNDLED_POLICY.stat().st_size < 1_000_000
