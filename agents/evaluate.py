@@ -27,6 +27,7 @@ from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
+from .downstream import intercept_metrics, warning_metrics
 from .metrics import evaluate_run, ratio_ci
 from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
 
@@ -34,7 +35,7 @@ __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLIC
 
 BUNDLED_POLICY = Path(__file__).with_name("bundled") / "policy.zip"
 DEFAULT_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-DEFAULT_RUNS = {"random": 200, "adrian_flower": 10, "adsb_calibration": 24}
+DEFAULT_RUNS = {"random": 200, "adrian_flower": 10, "adsb_calibration": 24, "encounters": 100}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run; the ADS-B suite flies each of
 its 24 flights once); others: 50 (``adsb:<flight>``: 10)."""
 
@@ -116,6 +117,10 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()), "trackers": {}}
         for t, r in suite_runs.items():
             res["trackers"][t] = evaluate_run(batch, r)
+            if suite == "encounters":
+                res["trackers"][t].update(warning_metrics(batch, r))
+            else:
+                res["trackers"][t].update(intercept_metrics(batch, r))
         if reference in suite_runs:
             res[f"ratio_vs_{reference}"] = {
                 t: list(_pair(ratio_ci(batch, r, suite_runs[reference]))) for t, r in suite_runs.items()}
@@ -213,7 +218,8 @@ def build_parser(prog="radar-track evaluate"):
     ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
                                  "measurement streams (common random numbers).")
     ap.add_argument("--scenario", action="append", metavar="NAME",
-                    help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)}, adsb_calibration or adsb:<flight> "
+                    help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)}, encounters (conflict warnings), "
+                         "adsb_calibration or adsb:<flight> "
                          f"(default: {', '.join(DEFAULT_SUITES)})")
     ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
                     help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (repeatable)")

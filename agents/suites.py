@@ -25,6 +25,8 @@ TUNING_SEEDS = range(1_000_000, 2_000_000)
 EVAL_SEED_BASE = 10_000_000
 DEFAULT_SUITES = ("random", "bizup2002", "adrian_flower", "kim_lee_accel", "seed002_course_changes",
                   "seed002_two_radars")
+EXTRA_SUITES = ("encounters", "adsb_calibration")
+"""Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights."""
 
 
 def suite_rng(suite_name, seed):
@@ -36,6 +38,9 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
     if int(runs) < 1:
         raise ValueError(f"runs must be >= 1, got {runs!r}")
     key = scenario if isinstance(scenario, str) else getattr(scenario, "name", "custom")
+    if scenario == "encounters":     # pairs of aircraft for the conflict-warning test (agents.downstream)
+        from .downstream import draw_encounters
+        return draw_encounters(runs, lambda i: suite_rng(key, seed + i))
     resolved = resolve_scenario(scenario)
     if hasattr(resolved, "setup"):   # a pool (adsb_calibration): run i flies member i mod n, every member once
         return [draw_setup_and_episode(resolved.setup(i), radar, None, suite_rng(key, seed + i))

@@ -84,7 +84,7 @@ class EnvConfig:
             raise ValueError("RadarTrack-v0: q_levels_g must be >= 2 strictly increasing values in (0, 100] g, got "
                              f"{self.q_levels_g!r}")
         ObservationLayout(self.features)  # raises for unknown / repeated names
-        rng_check("warmup_scans", self.warmup_scans, 0, 1000, integer=True)
+        rng_check("warmup_scans", self.warmup_scans, 1, 1000, integer=True)
         rng_check("warmup_q_g", self.warmup_q_g, 0.0, 100.0)
         if self.reward_type not in ("squared", "absolute"):
             raise ValueError(f"RadarTrack-v0: reward_type must be 'squared' or 'absolute', got {self.reward_type!r}")
@@ -332,7 +332,7 @@ class RadarTrackEnv(gym.Env):
     * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios.
     * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
     * ``features``: tuple of observation names (table above).
-    * ``warmup_scans`` (12, in [0, 1000]), ``warmup_q_g`` (0.03).
+    * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03).
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
 

@@ -122,7 +122,8 @@ class Tracker:
 
     Args:
         batch_size: number of rows B.
-        warmup_scans: looks filtered at ``warmup_q_m_s2`` after the two-hit start (Bizup: 12), >= 0.
+        warmup_scans: looks filtered at ``warmup_q_m_s2`` after the two-hit start (Bizup: 12), >= 1 (the first
+            observation needs the features of one filtered look).
         warmup_q_m_s2: process-noise level during warm-up (Bizup: 0.03 g).
         n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.features.FeatureBank`.
     """
@@ -133,8 +134,8 @@ class Tracker:
         if self.B < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
         self.warmup_scans = int(warmup_scans)
-        if not 0 <= self.warmup_scans <= 1000:
-            raise ValueError(f"warmup_scans must be in [0, 1000], got {warmup_scans!r}")
+        if not 1 <= self.warmup_scans <= 1000:
+            raise ValueError(f"warmup_scans must be in [1, 1000], got {warmup_scans!r}")
         self.warmup_q_m_s2 = float(warmup_q_m_s2)
         if not 0.0 <= self.warmup_q_m_s2 <= MAX_Q_M_S2:
             raise ValueError(f"warmup_q_m_s2 must be in [0, {MAX_Q_M_S2}], got {warmup_q_m_s2!r}")
@@ -173,7 +174,7 @@ class Tracker:
         z1, R1, t1, z2, R2, t2 = [], [], [], [], [], []
         for r, e in zip(rows, episodes):
             i1, i2 = init_looks(e.detected, e.t_s)
-            need = i2 + 1 + max(self.warmup_scans, 1)
+            need = i2 + 1 + self.warmup_scans
             if e.n_looks < need:
                 raise ValueError(f"episode {e.name!r} has {e.n_looks} looks; the track start needs {need} "
                                  f"(two hits at looks {i1} and {i2}, then {self.warmup_scans} warm-up looks)")
@@ -199,7 +200,7 @@ class Tracker:
         xfull[rows], tfull[rows] = x0, t2
         self.bank.reset(mask, plots_xy=plots, plot_times_s=times, x=xfull, t_s=tfull)
         out = None
-        for _ in range(max(self.warmup_scans, 1)):
+        for _ in range(self.warmup_scans):
             out = self.step(np.full(rows.size, self.warmup_q_m_s2), rows=rows, known_input=known_input)
         return out
 

@@ -50,7 +50,7 @@ def _assert_out_equal(a, b, rows_a=None, rows_b=None):
 
 
 # ------------------------------------------------------------------------------------------------ track start
-@pytest.mark.parametrize("warmup", [0, 1, 5, 12])
+@pytest.mark.parametrize("warmup", [1, 5, 12])
 def test_load_two_hit_start_then_warmup(warmup):
     ep = _miss(_episode(3), [0, 2])  # first two detected looks are 1 and 3
     i1, i2 = init_looks(ep.detected, ep.t_s)
@@ -58,7 +58,7 @@ def test_load_two_hit_start_then_warmup(warmup):
     q0 = 0.03 * G0_M_S2
     tr = Tracker(1, warmup_scans=warmup, warmup_q_m_s2=q0)
     out = tr.load([0], [ep])
-    n_steps = max(warmup, 1)
+    n_steps = warmup
     assert tr.k[0] == i2 + 1 + n_steps
     assert out.look_index[0] == i2 + n_steps
     np.testing.assert_array_equal(out.q_m_s2, [q0])
@@ -215,3 +215,5 @@ def test_errors():
         Tracker(0)
     with pytest.raises(ValueError, match="warmup_scans"):
         Tracker(1, warmup_scans=-1)
+    with pytest.raises(ValueError, match=r"warmup_scans must be in \[1"):
+        Tracker(1, warmup_scans=0)

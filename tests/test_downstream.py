@@ -1,0 +1,51 @@
+"""Downstream applications in the evaluation: encounter construction, warnings judged against the truth,
+intercepts driven by track estimates."""
+
+import numpy as np
+
+from agents.downstream import (ENCOUNTER_INFO, LEAD_AFTER_TURN_S, T_CPA_S, intercept_metrics, warning_metrics)
+from agents.suites import draw_suite
+from baselines.registry import run_tracker
+from baselines.trackers import TrackRun
+from radar_env.applications import closest_approach
+from radar_env.episode import stack_episodes
+from radar_env.units import NM_M
+
+
+def test_encounters_have_prescribed_closest_approach_after_the_turn():
+    eps = draw_suite("encounters", 6, seed=3)
+    for j in range(0, len(eps), 2):
+        a, b = eps[j], eps[j + 1]
+        conflict, t_cpa, d = ENCOUNTER_INFO[b.name]
+        assert np.array_equal(a.t_s, b.t_s)
+        k = np.searchsorted(a.t_s, T_CPA_S - LEAD_AFTER_TURN_S + 1.0)   # first look after B's turn
+        ca = closest_approach(a.truth[k, :2], a.truth[k, 2:], b.truth[k, :2], b.truth[k, 2:])
+        assert abs(float(ca.t_cpa_s) + a.t_s[k] - T_CPA_S) < 1e-6 and abs(float(ca.d_cpa_m) - d) < 1e-6
+        assert (d < 1 * NM_M) == conflict
+        assert np.any(np.abs(b.truth_turn_rate_rad_s) > 0)              # B does turn onto its course
+
+
+def _perfect(batch):
+    return TrackRun("truth", batch.truth.copy(), np.tile(np.eye(4), batch.truth.shape[:2] + (1, 1)),
+                    np.full(batch.valid.shape[0], 14), np.full(batch.valid.shape, np.nan))
+
+
+def test_warning_metrics_perfect_track_is_ideal_and_trackers_are_judged_against_it():
+    eps = draw_suite("encounters", 10, seed=4)
+    batch = stack_episodes(eps)
+    m = warning_metrics(batch, _perfect(batch))
+    assert m["false_warning_rate"] == 0 and m["missed_warning_rate"] == 0 and m["missed_warnings"] == 0
+    assert m["warning_lead_time_s"] == m["ideal_lead_time_s"] > 0
+    low = warning_metrics(batch, run_tracker("kf_low", eps))
+    clair = warning_metrics(batch, run_tracker("clairvoyant", eps))
+    assert clair["missed_warning_rate"] + clair["false_warning_rate"] <= low["missed_warning_rate"] + \
+        low["false_warning_rate"]
+
+
+def test_intercept_metrics_perfect_track_captures_and_noisy_track_misses_more():
+    eps = draw_suite("bizup2002", 6, seed=5)
+    batch = stack_episodes(eps)
+    perfect = intercept_metrics(batch, _perfect(batch))
+    assert perfect["intercept_capture_rate"] == 1.0 and perfect["intercept_miss_m_median"] < 1e-6
+    low = intercept_metrics(batch, run_tracker("kf_low", eps))
+    assert low["intercept_miss_m_median"] > perfect["intercept_miss_m_median"]
