@@ -34,7 +34,7 @@ import numpy as np
 
 from .suites import TRAIN_SEEDS
 
-__all__ = ["main", "load_hyperparams", "train", "ALGOS", "ENV_ID"]
+__all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID"]
 
 ENV_ID = "RadarTrack-v0"
 ALGOS = ("ppo", "dqn", "sac")
@@ -163,7 +163,55 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
               f" excluding selection evals); best selection ratio policy/imm2 {eval_cb.best_ratio:.3f}")
     env.close()
+    try:
+        plot_training_curve(run)
+    except ImportError:  # pragma: no cover - matplotlib is optional
+        pass
     return run
+
+
+def _tb_scalars(run, tags):
+    """``{tag: (steps, values)}`` from the run's TensorBoard event files (empty if tensorboard is missing)."""
+    try:
+        from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    except ImportError:  # pragma: no cover - depends on the install
+        return {}
+    out = {}
+    for d in sorted(Path(run, "tb").glob("*")):
+        acc = EventAccumulator(str(d), size_guidance={"scalars": 0})
+        acc.Reload()
+        for t in tags:
+            if t in acc.Tags().get("scalars", []):
+                ev = acc.Scalars(t)
+                s0, v0 = out.get(t, ([], []))
+                out[t] = (s0 + [e.step for e in ev], v0 + [e.value for e in ev])
+    return out
+
+
+def plot_training_curve(run, png=None):
+    """Training curve of a run folder: mean episode return and the selection ratio policy/imm2. Returns the PNG."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    run = Path(run)
+    png = Path(png) if png else run / "training_curve.png"
+    hist = json.loads((run / "summary.json").read_text()).get("selection_history", [])
+    sc = _tb_scalars(run, ["rollout/ep_rew_mean"])
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    if "rollout/ep_rew_mean" in sc:
+        a1.plot(*sc["rollout/ep_rew_mean"], lw=1)
+    a1.set(xlabel="env steps", ylabel="mean episode return", title="training episodes (random scenarios)")
+    if hist:
+        keys = [k for k in hist[0] if k.endswith("_ratio_imm2")]
+        for k in keys:
+            a2.plot([h["timesteps"] for h in hist], [h[k] for h in hist], "o-", ms=3, label=k.replace("_ratio_imm2", ""))
+        a2.legend()
+    a2.axhline(1.0, color="k", lw=0.8, ls="--")
+    a2.set(xlabel="env steps", ylabel="position RMSE / imm2", title="selection suite (training-range seeds)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
 
 
 def build_parser(prog="radar-track train"):
