@@ -97,6 +97,9 @@ class ObservationLayout:
         self.high = np.array([s.high for s in self.specs], dtype=np.float32)
         self._lq0, self._lq1 = np.log10(q_min_m_s2 / G0_M_S2), np.log10(q_max_m_s2 / G0_M_S2)
         self._index = {n: i for i, n in enumerate(names)}
+        self._scale = np.array([s.scale for s in self.specs])
+        self._log10p = np.array([s.kind == "log10p" for s in self.specs])
+        self._logq = np.array([s.kind == "logq" for s in self.specs])
 
     def __contains__(self, name):
         return name in self._index
@@ -121,22 +124,21 @@ class ObservationLayout:
             "q_prev_g": lambda: np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2,
             "detected": lambda: out.detected.astype(np.float64),
         }
-        return np.stack([np.broadcast_to(vals[n](), out.dt_s.shape) for n in self.names], axis=-1)
+        n = out.dt_s.shape[0]
+        cols = [vals[name]() for name in self.names]
+        return np.stack([c if np.shape(c) == (n,) else np.full(n, c, dtype=np.float64) for c in cols], axis=-1)
 
     def encode_physical(self, phys):
         """(n, F) physical values -> (n, F) float32 observation, clipped to the Box."""
         phys = np.asarray(phys, dtype=np.float64)
-        obs = np.empty_like(phys)
-        for j, s in enumerate(self.specs):
-            v = phys[..., j]
-            if s.kind == "linear":
-                obs[..., j] = v / s.scale
-            elif s.kind == "log10p":
-                obs[..., j] = np.log10(1.0 + np.maximum(v, 0.0)) / s.scale
-            else:  # logq
-                lq = np.log10(np.maximum(v, 1e-12))
-                obs[..., j] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
-        obs = np.nan_to_num(obs, nan=0.0)
+        obs = phys / self._scale
+        if self._log10p.any():
+            obs[..., self._log10p] = np.log10(1.0 + np.maximum(phys[..., self._log10p], 0.0)) / \
+                self._scale[self._log10p]
+        if self._logq.any():
+            lq = np.log10(np.maximum(phys[..., self._logq], 1e-12))
+            obs[..., self._logq] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
+        obs[np.isnan(obs)] = 0.0
         return np.clip(obs, self.low, self.high).astype(np.float32)
 
     def encode(self, out, q_prev_m_s2):

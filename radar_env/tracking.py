@@ -151,16 +151,8 @@ class Tracker:
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K, like: Episode):
-        if K <= self._cap:
-            return
-        new = {}
-        for f in _LOOK_FIELDS:
-            a = getattr(like, f)
-            arr = np.zeros((self.B, K) + a.shape[1:], dtype=a.dtype)
-            if f in self._data:
-                arr[:, : self._cap] = self._data[f]
-            new[f] = arr
-        self._data, self._cap = new, K
+        if K > self._cap:
+            self._grow(K, {f: getattr(like, f)[None] for f in _LOOK_FIELDS})
 
     def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
@@ -236,13 +228,15 @@ class Tracker:
             prev_truth = d["truth"][sel, k - 1]
             u = look["truth"] - np.einsum("bij,bj->bi", F, prev_truth)
         x_prior, P_prior = predict(x_prev, P_prev, F, Q, u)
-        upd = update(x_prior, P_prior, look["z_m"], look["R_m2"], look["detected"])
+        det = look["detected"]
+        det2 = det[:, None]
+        upd = update(x_prior, P_prior, look["z_m"], look["R_m2"], det)
         feats = _bank_update(
-            self.bank, None if rows is None else sel, x_prev=x_prev, x_prior=x_prior, P_post_prev=P_prev, F=F, R=np.where(look["detected"][:, None, None],
-                                                                                 look["R_m2"], 0.0),
-            nu=upd.nu, S=upd.S, x_post=upd.x, z=np.nan_to_num(look["z_m"]), t_s=t, dt_s=dt,
-            bearing_rad=np.nan_to_num(look["bearing_rad"]),
-            radial_velocity_m_s=np.nan_to_num(look["radial_velocity_m_s"]), detected=look["detected"],
+            self.bank, None if rows is None else sel, x_prev=x_prev, x_prior=x_prior, P_post_prev=P_prev, F=F,
+            R=np.where(det2[:, :, None], look["R_m2"], 0.0),
+            nu=upd.nu, S=upd.S, x_post=upd.x, z=np.where(det2, look["z_m"], 0.0), t_s=t, dt_s=dt,
+            bearing_rad=np.where(det, look["bearing_rad"], 0.0),
+            radial_velocity_m_s=np.where(det, look["radial_velocity_m_s"], 0.0), detected=det,
             site_xy=look["site_xy_m"])
         self.x[sel], self.P[sel], self.t_last[sel] = upd.x, upd.P, t
         self.k[sel] = k + 1
@@ -255,6 +249,47 @@ class Tracker:
             maneuvering=look["maneuvering"], features=feats, done=self.k[sel] >= self.n_looks[sel])
 
     # ------------------------------------------------------------------------------------------ helpers
+    def copy_rows_from(self, src: "Tracker", src_rows, dst_rows):
+        """Copy whole track rows (episode data, filter state, feature-bank state) from another Tracker with the
+        same configuration. Lets a caller start tracks in one large batch and hand them out row by row."""
+        src_rows = np.asarray(src_rows, dtype=np.int64)
+        dst_rows = np.asarray(dst_rows, dtype=np.int64)
+        if src._cap > self._cap:
+            like = {f: src._data[f][:1, :1] for f in _LOOK_FIELDS}
+            self._grow(src._cap, like)
+        for f in _LOOK_FIELDS:
+            self._data[f][dst_rows, : src._cap] = src._data[f][src_rows]
+            if self._cap > src._cap:
+                self._data[f][dst_rows, src._cap:] = src._data[f][src_rows, -1:]
+        self._data["detected"][dst_rows, src._cap:] = False
+        for name in ("n_looks", "k", "t_last", "x", "P"):
+            getattr(self, name)[dst_rows] = getattr(src, name)[src_rows]
+        for d, s_ in zip(dst_rows, src_rows):
+            self.names[d] = src.names[s_]
+        for name, v in vars(src.bank).items():
+            if name == "_rows":
+                continue
+            dv = getattr(self.bank, name)
+            if isinstance(v, np.ndarray) and v.shape[:1] == (src.B,):
+                dv[dst_rows] = v[src_rows]
+            elif isinstance(v, dict) and v and all(isinstance(a, np.ndarray) and a.shape[:1] == (src.B,)
+                                                   for a in v.values()):
+                for key, a in v.items():
+                    dv[key][dst_rows] = a[src_rows]
+
+    def _grow(self, K, like):
+        new = {}
+        for f in _LOOK_FIELDS:
+            a = like[f]
+            arr = np.zeros((self.B, K) + a.shape[2:], dtype=a.dtype)
+            if f in self._data:
+                arr[:, : self._cap] = self._data[f]
+                arr[:, self._cap:] = self._data[f][:, -1:] if self._cap else 0
+            new[f] = arr
+        if self._cap and "detected" in new:
+            new["detected"][:, self._cap:] = False
+        self._data, self._cap = new, K
+
     def remaining_looks(self):
         """(B,) looks left to process per row."""
         return self.n_looks - self.k
