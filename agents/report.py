@@ -72,6 +72,86 @@ def headline(results, has_policy):
     return "\n".join(lines)
 
 
+def downstream_tables(results, trackers):
+    """Markdown: conflict warnings on the encounters suite, intercept miss distance per suite."""
+    out = []
+    enc = results.get("encounters")
+    if enc:
+        out += ["| tracker | warning lead time s (ideal) | conflicts never warned | false-warning looks | "
+                "missed-warning looks |", "|---|---|---|---|---|"]
+        for t in trackers:
+            m = enc["trackers"].get(t)
+            if m:
+                out.append(f"| {t} | {_fmt(m['warning_lead_time_s'])} ({_fmt(m['ideal_lead_time_s'])}) | "
+                           f"{_fmt(m['missed_warnings'], 2)} | {_fmt(m['false_warning_rate'], 3)} | "
+                           f"{_fmt(m['missed_warning_rate'], 3)} |")
+        out.append("")
+    suites = [s for s in results if s != "encounters"]
+    out += ["| intercept: median miss m (capture rate) | " + " | ".join(suites) + " |",
+            "|---" * (len(suites) + 1) + "|"]
+    for t in trackers:
+        cells = []
+        for su in suites:
+            m = results[su]["trackers"].get(t, {})
+            cells.append(f"{_fmt(m.get('intercept_miss_m_median'))} ({_fmt(m.get('intercept_capture_rate'), 2)})")
+        out.append(f"| {t} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def per_flight_table(batch, suite_runs, trackers, reference="imm2"):
+    """Markdown: position RMSE per ADS-B flight, ratio to the reference, and where each loses most."""
+    from .metrics import errors, region_masks
+    names = [t for t in trackers if t in suite_runs]
+    out = ["| flight | looks | maneuvering % | " + " | ".join(f"{t} m" for t in names) + " |",
+           "|---" * (len(names) + 3) + "|"]
+    for b, flight in enumerate(batch.names):
+        cells = []
+        for t in names:
+            run = suite_runs[t]
+            used = region_masks(batch, run.start_index)["used"][b]
+            e, _ = errors(batch, run)
+            cells.append(f"{np.sqrt(np.mean(e[b][used] ** 2)):.0f}")
+        used0 = region_masks(batch, suite_runs[names[0]].start_index)["used"][b]
+        out.append(f"| {flight} | {int(used0.sum())} | {100 * batch.maneuvering[b][used0].mean():.0f} | "
+                   + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def scope_figure(path, seed):
+    """One radar-scope frame (the env's rgb_array render) in bizup2002's first turn."""
+    import gymnasium as gym
+    import matplotlib.pyplot as plt
+
+    import radar_env  # noqa: F401
+    env = gym.make("RadarTrack-v0", scenario="bizup2002", render_mode="rgb_array")
+    env.reset(seed=seed)
+    for _ in range(18):                      # ~ 20 s into the first turn, q = 2 g
+        env.step(10)
+    plt.imsave(path, env.render())
+    env.close()
+
+
+def warning_figure(path, results, trackers):
+    import matplotlib.pyplot as plt
+    enc = results["encounters"]["trackers"]
+    names = [t for t in trackers if t in enc]
+    lead = [enc[t]["warning_lead_time_s"] for t in names]
+    fa = [enc[t]["false_warning_rate"] + enc[t]["missed_warning_rate"] for t in names]
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    ax[0].barh(names, lead, color="tab:blue")
+    ax[0].axvline(enc[names[0]]["ideal_lead_time_s"], color="k", ls="--", label="from the true states")
+    ax[0].set_xlabel("mean warning lead time before closest approach (s)")
+    ax[0].legend(fontsize=8)
+    ax[1].barh(names, fa, color="tab:red")
+    ax[1].set_xlabel("looks where the warning disagrees with the truth's (fraction)")
+    for a in ax:
+        a.invert_yaxis()
+    fig.suptitle("Conflict warnings on turning encounters (3 NM, 300 s look-ahead)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m agents.report", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default="docs")
@@ -82,7 +162,8 @@ def main(argv=None):
     t0 = time.time()
     policy = str(BUNDLED_POLICY) if BUNDLED_POLICY.is_file() else None
     trackers = (["policy"] if policy else []) + list(REPORT_TRACKERS)
-    suites = [(n, draw_suite(n, DEFAULT_RUNS.get(n, 50), seed=args.seed)) for n in DEFAULT_SUITES]
+    suites = [(n, draw_suite(n, DEFAULT_RUNS.get(n, 50), seed=args.seed))
+              for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
     results, runs = evaluate(suites, trackers, policy)
     seconds = time.time() - t0
     import matplotlib
@@ -90,9 +171,14 @@ def main(argv=None):
     from . import plots
     fig_dir = docs / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
-    for suite in ("random", "bizup2002", "kim_lee_accel"):
+    for suite in ("random", "bizup2002", "kim_lee_accel", "adsb_calibration"):
         batch, suite_runs = runs[suite]
         plots.suite_figures(suite, batch, {k: v for k, v in suite_runs.items() if k in FIGURE_TRACKERS}, fig_dir)
+    scope_figure(fig_dir / "scope_frame.png", args.seed)
+    warning_figure(fig_dir / "warning_lead_time.png", results, trackers)
+    adsb_batch, adsb_runs = runs["adsb_calibration"]
+    flights = per_flight_table(adsb_batch, adsb_runs, [t for t in FIGURE_TRACKERS if t != "cmin"] + ["kf_low"])
+    down = downstream_tables(results, trackers)
     text = [
         "# Evaluation results (generated by `python -m agents.report`)",
         "",
@@ -104,11 +190,19 @@ def main(argv=None):
         f"Computed in {seconds:.0f} s.",
         "",
         markdown_tables(results),
+        "## Downstream: conflict warnings and intercepts",
+        "",
+        down,
+        "## ADS-B calibration flights, per flight (position RMSE, m)",
+        "",
+        flights,
     ]
     (docs / "results.md").write_text("\n".join(text))
     if args.readme:
         from .readme_blocks import replace_block
         replace_block("headline", headline(results, policy is not None))
+        replace_block("downstream", down)
+        replace_block("adsb-flights", flights)
     (docs / "results.json").write_text(json.dumps(_jsonable(results), indent=1))
     print("\n".join(text))
 
