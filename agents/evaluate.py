@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -23,7 +22,7 @@ import numpy as np
 from baselines.registry import TRACKER_NAMES, run_tracker
 from baselines.trackers import run_q_policy
 from radar_env.catalog import SCENARIO_NAMES
-from radar_env.env import EnvConfig
+from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
@@ -70,18 +69,20 @@ def load_policy(path):
     from gymnasium import spaces
     kw.setdefault("action_type", "discrete" if isinstance(model.action_space, spaces.Discrete) else "continuous")
     cfg = EnvConfig.from_kwargs(**kw)
+    choose_q = model_choose_q(model, cfg)
+    return choose_q, cfg
+
+
+def model_choose_q(model, cfg: EnvConfig):
+    """``choose_q(obs (n, F)) -> q (n,)`` in m/s^2 for a stable-baselines3 model (deterministic actions), through
+    the env's action map :func:`radar_env.env.actions_to_q_m_s2`."""
     levels = np.asarray(cfg.q_levels_g) * G0_M_S2
-    l0, l1 = math.log10(levels[0]), math.log10(levels[-1])
 
     def choose_q(obs):
         act, _ = model.predict(obs.astype(np.float32), deterministic=True)
-        act = np.asarray(act)
-        if cfg.action_type == "discrete":
-            return levels[act.reshape(-1).astype(np.int64)]
-        a = np.clip(act.reshape(obs.shape[0], -1)[:, 0], -1, 1)
-        return 10.0 ** (l0 + 0.5 * (a + 1.0) * (l1 - l0))
+        return actions_to_q_m_s2(np.asarray(act).reshape(obs.shape[0], -1), cfg.action_type, levels)
 
-    return choose_q, cfg
+    return choose_q
 
 
 # ------------------------------------------------------------------------------------------------ evaluation

@@ -148,6 +148,18 @@ def draw_setup_and_episode(scenario, radar, random_config, rng):
     return draw_episode(setup.scenario, setup.radar, rng)
 
 
+def actions_to_q_m_s2(actions, action_type, levels_m_s2):
+    """The action map (no validation): discrete index -> ``levels_m_s2[i]``; continuous ``a`` in [-1, 1] (clipped)
+    -> ``q_min (q_max / q_min)^((a + 1) / 2)`` with ``q_min, q_max`` the first and last level. Returns (n,)."""
+    levels = np.asarray(levels_m_s2, dtype=np.float64)
+    a = np.asarray(actions)
+    if action_type == "discrete":
+        return levels[a.reshape(-1).astype(np.int64)]
+    a = np.clip(a.astype(np.float64).reshape(a.shape[0] if a.ndim else 1, -1)[:, 0], -1.0, 1.0)
+    l0, l1 = math.log10(levels[0]), math.log10(levels[-1])
+    return 10.0 ** (l0 + 0.5 * (a + 1.0) * (l1 - l0))
+
+
 # ---------------------------------------------------------------------------------------------------- batched core
 class _Core:
     """N tracks stepped together: actions -> q -> tracking chain -> observation, reward, end flags, info."""
@@ -176,12 +188,11 @@ class _Core:
             if np.any(ai < 0) or np.any(ai >= len(self.levels_m_s2)):
                 raise ValueError(f"action must be in [0, {len(self.levels_m_s2) - 1}] (Discrete("
                                  f"{len(self.levels_m_s2)})), got {action!r}")
-            return self.levels_m_s2[ai]
+            return actions_to_q_m_s2(ai, "discrete", self.levels_m_s2)
         a = a.astype(np.float64).reshape(-1)
         if a.size != self.n or not np.all(np.isfinite(a)) or np.any(np.abs(a) > 1.0 + 1e-6):
             raise ValueError(f"action must be {self.n} finite value(s) in [-1, 1] (Box(-1, 1)), got {action!r}")
-        a = np.clip(a, -1.0, 1.0)
-        return 10.0 ** (self._lq0 + 0.5 * (a + 1.0) * (self._lq1 - self._lq0))
+        return actions_to_q_m_s2(a, "continuous", self.levels_m_s2)
 
     # ---- episodes
     def _draw(self, rows, scenario=None):
