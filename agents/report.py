@@ -125,7 +125,7 @@ def scope_figure(path, seed):
     import radar_env  # noqa: F401
     env = gym.make("RadarTrack-v0", scenario="bizup2002", render_mode="rgb_array")
     env.reset(seed=seed)
-    for _ in range(18):                      # ~ 20 s into the first turn, q = 2 g
+    for _ in range(19):                      # ~ 30 s into the first turn, q = 2 g
         env.step(10)
     plt.imsave(path, env.render())
     env.close()

@@ -50,11 +50,11 @@ def render_frame(env):
     km = 1e-3
     truth, plots, est = st["truth"] * km, st["plots"] * km, st["estimates"] * km
     centre = est[-1, :2] if len(est) else truth[-1, :2]
-    half = max(15.0, 1.3 * np.max(np.abs(truth[:, :2] - centre)) if len(truth) else 15.0)
-    half = min(half, 60.0)
+    recent = truth[-12:, :2] if len(truth) else centre[None]
+    half = float(np.clip(1.3 * np.max(np.abs(recent - centre)), 3.0, 60.0))   # the last ~12 looks fill the view
     for s in st["sites"] * km:
         r_far = np.hypot(*(centre - s)) + half
-        for r in np.arange(10.0, r_far + 10.0, 10.0):
+        for r in np.arange(10.0, r_far + 10.0, 10.0 if half > 10 else 2.0):
             a = np.linspace(0, 2 * np.pi, 361)
             ax.plot(s[0] + r * np.sin(a), s[1] + r * np.cos(a), color=_DIM, lw=0.6)
         ax.plot(*s, "^", color=_FG, ms=9)
