@@ -505,6 +505,9 @@ class RadarTrackVectorEnv(VectorEnv):
     ``info["final_obs"][i]`` / ``info["final_info"]`` hold the last observation and info of the finished one
     (``info["_final_obs"]`` is the mask of rows that ended). Seeding: ``reset(seed=s)`` seeds row i with
     ``s + i``, as Gymnasium's ``SyncVectorEnv`` does, so row i equals ``RadarTrackEnv`` reset with ``s + i``.
+    Finished rows start their next tracks in batches (each row's next episode drawn ahead from its own generator,
+    so autoreset results are unchanged); an explicit ``reset()`` without a seed discards those prepared episodes,
+    so after it the rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
     """
 
