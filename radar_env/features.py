@@ -324,6 +324,34 @@ class FeatureBank:
         self.last["kim_lee_q2_m2_s4"] = np.zeros(B)
         self.last_valid = {k: np.zeros(B, dtype=bool) for k in ("nu", "turn_rate_alg1", "kim_lee")}
 
+    # ------------------------------------------------------------------ row subsets
+    _ROW_ARRAYS = ("plot_xy", "plot_t", "plot_idx", "plot_count", "head", "head_t", "head_idx", "head_count",
+                   "outer", "outer_idx", "outer_count", "fma", "n_detections")
+    _ROW_DICTS = ("last", "last_valid")
+
+    def take_rows(self, rows):
+        """A new bank holding copies of rows ``rows`` (index array) of this one, same parameters."""
+        rows = np.asarray(rows, dtype=np.int64)
+        sub = object.__new__(type(self))
+        sub.__dict__.update({k: v for k, v in vars(self).items()
+                             if k not in self._ROW_ARRAYS + self._ROW_DICTS})
+        sub.B, sub._rows = int(rows.size), np.arange(rows.size)
+        for name in self._ROW_ARRAYS:
+            setattr(sub, name, getattr(self, name)[rows])
+        for name in self._ROW_DICTS:
+            setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})
+        return sub
+
+    def put_rows(self, rows, other):
+        """Write all rows of bank ``other`` into rows ``rows`` of this one."""
+        rows = np.asarray(rows, dtype=np.int64)
+        for name in self._ROW_ARRAYS:
+            getattr(self, name)[rows] = getattr(other, name)
+        for name in self._ROW_DICTS:
+            mine = getattr(self, name)
+            for k, v in getattr(other, name).items():
+                mine[k][rows] = v
+
     # ------------------------------------------------------------------ reset
     def reset(self, mask=None, plots_xy=None, plot_times_s=None, x=None, t_s=None):
         """Re-initialise rows where ``mask`` (B,) is True (all rows if None); other rows are untouched.

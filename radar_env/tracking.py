@@ -84,36 +84,13 @@ def init_looks(detected, t_s):
 
 
 def _bank_update(bank, rows, **inputs):
-    """``bank.update(**inputs)`` for a subset of rows (index array; None = all rows).
-
-    The bank's per-row state (every array, or dict of arrays, with leading length B) is gathered into a bank of
-    batch n, updated, and scattered back, so rows outside ``rows`` are untouched. Used when only some rows step
-    (track start of freshly reset rows in the vector env)."""
+    """``bank.update(**inputs)`` for a subset of rows (index array; None = all rows): the rows' feature state is
+    taken out, updated and put back, so the other rows are untouched (track start of freshly reset rows)."""
     if rows is None:
         return bank.update(**inputs)
-    B, n = bank.B, rows.size
-    sub = object.__new__(type(bank))
-    per_row = {}
-    for name, v in vars(bank).items():
-        if isinstance(v, np.ndarray) and v.shape[:1] == (B,):
-            per_row[name] = None
-            setattr(sub, name, v[rows])
-        elif isinstance(v, dict) and v and all(isinstance(a, np.ndarray) and a.shape[:1] == (B,) for a in v.values()):
-            per_row[name] = list(v)
-            setattr(sub, name, {k: a[rows] for k, a in v.items()})
-        else:
-            setattr(sub, name, v)
-    sub.B = n
-    sub._rows = np.arange(n)
+    sub = bank.take_rows(rows)
     out = sub.update(**inputs)
-    for name, keys in per_row.items():
-        if name == "_rows":
-            continue
-        if keys is None:
-            getattr(bank, name)[rows] = getattr(sub, name)
-        else:
-            for k in keys:
-                getattr(bank, name)[k][rows] = getattr(sub, name)[k]
+    bank.put_rows(rows, sub)
     return out
 
 
@@ -266,16 +243,7 @@ class Tracker:
             getattr(self, name)[dst_rows] = getattr(src, name)[src_rows]
         for d, s_ in zip(dst_rows, src_rows):
             self.names[d] = src.names[s_]
-        for name, v in vars(src.bank).items():
-            if name == "_rows":
-                continue
-            dv = getattr(self.bank, name)
-            if isinstance(v, np.ndarray) and v.shape[:1] == (src.B,):
-                dv[dst_rows] = v[src_rows]
-            elif isinstance(v, dict) and v and all(isinstance(a, np.ndarray) and a.shape[:1] == (src.B,)
-                                                   for a in v.values()):
-                for key, a in v.items():
-                    dv[key][dst_rows] = a[src_rows]
+        self.bank.put_rows(dst_rows, src.bank.take_rows(src_rows))
 
     def _grow(self, K, like):
         new = {}

@@ -566,3 +566,17 @@ def test_bank_matches_formula_functions_with_misses():
         np.testing.assert_allclose(out["range_m"], np.hypot(*(inp["x_post"][:, :2] - site).T))
     assert any(len(h) > N for h in hist)
     assert signs == {True, False}  # both branches of eq 17 exercised
+
+
+def test_feature_bank_row_state_is_fully_listed():
+    """take_rows/put_rows (used to step row subsets) must cover every per-row array of the bank."""
+    from radar_env.features import FeatureBank
+    bank = FeatureBank(7)
+    per_row = {k for k, v in vars(bank).items() if isinstance(v, np.ndarray) and v.shape[:1] == (7,) and k != "_rows"}
+    dicts = {k for k, v in vars(bank).items() if isinstance(v, dict) and v
+             and all(isinstance(a, np.ndarray) and a.shape[:1] == (7,) for a in v.values())}
+    assert per_row == set(FeatureBank._ROW_ARRAYS) and dicts == set(FeatureBank._ROW_DICTS)
+    sub = bank.take_rows([1, 3])
+    sub.fma[:] = 5.0
+    bank.put_rows([1, 3], sub)
+    assert np.array_equal(bank.fma, [0, 5, 0, 5, 0, 0, 0])
