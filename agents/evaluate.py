@@ -225,7 +225,8 @@ def build_parser(prog="radar-track evaluate"):
     ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
                     help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (repeatable)")
     ap.add_argument("--runs", type=int, help="Monte Carlo runs per suite (default: 200 random, 10 adrian_flower, "
-                                             "50 otherwise)")
+                                             "100 encounter pairs, 24 adsb_calibration (each flight once), 10 "
+                                             "adsb:<flight>, 50 otherwise)")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
                     help=f"base seed of the runs (default {EVAL_SEED_BASE}: held out from training and tuning)")
     ap.add_argument("--trackers", help=f"comma-separated tracker names from {list(TRACKER_NAMES)} "
