@@ -88,7 +88,7 @@ def _tiny(algo):
 def test_train_end_to_end_and_evaluate(algo, tmp_path, capsys):
     run = train(algo, _tiny(algo), seed=3, out=tmp_path, progress=False, verbose=0, run_name=algo)
     for f in ("policy.zip", "env_config.json", "config.json", "args.json", "command.txt", "summary.json",
-              "best/policy.zip", "best/env_config.json", "best/selection.json"):
+              "best/policy.zip", "best/env_config.json", "best/selection.json", "training_curve.png"):
         assert (run / f).is_file(), f
     assert any((run / "checkpoints").iterdir()) and any((run / "tb").iterdir())
     assert (run / "vecnormalize.pkl").is_file()
