@@ -24,6 +24,7 @@ from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
+from .evaluate import model_choose_q
 from .metrics import errors, region_masks
 from .suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
 
@@ -37,22 +38,6 @@ def pooled_rmse(batch, run):
     used = region_masks(batch, run.start_index)["used"]
     ep, _ = errors(batch, run)
     return float(np.sqrt(np.mean(np.nan_to_num(ep[used]) ** 2)))
-
-
-def model_choose_q(model, cfg: EnvConfig):
-    """``choose_q(obs (n, F)) -> q (n,)`` m/s^2 for an SB3 model (deterministic), as :func:`agents.evaluate.load_policy`."""
-    levels = np.asarray(cfg.q_levels_g) * G0_M_S2
-    l0, l1 = np.log10(levels[0]), np.log10(levels[-1])
-
-    def choose_q(obs):
-        act, _ = model.predict(obs.astype(np.float32), deterministic=True)
-        act = np.asarray(act)
-        if cfg.action_type == "discrete":
-            return levels[act.reshape(-1).astype(np.int64)]
-        a = np.clip(act.reshape(obs.shape[0], -1)[:, 0], -1, 1)
-        return 10.0 ** (l0 + 0.5 * (a + 1.0) * (l1 - l0))
-
-    return choose_q
 
 
 class ImmRatioEvalCallback(BaseCallback):
