@@ -14,7 +14,7 @@ for the batched trackers and the native vector env.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, make_dataclass
 
 import numpy as np
 
@@ -110,32 +110,7 @@ def draw_episode(scenario, radar: Radar, rng: np.random.Generator, name=None) ->
     )
 
 
-@dataclass(frozen=True)
-class EpisodeBatch:
-    """B episodes padded to the longest (K_max looks): every :class:`Episode` array with a leading batch axis,
-    plus ``valid (B, K_max)`` (False on padding) and ``n_looks (B,)``. Padding repeats the last look's time and
-    truth and is marked not detected, so a tracker stepping through it only predicts with dt = 0."""
-
-    names: tuple
-    valid: np.ndarray
-    n_looks: np.ndarray
-    t_s: np.ndarray
-    site_index: np.ndarray
-    site_xy_m: np.ndarray
-    truth: np.ndarray
-    truth_accel_m_s2: np.ndarray
-    truth_turn_rate_rad_s: np.ndarray
-    maneuvering: np.ndarray
-    detected: np.ndarray
-    range_m: np.ndarray
-    bearing_rad: np.ndarray
-    radial_velocity_m_s: np.ndarray
-    z_m: np.ndarray
-    R_m2: np.ndarray
-    range_noise_std_m: np.ndarray
-    bearing_noise_std_rad: np.ndarray
-    radial_velocity_noise_std_m_s: np.ndarray
-
+class _EpisodeBatchMethods:
     @property
     def batch_size(self):
         return int(self.valid.shape[0])
@@ -144,6 +119,18 @@ class EpisodeBatch:
         """Row ``i`` as an unpadded :class:`Episode`."""
         k = int(self.n_looks[i])
         return Episode(name=self.names[i], **{f: getattr(self, f)[i, :k] for f in _ARRAY_FIELDS})
+
+
+# The fields are Episode's arrays (declared once, above) with a leading batch axis, plus names, valid, n_looks.
+EpisodeBatch = make_dataclass(
+    "EpisodeBatch",
+    [("names", tuple), ("valid", np.ndarray), ("n_looks", np.ndarray)] + [(f, np.ndarray) for f in _ARRAY_FIELDS],
+    bases=(_EpisodeBatchMethods,), frozen=True)
+EpisodeBatch.__module__ = __name__
+EpisodeBatch.__doc__ = """B episodes padded to the longest (K_max looks): every :class:`Episode` array with a leading
+batch axis (``t_s (B, K_max)``, ``z_m (B, K_max, 2)`` ...), plus ``names`` (B,), ``valid (B, K_max)`` (False on
+padding) and ``n_looks (B,)``. Padding repeats the last look's time and truth and is marked not detected, so a
+tracker stepping through it only predicts with dt = 0."""
 
 
 def stack_episodes(episodes) -> EpisodeBatch:
