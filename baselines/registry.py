@@ -18,7 +18,7 @@ from radar_env.observation import ObservationLayout
 from radar_env.units import G0_M_S2
 
 from . import trackers as T
-from .policies import BLAIR_Q_G, CKFPolicy, CminPolicy, ConstantQPolicy, KimLeePolicy
+from .policies import make_policy
 from .tuned_params import TUNED_PATH, tuned_parameters
 
 __all__ = ["TRACKER_NAMES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
@@ -36,20 +36,12 @@ def _layout(cfg):
     return ObservationLayout(cfg.features, lv[0], lv[-1]), lv
 
 
-def _policy_run(cls, name, **kw):
+def _policy_run(name):
+    """A reference policy (:func:`baselines.policies.make_policy`) run through the tracking chain."""
     def run(episodes, cfg):
         layout, lv = _layout(cfg)
-        pol = cls(layout, "continuous", lv, **kw)
-        declare = getattr(pol, "declared", None)
-        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=declare)
-    return run
-
-
-def _const(name, q_g_fn):
-    def run(episodes, cfg):
-        layout, lv = _layout(cfg)
-        pol = ConstantQPolicy(layout, "continuous", lv, q_g=q_g_fn(), name=name)
-        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg)
+        pol = make_policy(name, layout, "continuous", lv)
+        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=getattr(pol, "declared", None))
     return run
 
 
@@ -57,13 +49,13 @@ _RUNNERS = {
     "imm2": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec(), "imm2", cfg),
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
-    "kf_tuned": _const("kf_tuned", lambda: tuned_parameters()["kf"]["q_g"]),
-    "kf_low": _const("kf_low", lambda: 0.03),
-    "kf_high": _const("kf_high", lambda: 2.0),
-    "kf_blair": _const("kf_blair", lambda: BLAIR_Q_G),
-    "cmin": _policy_run(CminPolicy, "cmin"),
-    "ckf": _policy_run(CKFPolicy, "ckf"),
-    "kim_lee": _policy_run(KimLeePolicy, "kim_lee"),
+    "kf_tuned": _policy_run("kf_tuned"),
+    "kf_low": _policy_run("kf_low"),
+    "kf_high": _policy_run("kf_high"),
+    "kf_blair": _policy_run("kf_blair"),
+    "cmin": _policy_run("cmin"),
+    "ckf": _policy_run("ckf"),
+    "kim_lee": _policy_run("kim_lee"),
     "reinit": lambda eps, cfg: T.run_reinit(eps, cfg=cfg),
     "adrian1": lambda eps, cfg: T.run_turn_rate_kf(eps, 1, cfg=cfg),
     "adrian2": lambda eps, cfg: T.run_turn_rate_kf(eps, 2, cfg=cfg),

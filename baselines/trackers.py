@@ -24,7 +24,7 @@ import numpy as np
 from radar_env.env import EnvConfig
 from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
 from radar_env.observation import ObservationLayout
-from radar_env.tracking import Tracker
+from radar_env.tracking import Tracker, init_looks
 from radar_env.units import DEG, G0_M_S2
 
 __all__ = ["TrackRun", "run_q_policy", "run_imm", "run_turn_rate_kf", "run_reinit", "run_clairvoyant",
@@ -325,9 +325,10 @@ def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg: EnvConfig | None 
 
 
 # ------------------------------------------------------------------------------------------------ alpha-beta, Konle
-def _common_start(tr):
-    """First look after the common track start, per row (what every other tracker's metrics start from)."""
-    return tr.k.copy()
+def _common_start(episodes, cfg):
+    """First look after the common track start (two hits + warm-up), per episode: where every other tracker's
+    metrics start."""
+    return np.array([init_looks(e.detected, e.t_s)[1] + 1 + cfg.warmup_scans for e in episodes], dtype=np.int64)
 
 
 def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg: EnvConfig | None = None):
@@ -342,14 +343,13 @@ def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg
 
     cfg = cfg or EnvConfig()
     batch = stack_episodes(episodes)
-    tr, _ = _tracker(episodes, cfg)
     q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
     R = np.where(batch.detected[..., None, None], batch.R_m2, np.eye(2))
     res = run_alpha_beta(batch.t_s, batch.z_m, batch.detected, R_m2=R, q_m_s2=q, adaptive=adaptive,
                          window=cfg.window_kim_lee)
     nm = name or ("alpha_beta_adaptive" if adaptive else "alpha_beta")
     qq = res.q_m_s2.mean(axis=-1) if adaptive else np.full(batch.valid.shape, q)
-    return TrackRun(nm, np.where(batch.valid[..., None], res.x, np.nan), res.P, _common_start(tr),
+    return TrackRun(nm, np.where(batch.valid[..., None], res.x, np.nan), res.P, _common_start(episodes, cfg),
                     np.where(batch.valid, qq, np.nan))
 
 

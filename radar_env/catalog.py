@@ -21,6 +21,7 @@ paper does not give) are stated in each factory's docstring.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -108,6 +109,12 @@ _NAMED = {f.__name__: f for f in (bizup2002, adrian_flower, kim_lee_accel, seed0
 SCENARIO_NAMES = ("random",) + tuple(_NAMED)
 
 
+@lru_cache(maxsize=None)
+def _named_setup(name):
+    """Named setups are deterministic and immutable: built once (the flower has 48 segments), not at every reset."""
+    return _NAMED[name]()
+
+
 def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None, radar: Radar | None = None):
     """Scenario and radar by name (see module docstring).
 
@@ -125,5 +132,5 @@ def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None
         return Setup(sc, base.moved_to(site))
     if name not in _NAMED:
         raise ValueError(f"unknown scenario {name!r}; valid names: {list(SCENARIO_NAMES)}")
-    s = _NAMED[name]()
+    s = _named_setup(name)
     return Setup(s.scenario, radar) if radar is not None else s

@@ -173,7 +173,9 @@ class _Core:
                                n_adrian=cfg.n_adrian, window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
         self.q_prev = np.full(n, cfg.warmup_q_g * G0_M_S2)
         self.rngs = [None] * n
-        self.last_out = None
+        # resolved once: a CSV trajectory is read here, not at every reset
+        self.scenario = resolve_scenario(cfg.scenario)
+        self.random_config = cfg.random_scenario_config
         self._lq0, self._lq1 = math.log10(self.q_min), math.log10(self.q_max)
 
     # ---- actions
@@ -196,8 +198,8 @@ class _Core:
 
     # ---- episodes
     def _draw(self, rows, scenario=None):
-        return [draw_setup_and_episode(self.cfg.scenario if scenario is None else scenario, self.cfg.radar,
-                                       self.cfg.random_scenario_config, self.rngs[r]) for r in rows]
+        sc = self.scenario if scenario is None else resolve_scenario(scenario)
+        return [draw_setup_and_episode(sc, self.cfg.radar, self.random_config, self.rngs[r]) for r in rows]
 
     def enable_prefetch(self):
         """Start the next episode of rows in batches (vector env autoreset). A row's next episode is drawn from its
@@ -250,7 +252,6 @@ class _Core:
         obs = self.layout.encode(out, q)
         info = self._info(out, terms)
         info["track_lost"] = lost
-        self.last_out = out
         return obs, reward, terminated, truncated, info
 
     # ---- reward
@@ -267,20 +268,21 @@ class _Core:
 
     # ---- info
     def _info(self, out, terms):
+        # StepOutput arrays are new every step (gathered or computed), so the info can hold them without copies.
         x = out.x
         return {
-            "truth": out.truth.copy(),
-            "estimate": x.copy(),
-            "covariance": out.P.copy(),
-            "measurement": out.z_m.copy(),
-            "measurement_covariance": out.R_m2.copy(),
+            "truth": out.truth,
+            "estimate": x,
+            "covariance": out.P,
+            "measurement": out.z_m,
+            "measurement_covariance": out.R_m2,
             "polar": np.stack([out.range_m, out.bearing_rad, out.radial_velocity_m_s], axis=-1),
-            "q": out.q_m_s2.copy(),
-            "dt": out.dt_s.copy(),
-            "detected": out.detected.copy(),
-            "maneuvering": out.maneuvering.copy(),
-            "time_s": out.t_s.copy(),
-            "reward_terms": {k: v.copy() for k, v in terms.items()},
+            "q": out.q_m_s2,
+            "dt": out.dt_s,
+            "detected": out.detected,
+            "maneuvering": out.maneuvering,
+            "time_s": out.t_s,
+            "reward_terms": dict(terms),
             "track_lost": np.zeros(x.shape[0], dtype=bool),
         }
 
