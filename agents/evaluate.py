@@ -69,6 +69,11 @@ def load_policy(path):
     from gymnasium import spaces
     kw.setdefault("action_type", "discrete" if isinstance(model.action_space, spaces.Discrete) else "continuous")
     cfg = EnvConfig.from_kwargs(**kw)
+    n_obs = int(np.prod(model.observation_space.shape))
+    if n_obs != len(cfg.features):
+        raise ValueError(f"{path}: the model takes {n_obs} observation entries but its env config has "
+                         f"{len(cfg.features)} features {list(cfg.features)}; list the features it was trained "
+                         f"with under 'features' in {cfg_file}")
     choose_q = model_choose_q(model, cfg)
     return choose_q, cfg
 

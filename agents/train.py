@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from radar_env.observation import DEFAULT_FEATURES
+
 from .suites import TRAIN_SEEDS
 
 __all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID"]
@@ -106,6 +108,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         raise ValueError("training uses the random scenario generator only (env_kwargs.scenario must be 'random')")
     env_kwargs.pop("scenario", None)
     act = env_kwargs.setdefault("action_type", "continuous" if algo == "sac" else "discrete")
+    # pin the observation: a saved model keeps working when the default feature list changes
+    env_kwargs.setdefault("features", list(DEFAULT_FEATURES))
     if algo == "dqn" and act != "discrete":
         raise ValueError("DQN needs action_type='discrete'")
     if algo == "sac" and act != "continuous":

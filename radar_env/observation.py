@@ -22,9 +22,21 @@ name                   unit       meaning                                       
 ``pos_std_ratio``      1          filter position std / measurement std (per axis RMS)     x / 3     [0, 1]
 ``q_prev_g``           g          process-noise level used for the last prediction         log-map   [-1, 1]
 ``detected``           1          1 if the last look gave a plot                           x         [0, 1]
+``next_nu_along``      sigma      next plot's innovation along track, q = 0 prediction     x / 10    [-1, 1]
+``next_nu_cross``      sigma      next plot's innovation across track (+ right)            x / 10    [-1, 1]
+``next_nis``           1          next plot's NIS against the q = 0 prediction             log10(1+x)/3  [0, 1]
+``next_q_fit_g``       g          q explaining the next plot's innovation (Kim & Lee, N=1)  log-map   [-1, 1]
+``next_c_min_g``       g          Bizup's c_min from the next plot                         x / 8     [0, 1]
+``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
+``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
 =====================  =========  =======================================================  ========  ==========
 
-``q_prev_g`` uses the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
+The ``next_*`` entries preview the plot that the chosen q will be used for
+(:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
+chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 21;
+``PAST_FEATURES`` the first 14 (no preview: q for a look chosen from the looks before it).
+
+``q_prev_g`` and ``next_q_fit_g`` use the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
 """
 
 from __future__ import annotations
@@ -35,7 +47,7 @@ import numpy as np
 
 from .units import G0_M_S2
 
-__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "ObservationLayout", "measurement_sigma_m"]
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "ObservationLayout", "measurement_sigma_m"]
 
 
 @dataclass(frozen=True)
@@ -64,9 +76,17 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("pos_std_ratio", "1", 0, 1, "linear", 3.0, "filter position std / measurement std"),
     FeatureSpec("q_prev_g", "g", -1, 1, "logq", 1.0, "q used for the last prediction"),
     FeatureSpec("detected", "1", 0, 1, "linear", 1.0, "last look detected"),
+    FeatureSpec("next_nu_along", "sigma", -1, 1, "linear", 10.0, "next plot's along-track innovation (q = 0)"),
+    FeatureSpec("next_nu_cross", "sigma", -1, 1, "linear", 10.0, "next plot's cross-track innovation (q = 0)"),
+    FeatureSpec("next_nis", "1", 0, 1, "log10p", 3.0, "next plot's NIS (q = 0)"),
+    FeatureSpec("next_q_fit_g", "g", -1, 1, "logq", 1.0, "q explaining the next plot's innovation"),
+    FeatureSpec("next_c_min_g", "g", 0, 1, "linear", 8.0, "Bizup c_min from the next plot"),
+    FeatureSpec("next_dt_s", "s", 0, 1, "linear", 20.0, "time to the next look"),
+    FeatureSpec("next_detected", "1", 0, 1, "linear", 1.0, "next look detected"),
 ]}
 
 DEFAULT_FEATURES = tuple(FEATURE_SPECS)
+PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
 
 
 def measurement_sigma_m(range_m, range_noise_std_m, bearing_noise_std_rad):
@@ -123,6 +143,13 @@ class ObservationLayout:
             "pos_std_ratio": lambda: np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig,
             "q_prev_g": lambda: np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2,
             "detected": lambda: out.detected.astype(np.float64),
+            "next_nu_along": lambda: f["next_nu_along"],
+            "next_nu_cross": lambda: f["next_nu_cross"],
+            "next_nis": lambda: f["next_nis"],
+            "next_q_fit_g": lambda: f["next_q_fit_m_s2"] / G0_M_S2,
+            "next_c_min_g": lambda: f["next_c_min_m_s2"] / G0_M_S2,
+            "next_dt_s": lambda: f["next_dt_s"],
+            "next_detected": lambda: f["next_detected"],
         }
         n = out.dt_s.shape[0]
         cols = [vals[name]() for name in self.names]

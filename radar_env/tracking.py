@@ -13,6 +13,11 @@ One step of row ``b`` processes the next look ``k`` of its episode::
     x-, P-    = predict(x, P, F, Q [, u])               (u: known input, only for the clairvoyant bound)
     x+, P+    = update(x-, P-, z[k], R[k], detected[k]) (a missed look predicts through)
     features  = FeatureBank.update(...)                 (normalised innovations, c_min, turn rates, ...)
+    preview   = preview_next_plot(x+, P+, look k+1)      (the next plot against the q-free prediction)
+
+The preview lets the q for look k+1 be chosen *after* plot k+1 is seen, as an IMM weighs its modes with the plot
+itself: for a CV model the predicted mean ``F x`` does not depend on q (only ``P-`` does), so the innovation of the
+next plot is known before q is chosen, and the estimate at k+1 still uses plots up to k+1 only (causal).
 
 Track start (Bizup section 3.3, used for every tracker so that comparisons are apart from start-up): two-hit
 initialisation from the first two detected looks (position from the second, velocity by differencing), then
@@ -27,11 +32,11 @@ from typing import NamedTuple
 import numpy as np
 
 from .episode import Episode
-from .features import FeatureBank
+from .features import FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, normalized_innovation_along_cross
 from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
 from .units import G0_M_S2
 
-__all__ = ["Tracker", "StepOutput", "init_looks", "MAX_Q_M_S2"]
+__all__ = ["Tracker", "StepOutput", "init_looks", "preview_next_plot", "MAX_Q_M_S2"]
 
 MAX_Q_M_S2 = 100.0 * G0_M_S2
 """Largest process-noise level the chain accepts (m/s^2)."""
@@ -66,7 +71,7 @@ class StepOutput(NamedTuple):
     truth: np.ndarray           # (n,4) -- for rewards and metrics only, never for the policy
     truth_accel_m_s2: np.ndarray  # (n,2)
     maneuvering: np.ndarray     # (n,) bool
-    features: dict              # name -> (n,) arrays (see FeatureBank.update)
+    features: dict              # name -> (n,) arrays (see FeatureBank.update and preview_next_plot)
     done: np.ndarray            # (n,) bool, the episode's last look was processed
 
 
@@ -81,6 +86,38 @@ def init_looks(detected, t_s):
     if later.size == 0:
         raise ValueError("an episode needs two detected looks at different times for the two-hit track start")
     return i1, int(later[0])
+
+
+def preview_next_plot(x_post, P_post, t_s, next_look):
+    """Features of the next look's plot against the process-noise-free prediction (batched, no state).
+
+    With ``dt = t_next - t_s``, ``x^ = F(dt) x_post`` (independent of q) and ``S0 = H F P_post F^T H^T + R_next``
+    (q = 0), the innovation is ``nu = z_next - H x^``. Returns a dict of (n,) arrays:
+
+    * ``next_nu_along``, ``next_nu_cross``: ``nu`` along/across the predicted track normalised by ``S0`` (sigma);
+    * ``next_nis``: ``nu^T S0^-1 nu``;
+    * ``next_q_fit_m_s2``: the q that explains this one innovation, ``sqrt(max(phi, 0))`` with Kim & Lee's
+      ``phi = trace(nu nu^T - S0) / trace(H Q1 H^T)`` (their eq 15 with a window of one plot);
+    * ``next_c_min_m_s2``: Bizup's c_min from the next plot's bearing and radial velocity;
+    * ``next_dt_s``, ``next_detected`` (0 where there is no next look).
+
+    Every plot feature is 0 where the next look is missed or does not exist (``next_look["detected"]`` False).
+    """
+    det = np.asarray(next_look["detected"], dtype=bool)
+    dt = next_look["t_s"] - t_s
+    F = transition_cv(dt)
+    x_hat = np.einsum("bij,bj->bi", F, x_post)
+    FP = F @ P_post
+    S0 = np.einsum("bij,bkj->bik", FP[:, :2], F[:, :2]) + next_look["R_m2"]
+    S0 = np.where(det[:, None, None], S0, np.eye(2))
+    nu = np.where(det[:, None], next_look["z_m"] - x_hat[:, :2], 0.0)
+    nac = normalized_innovation_along_cross(nu, S0, x_hat[:, 2:4])
+    phi = kim_lee_phi_2d(nu[:, :, None] * nu[:, None, :], S0, dt)
+    cm = c_min_m_s2(x_post, np.where(det, next_look["bearing_rad"], 0.0),
+                    np.where(det, next_look["radial_velocity_m_s"], 0.0), dt)
+    return {"next_nu_along": nac[:, 0], "next_nu_cross": nac[:, 1], "next_nis": nis(nu, S0),
+            "next_q_fit_m_s2": np.where(det, np.sqrt(np.maximum(phi, 0.0)), 0.0),
+            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_dt_s": dt, "next_detected": det.astype(np.float64)}
 
 
 def _bank_update(bank, rows, **inputs):
@@ -217,6 +254,12 @@ class Tracker:
             site_xy=look["site_xy_m"])
         self.x[sel], self.P[sel], self.t_last[sel] = upd.x, upd.P, t
         self.k[sel] = k + 1
+        has_next = k + 1 < self.n_looks[sel]
+        kn = np.minimum(k + 1, self._cap - 1)
+        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s")}
+        nxt["detected"] = d["detected"][sel, kn] & has_next
+        nxt["t_s"] = np.where(has_next, nxt["t_s"], t)
+        feats.update(preview_next_plot(upd.x, upd.P, t, nxt))
         return StepOutput(
             look_index=k, t_s=t, dt_s=dt, q_m_s2=q.copy(), x_prior=x_prior, P_prior=P_prior, x=upd.x, P=upd.P,
             nu=upd.nu, S=upd.S, nis=upd.nis, detected=look["detected"], z_m=look["z_m"], R_m2=look["R_m2"],

@@ -16,6 +16,7 @@ import radar_env.env as renv
 from radar_env.catalog import make_setup
 from radar_env.radar import atc_radar
 from radar_env.env import DEFAULT_Q_LEVELS_G, RadarTrackEnv, RadarTrackVectorEnv
+from radar_env.observation import DEFAULT_FEATURES
 from radar_env.units import G0_M_S2
 
 ENV_ID = "RadarTrack-v0"
@@ -333,7 +334,7 @@ def test_make_vec_native():
     assert isinstance(venv.unwrapped, RadarTrackVectorEnv)
     assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     obs, info = venv.reset(seed=0)
-    assert obs.shape == (3, 14) and venv.observation_space.contains(obs)
+    assert obs.shape == (3, len(DEFAULT_FEATURES)) and venv.observation_space.contains(obs)
     obs, rew, te, tr, info = venv.step(venv.action_space.sample())
     assert rew.shape == te.shape == tr.shape == (3,)
     for k in INFO_KEYS - {"reward_terms"}:

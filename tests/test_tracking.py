@@ -217,3 +217,49 @@ def test_errors():
         Tracker(1, warmup_scans=-1)
     with pytest.raises(ValueError, match=r"warmup_scans must be in \[1"):
         Tracker(1, warmup_scans=0)
+
+
+# ------------------------------------------------------------------------------------------------ next-plot preview
+def test_preview_equals_next_step_at_zero_q():
+    """The preview of look k+1 is the innovation that step k+1 computes: the predicted mean does not depend on q,
+    and at q = 0 the step's S is the preview's S0, so nu along/cross and NIS match to rounding."""
+    eps = [_episode(s) for s in (1, 2, 3)]
+    tr = Tracker(3)
+    out = tr.load(range(3), eps)
+    for _ in range(20):
+        prev = out.features
+        out = tr.step(np.zeros(3))
+        for k in ("nu_along", "nu_cross", "nis"):
+            np.testing.assert_allclose(prev[f"next_{k}"], out.features[k], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(prev["next_c_min_m_s2"], out.features["c_min_m_s2"], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(prev["next_dt_s"], out.dt_s, rtol=0, atol=1e-12)
+        # one-plot Kim & Lee: q^2 * trace(H Q1 H^T) = |nu|^2 - trace(S0)
+        S = out.S
+        phi = (out.nu ** 2).sum(-1) - (S[:, 0, 0] + S[:, 1, 1])
+        np.testing.assert_allclose(prev["next_q_fit_m_s2"], np.sqrt(np.maximum(phi, 0) / (0.5 * out.dt_s ** 4)),
+                                   rtol=1e-9)
+
+
+def test_preview_is_causal_and_empty_after_last_look():
+    """Changing plots after look k+1 leaves the preview at k unchanged; a missed or absent next look previews 0."""
+    ep = _episode(4)
+    later = ep.z_m.copy()
+    later[30:] += 5e3
+    ep2 = dataclasses.replace(ep, z_m=later)
+    a, b = Tracker(1), Tracker(1)
+    oa, ob = a.load([0], [ep]), b.load([0], [ep2])
+    while int(a.k[0]) < 29:
+        oa, ob = a.step(1.0), b.step(1.0)
+        for k, v in oa.features.items():
+            assert np.array_equal(v, ob.features[k]), k
+    missed = _miss(ep, [int(a.k[0]) + 1])
+    t = Tracker(1)
+    o = t.load([0], [missed])
+    while int(t.k[0]) < int(a.k[0]) + 1:
+        o = t.step(1.0)
+    assert o.features["next_detected"][0] == 0 and o.features["next_nis"][0] == 0
+    assert o.features["next_q_fit_m_s2"][0] == 0 and o.features["next_c_min_m_s2"][0] == 0
+    while not o.done[0]:
+        o = t.step(1.0)
+    f = o.features
+    assert f["next_detected"][0] == 0 and f["next_dt_s"][0] == 0 and f["next_nu_along"][0] == 0

@@ -18,6 +18,7 @@ from agents.cli import main as cli_main  # noqa: E402
 from agents.sb3_vec import make_sb3_vec_env  # noqa: E402
 from agents.train import load_hyperparams, main as train_main, train  # noqa: E402
 from radar_env.env import RadarTrackEnv  # noqa: E402
+from radar_env.observation import DEFAULT_FEATURES  # noqa: E402
 
 
 def _assert_info_equal(i1, i2):
@@ -64,7 +65,7 @@ def test_adapter_matches_dummy_vec_env_across_episode_ends(action_type):
 def test_adapter_seed_none_and_attrs():
     vec, adapter = make_sb3_vec_env(2, {}, seed=None, monitor=True)
     obs = vec.reset()
-    assert obs.shape == (2, 14) and obs.dtype == np.float32
+    assert obs.shape == (2, len(DEFAULT_FEATURES)) and obs.dtype == np.float32
     assert vec.get_attr("render_mode") == [None, None]
     assert vec.env_is_wrapped(object) == [False, False]
     obs, rew, done, infos = vec.step(np.array([4, 4]))
