@@ -46,13 +46,15 @@ class ImmRatioEvalCallback(BaseCallback):
     Args:
         env_kwargs: the env's keyword arguments (JSON-able; ``env_config.json`` of the saved model).
         eval_freq: env steps between evaluations.
-        scenarios: ``{suite name: runs}``; ``"random"`` is the selection criterion, the others are logged.
+        scenarios: ``{suite name: runs}``; all are scored and logged.
         seed: base seed of the selection suites (training range, disjoint from the rollouts).
         best_dir: where the best model goes (``policy.zip`` + ``env_config.json``); None: do not save.
+        select_on: suite names whose ratios' geometric mean selects the best model (default: ``"random"`` if
+            scored, else the first suite).
     """
 
     def __init__(self, env_kwargs, eval_freq=50_000, scenarios=None, seed=SELECTION_SEED_BASE, best_dir=None,
-                 verbose=1):
+                 verbose=1, select_on=None):
         super().__init__(verbose)
         scenarios = dict(scenarios or {"random": 100})
         last = int(seed) + max(scenarios.values())
@@ -64,9 +66,13 @@ class ImmRatioEvalCallback(BaseCallback):
         self.eval_freq = int(eval_freq)
         self.best_dir = None if best_dir is None else Path(best_dir)
         self.primary = "random" if "random" in scenarios else next(iter(scenarios))
+        self.select_on = tuple(select_on) if select_on else (self.primary,)
+        bad = [n for n in self.select_on if n not in scenarios]
+        if bad:
+            raise ValueError(f"select_on names {bad}, which are not among the scored suites {list(scenarios)}")
         self.suites = {}
         for name, runs in scenarios.items():
-            rc = self.cfg.random_scenario_config if name == "random" else None
+            rc = self.cfg.random_scenario_config if name in ("random", "random_radars") else None
             eps = draw_suite(name, runs, seed=int(seed), random_config=rc)
             batch = stack_episodes(eps)
             self.suites[name] = (eps, batch, pooled_rmse(batch, run_tracker("imm2", eps)))
@@ -101,7 +107,8 @@ class ImmRatioEvalCallback(BaseCallback):
                 q = run.q_m_s2[np.isfinite(run.q_m_s2)] / G0_M_S2
                 if q.size:
                     self.logger.record("eval/median_q_g", float(np.median(q)))
-        ratio = row[f"{self.primary}_ratio_imm2"]
+        ratio = float(np.exp(np.mean([np.log(row[f"{n}_ratio_imm2"]) for n in self.select_on])))
+        row["selection_ratio"] = ratio
         row["eval_s"] = time.time() - t0
         improved = ratio < self.best_ratio
         if improved:

@@ -36,14 +36,17 @@ from radar_env.observation import DEFAULT_FEATURES
 
 from .suites import TRAIN_SEEDS
 
-__all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID"]
+__all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
+
+TRAIN_SCENARIOS = ("random", "random_radars")
+"""The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
 
 ENV_ID = "RadarTrack-v0"
 ALGOS = ("ppo", "dqn", "sac")
 HP_DIR = Path(__file__).with_name("hyperparams")
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
 _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
-            "eval_runs", "eval_scenarios", "checkpoint_freq")
+            "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on")
 
 
 def load_hyperparams(algo, path=None):
@@ -104,9 +107,11 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     hp = dict(hp)
     env_kwargs = dict(hp.get("env_kwargs") or {})
-    if env_kwargs.get("scenario", "random") != "random":
-        raise ValueError("training uses the random scenario generator only (env_kwargs.scenario must be 'random')")
-    env_kwargs.pop("scenario", None)
+    if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
+        raise ValueError(f"training uses the random scenario generators only (env_kwargs.scenario must be one of "
+                         f"{list(TRAIN_SCENARIOS)}, got {env_kwargs['scenario']!r})")
+    if env_kwargs.get("scenario") == "random":
+        env_kwargs.pop("scenario")
     act = env_kwargs.setdefault("action_type", "continuous" if algo == "sac" else "discrete")
     # pin the observation: a saved model keeps working when the default feature list changes
     env_kwargs.setdefault("features", list(DEFAULT_FEATURES))
@@ -142,7 +147,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
 
     scenarios = hp.get("eval_scenarios") or {"random": int(hp.get("eval_runs", 100))}
     eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,
-                                   best_dir=run / "best", verbose=verbose)
+                                   best_dir=run / "best", verbose=verbose, select_on=hp.get("select_on"))
     time_cb = EnvTimeCallback(adapter)
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(run / "checkpoints"), name_prefix=algo)

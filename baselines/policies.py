@@ -12,7 +12,7 @@ name               rule                                                         
 ``kf_high``        q = 2 g                                                                                 Bizup
 ``kf_tuned``       q = the constant minimising position RMSE on training seeds (``baselines/tuned.json``)  ours
 ``kf_blair``       q = Blair's rule of thumb, 0.5 * a_max .. a_max; here 0.5 * 7 g (the random max)       Blair
-``cmin``           q = 0.03 g while c_min < 1 g, else q = c_min  (Q = c_min^2 I)                            Bizup 3.3
+``cmin``           q = 0.03 g while c_min of the plot < 1 g, else q = c_min  (Q = c_min^2 I)                Bizup 3.3
 ``ckf``            q = 0.03 g while FMA(|nu|) < 5 NM, else 2 g                                              Bizup/Schutz
 ``kim_lee``        q = sqrt(phi) from the 12-look innovation window, sigma_D = 0.03 g when phi <= 0       Kim & Lee
 =================  =====================================================================================  ==========
@@ -96,20 +96,27 @@ class ConstantQPolicy(ReferencePolicy):
 
 
 class CminPolicy(ReferencePolicy):
-    """Bizup's c_min tracker: ``Q = (0.03 g)^2 I`` while ``c_min < 1 g``, else ``Q = c_min^2 I``."""
+    """Bizup's c_min tracker: ``Q = (0.03 g)^2 I`` while ``c_min < 1 g``, else ``Q = c_min^2 I``.
 
-    requires = ("c_min_g",)
+    Bizup uses the plots twice, "once to detect ... then again to update": the c_min of plot k sets the Q of the
+    update with plot k. That is ``next_c_min_g`` (the preview of the plot the chosen q is for); with an
+    observation without the preview the rule falls back to the c_min of the previous plot (one look late)."""
+
+    requires = ()
     name = "cmin"
 
     def __init__(self, layout, action_type="continuous", q_levels_m_s2=None, low_g=0.03, threshold_g=1.0):
         super().__init__(layout, action_type, q_levels_m_s2)
         self.low_g, self.threshold_g = float(low_g), float(threshold_g)
+        self.feature = "next_c_min_g" if "next_c_min_g" in layout else "c_min_g"
+        if self.feature not in layout:
+            raise ValueError("policy 'cmin' needs observation feature 'next_c_min_g' or 'c_min_g'")
 
     def declared(self, obs):
-        return self.layout.decode(obs, "c_min_g") >= self.threshold_g
+        return self.layout.decode(obs, self.feature) >= self.threshold_g
 
     def q_m_s2(self, obs):
-        c = self.layout.decode(obs, "c_min_g")
+        c = self.layout.decode(obs, self.feature)
         return np.where(c < self.threshold_g, self.low_g, c) * G0_M_S2
 
 

@@ -4,6 +4,8 @@
 
 =========================  ==========================================================================================
 ``random``                 :func:`radar_env.scenario.random_scenario` with Adrian's ATC radar placed by the draw
+``random_radars``          the same flights seen by a random radar (:func:`random_radar`): scan period 1-12 s,
+                           noise, detection probability and, in 30 % of draws, a second site (irregular looks)
 ``bizup2002``              Bizup (seed 000) fig. 6: 350 kt, starts 120 NM out, two 2 g turns (40 s at ~290 s, 30 s
                            at ~610 s), 930 s; Bizup's radar (T = 10 s, 100 ft, 0.1 deg, 2 kt) at the origin
 ``adrian_flower``          Adrian (seed 003): 12-leaf flower, 200 kt, 15 NM legs, 180 deg left / 150 deg right turns
@@ -29,7 +31,7 @@ from .radar import Radar, RadarSite, atc_radar, bizup_radar
 from .scenario import RandomScenarioConfig, ScenarioBuilder, Segment, SegmentScenario, random_scenario
 from .units import DEG, G0_M_S2, KNOT_M_S, NM_M
 
-__all__ = ["Setup", "SCENARIO_NAMES", "make_setup"]
+__all__ = ["Setup", "SCENARIO_NAMES", "make_setup", "random_radar", "RANDOM_RADAR_RANGES"]
 
 
 @dataclass(frozen=True)
@@ -104,9 +106,48 @@ def seed002_two_radars():
     return Setup(b.build("seed002_two_radars"), Radar((s1, s2)))
 
 
+RANDOM_RADAR_RANGES = {
+    "scan_period_s": (1.0, 12.0),            # log-uniform
+    "range_noise_std_m": (10.0, 250.0),      # log-uniform
+    "bearing_noise_std_deg": (0.03, 0.3),    # log-uniform
+    "radial_velocity_noise_std_m_s": (0.5, 2.0),  # log-uniform
+    "detection_probability": (0.8, 1.0),     # uniform
+    "second_site_probability": 0.3,
+    "second_site_offset_km": (20.0, 80.0),   # uniform distance, uniform direction
+}
+"""Ranges of :func:`random_radar`. They cover the papers' radars (Kim & Lee T = 1 s / 150 m, the ATC radar
+T = 5 s / 74 m / 0.07 deg, Bizup T = 10 s / 30 m / 0.1 deg) and what lies between, so that a policy trained on
+``random_radars`` is not tied to one radar."""
+
+
+def random_radar(rng, site_xy_m):
+    """A radar drawn from ``RANDOM_RADAR_RANGES`` with its first site at ``site_xy_m`` (fixed draw order: per site
+    period, range, bearing and radial-velocity noise, detection probability, first-scan offset; then whether a
+    second site exists and where)."""
+    R = RANDOM_RADAR_RANGES
+
+    def logu(key):
+        lo, hi = R[key]
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+    def site(pos, name):
+        period = logu("scan_period_s")
+        return RadarSite(position_m=tuple(pos), scan_period_s=period, range_noise_std_m=logu("range_noise_std_m"),
+                         bearing_noise_std_rad=logu("bearing_noise_std_deg") * DEG,
+                         radial_velocity_noise_std_m_s=logu("radial_velocity_noise_std_m_s"),
+                         detection_probability=float(rng.uniform(*R["detection_probability"])),
+                         first_scan_s=float(rng.uniform(0.0, period)) * (name != "site1"), name=name)
+
+    sites = [site(site_xy_m, "site1")]
+    if rng.uniform() < R["second_site_probability"]:
+        d, a = rng.uniform(*R["second_site_offset_km"]) * 1e3, rng.uniform(0.0, 2 * np.pi)
+        sites.append(site(np.asarray(site_xy_m) + d * np.array([np.sin(a), np.cos(a)]), "site2"))
+    return Radar(tuple(sites))
+
+
 _NAMED = {f.__name__: f for f in (bizup2002, adrian_flower, kim_lee_accel, seed002_course_changes,
                                    seed002_two_radars)}
-SCENARIO_NAMES = ("random",) + tuple(_NAMED)
+SCENARIO_NAMES = ("random", "random_radars") + tuple(_NAMED)
 
 
 @lru_cache(maxsize=None)
@@ -124,12 +165,13 @@ def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None
         random_config: :class:`RandomScenarioConfig` for ``random``.
         radar: overrides the radar (for ``random`` its first site is moved to the drawn position).
     """
-    if name == "random":
+    if name in ("random", "random_radars"):
         if not isinstance(rng, np.random.Generator):
-            raise ValueError("scenario 'random' needs rng, a numpy.random.Generator")
+            raise ValueError(f"scenario {name!r} needs rng, a numpy.random.Generator")
         sc, site = random_scenario(rng, random_config)
-        base = radar if radar is not None else atc_radar()
-        return Setup(sc, base.moved_to(site))
+        if radar is not None:
+            return Setup(sc, radar.moved_to(site))
+        return Setup(sc, atc_radar(position_m=tuple(site)) if name == "random" else random_radar(rng, site))
     if name not in _NAMED:
         raise ValueError(f"unknown scenario {name!r}; valid names: {list(SCENARIO_NAMES)}")
     s = _named_setup(name)

@@ -325,7 +325,11 @@ class RadarTrackEnv(gym.Env):
     features of the filter's innovations (never from the truth). Each step runs the chain once::
 
         q = action -> dt = t_k - t_{k-1} -> F(dt), Q(dt, q) -> predict -> update with plot k (or predict through
-        a missed look) -> features -> observation, reward
+        a missed look) -> features, preview of plot k+1 -> observation, reward
+
+    The observation that the action answers already previews plot k (its innovation against the predicted mean
+    ``F x``, which does not depend on q): like an IMM, which weighs its modes with the plot itself, the agent
+    chooses q knowing the plot it will be used for. The estimate at look k still uses plots up to k only.
 
     The episode (truth trajectory, every plot's noise and detection) is drawn whole at ``reset`` from the env's
     seeded generator, so a seed fixes the episode bit for bit and the evaluation replays the same plots through
@@ -345,8 +349,10 @@ class RadarTrackEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 14 below), scaled and
-    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``).
+    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 21 below), scaled and
+    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-13 describe
+    the looks processed so far, 14-20 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
+    out: q then has to be chosen before the plot is seen).
 
     | Num | Name | Unit | Scaling | Min | Max |
     |---|---|---|---|---|---|
@@ -364,6 +370,13 @@ class RadarTrackEnv(gym.Env):
     | 11 | pos_std_ratio: filter position std / measurement std | 1 | x/3 | 0 | 1 |
     | 12 | q_prev_g: q of the last prediction | g | action map | -1 | 1 |
     | 13 | detected: the last look gave a plot | 1 | x | 0 | 1 |
+    | 14 | next_nu_along: next plot's innovation along track / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 15 | next_nu_cross: next plot's innovation across track / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 16 | next_nis: next plot's NIS at q = 0 | 1 | log10(1+x)/3 | 0 | 1 |
+    | 17 | next_q_fit_g: q explaining the next innovation (Kim & Lee with one plot) | g | action map | -1 | 1 |
+    | 18 | next_c_min_g: Bizup's c_min from the next plot | g | x/8 | 0 | 1 |
+    | 19 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
+    | 20 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
 
     Measurement-based features hold their last value through a missed look.
 
@@ -392,7 +405,9 @@ class RadarTrackEnv(gym.Env):
 
     ``gym.make("RadarTrack-v0", **kwargs)``; every argument is validated and an unknown one raises ``ValueError``.
 
-    * ``scenario``: ``"random"`` (default), a name from ``radar_env.catalog.SCENARIO_NAMES`` (``bizup2002``,
+    * ``scenario``: ``"random"`` (default), ``"random_radars"`` (the same flights seen by a random radar: 1-12 s
+      scan period, noise, detection probability, sometimes a second site), a name from
+      ``radar_env.catalog.SCENARIO_NAMES`` (``bizup2002``,
       ``adrian_flower``, ``kim_lee_accel``, ``seed002_course_changes``, ``seed002_two_radars``), a path to a
       ``.csv`` trajectory (``t_s,x_m,y_m,vx_m_s,vy_m_s``), a ``Setup`` or a scenario object. ``reset(options=
       {"scenario": ...})`` overrides it for that reset only.
@@ -407,7 +422,7 @@ class RadarTrackEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version (the next-plot preview entries 14-20 were added before the first release).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 10}

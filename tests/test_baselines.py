@@ -14,7 +14,7 @@ from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.filters import process_noise, transition_cv
-from radar_env.observation import ObservationLayout
+from radar_env.observation import PAST_FEATURES, ObservationLayout
 from radar_env.tracking import Tracker
 from radar_env.units import G0_M_S2
 
@@ -143,10 +143,16 @@ def test_reference_policies_predict_interface_in_env():
 def test_cmin_policy_rule_and_continuous_action_roundtrip():
     pol = CminPolicy(LAYOUT, "continuous", LEVELS)
     obs = np.zeros((3, len(LAYOUT.names)), dtype=np.float32)
-    j = LAYOUT.names.index("c_min_g")
-    obs[:, j] = np.array([0.5, 1.5, 3.0]) / 8.0
+    # Bizup's timing: the c_min of the plot being filtered (the preview), not of the previous plot
+    obs[:, LAYOUT.names.index("next_c_min_g")] = np.array([0.5, 1.5, 3.0]) / 8.0
+    obs[:, LAYOUT.names.index("c_min_g")] = 5.0 / 8.0
     q = pol.q_m_s2(obs) / G0_M_S2
     np.testing.assert_allclose(q, [0.03, 1.5, 3.0], rtol=1e-6)
+    past = ObservationLayout(PAST_FEATURES, LEVELS[0], LEVELS[-1])   # without the preview: the previous plot's
+    obs_past = np.zeros((3, len(PAST_FEATURES)), dtype=np.float32)
+    obs_past[:, past.names.index("c_min_g")] = np.array([0.5, 1.5, 3.0]) / 8.0
+    np.testing.assert_allclose(CminPolicy(past, "continuous", LEVELS).q_m_s2(obs_past) / G0_M_S2, [0.03, 1.5, 3.0],
+                               rtol=1e-6)
     # the continuous action maps back to the same q through the env's action map
     env = gym.make("RadarTrack-v0", action_type="continuous")
     core = env.unwrapped._core

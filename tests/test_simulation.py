@@ -212,3 +212,28 @@ def test_stack_episodes_pads_and_roundtrips():
     e1 = b.episode(1)
     assert np.array_equal(e1.z_m, eps[1].z_m, equal_nan=True)
     assert not b.detected[~b.valid].any()
+
+
+def test_random_radar_ranges_and_reproducible():
+    from radar_env.catalog import RANDOM_RADAR_RANGES as R, random_radar
+    n_two = 0
+    for seed in range(200):
+        r = random_radar(np.random.default_rng(seed), (1e3, 2e3))
+        assert r.sites[0].position_m == (1e3, 2e3) and r.sites[0].first_scan_s == 0
+        n_two += len(r.sites) == 2
+        for s in r.sites:
+            assert R["scan_period_s"][0] <= s.scan_period_s <= R["scan_period_s"][1]
+            assert R["range_noise_std_m"][0] <= s.range_noise_std_m <= R["range_noise_std_m"][1]
+            lo, hi = R["bearing_noise_std_deg"]
+            assert lo * DEG <= s.bearing_noise_std_rad <= hi * DEG
+            assert R["detection_probability"][0] <= s.detection_probability <= 1.0
+        if len(r.sites) == 2:
+            d = np.hypot(*(np.subtract(r.sites[1].position_m, r.sites[0].position_m)))
+            assert 20e3 <= d <= 80e3
+        assert r == random_radar(np.random.default_rng(seed), (1e3, 2e3))
+    assert 40 <= n_two <= 80   # 30 % of 200 draws
+    # random_radars flies the same flight as random for the same generator (the radar is drawn after the site)
+    a = make_setup("random", np.random.default_rng(7))
+    b = make_setup("random_radars", np.random.default_rng(7))
+    assert a.scenario.duration_s == b.scenario.duration_s
+    np.testing.assert_array_equal(a.radar.sites[0].position_m, b.radar.sites[0].position_m)
