@@ -23,8 +23,8 @@ __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "d
 TRAIN_SEEDS = range(0, 1_000_000)
 TUNING_SEEDS = range(1_000_000, 2_000_000)
 EVAL_SEED_BASE = 10_000_000
-DEFAULT_SUITES = ("random", "bizup2002", "adrian_flower", "kim_lee_accel", "seed002_course_changes",
-                  "seed002_two_radars")
+DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
+                  "seed002_course_changes", "seed002_two_radars")
 EXTRA_SUITES = ("encounters", "adsb_calibration")
 """Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights."""
 
