@@ -99,6 +99,8 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
     * ``next_q_fit_m_s2``: the q that explains this one innovation, ``sqrt(max(phi, 0))`` with Kim & Lee's
       ``phi = trace(nu nu^T - S0) / trace(H Q1 H^T)`` (their eq 15 with a window of one plot);
     * ``next_c_min_m_s2``: Bizup's c_min from the next plot's bearing and radial velocity;
+    * ``next_meas_std_m``: per-axis RMS noise of the next plot, ``sqrt(trace(R_next) / 2)`` (the scale that
+      turns a q in g into a maneuver index; differs between radars and sites);
     * ``next_dt_s``, ``next_detected`` (0 where there is no next look).
 
     Every plot feature is 0 where the next look is missed or does not exist (``next_look["detected"]`` False).
@@ -117,7 +119,9 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
                     np.where(det, next_look["radial_velocity_m_s"], 0.0), dt)
     return {"next_nu_along": nac[:, 0], "next_nu_cross": nac[:, 1], "next_nis": nis(nu, S0),
             "next_q_fit_m_s2": np.where(det, np.sqrt(np.maximum(phi, 0.0)), 0.0),
-            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_dt_s": dt, "next_detected": det.astype(np.float64)}
+            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_dt_s": dt,
+            "next_meas_std_m": np.where(det, np.sqrt(0.5 * (next_look["R_m2"][:, 0, 0] + next_look["R_m2"][:, 1, 1])),
+                                        0.0), "next_detected": det.astype(np.float64)}
 
 
 def _bank_update(bank, rows, **inputs):

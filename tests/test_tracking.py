@@ -233,6 +233,8 @@ def test_preview_equals_next_step_at_zero_q():
             np.testing.assert_allclose(prev[f"next_{k}"], out.features[k], rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(prev["next_c_min_m_s2"], out.features["c_min_m_s2"], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(prev["next_dt_s"], out.dt_s, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(prev["next_meas_std_m"], np.sqrt(0.5 * np.trace(out.R_m2, axis1=1, axis2=2)),
+                                   rtol=1e-12)
         # one-plot Kim & Lee: q^2 * trace(H Q1 H^T) = |nu|^2 - trace(S0)
         S = out.S
         phi = (out.nu ** 2).sum(-1) - (S[:, 0, 0] + S[:, 1, 1])
