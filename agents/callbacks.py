@@ -72,8 +72,8 @@ class ImmRatioEvalCallback(BaseCallback):
             raise ValueError(f"select_on names {bad}, which are not among the scored suites {list(scenarios)}")
         self.suites = {}
         for name, runs in scenarios.items():
-            rc = self.cfg.random_scenario_config if name in ("random", "random_radars") else None
-            eps = draw_suite(name, runs, seed=int(seed), random_config=rc)
+            # the suites as the evaluation draws them (default generator settings), whatever the training used
+            eps = draw_suite(name, runs, seed=int(seed))
             batch = stack_episodes(eps)
             self.suites[name] = (eps, batch, pooled_rmse(batch, run_tracker("imm2", eps)))
         self.best_ratio = np.inf

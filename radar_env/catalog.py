@@ -171,7 +171,10 @@ def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None
         sc, site = random_scenario(rng, random_config)
         if radar is not None:
             return Setup(sc, radar.moved_to(site))
-        return Setup(sc, atc_radar(position_m=tuple(site)) if name == "random" else random_radar(rng, site))
+        if name == "random":
+            return Setup(sc, atc_radar(position_m=tuple(site)))
+        p = (random_config or RandomScenarioConfig()).random_radar_probability
+        return Setup(sc, random_radar(rng, site) if rng.uniform() < p else atc_radar(position_m=tuple(site)))
     if name not in _NAMED:
         raise ValueError(f"unknown scenario {name!r}; valid names: {list(SCENARIO_NAMES)}")
     s = _named_setup(name)

@@ -37,6 +37,11 @@ DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in rang
 (j = 0) and 2 g (j = 6), from 0.00182 g to 8.11 g."""
 
 
+REWARD_TYPES = ("squared", "absolute", "squared_m")
+REWARD_SCALE_M = 100.0
+"""Error scale of ``reward_type="squared_m"``: the reward is ``-min((error / 100 m)^2, reward_clip)``."""
+
+
 # ---------------------------------------------------------------------------------------------------- config
 @dataclass(frozen=True)
 class EnvConfig:
@@ -86,8 +91,8 @@ class EnvConfig:
         ObservationLayout(self.features)  # raises for unknown / repeated names
         rng_check("warmup_scans", self.warmup_scans, 1, 1000, integer=True)
         rng_check("warmup_q_g", self.warmup_q_g, 0.0, 100.0)
-        if self.reward_type not in ("squared", "absolute"):
-            raise ValueError(f"RadarTrack-v0: reward_type must be 'squared' or 'absolute', got {self.reward_type!r}")
+        if self.reward_type not in REWARD_TYPES:
+            raise ValueError(f"RadarTrack-v0: reward_type must be one of {list(REWARD_TYPES)}, got {self.reward_type!r}")
         rng_check("reward_clip", self.reward_clip, 1e-3, 1e9)
         rng_check("track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
         rng_check("n_adrian", self.n_adrian, 1, 50, integer=True)
@@ -262,8 +267,10 @@ class _Core:
 
     def _reward_terms(self, out, lost, remaining, err_norm=None):
         e = self._normalised_error(out) if err_norm is None else err_norm
-        clip = self.cfg.reward_clip
-        pos = -np.minimum(e * e if self.cfg.reward_type == "squared" else e, clip)
+        clip, kind = self.cfg.reward_clip, self.cfg.reward_type
+        if kind == "squared_m":   # metres, not sigmas: weighs looks as the pooled position RMSE does
+            e = np.hypot(out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]) / REWARD_SCALE_M
+        pos = -np.minimum(e if kind == "absolute" else e * e, clip)
         return {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
 
     # ---- info
@@ -385,7 +392,8 @@ class RadarTrackEnv(gym.Env):
     With ``e = |estimated position - true position| / sigma_m``, where ``sigma_m = sqrt((sr^2 + (r sb)^2)/2)``
     is the per-axis RMS noise of a plot at the true range ``r``, the reward per step is
     ``-min(e^2, reward_clip)`` (``reward_type="squared"``, default; aligned with position RMSE) or
-    ``-min(e, reward_clip)`` (``"absolute"``). When the track is lost (below), the step also gets
+    ``-min(e, reward_clip)`` (``"absolute"``), or ``-min((error / 100 m)^2, reward_clip)`` (``"squared_m"``: in
+    metres, so looks weigh as in the pooled position RMSE whatever the radar's noise). When the track is lost (below), the step also gets
     ``-reward_clip * (looks remaining)``, the worst case of finishing the episode. The terms are in
     ``info["reward_terms"]`` (``position_error``, ``track_lost``). Evaluation metrics do not use the reward.
 

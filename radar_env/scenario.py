@@ -390,6 +390,8 @@ class RandomScenarioConfig:
         site_candidates: number of candidate radar positions tried; the one that keeps the flight in range the
             longest is chosen and the scenario is cut at its first exit. Default 64.
         min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120.
+        random_radar_probability: scenario ``random_radars`` only: the probability that the radar is drawn by
+            :func:`radar_env.catalog.random_radar`; otherwise it is the ATC radar of ``random``. Default 1.
     """
 
     speed_kt: tuple = _range_field(100.0, 600.0)
@@ -404,6 +406,7 @@ class RandomScenarioConfig:
     range_km: tuple = _range_field(10.0, 150.0)
     site_candidates: int = 64
     min_duration_s: float = 120.0
+    random_radar_probability: float = 1.0
 
     _LIMITS = {
         "speed_kt": (20.0, 3000.0), "n_legs": (1, 50), "leg_duration_s": (1.0, 3600.0),
@@ -424,6 +427,7 @@ class RandomScenarioConfig:
         _check_finite("RandomScenarioConfig.site_candidates", self.site_candidates, 1, 100000)
         _check_finite("RandomScenarioConfig.min_duration_s", self.min_duration_s, 1.0, 1e5)
         _check_finite("RandomScenarioConfig.first_leg_min_s", self.first_leg_min_s, 0.0, 1e5)
+        _check_finite("RandomScenarioConfig.random_radar_probability", self.random_radar_probability, 0.0, 1.0)
         if float(self.n_legs[0]) != int(self.n_legs[0]) or float(self.n_legs[1]) != int(self.n_legs[1]):
             raise ValueError(f"RandomScenarioConfig.n_legs must be integers, got {self.n_legs!r}")
 

@@ -463,12 +463,13 @@ def test_vector_reset_options_and_seed_list():
 
 
 # ------------------------------------------------------------------------------------------------ reward formula
-@pytest.mark.parametrize("reward_type", ["squared", "absolute"])
+@pytest.mark.parametrize("reward_type", ["squared", "absolute", "squared_m"])
 def test_reward_formula_against_truth(reward_type):
-    """Bizup's radar sits at the origin: e = |estimate - truth| / sqrt((sr^2 + (r sb)^2) / 2), r = |truth|."""
+    """Bizup's radar sits at the origin: e = |estimate - truth| / sqrt((sr^2 + (r sb)^2) / 2), r = |truth|;
+    squared_m: e = |estimate - truth| / 100 m."""
     setup = make_setup("bizup2002")
     site = setup.radar.sites[0]
-    clip = 7.0 if reward_type == "squared" else 2.0
+    clip = 2.0 if reward_type == "absolute" else 7.0
     env = gym.make(ENV_ID, scenario="bizup2002", reward_type=reward_type, reward_clip=clip,
                    track_loss_gate_sigma=1e6)
     env.reset(seed=0)
@@ -477,8 +478,8 @@ def test_reward_formula_against_truth(reward_type):
         _, r, te, tr, info = env.step(a)
         rng_m = np.hypot(*info["truth"][:2])
         sig = np.sqrt(0.5 * (site.range_noise_std_m ** 2 + (rng_m * site.bearing_noise_std_rad) ** 2))
-        e = np.hypot(*(info["estimate"][:2] - info["truth"][:2])) / sig
-        expected = -min(e * e if reward_type == "squared" else e, clip)
+        e = np.hypot(*(info["estimate"][:2] - info["truth"][:2])) / (100.0 if reward_type == "squared_m" else sig)
+        expected = -min(e if reward_type == "absolute" else e * e, clip)
         assert r == pytest.approx(expected, rel=1e-9)
         assert info["reward_terms"]["track_lost"] == 0.0
         clipped |= expected == -clip

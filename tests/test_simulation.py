@@ -237,3 +237,16 @@ def test_random_radar_ranges_and_reproducible():
     b = make_setup("random_radars", np.random.default_rng(7))
     assert a.scenario.duration_s == b.scenario.duration_s
     np.testing.assert_array_equal(a.radar.sites[0].position_m, b.radar.sites[0].position_m)
+
+
+def test_random_radars_mixture_probability():
+    from radar_env.scenario import RandomScenarioConfig
+    atc = make_setup("random", np.random.default_rng(0)).radar.sites[0]
+    n_atc = 0
+    for seed in range(100):
+        r = make_setup("random_radars", np.random.default_rng(seed), RandomScenarioConfig(random_radar_probability=0.5)).radar
+        n_atc += len(r.sites) == 1 and r.sites[0].scan_period_s == atc.scan_period_s and \
+            r.sites[0].range_noise_std_m == atc.range_noise_std_m
+    assert 35 <= n_atc <= 65
+    with pytest.raises(ValueError, match="random_radar_probability"):
+        RandomScenarioConfig(random_radar_probability=1.5)
