@@ -27,6 +27,7 @@ name                   unit       meaning                                       
 ``next_nis``           1          next plot's NIS against the q = 0 prediction             log10(1+x)/3  [0, 1]
 ``next_q_fit_g``       g          q explaining the next plot's innovation (Kim & Lee, N=1)  log-map   [-1, 1]
 ``next_c_min_g``       g          Bizup's c_min from the next plot                         x / 8     [0, 1]
+``next_los_accel_g``   g          (rdot of the next plot - rdot of F x) / dt (optional)    x / 4     [-1, 1]
 ``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
 ``next_meas_std_m``    m          per-axis RMS noise of the next plot (optional)           log10(1+x)/3  [0, 1]
 ``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
@@ -82,12 +83,14 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("next_nis", "1", 0, 1, "log10p", 3.0, "next plot's NIS (q = 0)"),
     FeatureSpec("next_q_fit_g", "g", -1, 1, "logq", 1.0, "q explaining the next plot's innovation"),
     FeatureSpec("next_c_min_g", "g", 0, 1, "linear", 8.0, "Bizup c_min from the next plot"),
+    FeatureSpec("next_los_accel_g", "g", -1, 1, "linear", 4.0, "line-of-sight acceleration from the next plot's "
+                "radial velocity"),
     FeatureSpec("next_dt_s", "s", 0, 1, "linear", 20.0, "time to the next look"),
     FeatureSpec("next_meas_std_m", "m", 0, 1, "log10p", 3.0, "per-axis RMS noise of the next plot"),
     FeatureSpec("next_detected", "1", 0, 1, "linear", 1.0, "next look detected"),
 ]}
 
-DEFAULT_FEATURES = tuple(n for n in FEATURE_SPECS if n != "next_meas_std_m")
+DEFAULT_FEATURES = tuple(n for n in FEATURE_SPECS if n not in ("next_meas_std_m", "next_los_accel_g"))
 PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
 
 
@@ -150,6 +153,7 @@ class ObservationLayout:
             "next_nis": lambda: f["next_nis"],
             "next_q_fit_g": lambda: f["next_q_fit_m_s2"] / G0_M_S2,
             "next_c_min_g": lambda: f["next_c_min_m_s2"] / G0_M_S2,
+            "next_los_accel_g": lambda: f["next_los_accel_m_s2"] / G0_M_S2,
             "next_dt_s": lambda: f["next_dt_s"],
             "next_meas_std_m": lambda: f["next_meas_std_m"],
             "next_detected": lambda: f["next_detected"],

@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .episode import Episode
-from .features import FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, normalized_innovation_along_cross
+from .features import MIN_DT_S, FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, normalized_innovation_along_cross
 from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
 from .units import G0_M_S2
 
@@ -99,6 +99,10 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
     * ``next_q_fit_m_s2``: the q that explains this one innovation, ``sqrt(max(phi, 0))`` with Kim & Lee's
       ``phi = trace(nu nu^T - S0) / trace(H Q1 H^T)`` (their eq 15 with a window of one plot);
     * ``next_c_min_m_s2``: Bizup's c_min from the next plot's bearing and radial velocity;
+    * ``next_los_accel_m_s2``: the radial-velocity innovation over dt, ``(rdot_next - rdot(x^)) / dt`` with
+      ``rdot(x^) = (p^ - site) . v^ / |p^ - site|``: the line-of-sight acceleration the plot implies (Bizup's
+      point that radial velocity sees a maneuver before position does, without his turn model; it sees speed
+      changes too). ``dt`` floored at 1 ms;
     * ``next_meas_std_m``: per-axis RMS noise of the next plot, ``sqrt(trace(R_next) / 2)`` (the scale that
       turns a q in g into a maneuver index; differs between radars and sites);
     * ``next_dt_s``, ``next_detected`` (0 where there is no next look).
@@ -115,11 +119,15 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
     nu = np.where(det[:, None], next_look["z_m"] - x_hat[:, :2], 0.0)
     nac = normalized_innovation_along_cross(nu, S0, x_hat[:, 2:4])
     phi = kim_lee_phi_2d(nu[:, :, None] * nu[:, None, :], S0, dt)
-    cm = c_min_m_s2(x_post, np.where(det, next_look["bearing_rad"], 0.0),
-                    np.where(det, next_look["radial_velocity_m_s"], 0.0), dt)
+    rdot = np.where(det, next_look["radial_velocity_m_s"], 0.0)
+    cm = c_min_m_s2(x_post, np.where(det, next_look["bearing_rad"], 0.0), rdot, dt)
+    los = x_hat[:, :2] - next_look["site_xy_m"]
+    rng = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1.0)
+    rdot_hat = (los[:, 0] * x_hat[:, 2] + los[:, 1] * x_hat[:, 3]) / rng
+    los_accel = np.where(det, (rdot - rdot_hat) / np.maximum(dt, MIN_DT_S), 0.0)
     return {"next_nu_along": nac[:, 0], "next_nu_cross": nac[:, 1], "next_nis": nis(nu, S0),
             "next_q_fit_m_s2": np.where(det, np.sqrt(np.maximum(phi, 0.0)), 0.0),
-            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_dt_s": dt,
+            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_los_accel_m_s2": los_accel, "next_dt_s": dt,
             "next_meas_std_m": np.where(det, np.sqrt(0.5 * (next_look["R_m2"][:, 0, 0] + next_look["R_m2"][:, 1, 1])),
                                         0.0), "next_detected": det.astype(np.float64)}
 
@@ -260,7 +268,7 @@ class Tracker:
         self.k[sel] = k + 1
         has_next = k + 1 < self.n_looks[sel]
         kn = np.minimum(k + 1, self._cap - 1)
-        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s")}
+        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s", "site_xy_m")}
         nxt["detected"] = d["detected"][sel, kn] & has_next
         nxt["t_s"] = np.where(has_next, nxt["t_s"], t)
         feats.update(preview_next_plot(upd.x, upd.P, t, nxt))

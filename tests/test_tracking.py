@@ -233,6 +233,10 @@ def test_preview_equals_next_step_at_zero_q():
             np.testing.assert_allclose(prev[f"next_{k}"], out.features[k], rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(prev["next_c_min_m_s2"], out.features["c_min_m_s2"], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(prev["next_dt_s"], out.dt_s, rtol=0, atol=1e-12)
+        los = out.x_prior[:, :2] - out.site_xy_m
+        rdot_hat = (los * out.x_prior[:, 2:]).sum(-1) / np.hypot(los[:, 0], los[:, 1])
+        np.testing.assert_allclose(prev["next_los_accel_m_s2"], (out.radial_velocity_m_s - rdot_hat) / out.dt_s,
+                                   rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(prev["next_meas_std_m"], np.sqrt(0.5 * np.trace(out.R_m2, axis1=1, axis2=2)),
                                    rtol=1e-12)
         # one-plot Kim & Lee: q^2 * trace(H Q1 H^T) = |nu|^2 - trace(S0)
@@ -265,3 +269,20 @@ def test_preview_is_causal_and_empty_after_last_look():
         o = t.step(1.0)
     f = o.features
     assert f["next_detected"][0] == 0 and f["next_dt_s"][0] == 0 and f["next_nu_along"][0] == 0
+
+
+def test_preview_los_accel_sees_kim_lee_speed_change():
+    """Radial flight with +-5 g speed changes (T = 1 s, 2 kt radial-velocity noise): the radial-velocity preview
+    reports the acceleration on the first look of each change, sign included, and stays small on the first leg."""
+    s = make_setup("kim_lee_accel")
+    ep = draw_episode(s.scenario, s.radar, np.random.default_rng(0))
+    tr = Tracker(1)
+    out = tr.load([0], [ep])
+    acc = []
+    while not out.done[0]:
+        acc.append((out.t_s[0] + out.features["next_dt_s"][0], out.features["next_los_accel_m_s2"][0] / G0_M_S2))
+        out = tr.step(0.5 * G0_M_S2)
+    t, a = np.array(acc).T
+    assert a[np.argmin(np.abs(t - 26.0))] > 2.0 and a[np.argmin(np.abs(t - 66.0))] < -2.0   # first look of each change
+    first_leg = t < 25.0          # before the first change (after it the 0.5 g filter still lags the 490 m/s jump)
+    assert first_leg.sum() >= 5 and np.all(np.abs(a[first_leg]) < 1.5)
