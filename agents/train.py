@@ -6,6 +6,8 @@
 Hyperparameters come from ``agents/hyperparams/<algo>.toml`` (table ``"RadarTrack-v0"``, rl-zoo3 style); the
 command line overrides ``n_timesteps``, ``n_envs``, env arguments (``--env-kwargs``, merged over the file's
 ``env_kwargs``) and any other key (``--hp gamma=0.9``, the value parsed as JSON, else kept as a string).
+Special keys: ``eval_scenarios`` / ``eval_runs`` / ``eval_freq`` / ``select_on`` (selection callback),
+``init_from`` (path of a saved model of the same algorithm and network to start from: fine-tuning).
 
 Rollouts run on the native batched vector env (:class:`radar_env.env.RadarTrackVectorEnv`) through the SB3
 adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
@@ -46,7 +48,7 @@ ALGOS = ("ppo", "dqn", "sac")
 HP_DIR = Path(__file__).with_name("hyperparams")
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
 _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
-            "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on")
+            "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on", "init_from")
 
 
 def load_hyperparams(algo, path=None):
@@ -144,6 +146,15 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
     model = cls(hp.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=0,
                 tensorboard_log=str(run / "tb"), policy_kwargs=_policy_kwargs(hp.get("policy_kwargs")), **kwargs)
+    if hp.get("init_from"):    # fine-tuning: start from a saved model's weights (same network and spaces)
+        src = cls.load(str(hp["init_from"]), device="cpu")
+        if src.observation_space != model.observation_space or src.action_space != model.action_space:
+            raise ValueError(f"init_from {hp['init_from']!r}: its spaces {src.observation_space}, {src.action_space} "
+                             f"differ from this env's {model.observation_space}, {model.action_space}")
+        try:
+            model.policy.load_state_dict(src.policy.state_dict())
+        except RuntimeError as e:
+            raise ValueError(f"init_from {hp['init_from']!r}: network does not match policy_kwargs ({e})") from e
 
     scenarios = hp.get("eval_scenarios") or {"random": int(hp.get("eval_runs", 100))}
     eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,

@@ -106,6 +106,31 @@ def test_train_end_to_end_and_evaluate(algo, tmp_path, capsys):
     capsys.readouterr()
 
 
+def test_fine_tune_from_saved_model_on_random_radars(tmp_path):
+    """init_from copies the saved weights (the fine-tuned run starts where the first ended); random_radars is a
+    training scenario; select_on scores the geometric mean of the named suites; mismatched spaces are refused."""
+    import stable_baselines3 as sb3
+    hp = _tiny("ppo")
+    first = train("ppo", hp, seed=3, out=tmp_path, progress=False, verbose=0, run_name="a")
+    src = sb3.PPO.load(first / "policy.zip", device="cpu")
+    hp2 = _tiny("ppo")
+    hp2.update(n_timesteps=128, n_steps=32, init_from=str(first / "policy.zip"), learning_rate=0.0,
+               eval_scenarios={"random": 2, "random_radars": 2}, select_on=["random", "random_radars"])
+    hp2["env_kwargs"] = {**hp2["env_kwargs"], "scenario": "random_radars"}
+    second = train("ppo", hp2, seed=5, out=tmp_path, progress=False, verbose=0, run_name="b")
+    tuned = sb3.PPO.load(second / "policy.zip", device="cpu")
+    for k, v in src.policy.state_dict().items():     # learning rate 0: the weights are exactly the source's
+        assert np.array_equal(v.numpy(), tuned.policy.state_dict()[k].numpy()), k
+    row = json.loads((second / "summary.json").read_text())["selection_history"][-1]
+    assert row["selection_ratio"] == pytest.approx(np.sqrt(row["random_ratio_imm2"] * row["random_radars_ratio_imm2"]))
+    assert json.loads((second / "env_config.json").read_text())["scenario"] == "random_radars"
+    hp3 = _tiny("ppo")
+    hp3.update(init_from=str(first / "policy.zip"))
+    hp3["env_kwargs"] = {**hp3["env_kwargs"], "features": ["nis", "c_min_g"]}
+    with pytest.raises(ValueError, match="init_from"):
+        train("ppo", hp3, seed=3, out=tmp_path, progress=False, verbose=0, run_name="c")
+
+
 def test_cli_train_branch_and_errors(tmp_path, capsys):
     assert cli_main(["train", "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--out", str(tmp_path),
                      "--name", "cli", "--no-progress", "--quiet", "--hp", "n_steps=128", "--hp", "batch_size=64",
