@@ -27,15 +27,15 @@ name                   unit       meaning                                       
 ``next_nis``           1          next plot's NIS against the q = 0 prediction             log10(1+x)/3  [0, 1]
 ``next_q_fit_g``       g          q explaining the next plot's innovation (Kim & Lee, N=1)  log-map   [-1, 1]
 ``next_c_min_g``       g          Bizup's c_min from the next plot                         x / 8     [0, 1]
-``next_los_accel_g``   g          (rdot of the next plot - rdot of F x) / dt (optional)    x / 4     [-1, 1]
+``next_los_accel_g``   g          (rdot of the next plot - rdot of F x) / dt               x / 4     [-1, 1]
 ``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
-``next_meas_std_m``    m          per-axis RMS noise of the next plot (optional)           log10(1+x)/3  [0, 1]
+``next_meas_std_m``    m          per-axis RMS noise of the next plot                      log10(1+x)/3  [0, 1]
 ``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
 =====================  =========  =======================================================  ========  ==========
 
 The ``next_*`` entries preview the plot that the chosen q will be used for
 (:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
-chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 21;
+chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 23;
 ``PAST_FEATURES`` the first 14 (no preview: q for a look chosen from the looks before it).
 
 ``q_prev_g`` and ``next_q_fit_g`` use the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
@@ -90,7 +90,7 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("next_detected", "1", 0, 1, "linear", 1.0, "next look detected"),
 ]}
 
-DEFAULT_FEATURES = tuple(n for n in FEATURE_SPECS if n not in ("next_meas_std_m", "next_los_accel_g"))
+DEFAULT_FEATURES = tuple(FEATURE_SPECS)
 PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
 
 
