@@ -91,6 +91,17 @@ FEATURE_SPECS = {s.name: s for s in [
 ]}
 
 DEFAULT_FEATURES = tuple(FEATURE_SPECS)
+
+_FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to the observation's unit)
+    "nu_along": ("nu_along", 1.0), "nu_cross": ("nu_cross", 1.0), "nis": ("nis", 1.0),
+    "c_min_g": ("c_min_m_s2", G0_M_S2), "fma_innovation_km": ("fma_innovation_m", 1e3),
+    "speed_m_s": ("speed_m_s", 1.0), "range_km": ("range_m", 1e3),
+    "next_nu_along": ("next_nu_along", 1.0), "next_nu_cross": ("next_nu_cross", 1.0), "next_nis": ("next_nis", 1.0),
+    "next_q_fit_g": ("next_q_fit_m_s2", G0_M_S2), "next_c_min_g": ("next_c_min_m_s2", G0_M_S2),
+    "next_los_accel_g": ("next_los_accel_m_s2", G0_M_S2), "next_dt_s": ("next_dt_s", 1.0),
+    "next_meas_std_m": ("next_meas_std_m", 1.0), "next_detected": ("next_detected", 1.0),
+}
+_DEGREES_FROM = {"turn_rate_alg1_deg_s": "turn_rate_alg1_rad_s", "turn_rate_alg2_deg_s": "turn_rate_alg2_rad_s"}
 PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
 
 
@@ -132,35 +143,26 @@ class ObservationLayout:
     def physical(self, out, q_prev_m_s2):
         """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput`."""
         f = out.features
-        sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
-        vals = {
-            "nu_along": lambda: f["nu_along"],
-            "nu_cross": lambda: f["nu_cross"],
-            "nis": lambda: f["nis"],
-            "c_min_g": lambda: f["c_min_m_s2"] / G0_M_S2,
-            "turn_rate_alg1_deg_s": lambda: np.degrees(f["turn_rate_alg1_rad_s"]),
-            "turn_rate_alg2_deg_s": lambda: np.degrees(f["turn_rate_alg2_rad_s"]),
-            "fma_innovation_km": lambda: f["fma_innovation_m"] / 1e3,
-            "kim_lee_q_g": lambda: np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2,
-            "speed_m_s": lambda: f["speed_m_s"],
-            "range_km": lambda: f["range_m"] / 1e3,
-            "dt_s": lambda: out.dt_s,
-            "pos_std_ratio": lambda: np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig,
-            "q_prev_g": lambda: np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2,
-            "detected": lambda: out.detected.astype(np.float64),
-            "next_nu_along": lambda: f["next_nu_along"],
-            "next_nu_cross": lambda: f["next_nu_cross"],
-            "next_nis": lambda: f["next_nis"],
-            "next_q_fit_g": lambda: f["next_q_fit_m_s2"] / G0_M_S2,
-            "next_c_min_g": lambda: f["next_c_min_m_s2"] / G0_M_S2,
-            "next_los_accel_g": lambda: f["next_los_accel_m_s2"] / G0_M_S2,
-            "next_dt_s": lambda: f["next_dt_s"],
-            "next_meas_std_m": lambda: f["next_meas_std_m"],
-            "next_detected": lambda: f["next_detected"],
-        }
         n = out.dt_s.shape[0]
-        cols = [vals[name]() for name in self.names]
-        return np.stack([c if np.shape(c) == (n,) else np.full(n, c, dtype=np.float64) for c in cols], axis=-1)
+        phys = np.empty((n, len(self.names)))
+        for i, name in enumerate(self.names):
+            if name in _FROM_FEATURES:
+                key, divisor = _FROM_FEATURES[name]
+                phys[:, i] = f[key] / divisor
+            elif name in _DEGREES_FROM:
+                phys[:, i] = np.degrees(f[_DEGREES_FROM[name]])
+            elif name == "kim_lee_q_g":
+                phys[:, i] = np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2
+            elif name == "dt_s":
+                phys[:, i] = out.dt_s
+            elif name == "pos_std_ratio":
+                sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
+                phys[:, i] = np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig
+            elif name == "q_prev_g":
+                phys[:, i] = np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2
+            else:  # "detected"
+                phys[:, i] = out.detected
+        return phys
 
     def encode_physical(self, phys):
         """(n, F) physical values -> (n, F) float32 observation, clipped to the Box."""
