@@ -28,6 +28,7 @@ name                   unit       meaning                                       
 ``next_q_fit_g``       g          q explaining the next plot's innovation (Kim & Lee, N=1)  log-map   [-1, 1]
 ``next_c_min_g``       g          Bizup's c_min from the next plot                         x / 8     [0, 1]
 ``next_los_accel_g``   g          (rdot of the next plot - rdot of F x) / dt               x / 4     [-1, 1]
+``next_rdot_nu``       sigma      next plot's radial-velocity innovation, q = 0 prediction  x / 10    [-1, 1]
 ``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
 ``next_meas_std_m``    m          per-axis RMS noise of the next plot                      log10(1+x)/3  [0, 1]
 ``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
@@ -35,7 +36,7 @@ name                   unit       meaning                                       
 
 The ``next_*`` entries preview the plot that the chosen q will be used for
 (:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
-chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 23;
+chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 24;
 ``PAST_FEATURES`` the first 14 (no preview: q for a look chosen from the looks before it).
 
 ``q_prev_g`` and ``next_q_fit_g`` use the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
@@ -85,6 +86,7 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("next_c_min_g", "g", 0, 1, "linear", 8.0, "Bizup c_min from the next plot"),
     FeatureSpec("next_los_accel_g", "g", -1, 1, "linear", 4.0, "line-of-sight acceleration from the next plot's "
                 "radial velocity"),
+    FeatureSpec("next_rdot_nu", "sigma", -1, 1, "linear", 10.0, "next plot's radial-velocity innovation (q = 0)"),
     FeatureSpec("next_dt_s", "s", 0, 1, "linear", 20.0, "time to the next look"),
     FeatureSpec("next_meas_std_m", "m", 0, 1, "log10p", 3.0, "per-axis RMS noise of the next plot"),
     FeatureSpec("next_detected", "1", 0, 1, "linear", 1.0, "next look detected"),
@@ -99,6 +101,7 @@ _FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to t
     "next_nu_along": ("next_nu_along", 1.0), "next_nu_cross": ("next_nu_cross", 1.0), "next_nis": ("next_nis", 1.0),
     "next_q_fit_g": ("next_q_fit_m_s2", G0_M_S2), "next_c_min_g": ("next_c_min_m_s2", G0_M_S2),
     "next_los_accel_g": ("next_los_accel_m_s2", G0_M_S2), "next_dt_s": ("next_dt_s", 1.0),
+    "next_rdot_nu": ("next_rdot_nu", 1.0),
     "next_meas_std_m": ("next_meas_std_m", 1.0), "next_detected": ("next_detected", 1.0),
 }
 _DEGREES_FROM = {"turn_rate_alg1_deg_s": "turn_rate_alg1_rad_s", "turn_rate_alg2_deg_s": "turn_rate_alg2_rad_s"}

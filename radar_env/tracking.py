@@ -41,7 +41,8 @@ __all__ = ["Tracker", "StepOutput", "init_looks", "preview_next_plot", "MAX_Q_M_
 MAX_Q_M_S2 = 100.0 * G0_M_S2
 """Largest process-noise level the chain accepts (m/s^2)."""
 
-_LOOK_FIELDS = ("t_s", "site_xy_m", "range_m", "range_noise_std_m", "bearing_noise_std_rad", "truth", "truth_accel_m_s2", "truth_turn_rate_rad_s", "maneuvering",
+_LOOK_FIELDS = ("t_s", "site_xy_m", "range_m", "range_noise_std_m", "bearing_noise_std_rad",
+                "radial_velocity_noise_std_m_s", "truth", "truth_accel_m_s2", "truth_turn_rate_rad_s", "maneuvering",
                 "detected", "bearing_rad", "radial_velocity_m_s", "z_m", "R_m2")
 
 
@@ -103,6 +104,9 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
       ``rdot(x^) = (p^ - site) . v^ / |p^ - site|``: the line-of-sight acceleration the plot implies (Bizup's
       point that radial velocity sees a maneuver before position does, without his turn model; it sees speed
       changes too). ``dt`` floored at 1 ms;
+    * ``next_rdot_nu``: the same radial-velocity innovation in sigmas, ``(rdot_next - rdot(x^)) / sqrt(s_r)`` with
+      ``s_r = h F P_post F^T h^T + sigma_rdot^2`` and ``h = d rdot / d x = [(v^ - rdot(x^) u) / r, u]`` (``u`` the
+      unit line of sight): scale-free across radars, where ``next_los_accel`` is dominated by noise at short dt;
     * ``next_meas_std_m``: per-axis RMS noise of the next plot, ``sqrt(trace(R_next) / 2)`` (the scale that
       turns a q in g into a maneuver index; differs between radars and sites);
     * ``next_dt_s``, ``next_detected`` (0 where there is no next look).
@@ -125,9 +129,14 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
     rng = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1.0)
     rdot_hat = (los[:, 0] * x_hat[:, 2] + los[:, 1] * x_hat[:, 3]) / rng
     los_accel = np.where(det, (rdot - rdot_hat) / np.maximum(dt, MIN_DT_S), 0.0)
+    u = los / rng[:, None]
+    h = np.concatenate([(x_hat[:, 2:4] - rdot_hat[:, None] * u) / rng[:, None], u], axis=1)
+    s_r = np.einsum("bi,bij,bj->b", h, FP @ np.swapaxes(F, 1, 2), h) + next_look["radial_velocity_noise_std_m_s"] ** 2
+    rdot_nu = np.where(det, (rdot - rdot_hat) / np.sqrt(s_r), 0.0)
     return {"next_nu_along": nac[:, 0], "next_nu_cross": nac[:, 1], "next_nis": nis(nu, S0),
             "next_q_fit_m_s2": np.where(det, np.sqrt(np.maximum(phi, 0.0)), 0.0),
-            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_los_accel_m_s2": los_accel, "next_dt_s": dt,
+            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_los_accel_m_s2": los_accel,
+            "next_rdot_nu": rdot_nu, "next_dt_s": dt,
             "next_meas_std_m": np.where(det, np.sqrt(0.5 * (next_look["R_m2"][:, 0, 0] + next_look["R_m2"][:, 1, 1])),
                                         0.0), "next_detected": det.astype(np.float64)}
 
@@ -268,7 +277,8 @@ class Tracker:
         self.k[sel] = k + 1
         has_next = k + 1 < self.n_looks[sel]
         kn = np.minimum(k + 1, self._cap - 1)
-        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s", "site_xy_m")}
+        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s",
+                                           "radial_velocity_noise_std_m_s", "site_xy_m")}
         nxt["detected"] = d["detected"][sel, kn] & has_next
         nxt["t_s"] = np.where(has_next, nxt["t_s"], t)
         feats.update(preview_next_plot(upd.x, upd.P, t, nxt))
