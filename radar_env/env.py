@@ -356,9 +356,9 @@ class RadarTrackEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 23 below), scaled and
+    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 24 below), scaled and
     clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-13 describe
-    the looks processed so far, 14-22 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
+    the looks processed so far, 14-23 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
     out: q then has to be chosen before the plot is seen).
 
     | Num | Name | Unit | Scaling | Min | Max |
@@ -383,9 +383,10 @@ class RadarTrackEnv(gym.Env):
     | 17 | next_q_fit_g: q explaining the next innovation (Kim & Lee with one plot) | g | action map | -1 | 1 |
     | 18 | next_c_min_g: Bizup's c_min from the next plot | g | x/8 | 0 | 1 |
     | 19 | next_los_accel_g: (next plot's radial velocity - that of F x) / dt | g | x/4 | -1 | 1 |
-    | 20 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
-    | 21 | next_meas_std_m: per-axis RMS noise of the next plot | m | log10(1+x)/3 | 0 | 1 |
-    | 22 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
+    | 20 | next_rdot_nu: next plot's radial-velocity innovation / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 21 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
+    | 22 | next_meas_std_m: per-axis RMS noise of the next plot | m | log10(1+x)/3 | 0 | 1 |
+    | 23 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
 
     Measurement-based features hold their last value through a missed look.
 

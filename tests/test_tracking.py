@@ -11,6 +11,7 @@ from radar_env.catalog import make_setup
 from radar_env.episode import draw_episode
 from radar_env.filters import predict, process_noise, transition_cv, two_point_init, update
 from radar_env.radar import atc_radar
+from radar_env.scenario import ScenarioBuilder
 from radar_env.tracking import MAX_Q_M_S2, Tracker, init_looks
 from radar_env.units import G0_M_S2
 
@@ -239,11 +240,43 @@ def test_preview_equals_next_step_at_zero_q():
                                    rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(prev["next_meas_std_m"], np.sqrt(0.5 * np.trace(out.R_m2, axis1=1, axis2=2)),
                                    rtol=1e-12)
+        # radial-velocity innovation in sigmas: h = d rdot / d x by central differences, P_prior = F P F^T at q = 0
+        sig = np.array([e.radial_velocity_noise_std_m_s[k] for e, k in zip(eps, out.look_index)])
+        h = np.stack([(_rdot(out.x_prior + d, out.site_xy_m) - _rdot(out.x_prior - d, out.site_xy_m)) / (2 * d[j])
+                      for j, d in enumerate(np.diag([1.0, 1.0, 1e-3, 1e-3]))], axis=1)
+        s_r = np.einsum("bi,bij,bj->b", h, out.P_prior, h) + sig ** 2
+        np.testing.assert_allclose(prev["next_rdot_nu"], (out.radial_velocity_m_s - rdot_hat) / np.sqrt(s_r),
+                                   rtol=1e-6, atol=1e-9)
         # one-plot Kim & Lee: q^2 * trace(H Q1 H^T) = |nu|^2 - trace(S0)
         S = out.S
         phi = (out.nu ** 2).sum(-1) - (S[:, 0, 0] + S[:, 1, 1])
         np.testing.assert_allclose(prev["next_q_fit_m_s2"], np.sqrt(np.maximum(phi, 0) / (0.5 * out.dt_s ** 4)),
                                    rtol=1e-9)
+
+
+def _rdot(x, site):
+    los = x[:, :2] - site
+    return (los * x[:, 2:]).sum(-1) / np.hypot(los[:, 0], los[:, 1])
+
+
+def test_preview_rdot_nu_is_standard_normal_on_straight_flight():
+    """With the true process noise (q = 0 on a straight, constant-speed flight, no warm-up inflation) the radial-
+    velocity innovation in sigmas is N(0, 1): pooled over 100 Monte Carlo runs, mean and variance sit inside their
+    99 % bounds (mean +-2.6/sqrt(n); variance by the chi-square normal approximation +-2.6 sqrt(2/n))."""
+    s = make_setup("random", np.random.default_rng(0))
+    sc = ScenarioBuilder(position_m=(-30e3, 20e3), speed_kt=350, heading_deg=100).straight(400).build()
+    eps = [draw_episode(sc, s.radar, np.random.default_rng(100 + i)) for i in range(100)]
+    tr = Tracker(len(eps), warmup_q_m_s2=0.0)
+    out = tr.load(range(len(eps)), eps)
+    v = []
+    while not out.done.all():
+        v.append(out.features["next_rdot_nu"][out.features["next_detected"] > 0])
+        out = tr.step(np.zeros(len(eps)))
+    v = np.concatenate(v)
+    n = v.size
+    assert n > 5000
+    assert abs(v.mean()) < 2.6 / np.sqrt(n)
+    assert abs(v.var() - 1.0) < 2.6 * np.sqrt(2.0 / n)
 
 
 def test_preview_is_causal_and_empty_after_last_look():
