@@ -356,9 +356,9 @@ class RadarTrackEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 24 below), scaled and
-    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-13 describe
-    the looks processed so far, 14-23 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
+    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 27 below), scaled and
+    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-16 describe
+    the looks processed so far, 17-26 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
     out: q then has to be chosen before the plot is seen).
 
     | Num | Name | Unit | Scaling | Min | Max |
@@ -377,16 +377,19 @@ class RadarTrackEnv(gym.Env):
     | 11 | pos_std_ratio: filter position std / measurement std | 1 | x/3 | 0 | 1 |
     | 12 | q_prev_g: q of the last prediction | g | action map | -1 | 1 |
     | 13 | detected: the last look gave a plot | 1 | x | 0 | 1 |
-    | 14 | next_nu_along: next plot's innovation along track / its std at q = 0 | 1 | x/10 | -1 | 1 |
-    | 15 | next_nu_cross: next plot's innovation across track / its std at q = 0 | 1 | x/10 | -1 | 1 |
-    | 16 | next_nis: next plot's NIS at q = 0 | 1 | log10(1+x)/3 | 0 | 1 |
-    | 17 | next_q_fit_g: q explaining the next innovation (Kim & Lee with one plot) | g | action map | -1 | 1 |
-    | 18 | next_c_min_g: Bizup's c_min from the next plot | g | x/8 | 0 | 1 |
-    | 19 | next_los_accel_g: (next plot's radial velocity - that of F x) / dt | g | x/4 | -1 | 1 |
-    | 20 | next_rdot_nu: next plot's radial-velocity innovation / its std at q = 0 | 1 | x/10 | -1 | 1 |
-    | 21 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
-    | 22 | next_meas_std_m: per-axis RMS noise of the next plot | m | log10(1+x)/3 | 0 | 1 |
-    | 23 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
+    | 14 | nu_along_fm: fading-memory mean of nu_along (weight 0.2 on the new plot) | 1 | x/3 | -1 | 1 |
+    | 15 | nu_cross_fm: fading-memory mean of nu_cross | 1 | x/3 | -1 | 1 |
+    | 16 | nis_fm: fading-memory mean of the NIS (Bar-Shalom's alpha = 0.8) | 1 | log10(1+x)/3 | 0 | 1 |
+    | 17 | next_nu_along: next plot's innovation along track / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 18 | next_nu_cross: next plot's innovation across track / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 19 | next_nis: next plot's NIS at q = 0 | 1 | log10(1+x)/3 | 0 | 1 |
+    | 20 | next_q_fit_g: q explaining the next innovation (Kim & Lee with one plot) | g | action map | -1 | 1 |
+    | 21 | next_c_min_g: Bizup's c_min from the next plot | g | x/8 | 0 | 1 |
+    | 22 | next_los_accel_g: (next plot's radial velocity - that of F x) / dt | g | x/4 | -1 | 1 |
+    | 23 | next_rdot_nu: next plot's radial-velocity innovation / its std at q = 0 | 1 | x/10 | -1 | 1 |
+    | 24 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
+    | 25 | next_meas_std_m: per-axis RMS noise of the next plot | m | log10(1+x)/3 | 0 | 1 |
+    | 26 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
 
     Measurement-based features hold their last value through a missed look.
 

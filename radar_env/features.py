@@ -265,7 +265,7 @@ def kim_lee_variance(phi, sigma_D2):
 
 
 _HELD = ("nu_along", "nu_cross", "nis", "c_min_m_s2", "turn_rate_alg1_rad_s", "fma_innovation_m",
-         "kim_lee_phi_m2_s4")
+         "kim_lee_phi_m2_s4", "nu_along_fm", "nu_cross_fm", "nis_fm")
 
 
 class FeatureBank:
@@ -279,21 +279,27 @@ class FeatureBank:
       algorithm 2, pushed on every update, detected or not;
     * ``outer (B, N, 2, 2)``: last N innovation outer products ``nu nu^T`` (m^2) of detected scans, and their
       count, for Kim & Lee's S_hat (eq 16);
-    * ``fma (B,)``: fading-memory average of |nu| (m), starting at 0 after reset (Bizup's CKF).
+    * ``fma (B,)``: fading-memory average of |nu| (m), starting at 0 after reset (Bizup's CKF);
+    * fading-memory averages (weight ``fm_weight`` on the new sample, 0 after reset) of the signed normalised
+      innovations along and across track and of the NIS (Bar-Shalom's fading-memory NIS, alpha = 1 - weight):
+      a persistent bias (the track lagging after a turn at too low a q) shows in the signed means, a noise level
+      above its 2-dof expectation in the NIS average.
 
     Missed detections (``detected`` False): the measurement-based features (``nu_along``, ``nu_cross``, ``nis``,
-    ``c_min_m_s2``, ``turn_rate_alg1_rad_s``, ``fma_innovation_m``, ``kim_lee_phi_m2_s4``/``kim_lee_q2_m2_s4``)
+    ``c_min_m_s2``, ``turn_rate_alg1_rad_s``, ``fma_innovation_m``, ``kim_lee_phi_m2_s4``/``kim_lee_q2_m2_s4``,
+    ``nu_along_fm``, ``nu_cross_fm``, ``nis_fm``)
     hold their last value and their buffers are not touched; algorithm 2, ``speed_m_s``, ``heading_rad`` and
     ``range_m`` update from the filter output. Before a feature is available its value is 0 and its
     ``*_valid`` flag False. All outputs are finite float64 (flags bool), shape (B,).
     """
 
     def __init__(self, batch_size, n_adrian=4, window_kim_lee=12, fma_weight=0.1, sigma_D2_m2_s4=0.0,
-                 kim_lee_min_count=None, min_dt_s=MIN_DT_S):
+                 kim_lee_min_count=None, min_dt_s=MIN_DT_S, fm_weight=0.2):
         """``n_adrian``: plot / heading interval n of Adrian's algorithms (paper: 3 or 4 best).
         ``window_kim_lee``: N of eq 16 (paper: 12). ``fma_weight``: weight of the new |nu| sample (Bizup 0.1).
         ``sigma_D2_m2_s4``: eq 17 fallback variance for ``kim_lee_q2_m2_s4``. ``kim_lee_min_count``: number of
-        detected scans in the window before phi is reported (default N, a full window)."""
+        detected scans in the window before phi is reported (default N, a full window). ``fm_weight``: weight of
+        the new sample in the signed-innovation and NIS fading-memory averages (Bar-Shalom's alpha = 0.8)."""
         self.B = int(batch_size)
         self.n = int(n_adrian)
         if self.n < 1:
@@ -302,6 +308,9 @@ class FeatureBank:
         if self.N < 1:
             raise ValueError("window_kim_lee must be >= 1")
         self.fma_weight = float(fma_weight)
+        self.fm_weight = float(fm_weight)
+        if not 0.0 < self.fm_weight <= 1.0:
+            raise ValueError(f"fm_weight must be in (0, 1], got {fm_weight!r}")
         self.sigma_D2 = float(sigma_D2_m2_s4)
         self.kim_lee_min_count = self.N if kim_lee_min_count is None else int(kim_lee_min_count)
         self.min_dt_s = float(min_dt_s)
@@ -408,7 +417,8 @@ class FeatureBank:
         Returns a dict of (B,) arrays: ``nu_along``, ``nu_cross`` (~N(0,1), cross positive = right of track),
         ``nis``, ``c_min_m_s2``, ``turn_rate_alg1_rad_s``, ``turn_rate_alg2_rad_s``, ``fma_innovation_m``,
         ``kim_lee_phi_m2_s4`` (raw eq 15, may be < 0), ``kim_lee_q2_m2_s4`` (eq 17 applied), ``speed_m_s``,
-        ``heading_rad`` (posterior), ``range_m`` (posterior to site_xy), and bool flags ``nu_valid`` (also for
+        ``heading_rad`` (posterior), ``range_m`` (posterior to site_xy), ``nu_along_fm``, ``nu_cross_fm``,
+        ``nis_fm`` (fading-memory averages), and bool flags ``nu_valid`` (also for
         nis and c_min: at least one detection since reset), ``turn_rate_alg1_valid`` (n+2 plots),
         ``turn_rate_alg2_valid`` (n+1 headings), ``fma_valid``, ``kim_lee_valid``."""
         det = np.asarray(detected, dtype=bool).reshape(self.B)
@@ -424,6 +434,8 @@ class FeatureBank:
         last["nu_along"] = np.where(det, nac[:, 0], last["nu_along"])
         last["nu_cross"] = np.where(det, nac[:, 1], last["nu_cross"])
         last["nis"] = np.where(det, nis(nu, S), last["nis"])
+        for key, sample in (("nu_along_fm", nac[:, 0]), ("nu_cross_fm", nac[:, 1]), ("nis_fm", last["nis"])):
+            last[key] = np.where(det, fading_memory_average(last[key], sample, self.fm_weight), last[key])
         cm = c_min_m_s2(x_prev, bearing_rad, radial_velocity_m_s, dt_s, self.min_dt_s)
         last["c_min_m_s2"] = np.where(det, cm, last["c_min_m_s2"])
         self.n_detections = self.n_detections + det

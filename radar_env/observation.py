@@ -22,6 +22,9 @@ name                   unit       meaning                                       
 ``pos_std_ratio``      1          filter position std / measurement std (per axis RMS)     x / 3     [0, 1]
 ``q_prev_g``           g          process-noise level used for the last prediction         log-map   [-1, 1]
 ``detected``           1          1 if the last look gave a plot                           x         [0, 1]
+``nu_along_fm``        sigma      fading-memory mean of nu_along (weight 0.2 per plot)     x / 3     [-1, 1]
+``nu_cross_fm``        sigma      fading-memory mean of nu_cross                           x / 3     [-1, 1]
+``nis_fm``             1          fading-memory mean of the NIS (Bar-Shalom, alpha 0.8)    log10(1+x)/3  [0, 1]
 ``next_nu_along``      sigma      next plot's innovation along track, q = 0 prediction     x / 10    [-1, 1]
 ``next_nu_cross``      sigma      next plot's innovation across track (+ right)            x / 10    [-1, 1]
 ``next_nis``           1          next plot's NIS against the q = 0 prediction             log10(1+x)/3  [0, 1]
@@ -36,8 +39,8 @@ name                   unit       meaning                                       
 
 The ``next_*`` entries preview the plot that the chosen q will be used for
 (:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
-chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 24;
-``PAST_FEATURES`` the first 14 (no preview: q for a look chosen from the looks before it).
+chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 27;
+``PAST_FEATURES`` the first 17 (no preview: q for a look chosen from the looks before it).
 
 ``q_prev_g`` and ``next_q_fit_g`` use the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
 """
@@ -79,6 +82,9 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("pos_std_ratio", "1", 0, 1, "linear", 3.0, "filter position std / measurement std"),
     FeatureSpec("q_prev_g", "g", -1, 1, "logq", 1.0, "q used for the last prediction"),
     FeatureSpec("detected", "1", 0, 1, "linear", 1.0, "last look detected"),
+    FeatureSpec("nu_along_fm", "sigma", -1, 1, "linear", 3.0, "fading-memory mean of nu_along"),
+    FeatureSpec("nu_cross_fm", "sigma", -1, 1, "linear", 3.0, "fading-memory mean of nu_cross"),
+    FeatureSpec("nis_fm", "1", 0, 1, "log10p", 3.0, "fading-memory mean of the NIS"),
     FeatureSpec("next_nu_along", "sigma", -1, 1, "linear", 10.0, "next plot's along-track innovation (q = 0)"),
     FeatureSpec("next_nu_cross", "sigma", -1, 1, "linear", 10.0, "next plot's cross-track innovation (q = 0)"),
     FeatureSpec("next_nis", "1", 0, 1, "log10p", 3.0, "next plot's NIS (q = 0)"),
@@ -96,6 +102,7 @@ DEFAULT_FEATURES = tuple(FEATURE_SPECS)
 
 _FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to the observation's unit)
     "nu_along": ("nu_along", 1.0), "nu_cross": ("nu_cross", 1.0), "nis": ("nis", 1.0),
+    "nu_along_fm": ("nu_along_fm", 1.0), "nu_cross_fm": ("nu_cross_fm", 1.0), "nis_fm": ("nis_fm", 1.0),
     "c_min_g": ("c_min_m_s2", G0_M_S2), "fma_innovation_km": ("fma_innovation_m", 1e3),
     "speed_m_s": ("speed_m_s", 1.0), "range_km": ("range_m", 1e3),
     "next_nu_along": ("next_nu_along", 1.0), "next_nu_cross": ("next_nu_cross", 1.0), "next_nis": ("next_nis", 1.0),

@@ -360,7 +360,7 @@ def test_bank_missed_detection_holds_and_buffers_untouched():
         np.testing.assert_array_equal(getattr(bank, nm)[miss], before[nm][miss], err_msg=nm)
         assert not np.array_equal(getattr(bank, nm)[~miss], before[nm][~miss]) or nm in ("plot_count", "outer_count"), nm
     for key in ("nu_along", "nu_cross", "nis", "c_min_m_s2", "turn_rate_alg1_rad_s", "fma_innovation_m",
-                "kim_lee_phi_m2_s4", "kim_lee_q2_m2_s4"):
+                "kim_lee_phi_m2_s4", "kim_lee_q2_m2_s4", "nu_along_fm", "nu_cross_fm", "nis_fm"):
         np.testing.assert_array_equal(out[key][miss], prev[key][miss], err_msg=key)
         if key != "kim_lee_q2_m2_s4":  # eq 17 clamps negative phi to the same fallback, so it may repeat
             assert np.all(out[key][~miss] != prev[key][~miss]), key
@@ -529,9 +529,10 @@ def test_bank_matches_formula_functions_with_misses():
     current scan, and the eq-17 fallback. F given as one (4,4) matrix and site as (2,) (broadcast forms)."""
     rng = np.random.default_rng(16)
     B, N, sD = 5, 4, 3.0
-    bank = ft.FeatureBank(B, n_adrian=2, window_kim_lee=N, sigma_D2_m2_s4=sD, fma_weight=0.2)
+    bank = ft.FeatureBank(B, n_adrian=2, window_kim_lee=N, sigma_D2_m2_s4=sD, fma_weight=0.2, fm_weight=0.3)
     t = np.zeros(B)
     fma = np.zeros(B)
+    fm = {k: np.zeros(B) for k in ("nu_along_fm", "nu_cross_fm", "nis_fm")}
     hist = [[] for _ in range(B)]
     site = np.array([1e4, -2e4])
     signs = set()
@@ -547,6 +548,11 @@ def test_bank_matches_formula_functions_with_misses():
         det, nu = inp["detected"], inp["nu"]
         fma = np.where(det, 0.8 * fma + 0.2 * np.hypot(nu[:, 0], nu[:, 1]), fma)
         np.testing.assert_allclose(out["fma_innovation_m"], fma, rtol=1e-12)
+        nac = ft.normalized_innovation_along_cross(nu, inp["S"], inp["x_prior"][:, 2:])
+        for key, sample in (("nu_along_fm", nac[:, 0]), ("nu_cross_fm", nac[:, 1]),
+                            ("nis_fm", ft.nis(nu, inp["S"]))):
+            fm[key] = np.where(det, 0.7 * fm[key] + 0.3 * sample, fm[key])
+            np.testing.assert_allclose(out[key], fm[key], rtol=1e-12, atol=1e-15, err_msg=key)
         S0 = ft.innovation_cov_without_process_noise(inp["F"], inp["P_post_prev"], inp["R"])
         for i in range(B):
             if det[i]:
@@ -566,6 +572,12 @@ def test_bank_matches_formula_functions_with_misses():
         np.testing.assert_allclose(out["range_m"], np.hypot(*(inp["x_post"][:, :2] - site).T))
     assert any(len(h) > N for h in hist)
     assert signs == {True, False}  # both branches of eq 17 exercised
+
+
+def test_fm_weight_must_be_a_fraction():
+    for bad in (0.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match=r"fm_weight must be in \(0, 1\]"):
+            ft.FeatureBank(2, fm_weight=bad)
 
 
 def test_feature_bank_row_state_is_fully_listed():

@@ -259,24 +259,30 @@ def _rdot(x, site):
     return (los * x[:, 2:]).sum(-1) / np.hypot(los[:, 0], los[:, 1])
 
 
-def test_preview_rdot_nu_is_standard_normal_on_straight_flight():
+def test_innovation_statistics_consistent_on_straight_flight():
     """With the true process noise (q = 0 on a straight, constant-speed flight, no warm-up inflation) the radial-
     velocity innovation in sigmas is N(0, 1): pooled over 100 Monte Carlo runs, mean and variance sit inside their
-    99 % bounds (mean +-2.6/sqrt(n); variance by the chi-square normal approximation +-2.6 sqrt(2/n))."""
+    99 % bounds (mean +-2.6/sqrt(n); variance by the chi-square normal approximation +-2.6 sqrt(2/n)). The
+    fading-memory means of the signed innovations are 0 and that of the NIS is its 2-dof mean, 2 (run averages
+    over the last looks, bounds of 99 % from their spread over the runs)."""
     s = make_setup("random", np.random.default_rng(0))
     sc = ScenarioBuilder(position_m=(-30e3, 20e3), speed_kt=350, heading_deg=100).straight(400).build()
     eps = [draw_episode(sc, s.radar, np.random.default_rng(100 + i)) for i in range(100)]
     tr = Tracker(len(eps), warmup_q_m_s2=0.0)
     out = tr.load(range(len(eps)), eps)
-    v = []
+    v, fm = [], []
     while not out.done.all():
         v.append(out.features["next_rdot_nu"][out.features["next_detected"] > 0])
+        fm.append([out.features[k] for k in ("nu_along_fm", "nu_cross_fm", "nis_fm")])
         out = tr.step(np.zeros(len(eps)))
     v = np.concatenate(v)
     n = v.size
     assert n > 5000
     assert abs(v.mean()) < 2.6 / np.sqrt(n)
     assert abs(v.var() - 1.0) < 2.6 * np.sqrt(2.0 / n)
+    per_run = np.array(fm)[-40:].mean(axis=0)          # (3, runs): each run's average over its last 40 looks
+    half = 2.6 * per_run.std(axis=1) / np.sqrt(per_run.shape[1])
+    assert np.all(np.abs(per_run.mean(axis=1) - [0.0, 0.0, 2.0]) < half), (per_run.mean(axis=1), half)
 
 
 def test_preview_is_causal_and_empty_after_last_look():
