@@ -19,21 +19,20 @@ import math
 
 import numpy as np
 
-from radar_env.applications import conflict_warning, simulate_intercept, two_aircraft_encounter
+from radar_env.applications import closest_approach, conflict_warning, simulate_intercept, two_aircraft_encounter
 from radar_env.episode import draw_episode
 from radar_env.filters import transition_ct
 from radar_env.radar import atc_radar
 from radar_env.scenario import Segment, SegmentScenario
 from radar_env.units import DEG, NM_M
 
-__all__ = ["draw_encounters", "warning_metrics", "intercept_metrics", "ENCOUNTER_INFO"]
+__all__ = ["draw_encounters", "true_encounter", "warning_metrics", "intercept_metrics"]
 
 WARNING_THRESHOLD_M = 3 * NM_M
 LOOKAHEAD_S = 300.0
 T_CPA_S = 420.0
 LEAD_AFTER_TURN_S = 150.0
-ENCOUNTER_INFO = {}
-"""name of aircraft-B episode -> (conflict, t_cpa_s, d_cpa_m); filled by :func:`draw_encounters`."""
+CONFLICT_M = 1 * NM_M
 
 
 def _encounter_scenarios(rng, conflict, i):
@@ -65,10 +64,18 @@ def draw_encounters(runs, rng_for):
         d_site = rng.uniform(30e3, 60e3)
         ang = rng.uniform(0, 2 * np.pi)
         radar = atc_radar(position_m=(d_site * np.sin(ang), d_site * np.cos(ang)))
-        ea, eb = draw_episode(a, radar, rng), draw_episode(b, radar, rng)
-        ENCOUNTER_INFO[eb.name] = (conflict, T_CPA_S, d)
-        eps += [ea, eb]
+        eps += [draw_episode(a, radar, rng), draw_episode(b, radar, rng)]
     return eps
+
+
+def true_encounter(truth_a, truth_b, t_s):
+    """``(conflict, t_cpa_s, d_cpa_m)`` of an encounter pair from its true states ``(K, 4)`` at look times
+    ``t_s (K,)``: the closest approach of the straight courses flown after B's turn (first look after
+    ``T_CPA_S - LEAD_AFTER_TURN_S``); conflict = closer than 1 NM."""
+    k = int(np.searchsorted(t_s, T_CPA_S - LEAD_AFTER_TURN_S + 1.0))
+    ca = closest_approach(truth_a[k, :2], truth_a[k, 2:], truth_b[k, :2], truth_b[k, 2:])
+    d = float(ca.d_cpa_m)
+    return d < CONFLICT_M, float(t_s[k] + ca.t_cpa_s), d
 
 
 def _warn(x1, x2, t, t_cpa):
@@ -90,10 +97,10 @@ def warning_metrics(batch, run):
     leads, ideal, missed, n_conf = [], [], 0, 0
     fa = miss = n_looks = 0
     for j in range(0, batch.valid.shape[0], 2):
-        conflict, t_cpa, _ = ENCOUNTER_INFO[batch.names[j + 1]]
         n = int(min(batch.n_looks[j], batch.n_looks[j + 1]))
         if not np.array_equal(batch.t_s[j, :n], batch.t_s[j + 1, :n]):
             raise ValueError("encounter pairs must share look times")
+        conflict, t_cpa, _ = true_encounter(batch.truth[j, :n], batch.truth[j + 1, :n], batch.t_s[j, :n])
         k0 = int(max(run.start_index[j], run.start_index[j + 1]))
         t = batch.t_s[j, k0:n]
         w = _warn(run.x[j, k0:n], run.x[j + 1, k0:n], t, t_cpa)

@@ -3,11 +3,10 @@ intercepts driven by track estimates."""
 
 import numpy as np
 
-from agents.downstream import (ENCOUNTER_INFO, LEAD_AFTER_TURN_S, T_CPA_S, intercept_metrics, warning_metrics)
+from agents.downstream import LEAD_AFTER_TURN_S, T_CPA_S, intercept_metrics, true_encounter, warning_metrics
 from agents.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import TrackRun
-from radar_env.applications import closest_approach
 from radar_env.episode import stack_episodes
 from radar_env.units import NM_M
 
@@ -16,12 +15,16 @@ def test_encounters_have_prescribed_closest_approach_after_the_turn():
     eps = draw_suite("encounters", 6, seed=3)
     for j in range(0, len(eps), 2):
         a, b = eps[j], eps[j + 1]
-        conflict, t_cpa, d = ENCOUNTER_INFO[b.name]
+        conflict, t_cpa, d = true_encounter(a.truth, b.truth, a.t_s)
         assert np.array_equal(a.t_s, b.t_s)
+        assert abs(t_cpa - T_CPA_S) < 1e-6                              # the prescribed closest-approach time
+        assert conflict == (j // 2 % 2 == 0)                             # pairs alternate conflict / safe
+        assert d < 1 * NM_M if conflict else 5 * NM_M <= d <= 10 * NM_M
+        # the true tracks do come that close, at that time (sampled truth, 1 s before and after)
         k = np.searchsorted(a.t_s, T_CPA_S - LEAD_AFTER_TURN_S + 1.0)   # first look after B's turn
-        ca = closest_approach(a.truth[k, :2], a.truth[k, 2:], b.truth[k, :2], b.truth[k, 2:])
-        assert abs(float(ca.t_cpa_s) + a.t_s[k] - T_CPA_S) < 1e-6 and abs(float(ca.d_cpa_m) - d) < 1e-6
-        assert (d < 1 * NM_M) == conflict
+        sep = [np.hypot(*((a.truth[k, :2] - b.truth[k, :2]) + (a.truth[k, 2:] - b.truth[k, 2:]) * (t_cpa + dt - a.t_s[k])))
+               for dt in (-1.0, 0.0, 1.0)]
+        assert abs(sep[1] - d) < 1e-6 * max(d, 1.0) and min(sep[0], sep[2]) > d
         assert np.any(np.abs(b.truth_turn_rate_rad_s) > 0)              # B does turn onto its course
 
 
