@@ -51,7 +51,7 @@ def _encounter_scenarios(rng, conflict, i):
     dur = T_CPA_S + 60.0
     a = SegmentScenario(s1, [Segment(dur)], name=f"encounter{i}:a")
     b = SegmentScenario(x0, [Segment(t0), Segment(T_turn, w), Segment(dur - t1)], name=f"encounter{i}:b")
-    return a, b, float(enc.d_cpa_m[0])
+    return a, b
 
 
 def draw_encounters(runs, rng_for):
@@ -60,7 +60,7 @@ def draw_encounters(runs, rng_for):
     for i in range(int(runs)):
         rng = rng_for(i)
         conflict = i % 2 == 0
-        a, b, d = _encounter_scenarios(rng, conflict, i)
+        a, b = _encounter_scenarios(rng, conflict, i)
         d_site = rng.uniform(30e3, 60e3)
         ang = rng.uniform(0, 2 * np.pi)
         radar = atc_radar(position_m=(d_site * np.sin(ang), d_site * np.cos(ang)))
