@@ -534,3 +534,22 @@ def test_max_episode_steps_truncates_like_time_limit():
         assert vo[0].tobytes() == so.tobytes() and vr[0] == sr
     with pytest.raises(ValueError, match="max_episode_steps"):
         RadarTrackVectorEnv(num_envs=1, max_episode_steps=0)
+
+
+def test_documented_observation_tables_match_the_feature_specs():
+    """The observation tables users read (RadarTrackEnv's docstring, radar_env.observation's module docstring) list
+    every feature of FEATURE_SPECS, in order, with its index, unit range and scale."""
+    import re
+
+    import radar_env.observation as obs_mod
+    from radar_env.observation import FEATURE_SPECS
+    names = list(FEATURE_SPECS)
+    rows = re.findall(r"^\s*\| (\d+) \| (\w+):.*\| ([^|]+) \| (-?\d+) \| (-?\d+) \|$", RadarTrackEnv.__doc__, re.M)
+    assert [r[1] for r in rows] == names and [int(r[0]) for r in rows] == list(range(len(names)))
+    for _, name, scaling, lo, hi in rows:
+        s = FEATURE_SPECS[name]
+        assert (int(lo), int(hi)) == (s.low, s.high), name
+        if s.kind == "linear":
+            assert scaling.strip() == ("x" if s.scale == 1 else f"x/{s.scale:g}"), name
+    listed = re.findall(r"^``(\w+)``\s{2,}", obs_mod.__doc__, re.M)  # table rows: name, then aligned columns
+    assert listed == names
