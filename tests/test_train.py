@@ -166,21 +166,26 @@ def test_bundled_policy_loads_and_is_deterministic():
     assert ev.BUNDLED_POLICY.stat().st_size < 1_000_000
 
 
-@pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
-def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
-    """A real check of the bundled policy on 40 held-out random runs (evaluation seeds, fixed): its pooled position
-    RMSE is below the tuned constant-q KF's and the tuned IMM's, each with a paired 95 % interval below 1."""
+def _bundled_policy_ratios(scenario, runs, baselines):
+    """Position-RMSE ratios (with paired 95 % intervals) of the bundled policy to each baseline tracker, on
+    ``runs`` held-out runs of ``scenario`` with fixed evaluation seeds (not those of the README table)."""
     from agents.metrics import ratio_ci
     from agents.suites import EVAL_SEED_BASE, draw_suite
     from baselines.registry import run_tracker
     from baselines.trackers import run_q_policy
     from radar_env.episode import stack_episodes
     choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
-    eps = draw_suite("random", 40, seed=EVAL_SEED_BASE + 5000)
+    eps = draw_suite(scenario, runs, seed=EVAL_SEED_BASE + 5000)
     batch = stack_episodes(eps)
     pol = run_q_policy(eps, choose_q, "policy", cfg)
-    r_kf, ci_kf = ratio_ci(batch, pol, run_tracker("kf_tuned", eps))
-    r_imm, ci_imm = ratio_ci(batch, pol, run_tracker("imm2", eps))
+    return [ratio_ci(batch, pol, run_tracker(name, eps)) for name in baselines]
+
+
+@pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
+def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
+    """A real check of the bundled policy on 40 held-out random runs (evaluation seeds, fixed): its pooled position
+    RMSE is below the tuned constant-q KF's and the tuned IMM's, each with a paired 95 % interval below 1."""
+    (r_kf, ci_kf), (r_imm, ci_imm) = _bundled_policy_ratios("random", 40, ("kf_tuned", "imm2"))
     assert r_kf < 1.0 and ci_kf[1] < 1.0, (r_kf, ci_kf)
     assert r_imm < 1.0 and ci_imm[1] < 1.0, (r_imm, ci_imm)
 
@@ -189,14 +194,7 @@ def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
 @pytest.mark.parametrize("scenario,runs", [("bizup2002", 20), ("kim_lee_accel", 20), ("adrian_flower", 4),
                                            ("seed002_course_changes", 20), ("seed002_two_radars", 20)])
 def test_bundled_policy_within_issue_bound_on_named_scenarios(scenario, runs):
-    """The issue's second target on further held-out runs (fixed evaluation seeds, not those of the README table):
-    on every named paper scenario the bundled policy's pooled position RMSE is at most 1.05 x the tuned IMM's."""
-    from agents.metrics import ratio_ci
-    from agents.suites import EVAL_SEED_BASE, draw_suite
-    from baselines.registry import run_tracker
-    from baselines.trackers import run_q_policy
-    from radar_env.episode import stack_episodes
-    choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
-    eps = draw_suite(scenario, runs, seed=EVAL_SEED_BASE + 5000)
-    ratio, ci = ratio_ci(stack_episodes(eps), run_q_policy(eps, choose_q, "policy", cfg), run_tracker("imm2", eps))
+    """The issue's second target on further held-out runs: on every named paper scenario the bundled policy's pooled
+    position RMSE is at most 1.05 x the tuned IMM's."""
+    [(ratio, ci)] = _bundled_policy_ratios(scenario, runs, ("imm2",))
     assert ratio <= 1.05, (scenario, ratio, ci)
