@@ -36,6 +36,7 @@ Two kinds:
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -249,6 +250,132 @@ class ScenarioBuilder:
 
 
 # ---------------------------------------------------------------------------------------------------- user data
+TRAJECTORY_COLUMNS = ("t_s", "x_m", "y_m", "vx_m_s", "vy_m_s")
+"""Columns of a trajectory CSV (any order; extra columns are ignored)."""
+
+TRAJECTORY_MAX_COORDINATE_M = 1e7
+"""Largest ``|x_m|``, ``|y_m|`` of a trajectory sample: 10,000 km, beyond any radar's local east/north frame
+(larger values are usually millimetres, centimetres or geocentric coordinates)."""
+
+TRAJECTORY_MAX_SPEED_M_S = 3000.0
+"""Highest speed of a trajectory, at the samples and on the spline between them (Mach ~9; the same bound as
+:class:`ScenarioBuilder`)."""
+
+TRAJECTORY_MAX_ACCEL_G = 20.0
+"""Velocity-consistency tolerance: the peak acceleration (g) of the Hermite spline through the samples.
+
+The spline is the path the simulator flies, so velocity columns that disagree with the positions' time derivative
+show up as the acceleration needed to honour both. Aircraft do not exceed ~12 g; the Hermite cubic overshoots the
+real peak a little (a 9 g turn sampled every 5 s needs 11.3 g, every 10 s 12.3 g), so 20 g refuses only data that
+no aircraft flies: e.g. velocities off by 50 m/s at 1 s spacing (200-300 m/s^2), positions with 50 m noise at
+1 s spacing, or a wrong sign of a velocity column."""
+
+TRAJECTORY_MAX_DURATION_S = 1e5
+"""Longest trajectory (27.8 h, longer than any flight)."""
+
+_MS_RATIO = (300.0, 3000.0)  # velocity columns / positions' rate on this order: milliseconds (or kilometres)
+
+
+def _num(x):
+    return repr(float(x))
+
+
+def _check_trajectory(t, p, v, prefix, where):
+    """Refuse implausible samples (see :class:`TrajectoryScenario`). Messages start with ``prefix`` and name sample
+    ``i`` as ``where(i)``. ``t`` (N,), ``p`` and ``v`` (N, 2): finite, N >= 2.
+
+    Returns the Hermite splines ``(sx, sy)`` on ``t - t[0]``."""
+    n = t.size
+    dt = np.diff(t)
+    bad = np.flatnonzero(~(dt > 0))
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ValueError(f"{prefix}{where(i)}: t_s = {_num(t[i])} does not follow t_s = {_num(t[i - 1])} "
+                         f"({where(i - 1)}); t_s must be strictly increasing (no duplicate time stamps)")
+    with np.errstate(over="ignore", invalid="ignore"):
+        tr = t - t[0]
+        dt = np.diff(tr)
+    if not (math.isfinite(tr[-1]) and tr[-1] <= TRAJECTORY_MAX_DURATION_S and np.all(dt > 0)):
+        raise ValueError(f"{prefix}{where(n - 1)}: the trajectory lasts {_num(tr[-1])} s from t_s = {_num(t[0])}; "
+                         f"at most {TRAJECTORY_MAX_DURATION_S:g} s ({TRAJECTORY_MAX_DURATION_S / 3600:.1f} h) is "
+                         "accepted (t_s must be seconds)")
+    far = np.abs(p) > TRAJECTORY_MAX_COORDINATE_M
+    if far.any():
+        i, j = (int(k) for k in np.argwhere(far)[0])
+        raise ValueError(f"{prefix}{where(i)}: {('x_m', 'y_m')[j]} = {_num(p[i, j])} is beyond "
+                         f"+-{TRAJECTORY_MAX_COORDINATE_M:g} m (coordinates are metres east/north in a local frame; "
+                         "millimetres or geocentric coordinates?)")
+    speed = np.hypot(v[:, 0], v[:, 1])
+    out = ~((speed >= MIN_SPEED_M_S) & (speed <= TRAJECTORY_MAX_SPEED_M_S))
+    if out.any():
+        i = int(np.flatnonzero(out)[0])
+        raise ValueError(f"{prefix}{where(i)}: speed {speed[i]:.6g} m/s (from vx_m_s, vy_m_s) is outside "
+                         f"[{MIN_SPEED_M_S:g}, {TRAJECTORY_MAX_SPEED_M_S:g}] m/s")
+    h = dt[:, None]
+    d = np.diff(p, axis=0) / h                    # mean velocity over each interval, from the positions
+    vm = 0.5 * (v[:-1] + v[1:])                   # mean of the velocity columns at its ends
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.hypot(vm[:, 0], vm[:, 1]) / np.hypot(d[:, 0], d[:, 1])
+    med = float(np.median(ratio))
+    if _MS_RATIO[0] <= med <= _MS_RATIO[1]:
+        i = int(np.flatnonzero((ratio >= _MS_RATIO[0]) & (ratio <= _MS_RATIO[1]))[0]) + 1
+        spacing = float(np.median(dt))
+        what = ("time stamps look like milliseconds" if spacing >= 20.0 else
+                "time stamps in milliseconds or positions in kilometres?")
+        raise ValueError(f"{prefix}{where(i)}: {what} (median spacing {spacing:.6g} s, velocity columns {med:.0f}x "
+                         "the positions' rate); t_s must be seconds and x_m, y_m metres")
+    # The Hermite cubic's acceleration is linear on each interval, so its peak is at an end.
+    a0 = (6.0 * d - 4.0 * v[:-1] - 2.0 * v[1:]) / h
+    a1 = (-6.0 * d + 2.0 * v[:-1] + 4.0 * v[1:]) / h
+    a0n, a1n = np.hypot(a0[:, 0], a0[:, 1]), np.hypot(a1[:, 0], a1[:, 1])
+    peak = np.maximum(a0n, a1n)
+    out = ~(peak <= TRAJECTORY_MAX_ACCEL_G * G0_M_S2)
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        i = k if a0n[k] >= a1n[k] else k + 1
+        raise ValueError(
+            f"{prefix}{where(i)}: velocity columns inconsistent with the positions' time derivative between t_s = "
+            f"{_num(t[k])} ({where(k)}) and {_num(t[k + 1])} ({where(k + 1)}): the positions give "
+            f"({d[k, 0]:.6g}, {d[k, 1]:.6g}) m/s, the velocity columns ({v[k, 0]:.6g}, {v[k, 1]:.6g}) and "
+            f"({v[k + 1, 0]:.6g}, {v[k + 1, 1]:.6g}) m/s; honouring both needs {peak[k] / G0_M_S2:.3g} g, the "
+            f"tolerance is {TRAJECTORY_MAX_ACCEL_G:g} g (smooth noisy data first, e.g. radar_env.adsb.smooth_segment)")
+    # Speed between samples: |v| is Lipschitz in t with constant peak, so a 16-step grid bounds it to within
+    # peak * h / 32; only intervals near a limit are solved exactly (roots of d|v|^2/ds, v quadratic in s).
+    s = np.linspace(0.0, 1.0, 17)
+    vg = v[:-1, None] + (a0 * h)[:, None] * s[:, None] + (0.5 * (a1 - a0) * h)[:, None] * (s * s)[:, None]
+    sg = np.hypot(vg[..., 0], vg[..., 1])
+    slack = peak * dt / 32.0
+    near = (sg.min(axis=1) - slack < MIN_SPEED_M_S) | (sg.max(axis=1) + slack > TRAJECTORY_MAX_SPEED_M_S)
+    for k in np.flatnonzero(near):
+        A, B, C = v[k], a0[k] * dt[k], 0.5 * (a1[k] - a0[k]) * dt[k]
+        c = [4 * C @ C, 6 * B @ C, 2 * (B @ B + 2 * A @ C), 2 * A @ B]
+        r = np.roots(c) if np.any(c) else np.array([])
+        r = r.real[(np.abs(r.imag) <= 1e-9) & (r.real > 0.0) & (r.real < 1.0)]
+        for sk in r:
+            sp = float(np.hypot(*(A + B * sk + C * sk * sk)))
+            if not MIN_SPEED_M_S <= sp <= TRAJECTORY_MAX_SPEED_M_S:
+                raise ValueError(
+                    f"{prefix}{where(int(k))}: between t_s = {_num(t[k])} and {_num(t[k + 1])} ({where(int(k) + 1)}) "
+                    f"the spline through the samples reaches a speed of {sp:.6g} m/s, outside [{MIN_SPEED_M_S:g}, "
+                    f"{TRAJECTORY_MAX_SPEED_M_S:g}] m/s: velocity columns inconsistent with the positions, or "
+                    "samples too far apart for the motion")
+    return CubicHermiteSpline(tr, p[:, 0], v[:, 0]), CubicHermiteSpline(tr, p[:, 1], v[:, 1])
+
+
+def _read_utf8(path):
+    """The text of ``path``, decoded as UTF-8 (a leading byte-order mark is dropped); ``ValueError`` naming the file
+    (and the line of the first undecodable byte) otherwise."""
+    raw = path.read_bytes()
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise ValueError(f"{path}: line 1: UTF-16 text (byte-order mark 0x{raw[:2].hex()}); save the file as UTF-8")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw[: e.start].count(b"\n") + 1
+        raise ValueError(f"{path}: line {line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}: "
+                         f"{e.reason}); save the file as UTF-8") from None
+
+
 class TrajectoryScenario:
     """A user trajectory: samples of position and velocity, interpolated by a cubic Hermite spline.
 
@@ -260,6 +387,21 @@ class TrajectoryScenario:
 
     The spline reproduces the given positions and velocities at the samples; between them it is the unique
     cubic matching both, so the velocity is continuous and the acceleration piecewise linear.
+
+    Implausible samples raise ``ValueError`` naming the sample (``row i``, 0-based; ``from_csv``: the file and
+    line) and the reason:
+
+    * a duration above ``TRAJECTORY_MAX_DURATION_S`` (1e5 s);
+    * ``|x_m|`` or ``|y_m|`` above ``TRAJECTORY_MAX_COORDINATE_M`` (1e7 m);
+    * a speed outside [``MIN_SPEED_M_S``, ``TRAJECTORY_MAX_SPEED_M_S``] = [10, 3000] m/s, at a sample or on the
+      spline between samples (checked at 16 points per interval);
+    * velocity columns on the order of 1000x the positions' rate (median over the intervals between 300x and
+      3000x): time stamps in milliseconds (or positions in kilometres);
+    * velocity columns inconsistent with the positions' time derivative: the spline's acceleration, which is
+      linear on each interval and thus peaks at its ends, ``|6 d - 4 v_i - 2 v_{i+1}| / h`` and
+      ``|6 d - 2 v_i - 4 v_{i+1}| / h`` (``d`` the mean velocity from the positions, ``h`` the spacing), must not
+      exceed ``TRAJECTORY_MAX_ACCEL_G`` = 20 g. E.g. at 1 s spacing a velocity column off by 40 m/s is refused,
+      at 10 s by 400 m/s.
     """
 
     def __init__(self, t_s, x_m, y_m, vx_m_s, vy_m_s, name="trajectory", maneuver_threshold_m_s2=0.05 * G0_M_S2):
@@ -277,63 +419,72 @@ class TrajectoryScenario:
         for k, a in arr.items():
             if a.size != n:
                 raise ValueError(f"trajectory column {k} has {a.size} values, t_s has {n}")
-        dt = np.diff(arr["t_s"])
-        if np.any(dt <= 0):
-            i = int(np.flatnonzero(dt <= 0)[0])
-            raise ValueError(f"trajectory t_s must be strictly increasing; row {i + 1} (t_s={arr['t_s'][i + 1]}) "
-                             f"does not follow row {i} (t_s={arr['t_s'][i]})")
-        speed = np.hypot(arr["vx_m_s"], arr["vy_m_s"])
-        if speed.min() < MIN_SPEED_M_S:
-            i = int(np.argmin(speed))
-            raise ValueError(f"trajectory speed must stay >= {MIN_SPEED_M_S} m/s; row {i} has {speed[i]:.3f} m/s")
+        self._init(arr, name, "trajectory ", lambda i: f"row {i}", maneuver_threshold_m_s2)
+
+    def _init(self, arr, name, prefix, where, maneuver_threshold_m_s2=0.05 * G0_M_S2):
+        t = arr["t_s"]
+        p = np.column_stack([arr["x_m"], arr["y_m"]])
+        v = np.column_stack([arr["vx_m_s"], arr["vy_m_s"]])
+        self._sx, self._sy = _check_trajectory(t, p, v, prefix, where)
         self.name = str(name)
         self.maneuver_threshold_m_s2 = float(maneuver_threshold_m_s2)
-        t = arr["t_s"] - arr["t_s"][0]
-        self.t_samples_s = t
-        self.duration_s = float(t[-1])
-        self._sx = CubicHermiteSpline(t, arr["x_m"], arr["vx_m_s"])
-        self._sy = CubicHermiteSpline(t, arr["y_m"], arr["vy_m_s"])
+        self.t_samples_s = self._sx.x.copy()
+        self.duration_s = float(self.t_samples_s[-1])
         self.final_state = self.states_at(np.array([self.duration_s]))[0]
 
     @classmethod
     def from_csv(cls, path, name=None, **kwargs):
-        """Read a CSV with header ``t_s,x_m,y_m,vx_m_s,vy_m_s`` (extra columns ignored).
+        """Read a UTF-8 CSV (a byte-order mark is allowed) with header ``t_s,x_m,y_m,vx_m_s,vy_m_s`` (any order,
+        extra columns ignored, blank lines skipped); seconds, metres east/north, m/s.
 
-        Raises ``ValueError`` naming the file, line and column for a missing column or a non-numeric value."""
+        Raises ``ValueError`` naming the file and line (header = line 1) for: a missing file, text that is not
+        UTF-8, an empty file, a missing or repeated column, a cell that is not a finite number, fewer than 2 data
+        rows, and every implausible sample listed in :class:`TrajectoryScenario`."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"trajectory file {str(path)!r} does not exist")
-        need = ["t_s", "x_m", "y_m", "vx_m_s", "vy_m_s"]
-        with path.open(newline="") as f:
-            reader = csv.reader(f)
+        text = _read_utf8(path)
+        need = TRAJECTORY_COLUMNS
+        reader = csv.reader(io.StringIO(text, newline=""))
+        rows, lines = [], []
+        try:
             try:
                 header = [h.strip() for h in next(reader)]
             except StopIteration:
-                raise ValueError(f"{path}: empty file; expected header {','.join(need)}") from None
+                raise ValueError(f"{path}: line 1: empty file; expected header {','.join(need)}") from None
             missing = [c for c in need if c not in header]
             if missing:
                 raise ValueError(f"{path}: line 1: missing column(s) {missing}; expected header {','.join(need)}")
+            twice = [c for c in need if header.count(c) > 1]
+            if twice:
+                raise ValueError(f"{path}: line 1: column(s) {twice} appear more than once")
             pos = [header.index(c) for c in need]
-            rows = []
-            for line_no, row in enumerate(reader, start=2):
+            for row in reader:
+                line_no = reader.line_num
                 if not row or all(not c.strip() for c in row):
                     continue
                 vals = []
                 for c, j in zip(need, pos):
+                    cell = row[j] if j < len(row) else "<missing>"
                     try:
-                        vals.append(float(row[j]))
-                    except (IndexError, ValueError):
-                        cell = row[j] if j < len(row) else "<missing>"
+                        x = float(cell)
+                    except ValueError:
                         raise ValueError(f"{path}: line {line_no}, column {c!r}: cannot read {cell!r} as a "
                                          "number") from None
+                    if not math.isfinite(x):
+                        raise ValueError(f"{path}: line {line_no}, column {c!r}: {cell.strip()!r} is not a finite "
+                                         "number")
+                    vals.append(x)
                 rows.append(vals)
+                lines.append(line_no)
+        except csv.Error as e:
+            raise ValueError(f"{path}: line {reader.line_num}: not a readable CSV ({e})") from None
         if len(rows) < 2:
-            raise ValueError(f"{path}: needs at least 2 data rows, got {len(rows)}")
+            raise ValueError(f"{path}: line {reader.line_num}: needs at least 2 data rows, got {len(rows)}")
         a = np.array(rows)
-        try:
-            return cls(*a.T, name=name or path.stem, **kwargs)
-        except ValueError as e:
-            raise ValueError(f"{path}: {e} (data rows start at line 2)") from None
+        self = cls.__new__(cls)
+        self._init(dict(zip(need, a.T)), name or path.stem, f"{path}: ", lambda i: f"line {lines[i]}", **kwargs)
+        return self
 
     def _check(self, t_s):
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
