@@ -262,8 +262,8 @@ def training_curve_figure(stages, returns=None):
     """Selection-suite ratios (position RMSE / imm2) over env steps, one or more training stages in order.
 
     Args:
-        stages: list of ``(label, selection_history, selected_timesteps_or_None)``; a stage's steps continue the
-            previous stage's (fine-tuning starts from the previous stage's selected model).
+        stages: list of ``(label, selection_history, selected_timesteps_or_None)``; the stages are drawn end to
+            end (a fine-tuning stage starts from the previous stage's selected checkpoint, marked on its curve).
         returns: optional ``(steps, mean_episode_return)`` of the (last) stage's TensorBoard log.
     Returns the figure.
     """
@@ -288,8 +288,9 @@ def training_curve_figure(stages, returns=None):
                     fontsize=7, color="0.3", rotation=0)
         if chosen is not None:
             a2.axvline((offset + chosen) / 1e6, color="tab:red", ls=":", lw=1.2,
-                       label="selected checkpoint" if i == len(stages) - 1 else None)
-        offset += chosen if chosen is not None and i < len(stages) - 1 else steps.max()
+                       label=("selected checkpoint" + (" of each stage\n(the next stage starts from it)"
+                                                        if len(stages) > 1 else "")) if i == 0 else None)
+        offset += steps.max()
     a2.axhline(1.0, color="k", lw=0.8, ls="--")
     a2.set_xlabel("env steps (millions" + (", stages end to end)" if len(stages) > 1 else ")"))
     a2.set_ylabel("position RMSE / imm2 (ratio)")
