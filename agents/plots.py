@@ -156,36 +156,50 @@ def error_figure(suite, batch, runs):
     return fig
 
 
-def _maneuver_window(xy_km, t_s, maneuvering, after_s=60.0):
-    """Square box ``(x0, x1, y0, y1)`` km around run 0's first maneuver and the ``after_s`` after it (where the
-    tracks overshoot), with a margin; and the times it covers. None if the run never maneuvers."""
+def _maneuver_window(xy_km, t_s, maneuvering, k_start, tracks_km=()):
+    """Run 0's first maneuver that begins at or after the track start (look ``k_start``; else the first one):
+    the looks from half its duration before it to its duration after it (at least 3 and 5 look intervals: where
+    the tracks lag and overshoot), a box ``(x0, x1, y0, y1)`` km around the truth and ``tracks_km`` there, whether the box is too
+    elongated to draw east and north to one scale, and the maneuver's start and end times. None if the run never
+    maneuvers."""
     spans = _spans(np.arange(len(maneuvering)), maneuvering)
     if not spans:
         return None
-    a, b = (int(i) for i in spans[0])
-    sel = (t_s >= t_s[a]) & (t_s <= t_s[b] + after_s)
-    p = xy_km[sel]
-    x0, x1, y0, y1 = p[:, 0].min(), p[:, 0].max(), p[:, 1].min(), p[:, 1].max()
-    half = 0.5 * max(x1 - x0, y1 - y0) * 1.3 + 0.5    # 30 % margin and 0.5 km so the turn entry shows
-    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    return (cx - half, cx + half, cy - half, cy + half), (float(t_s[a]), float(t_s[b]))
+    a, b = next(((int(i), int(j)) for i, j in spans if i >= k_start), (int(spans[0][0]), int(spans[0][1])))
+    dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
+    dur = float(t_s[b] - t_s[a])
+    sel = (t_s >= t_s[a] - max(3 * dt, 0.5 * dur)) & (t_s <= t_s[b] + max(5 * dt, dur))
+    p = np.concatenate([xy_km[sel]] + [x[sel] for x in tracks_km])   # truth and tracks inside the box
+    p = p[np.all(np.isfinite(p), axis=1)]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    size = np.maximum(hi - lo, 0.05)                       # km; a straight leg still gets some height
+    elongated = bool(size.max() > 4 * size.min())
+    if not elongated:
+        size[:] = size.max()
+    half = 0.5 * size * 1.15
+    c = 0.5 * (lo + hi)
+    return sel, (c[0] - half[0], c[0] + half[0], c[1] - half[1], c[1] + half[1]), elongated, (
+        float(t_s[a]), float(t_s[b]))
 
 
 def trajectory_figure(suite, batch, runs):
-    """Run 0: truth, plots, tracks and radar sites, full view and a zoom on the maneuvers. Returns the figure."""
+    """Run 0: truth, plots, tracks and radar sites; beside it a zoom on its first maneuver after the track start
+    (only the looks around it, so other legs crossing the box do not clutter it). Returns the figure."""
     n = int(batch.n_looks[0])
     tr = batch.truth[0, :n] / 1e3
     z = batch.z_m[0, :n] / 1e3
     sites = np.unique(batch.site_xy_m[0, :n], axis=0) / 1e3
-    win = _maneuver_window(tr[:, :2], batch.t_s[0, :n], batch.maneuvering[0, :n])
+    k_start = int(min(int(r.start_index[0]) for r in runs.values())) if runs else 0
+    win = _maneuver_window(tr[:, :2], batch.t_s[0, :n], batch.maneuvering[0, :n], k_start,
+                           [r.x[0, :n, :2] / 1e3 for r in runs.values()])
     fig, axes = plt.subplots(1, 2 if win else 1, figsize=(14 if win else 8, 7), layout="constrained",
                              squeeze=False)
     axes = axes[0]
-    for ax in axes:
-        ax.plot(tr[:, 0], tr[:, 1], "k-", lw=2, label="truth")
-        ax.plot(z[:, 0], z[:, 1], ".", color="0.5", ms=3, label="plots")
+    for ax, sel in zip(axes, (np.ones(n, bool), win[0] if win else None)):
+        ax.plot(tr[sel, 0], tr[sel, 1], "k-", lw=2, label="truth")
+        ax.plot(z[sel, 0], z[sel, 1], ".", color="0.5", ms=3, label="plots")
         for name, run in runs.items():
-            x = run.x[0, :n] / 1e3
+            x = run.x[0, :n][sel] / 1e3
             ax.plot(x[:, 0], x[:, 1], lw=1, label=name)
         ax.plot(sites[:, 0], sites[:, 1], "^", color="tab:red", ms=10, label="radar")
         ax.set_xlabel("east (km)")
@@ -193,11 +207,14 @@ def trajectory_figure(suite, batch, runs):
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[0].set_title(f"{suite}: run 0")
     if win:
-        (x0, x1, y0, y1), (ta, tb) = win
+        sel, (x0, x1, y0, y1), elongated, (ta, tb) = win
         axes[1].set_xlim(x0, x1)
         axes[1].set_ylim(y0, y1)
-        axes[1].set_aspect("equal", adjustable="box")
-        axes[1].set_title(f"zoom: first maneuver, t = {ta:.0f}-{tb:.0f} s, and 60 s after (box at left)")
+        if not elongated:
+            axes[1].set_aspect("equal", adjustable="box")
+        tw = batch.t_s[0, :n][sel]
+        axes[1].set_title(f"zoom (box at left): maneuver at t = {ta:.0f}-{tb:.0f} s, looks {tw[0]:.0f}-{tw[-1]:.0f} s"
+                          + ("\neast and north NOT to the same scale" if elongated else ""), fontsize=10)
         axes[0].indicate_inset((x0, y0, x1 - x0, y1 - y0), edgecolor="tab:blue", lw=1.2)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8)
     return fig
