@@ -230,10 +230,14 @@ def q_figure(suite, batch, runs):
     tt = batch.t_s[0, :n]
     acc = np.hypot(*batch.truth_accel_m_s2[0, :n].T) / G0_M_S2
     qs = {k: r.q_m_s2[0, :n] / G0_M_S2 for k, r in q_runs.items()}
-    vals = np.concatenate([acc] + list(qs.values()))
-    pos = vals[np.isfinite(vals) & (vals > 0)]
-    floor = 10.0 ** math.floor(math.log10(pos.min())) if pos.size else 1e-3
-    top = float(pos.max()) if pos.size else 1.0
+    # the floor sits a decade-step under the smallest positive q (the truth's |a| can be tiny but nonzero on
+    # ADS-B flights, and stretching the axis to it would squash the q steps)
+    qv = np.concatenate(list(qs.values()))
+    qpos = qv[np.isfinite(qv) & (qv > 0)]
+    apos = acc[np.isfinite(acc) & (acc > 0)]
+    ref = qpos if qpos.size else apos
+    floor = 10.0 ** math.floor(math.log10(ref.min())) if ref.size else 1e-3
+    top = float(max(qpos.max(initial=floor), apos.max(initial=floor)))
     fig, ax = plt.subplots(figsize=(11, 4), layout="constrained")
     below = lambda v: np.any(np.isfinite(v) & (v < floor))  # noqa: E731
     lab = lambda s, v: s + (" (values < floor drawn on it)" if below(v) else "")  # noqa: E731
