@@ -106,7 +106,9 @@ def _spans(t, mask):
 
 
 def error_figure(suite, batch, runs):
-    """Position and speed error against time (see the module docstring for the time axis). Returns the figure."""
+    """Position and speed error against time (see the module docstring for the time axis). Returns the figure.
+
+    Raises ``ValueError`` if a tracker's estimate is non-finite at a look after its track start."""
     B = batch.batch_size
     shared = shared_look_times(batch)
     min_runs = _min_runs(B)
@@ -117,6 +119,10 @@ def error_figure(suite, batch, runs):
         used = _used(batch, run)
         ep = np.where(used, np.hypot(*(run.x[..., :2] - batch.truth[..., :2]).transpose(2, 0, 1)), np.nan)
         es = np.where(used, np.abs(np.hypot(run.x[..., 2], run.x[..., 3]) - speed_true), np.nan)
+        bad = int(np.sum(used & ~(np.isfinite(ep) & np.isfinite(es))))
+        if bad:   # a diverged track must not vanish from the mean as a NaN would
+            plt.close(fig)
+            raise ValueError(f"{suite}: tracker {name!r} has {bad} non-finite estimate(s) after its track start")
         for ax, e in ((axes[0], ep), (axes[1], es)):
             if shared:
                 t = batch.t_s[np.argmax(batch.n_looks)]
@@ -157,11 +163,12 @@ def error_figure(suite, batch, runs):
 
 
 def _maneuver_window(xy_km, t_s, maneuvering, k_start, tracks_km=()):
-    """Run 0's first maneuver that begins at or after the track start (look ``k_start``; else the first one):
-    the looks from half its duration before it to its duration after it (at least 3 and 5 look intervals: where
-    the tracks lag and overshoot), a box ``(x0, x1, y0, y1)`` km around the truth and ``tracks_km`` there, whether the box is too
-    elongated to draw east and north to one scale, and the maneuver's start and end times. None if the run never
-    maneuvers."""
+    """Run 0's first maneuver that begins at or after the track start (look ``k_start``; else the first one).
+
+    Returns ``(sel, box, elongated, (t_start_s, t_end_s))`` or None if the run never maneuvers: ``sel`` the looks
+    from half its duration before it to its duration after it (at least 3 and 5 look intervals: where the tracks
+    lag and overshoot); ``box`` ``(x0, x1, y0, y1)`` km around the truth and ``tracks_km`` there, with a margin;
+    ``elongated`` if the box is too long and thin to draw east and north to one scale."""
     spans = _spans(np.arange(len(maneuvering)), maneuvering)
     if not spans:
         return None

@@ -73,6 +73,16 @@ def test_error_curves_strictly_increasing_in_seconds(suites, suite):
     plt.close(fig)
 
 
+def test_error_figure_refuses_non_finite_estimates(suites):
+    import dataclasses
+    batch, runs = suites["random_radars"]
+    x = runs["kf_low"].x.copy()
+    x[1, int(runs["kf_low"].start_index[1]) + 3, 0] = np.inf
+    bad = dict(runs, kf_low=dataclasses.replace(runs["kf_low"], x=x))
+    with pytest.raises(ValueError, match="kf_low.*1 non-finite"):
+        plots.error_figure("random_radars", batch, bad)
+
+
 def test_binned_error_stats_are_per_run_means_over_the_runs_in_each_bin():
     # run 0 looks every 2 s up to 22 s, run 1 every 5 s up to 15 s, run 2 every 3 s up to 9 s
     t = np.full((3, 12), np.nan)
@@ -223,7 +233,8 @@ def test_training_curve_draws_the_bundled_stages_end_to_end(tmp_path):
     assert "from scratch" in stages[0][0] and all("fine-tuned" in s[0] for s in stages[1:])
     fig = plots.training_curve_figure(stages)
     ax = fig.axes[0]
-    random = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 1 and ln.get_color() == ax.get_lines()[0].get_color()]
+    first = ax.get_lines()[0].get_color()      # the first suite's colour, kept across stages
+    random = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 1 and ln.get_color() == first]
     x = np.concatenate([ln.get_xdata() for ln in random])
     assert len(random) == len(stages) and np.all(np.diff(x) > 0)     # one curve per stage, end to end
     assert all(any(s[0].split("\n")[0] in t.get_text() for t in ax.texts) for s in stages)
