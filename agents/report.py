@@ -132,22 +132,23 @@ def scope_figure(path, seed):
 
 
 def warning_figure(path, results, trackers):
+    """Bar charts of the conflict-warning lead time and of the looks where the warning is wrong, per tracker."""
     import matplotlib.pyplot as plt
     enc = results["encounters"]["trackers"]
     names = [t for t in trackers if t in enc]
     lead = [enc[t]["warning_lead_time_s"] for t in names]
     fa = [enc[t]["false_warning_rate"] + enc[t]["missed_warning_rate"] for t in names]
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    fig, ax = plt.subplots(1, 2, figsize=(11, 0.3 * len(names) + 2.2), sharey=True, layout="constrained")
     ax[0].barh(names, lead, color="tab:blue")
-    ax[0].axvline(enc[names[0]]["ideal_lead_time_s"], color="k", ls="--", label="from the true states")
-    ax[0].set_xlabel("mean warning lead time before closest approach (s)")
-    ax[0].legend(fontsize=8)
+    ideal_s = enc[names[0]]["ideal_lead_time_s"]
+    ax[0].axvline(ideal_s, color="k", ls="--", label=f"from the true states ({ideal_s:.0f} s)")
+    ax[0].set_xlabel("mean warning lead time before\nclosest approach (s)")
+    ax[0].set_ylabel("tracker")
+    ax[0].legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
     ax[1].barh(names, fa, color="tab:red")
-    ax[1].set_xlabel("looks where the warning disagrees with the truth's (fraction)")
-    for a in ax:
-        a.invert_yaxis()
+    ax[1].set_xlabel("looks where the warning disagrees with\nthe one from the true states (fraction of looks)")
+    ax[0].invert_yaxis()                     # shared y: once, tracker order top to bottom
     fig.suptitle("Conflict warnings on turning encounters (3 NM, 300 s look-ahead)")
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

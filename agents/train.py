@@ -208,27 +208,57 @@ def _tb_scalars(run, tags):
     return out
 
 
+def _bundled_stages(cfg):
+    """``[(label, selection_history, selected_timesteps)]`` of a bundled ``train_config.json``, first stage first
+    (each fine-tuning stage's record nests the one it started from under ``fine_tuned_from``)."""
+    chain = []
+    while cfg:
+        chain.append(cfg)
+        cfg = cfg.get("fine_tuned_from")
+    stages = []
+    for i, c in enumerate(reversed(chain), 1):
+        hp = c.get("hyperparams", {})
+        how = "fine-tuned" if hp.get("init_from") else "from scratch"
+        name = Path(c.get("run_folder", f"stage {i}")).name
+        steps = c.get("training", {}).get("timesteps", hp.get("n_timesteps", 0))
+        stages.append((f"stage {i}: {name}\n({how}, {steps / 1e6:.0f}M)", c.get("selection_history", []),
+                       c.get("selected_checkpoint", {}).get("timesteps")))
+    return stages
+
+
 def plot_training_curve(run, png=None):
-    """Training curve of a run folder: mean episode return and the selection ratio policy/imm2. Returns the PNG."""
+    """Training curve: the selection ratio policy/imm2 per selection suite over env steps, and the mean episode
+    return when TensorBoard logs are there. Returns the PNG path.
+
+    Args:
+        run: a run folder (``summary.json``, ``config.json``, ``best/selection.json``, ``tb/``): one stage, titled
+            with the run's name and whether it was trained from scratch or fine-tuned (``init_from``); or a bundled
+            ``train_config.json`` (``agents/bundled/``): every stage of its ``fine_tuned_from`` chain end to end,
+            from the selection histories it records (the bundle keeps no TensorBoard logs, so no return panel).
+        png: output path (default ``training_curve.png`` beside ``run``).
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from .plots import training_curve_figure
     run = Path(run)
-    png = Path(png) if png else run / "training_curve.png"
-    hist = json.loads((run / "summary.json").read_text()).get("selection_history", [])
-    sc = _tb_scalars(run, ["rollout/ep_rew_mean"])
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
-    if "rollout/ep_rew_mean" in sc:
-        a1.plot(*sc["rollout/ep_rew_mean"], lw=1)
-    a1.set(xlabel="env steps", ylabel="mean episode return", title="training episodes (random scenarios)")
-    if hist:
-        keys = [k for k in hist[0] if k.endswith("_ratio_imm2")]
-        for k in keys:
-            a2.plot([h["timesteps"] for h in hist], [h[k] for h in hist], "o-", ms=3, label=k.replace("_ratio_imm2", ""))
-        a2.legend()
-    a2.axhline(1.0, color="k", lw=0.8, ls="--")
-    a2.set(xlabel="env steps", ylabel="position RMSE / imm2", title="selection suite (training-range seeds)")
-    fig.tight_layout()
+    if run.is_file():
+        cfg = json.loads(run.read_text())
+        stages = _bundled_stages(cfg)
+        png = Path(png) if png else run.with_name("training_curve.png")
+        fig = training_curve_figure(stages)
+        fig.suptitle(f"Bundled policy: the selected checkpoint of {Path(cfg.get('run_folder', '?')).name}, the last "
+                     f"of {len(stages)} training stages", fontsize=10)
+    else:
+        png = Path(png) if png else run / "training_curve.png"
+        hist = json.loads((run / "summary.json").read_text()).get("selection_history", [])
+        cfg = json.loads((run / "config.json").read_text()) if (run / "config.json").is_file() else {}
+        sel = run / "best" / "selection.json"
+        chosen = json.loads(sel.read_text()).get("timesteps") if sel.is_file() else None
+        how = f"fine-tuned from {cfg['init_from']}" if cfg.get("init_from") else "from scratch"
+        sc = _tb_scalars(run, ["rollout/ep_rew_mean"])
+        fig = training_curve_figure([(f"{run.name} ({how})", hist, chosen)], sc.get("rollout/ep_rew_mean"))
     fig.savefig(png, dpi=110)
     plt.close(fig)
     return png

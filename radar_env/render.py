@@ -46,15 +46,16 @@ def render_frame(env):
         env._canvas = FigureCanvasAgg(env._fig)
     fig = env._fig
     fig.clear()
-    ax = fig.add_axes([0.02, 0.02, 0.96, 0.96], facecolor=_BG)
+    ax = fig.add_axes([0.11, 0.08, 0.86, 0.86], facecolor=_BG)   # room at left and bottom for labelled ticks
     km = 1e-3
     truth, plots, est = st["truth"] * km, st["plots"] * km, st["estimates"] * km
     centre = est[-1, :2] if len(est) else truth[-1, :2]
     recent = truth[-12:, :2] if len(truth) else centre[None]
     half = float(np.clip(1.3 * np.max(np.abs(recent - centre)), 3.0, 60.0))   # the last ~12 looks fill the view
+    ring_km = 10.0 if half > 10 else 2.0
     for s in st["sites"] * km:
         r_far = np.hypot(*(centre - s)) + half
-        for r in np.arange(10.0, r_far + 10.0, 10.0 if half > 10 else 2.0):
+        for r in np.arange(ring_km, r_far + ring_km, ring_km):
             a = np.linspace(0, 2 * np.pi, 361)
             ax.plot(s[0] + r * np.sin(a), s[1] + r * np.cos(a), color=_DIM, lw=0.6)
         ax.plot(*s, "^", color=_FG, ms=9)
@@ -67,10 +68,12 @@ def render_frame(env):
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_aspect("equal")
-    ax.tick_params(colors=_DIM, labelsize=7)
+    ax.tick_params(colors=_FG, labelcolor=_FG, labelsize=9)
+    ax.set_xlabel("east (km)", color=_FG, fontsize=9)
+    ax.set_ylabel("north (km)", color=_FG, fontsize=9)
     for sp in ax.spines.values():
         sp.set_color(_DIM)
-    txt = (f"t = {st['time_s']:.0f} s   q = {st['q_m_s2'] / G0_M_S2:.3g} g\n"
+    txt = (f"t = {st['time_s']:.0f} s   q = {st['q_m_s2'] / G0_M_S2:.3g} g   range rings {ring_km:g} km\n"
            + "\n".join(f"{k} = {v:.3g}" for k, v in st["features"].items()))
     ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", ha="left", color=_FG, family="monospace",
             fontsize=8)
