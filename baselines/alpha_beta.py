@@ -38,17 +38,18 @@ Equations (Kim & Lee, "Adaptive alpha-beta tracker for TWS radar system")
 
 Measured behaviour of the adaptive rule (tests/test_alpha_beta.py, sigma = 150 m, T = 1 s, N = 12)
 ------------------------------------------------------------------------------------------------
-On the Kim & Lee +5 g / -5 g scenario the adaptive tracker's position RMSE over t in (25, 80] s is ~213 m
-(eq 15 as printed) and ~161 m (``s0_mode="noise_only"``) against ~1690 m for the fixed tracker at q = 1 m/s^2.
-But on a pure constant-velocity track the adapted acceleration std does NOT come back down: after the start-up
-transient the median is ~610 m/s^2 (eq 15) / ~400 m/s^2 (noise_only), position RMSE ~217 m / ~161 m (worse
-than the 150 m plots) against ~42 m for the fixed q = 1 tracker. Reasons: with N = 12 the window mean has a
+On the Kim & Lee +5 g / -5 g scenario the adaptive tracker's position RMSE over t in (25, 80] s is ~198 m
+(eq 15) and ~165 m (``s0_mode="noise_only"``) against ~1690 m for the fixed tracker at q = 1 m/s^2.
+But on a pure constant-velocity track (300 s, 100 runs, after 50 s) the adapted acceleration std does NOT come back
+down: the median is ~88 m/s^2 (eq 15) / ~210 m/s^2 (noise_only), position RMSE ~153 m / ~147 m (about the 150 m of
+the plots) against ~46 m for the fixed q = 1 tracker. (With eq 15's current-look S0 and T applied to the
+whole window, as before the unequal-period rule: ~610 / ~420 m/s^2, ~217 / ~162 m.) Reasons: with N = 12 the window mean has a
 relative std of ~0.4, so phi = 4 (S_hat - ...) / T^4 is of order sigma^2 / T^4 even without a maneuver, and
 with eq 15 as printed, high gains amplify the plot noise into the innovations, which eq 15 reads as a
 maneuver (a self-sustaining high-gain state). ``noise_only`` subtracts the innovation variance the current
 gains actually produce on a non-maneuvering target, which removes the amplification term but not the window
-noise. A smaller plot noise / longer window / a floor-and-cap on phi would be needed for a usable
-non-maneuvering accuracy; that is left to the caller (the RL env) rather than invented here.
+noise. A smaller plot noise / longer window / a floor on phi would be needed for a usable non-maneuvering
+accuracy; only the physical cap ``q_max_m_s2`` is offered here.
 
 Missed detections, irregular time steps, start-up (our choices; the paper has a fixed T and no misses)
 ----------------------------------------------------------------------------------------------------
