@@ -68,7 +68,11 @@ The differential measurement assumes plot noise small against the chord ``v dt``
 about 120 m, against a 1 km chord). Far outside it the filter is stable but poor. Measured (20 runs, seed 5000,
 one site, T = 0.5 s, 1 deg bearing noise, Pd 0.5, 200-300 km, 4.4 km cross-range; chord noise / chord ~ 60):
 Konle's own heading RMSE ~80 deg and speed RMSE ~230 m/s; the blended position KF (``konle`` tracker) 4,960 m
-against 1,600 m for ``kf_tuned`` and 1,380 m for ``imm2`` (before the start/envelope fix: 2,600 km). On the
+against 1,600 m for ``kf_tuned`` and 1,380 m for ``imm2`` (before the start/envelope fix: 2,600 km). There the range
+differential measures the radial speed (~210 m/s noise per pair) but the sign of the cross-range component, i.e.
+which of the two mirror headings about the line of sight, comes only from the bearing differential (12 km/s noise
+per pair): the EKF settles on one branch with a covariance far too small (heading NEES ~50), and 75 % of that
+heading goes into the position KF. On the
 held-out ``random_radars`` runs (100) it is 216 m against imm2's 112 m (331 m before); on
 ``seed002_two_radars`` (50) 63.8 m against 44.5 m (unchanged). Its losses on ``random_radars`` come from short
 periods with large bearing noise (e.g. T = 1.2 s, 0.3 deg at 100 km: 520 m cross-range against a 230 m chord).
