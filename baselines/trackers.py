@@ -345,8 +345,10 @@ def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg
     batch = stack_episodes(episodes)
     q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
     R = np.where(batch.detected[..., None, None], batch.R_m2, np.eye(2))
+    # the adapted acceleration std is bounded by the largest q any q-chooser of the comparison may use
+    q_max = float(cfg.q_levels_g[-1]) * G0_M_S2 if adaptive else None
     res = run_alpha_beta(batch.t_s, batch.z_m, batch.detected, R_m2=R, q_m_s2=q, adaptive=adaptive,
-                         window=cfg.window_kim_lee)
+                         window=cfg.window_kim_lee, q_max_m_s2=q_max)
     nm = name or ("alpha_beta_adaptive" if adaptive else "alpha_beta")
     qq = res.q_m_s2.mean(axis=-1) if adaptive else np.full(batch.valid.shape, q)
     return TrackRun(nm, np.where(batch.valid[..., None], res.x, np.nan), res.P, _common_start(episodes, cfg),
