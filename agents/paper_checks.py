@@ -398,7 +398,7 @@ def _bizup_md(d, fig_prefix):
         f"cmin {cv('cmin', 'pos_m')} s vs kf_low {cv('kf_low', 'pos_m')} s | {rr('cmin', 'kf_low', 'after'):.2f} | "
         f"{_yes(aft[1][1] < 1 and faster)} |",
         f"| speed converges in about half the time after turn 1, slightly longer after turn 2 (s, as above) | "
-        f"cmin / kf_low ~0.5 after turn 1, > 1 after turn 2 | cmin {cv('cmin', 'speed_m_s')} s vs kf_low "
+        f"cmin / kf_low ~0.5 after turn 1, > 1 after turn 2 (read as: longer than the baseline) | cmin {cv('cmin', 'speed_m_s')} s vs kf_low "
         f"{cv('kf_low', 'speed_m_s')} s | {rr('cmin', 'kf_low', 'after', 'speed_m_s'):.2f} (60 s after) | "
         f"turn 1 {_yes(s1 <= 0.7 * k1)}, turn 2 {_yes(s2 > k2)} (rules: <= 0.7x; longer) |",
         f"| the CKF is the worst | worst | worst mean position error: {', '.join(ties)} ({overall[worst]:.0f} m); "
