@@ -100,5 +100,6 @@ def kim_lee_1d_check(runs=500, seed=0, lead_in_s=LEAD_IN_S):
             "npe_cv_last_leg": pooled(ep, last) / pooled(z - x, last),
             "median_q_m_s2_first_leg": float(np.median(res.q_m_s2[:, scored][:, first, 0])),
         }
-    return {"runs": int(runs), "lead_in_s": int(lead_in_s), "sigma_m": SIGMA_M, "low_q_m_s2": LOW_Q_M_S2, "tuned_q_m_s2": float(q_tuned),
+    return {"runs": int(runs), "lead_in_s": int(lead_in_s), "sigma_m": SIGMA_M, "low_q_m_s2": LOW_Q_M_S2,
+            "tuned_q_m_s2": float(q_tuned),
             "trackers": summary, "t_s": t, "maneuvering": man, "curves": curves}

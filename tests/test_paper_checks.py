@@ -147,7 +147,8 @@ def test_ckf_never_switches_at_5_nm_and_equals_the_baseline(bizup_eps):
 
 def test_fma_threshold_rule():
     fma = np.array([[100.0, 200.0, 900.0, 300.0], [150.0, 250.0, 700.0, 400.0]])
-    m = {"first_leg": np.array([[True, True, False, False]] * 2), "maneuver": np.array([[False, False, True, True]] * 2)}
+    m = {"first_leg": np.array([[True, True, False, False]] * 2),
+         "maneuver": np.array([[False, False, True, True]] * 2)}
     thr, first, peaks = fma_threshold(fma, m)
     assert first == 250.0 and list(peaks) == [900.0, 700.0] and thr == pytest.approx(475.0)
     fma[0, 0] = 800.0                                  # overlap: median turn peak
@@ -212,3 +213,7 @@ def test_every_check_table_has_the_four_columns():
 def test_non_finite_quantity_is_an_error():
     with pytest.raises(ValueError, match="non-finite"):
         paper_checks._stats([1.0, np.nan])
+    with pytest.raises(ValueError, match=r"data\.bizup\.phases\.cmin\.all\.pos_m_mean is nan"):
+        paper_checks._check_finite({"bizup": {"phases": {"cmin": {"all": {"pos_m_mean": float("nan")}}}}})
+    paper_checks._check_finite({"bizup": {"convergence_s": {"cmin": [float("nan")]}}})   # "never" is allowed
+    paper_checks._check_finite(json.loads((ROOT / "docs" / "paper_checks.json").read_text()))
