@@ -38,7 +38,7 @@ __all__ = ["BIZUP_TRACKERS", "bizup_errors", "ckf_fma", "fma_threshold", "bizup_
 BIZUP_TRACKERS = ("cmin", "kf_low", "ckf", "imm2_bizup")
 CONVERGED = 1.5
 """Converged after a turn: the mean error curve is back below this multiple of the tracker's first-leg mean."""
-PHASES = ("first_leg", "straight", "maneuver", "after")
+PHASES = ("first_leg", "straight", "maneuver", "after", "turn1", "after1", "turn2", "after2")
 
 
 def _layout(cfg):
@@ -86,10 +86,16 @@ def fma_threshold(fma, masks):
     return (0.5 * (first + lo) if first < lo else float(np.median(peaks))), first, peaks
 
 
-def phase_masks(batch, start_index):
-    """:func:`agents.metrics.region_masks` plus ``first_leg``: used looks before the first maneuver."""
+def phase_masks(batch, start_index, turns=2):
+    """:func:`agents.metrics.region_masks` plus ``first_leg`` (used looks before the first maneuver) and, per
+    maneuver j = 1..``turns``, ``turn{j}`` (its looks) and ``after{j}`` (the 60 s after it)."""
     masks = region_masks(batch, start_index)
-    masks["first_leg"] = masks["used"] & ~np.maximum.accumulate(batch.maneuvering, axis=1)
+    man = batch.maneuvering
+    masks["first_leg"] = masks["used"] & ~np.maximum.accumulate(man, axis=1)
+    count = np.cumsum(man & ~np.pad(man, ((0, 0), (1, 0)))[:, :-1], axis=1)   # maneuvers begun so far
+    for j in range(1, turns + 1):
+        masks[f"turn{j}"] = masks["maneuver"] & (count == j)
+        masks[f"after{j}"] = masks["after"] & (count == j)
     return masks
 
 

@@ -384,14 +384,15 @@ def _bizup_md(d, fig_prefix):
         "95 % confidence interval of the mean over runs.",
         "",
         "Per phase: mean error and error variance over all runs and looks of the phase (first leg = before the "
-        "first turn; straight = more than 60 s after a turn, first leg included; after = within 60 s after a turn):",
+        "first turn; turn j = its looks; after j = within 60 s after turn j; straight = more than 60 s after a turn, "
+        "first leg included; all = every look after the track start):",
         "",
         "| tracker | phase | position mean (m) | position variance (m^2) | speed-magnitude mean (m/s) | "
         "speed-magnitude variance (m^2/s^2) | velocity-vector mean (m/s) |",
         "|---|---|---|---|---|---|---|",
     ]
     for n in bz["trackers"]:
-        for p in ("first_leg", "straight", "maneuver", "after", "all"):
+        for p in ("first_leg", "turn1", "after1", "turn2", "after2", "straight", "all"):
             q = ph[n][p]
             lines.append(f"| {n} | {p} | {q['pos_m_mean']:.0f} | {q['pos_m_var']:.3g} | {q['speed_m_s_mean']:.1f} "
                          f"| {q['speed_m_s_var']:.3g} | {q['vel_m_s_mean']:.1f} |")

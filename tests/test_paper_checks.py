@@ -11,7 +11,7 @@ from filterpy.kalman import KalmanFilter
 from agents import paper_checks
 from agents.paper_adrian import (OMEGA_RAD_S, T_S, V0_M_S, adrian_alg1, adrian_geometry, adrian_kf, adrian_plots,
                                  adrian_quantities, adrian_reference_turn_rate, adrian_truth, adrian_worksheet)
-from agents.paper_bizup import bizup_errors, ckf_fma, fma_threshold
+from agents.paper_bizup import bizup_errors, ckf_fma, fma_threshold, phase_masks
 from agents.paper_kim_lee import kim_lee_1d_check, kim_lee_truth
 from agents.suites import draw_suite
 from baselines.registry import run_tracker
@@ -143,6 +143,19 @@ def test_ckf_never_switches_at_5_nm_and_equals_the_baseline(bizup_eps):
     assert np.array_equal(run.x, low.x, equal_nan=True)
     run2, _ = ckf_fma(bizup_eps, threshold_m=0.5 * np.nanmax(fma))
     assert run2.declared.any()
+
+
+def test_phase_masks_split_each_turn_and_the_60_s_after_it(bizup_eps):
+    from radar_env.episode import stack_episodes
+    batch = stack_episodes(bizup_eps)
+    m = phase_masks(batch, np.full(batch.batch_size, 14))
+    t = batch.t_s[0]
+    assert list(t[m["turn1"][0]]) == [290.0, 300.0, 310.0, 320.0]      # the 40 s right turn from 290 s
+    assert list(t[m["turn2"][0]]) == [610.0, 620.0, 630.0]             # the 30 s left turn from 610 s
+    assert t[m["after1"][0]].min() > 320 and t[m["after1"][0]].max() <= 320 + 60
+    assert not (m["first_leg"] & (batch.t_s >= 290)).any()
+    assert np.array_equal(m["turn1"] | m["turn2"], m["maneuver"])
+    assert np.array_equal(m["after1"] | m["after2"], m["after"])
 
 
 def test_fma_threshold_rule():
