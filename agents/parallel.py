@@ -62,7 +62,10 @@ class ray_session:
             try:
                 ray.init(address=address, **kw)
             except ConnectionError as e:
-                raise ValueError(f"--address: cannot connect to a Ray cluster at {address!r} ({e})") from None
+                hint = ("" if os.environ.get("RAY_AUTH_MODE") else "; a cluster started by 'ray start' uses token "
+                        "authentication: export RAY_AUTH_MODE=token (the token is read from ~/.ray/auth_token or "
+                        "RAY_AUTH_TOKEN)")
+                raise ValueError(f"--address: cannot connect to a Ray cluster at {address!r} ({e}){hint}") from None
             self.started = True
         return ray
 
