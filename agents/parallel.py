@@ -58,7 +58,8 @@ class ray_session:
             address = self.address or os.environ.get("RAY_ADDRESS") or None
             kw = {"include_dashboard": False, "log_to_driver": False}
             if address is None:
-                kw["num_cpus"] = self.num_cpus
+                # "local": always a new embedded instance, never a cluster Ray happens to find on this machine
+                address, kw["num_cpus"] = "local", self.num_cpus
             try:
                 ray.init(address=address, **kw)
             except ConnectionError as e:

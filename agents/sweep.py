@@ -224,8 +224,11 @@ def _search_alg(cfg):
 
 def results_table(result_grid, space_keys, n_timesteps):
     """One row per trial, best ``selection_ratio`` first (errored trials last, with their error)."""
+    # Tune's trial states tell an early stop (ASHA: TERMINATED short of n_timesteps) from an interruption
+    trials = getattr(getattr(result_grid, "_experiment_analysis", None), "trials", None) or []
+    states = [t.status for t in trials] if len(trials) == len(result_grid) else [None] * len(result_grid)
     rows = []
-    for r in result_grid:
+    for r, state in zip(result_grid, states):
         m = r.metrics or {}
         row = {"trial": (Path(m["run_dir"]).name if m.get("run_dir") else Path(r.path).name)}
         row.update({k: r.config.get(k) for k in space_keys})
@@ -238,8 +241,9 @@ def results_table(result_grid, space_keys, n_timesteps):
         else:
             row.update(best_selection_ratio=None, best_at_timesteps=None, last_selection_ratio=None, timesteps=None,
                        evals=0)
-        row["status"] = ("error" if r.error else "done" if (row["timesteps"] or 0) >= n_timesteps
-                         else "stopped early")
+        finished = (row["timesteps"] or 0) >= n_timesteps
+        row["status"] = ("error" if r.error else "done" if finished
+                         else "stopped early" if state == "TERMINATED" else "unfinished")
         row["error"] = None if r.error is None else str(r.error).strip().splitlines()[-1][:200]
         row["best_policy"] = str(Path(m["run_dir"]) / "best" / "policy.zip") if m.get("run_dir") else None
         rows.append(row)
@@ -251,8 +255,13 @@ def format_results(rows):
     if not rows:
         return "(no trials)"
     cols = [c for c in rows[0] if c not in ("error", "best_policy")]
-    fmt = {c: (lambda v: "-" if v is None else (f"{v:.4f}" if isinstance(v, float) else str(v))) for c in cols}
-    cells = [[fmt[c](r[c]) for c in cols] for r in rows]
+    def fmt(c, v):
+        if v is None:
+            return "-"
+        if isinstance(v, float):
+            return f"{v:.4f}" if c.endswith("selection_ratio") else f"{v:.4g}"
+        return str(v)
+    cells = [[fmt(c, r[c]) for c in cols] for r in rows]
     w = [max(len(c), *(len(x[i]) for x in cells)) for i, c in enumerate(cols)]
     lines = ["  ".join(c.rjust(w[i]) for i, c in enumerate(cols))]
     lines += ["  ".join(x[i].rjust(w[i]) for i in range(len(cols))) for x in cells]
@@ -319,6 +328,8 @@ def main(argv=None, prog="radar-track sweep"):
         raise SystemExit(f"error: {e}") from None
     print(format_results(rows))
     print(f"\nresults: {exp_dir / 'results.csv'} and results.json; run folders in {exp_dir / 'runs'}/")
+    if any(r["status"] == "unfinished" for r in rows):
+        print("(unfinished trials: run the same command again to resume the sweep)")
     failed = [r for r in rows if r["status"] == "error"]
     if failed:
         raise SystemExit(f"error: {len(failed)} of {len(rows)} trials failed (first: {failed[0]['trial']}: "
