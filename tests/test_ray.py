@@ -132,8 +132,8 @@ def test_evaluation_on_two_workers_equals_the_serial_run(local_ray):
     """Named suites (tasks draw their own episodes) and encounter pairs (episodes sent): every TrackRun array and
     the JSON are bit-equal to the serial run, the learned policy included."""
     suites = [("bizup2002", draw_suite("bizup2002", 4, seed=10_000_000)),
-              ("encounters", draw_suite("encounters", 2, seed=10_000_000))]
-    trackers = ["imm2", "kf_tuned", "cmin", "policy"]
+              ("encounters", draw_suite("encounters", 1, seed=10_000_000))]
+    trackers = ["imm2", "cmin", "policy"]          # cmin: maneuver declarations (bool arrays) are padded too
     res_s, runs_s = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False)
     res_p, runs_p = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False, workers=2, seed=10_000_000)
     assert json.dumps(_jsonable(res_p)) == json.dumps(_jsonable(res_s))
