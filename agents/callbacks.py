@@ -51,11 +51,14 @@ class ImmRatioEvalCallback(BaseCallback):
         best_dir: where the best model goes (``policy.zip`` + ``env_config.json``); None: do not save.
         select_on: suite names whose ratios' geometric mean selects the best model (default: ``"random"`` if
             scored, else the first suite).
+        on_row: called with each evaluation's row (as kept in ``history``) right after it is made (e.g. a sweep
+            reporting ``selection_ratio`` to Ray Tune, :mod:`agents.sweep`).
     """
 
     def __init__(self, env_kwargs, eval_freq=50_000, scenarios=None, seed=SELECTION_SEED_BASE, best_dir=None,
-                 verbose=1, select_on=None):
+                 verbose=1, select_on=None, on_row=None):
         super().__init__(verbose)
+        self.on_row = on_row
         scenarios = dict(scenarios or {"random": 100})
         last = int(seed) + max(scenarios.values())
         if int(seed) < TRAIN_SEEDS.start or last > TRAIN_SEEDS.stop or last > EVAL_SEED_BASE:
@@ -120,6 +123,8 @@ class ImmRatioEvalCallback(BaseCallback):
                 (self.best_dir / "selection.json").write_text(json.dumps(row, indent=1))
         row["best"] = bool(improved)
         self.history.append(row)
+        if self.on_row is not None:
+            self.on_row(dict(row))
         self.logger.record("eval/best_rmse_ratio_imm2", self.best_ratio)
         if self.verbose:
             others = " ".join(f"{k}={v:.3f}" for k, v in row.items() if k.endswith("_ratio_imm2"))

@@ -10,6 +10,7 @@ commands:
   evaluate   compare learned policies and classical trackers on identical measurement streams
   tune       re-tune the classical baselines (constant-q KF, 2-mode IMM) on training seeds
   train      train a q-choosing policy (PPO, DQN, SAC) on RadarTrack-v0 (random scenarios, training seeds)
+  sweep      seed and hyperparameter sweeps of 'train' on Ray Tune, local or on a cluster (needs '.[scale]')
 
 'radar-track <command> --help' shows the options of a command."""
 
@@ -31,6 +32,10 @@ def main(argv=None):
     if cmd == "train":
         from .train import main as train_main
         train_main(rest)
+        return 0
+    if cmd == "sweep":
+        from .sweep import main as sweep_main
+        sweep_main(rest)
         return 0
     print(f"radar-track: unknown command {cmd!r}\n\n{USAGE}", file=sys.stderr)
     return 2

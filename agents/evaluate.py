@@ -91,13 +91,16 @@ def model_choose_q(model, cfg: EnvConfig):
 
 
 # ------------------------------------------------------------------------------------------------ evaluation
-def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True):
+def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None):
     """Run ``trackers`` on every suite.
 
     Args:
         suites: list of ``(name, episodes)``.
         trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``.
         reference: tracker the ratio column is taken against (if present).
+        workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.parallel.run_suites_ray`,
+            same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
+            the named suites themselves).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]``; ``runs[suite]`` = ``(batch, {name: TrackRun})``.
@@ -110,10 +113,14 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     jobs = [(s, t) for s, _ in suites for t in trackers]
     bar = _progress(len(jobs), progress)
     results, runs = {}, {}
+    ray_runs = None
+    if workers > 1 or address:
+        from .parallel import run_suites_ray
+        ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, bar)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
-        suite_runs = {}
-        for t in trackers:
+        suite_runs = {} if ray_runs is None else ray_runs[suite]
+        for t in trackers if ray_runs is None else ():
             t0 = time.time()
             if t == "policy":
                 suite_runs[t] = run_q_policy(episodes, choose_q, "policy", pol_cfg)
@@ -242,6 +249,10 @@ def build_parser(prog="radar-track evaluate"):
     ap.add_argument("--json", help="write every metric per tracker per suite to this JSON file")
     ap.add_argument("--no-plots", action="store_true", help="skip the plots")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--workers", type=int, default=1, help="split the runs over N Ray workers (same numbers as "
+                    "the serial run; needs the 'scale' extra; default 1: no Ray)")
+    ap.add_argument("--address", help="Ray cluster to run on, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else "
+                                      "an embedded local Ray with --workers CPUs)")
     return ap
 
 
@@ -274,7 +285,13 @@ def main(argv=None, prog="radar-track evaluate"):
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     t0 = time.time()
-    results, runs = evaluate(suites, trackers, policy, progress=not args.quiet)
+    if args.workers < 1:
+        raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
+    try:
+        results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
+                                 address=args.address, seed=args.seed)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if not args.no_plots:

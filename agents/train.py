@@ -94,8 +94,12 @@ def _parse_hp(items):
     return out
 
 
-def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None):
-    """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder."""
+def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None,
+          on_selection=None):
+    """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder.
+
+    ``on_selection(row)`` (optional) is called after each selection evaluation (``row`` as in ``summary.json``'s
+    ``selection_history``); the sweeps (:mod:`agents.sweep`) report it to Ray Tune."""
     import torch
     import stable_baselines3 as sb3
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
@@ -158,7 +162,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
 
     scenarios = hp.get("eval_scenarios") or {"random": int(hp.get("eval_runs", 100))}
     eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,
-                                   best_dir=run / "best", verbose=verbose, select_on=hp.get("select_on"))
+                                   best_dir=run / "best", verbose=verbose, select_on=hp.get("select_on"),
+                                   on_row=on_selection)
     time_cb = EnvTimeCallback(adapter)
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(run / "checkpoints"), name_prefix=algo)

@@ -1,0 +1,223 @@
+"""Evaluations split over Ray workers (``radar-track evaluate --workers N [--address ADDR]``).
+
+Each suite's runs are cut into ``N`` contiguous chunks; one Ray task per (suite, tracker, chunk) runs the tracker
+on its chunk and returns the :class:`baselines.trackers.TrackRun`; the chunks are concatenated along the run axis
+(padded to the suite's longest episode exactly as the serial run pads) before any scoring, so the scoring sees
+the serial arrays bit for bit (common random numbers kept: every tracker sees the same episodes).
+
+Tasks of the papers' named and random suites (``radar_env.catalog.SCENARIO_NAMES``, where run ``i`` is a pure
+function of seed ``S + i``) draw their own episodes from the suite name and seed range, so nothing but the names
+travels; every task returns a digest of the episodes it drew, checked against the driver's, so a mismatch is an
+error and never a silently different number. Other suites (encounter pairs, ADS-B flights, trajectory files) are
+sent as episodes through the object store.
+
+Ray is an optional extra (``pip install -e '.[scale]'``); it is imported only here and in :mod:`agents.sweep`.
+Without ``address`` (and without ``RAY_ADDRESS``) an embedded local Ray with ``N`` CPUs is started and stopped;
+with one, the tasks run on that cluster (every node needs this package installed at the same version).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from baselines.trackers import TrackRun
+from radar_env.catalog import SCENARIO_NAMES
+
+__all__ = ["require_ray", "ray_session", "chunk_bounds", "concat_runs", "episodes_digest", "run_suites_ray",
+           "SCALE_EXTRA_HINT"]
+
+SCALE_EXTRA_HINT = "pip install -e '.[scale]'"
+
+
+def require_ray(what="this command"):
+    """Import and return ``ray``; a ``ValueError`` naming the extra to install if it is missing."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError(f"{what} needs Ray, which is not installed: {SCALE_EXTRA_HINT} "
+                         "(the 'scale' extra: ray[tune], optuna)") from None
+    return ray
+
+
+class ray_session:
+    """Context manager: the running Ray session if there is one, else ``ray.init`` on ``address`` (or
+    ``RAY_ADDRESS``), else an embedded local Ray with ``num_cpus`` CPUs; shuts down only what it started."""
+
+    def __init__(self, address=None, num_cpus=None, what="this command"):
+        self.ray = require_ray(what)
+        self.address, self.num_cpus, self.started = address, num_cpus, False
+
+    def __enter__(self):
+        ray = self.ray
+        if not ray.is_initialized():
+            address = self.address or os.environ.get("RAY_ADDRESS") or None
+            kw = {"include_dashboard": False, "log_to_driver": False}
+            if address is None:
+                # "local": always a new embedded instance, never a cluster Ray happens to find on this machine
+                address, kw["num_cpus"] = "local", self.num_cpus
+            try:
+                ray.init(address=address, **kw)
+            except ConnectionError as e:
+                hint = ("" if os.environ.get("RAY_AUTH_MODE") else "; a cluster started by 'ray start' uses token "
+                        "authentication: export RAY_AUTH_MODE=token (the token is read from ~/.ray/auth_token or "
+                        "RAY_AUTH_TOKEN)")
+                raise ValueError(f"--address: cannot connect to a Ray cluster at {address!r} ({e}){hint}") from None
+            self.started = True
+        return ray
+
+    def __exit__(self, *exc):
+        if self.started:
+            self.ray.shutdown()
+        return False
+
+
+def chunk_bounds(n, chunks):
+    """``[(start, stop), ...]``: ``n`` items cut into at most ``chunks`` contiguous, near-equal, non-empty pieces."""
+    edges = np.linspace(0, int(n), min(int(chunks), int(n)) + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def episodes_digest(episodes):
+    """SHA-1 over every array of the episodes (the check that a task drew the driver's episodes)."""
+    h = hashlib.sha1()
+    for ep in episodes:
+        for v in vars(ep).values():
+            if isinstance(v, np.ndarray):
+                h.update(str((v.dtype, v.shape)).encode())
+                h.update(np.ascontiguousarray(v).tobytes())
+    return h.hexdigest()
+
+
+def _pad(a, K, fill):
+    if a.shape[1] == K:
+        return a
+    out = np.full((a.shape[0], K, *a.shape[2:]), fill, dtype=a.dtype)
+    out[:, :a.shape[1]] = a
+    return out
+
+
+def concat_runs(parts, K):
+    """One :class:`TrackRun` from per-chunk runs (in run order), every (B, k, ...) array padded to ``K`` looks with
+    the serial run's fill (NaN; False for declarations)."""
+    first = parts[0]
+    declared = None
+    if first.declared is not None:
+        declared = np.concatenate([_pad(p.declared, K, False) for p in parts])
+    extra = {k: np.concatenate([_pad(p.extra[k], K, np.nan) for p in parts]) for k in first.extra}
+    return TrackRun(first.name, np.concatenate([_pad(p.x, K, np.nan) for p in parts]),
+                    np.concatenate([_pad(p.P, K, np.nan) for p in parts]),
+                    np.concatenate([p.start_index for p in parts]),
+                    np.concatenate([_pad(p.q_m_s2, K, np.nan) for p in parts]), declared, extra)
+
+
+# ------------------------------------------------------------------------------------------------ worker side
+_POLICY_CACHE = {}
+
+
+def _policy_in_worker(blob):
+    """Load the policy shipped as file contents (cached per worker process: Ray reuses workers)."""
+    zip_bytes, env_cfg = blob
+    key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
+    if key not in _POLICY_CACHE:
+        from .evaluate import load_policy
+        d = Path(tempfile.mkdtemp(prefix="radar_track_policy_"))
+        (d / "policy.zip").write_bytes(zip_bytes)
+        if env_cfg is not None:
+            (d / "env_config.json").write_bytes(env_cfg)
+        _POLICY_CACHE[key] = load_policy(d / "policy.zip")
+    return _POLICY_CACHE[key]
+
+
+def _run_chunk(tracker, episodes, policy_blob):
+    from baselines.registry import run_tracker
+    from baselines.trackers import run_q_policy
+    if tracker == "policy":
+        choose_q, cfg = _policy_in_worker(policy_blob)
+        return run_q_policy(episodes, choose_q, "policy", cfg)
+    return run_tracker(tracker, episodes)
+
+
+def _task_draw(suite, seed, start, stop, tracker, policy_blob):
+    from .suites import draw_suite
+    eps = draw_suite(suite, stop - start, seed=seed + start)
+    return episodes_digest(eps), _run_chunk(tracker, eps, policy_blob)
+
+
+def _task_given(episodes, tracker, policy_blob):
+    return None, _run_chunk(tracker, episodes, policy_blob)
+
+
+# ------------------------------------------------------------------------------------------------ driver side
+def _policy_blob(policy_path):
+    if policy_path is None:
+        return None
+    p = Path(policy_path)
+    cfg = p.with_name("env_config.json")
+    return p.read_bytes(), cfg.read_bytes() if cfg.is_file() else None
+
+
+def _first_run_redraws(suite, episodes, seed):
+    """Whether the suite's first run is what ``draw_suite(suite, 1, seed)`` draws (a trajectory file named like a
+    catalog scenario is not: its episodes are sent instead)."""
+    from .suites import draw_suite
+    return episodes_digest(draw_suite(suite, 1, seed=seed)) == episodes_digest(episodes[:1])
+
+
+def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, seed=None, tick=None):
+    """Run every tracker on every suite on Ray; returns ``{suite: {tracker: TrackRun}}`` equal to the serial runs.
+
+    Args:
+        suites: list of ``(name, episodes)`` as drawn by the driver (:func:`agents.suites.draw_suite`).
+        trackers: tracker names; ``policy`` needs ``policy_path``.
+        workers: chunks per suite (and local CPUs when Ray is started here).
+        address: Ray cluster address (default ``RAY_ADDRESS``, else an embedded local Ray).
+        seed: base seed the named suites were drawn with; None: send every suite's episodes.
+        tick: progress callback ``tick(message)``, called once per (suite, tracker) when all its chunks are done.
+    """
+    workers = int(workers)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    tick = tick or (lambda msg: None)
+    blob = _policy_blob(policy_path) if "policy" in trackers else None
+    with ray_session(address, workers, "--workers/--address") as ray:
+        draw = ray.remote(num_cpus=1)(_task_draw)
+        given = ray.remote(num_cpus=1)(_task_given)
+        blob_ref = ray.put(blob)
+        pending = {}              # ref -> (suite, tracker, chunk index)
+        expect = {}               # (suite, chunk index) -> digest of the driver's episodes
+        for suite, episodes in suites:
+            bounds = chunk_bounds(len(episodes), workers)
+            redraw = seed is not None and suite in SCENARIO_NAMES and _first_run_redraws(suite, episodes, seed)
+            eps_refs = [None if redraw else ray.put(list(episodes[a:b])) for a, b in bounds]
+            for c, (a, b) in enumerate(bounds):
+                if redraw:
+                    expect[suite, c] = episodes_digest(episodes[a:b])
+                for t in trackers:
+                    ref = (draw.remote(suite, int(seed), a, b, t, blob_ref) if redraw
+                           else given.remote(eps_refs[c], t, blob_ref))
+                    pending[ref] = (suite, t, c)
+        n_chunks = {s: len(chunk_bounds(len(e), workers)) for s, e in suites}
+        K = {s: max(e.n_looks for e in eps) for s, eps in suites}
+        parts = {}
+        try:
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                suite, t, c = pending.pop(done[0])
+                digest, run = ray.get(done[0])
+                if digest is not None and digest != expect[suite, c]:
+                    raise RuntimeError(f"suite {suite!r}: a Ray task drew episodes that differ from the driver's "
+                                       "(different package version on a worker node?)")
+                parts.setdefault((suite, t), {})[c] = run
+                if len(parts[suite, t]) == n_chunks[suite]:
+                    tick(f"{suite}: {t} ({n_chunks[suite]} chunks)")
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+    return {s: {t: concat_runs([parts[s, t][c] for c in range(n_chunks[s])], K[s]) for t in trackers}
+            for s, _ in suites}

@@ -1,0 +1,176 @@
+"""Scaling out on Ray: evaluations split over workers give the serial numbers bit for bit; sweeps on Ray Tune write
+their table and resume; without the 'scale' extra a one-line error names it. One local Ray (2 CPUs) per module."""
+
+import csv
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate
+from agents.evaluate import main as evaluate_main
+from agents.parallel import chunk_bounds, concat_runs
+from agents.suites import draw_suite
+from agents.sweep import load_sweep_config, run_sweep
+from agents.sweep import main as sweep_main
+from baselines.registry import run_tracker
+
+TINY_SWEEP = """
+[sweep]
+name = "tiny"
+algo = "ppo"
+[base]
+n_timesteps = 2048
+n_envs = 8
+n_steps = 128
+batch_size = 256
+n_epochs = 1
+eval_freq = 1024
+checkpoint_freq = 1_000_000
+select_on = ["random"]
+[base.eval_scenarios]
+random = 4
+[base.policy_kwargs]
+net_arch = [16, 16]
+[space]
+seed = [0, 1]
+"""
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray = pytest.importorskip("ray")
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    if started:
+        ray.shutdown()
+
+
+def _assert_runs_equal(a, b):
+    assert a.name == b.name
+    for f in ("x", "P", "start_index", "q_m_s2"):
+        x, y = getattr(a, f), getattr(b, f)
+        assert x.dtype == y.dtype and x.shape == y.shape, f
+        assert np.array_equal(x, y, equal_nan=True), f
+    assert (a.declared is None) == (b.declared is None)
+    if a.declared is not None:
+        assert np.array_equal(a.declared, b.declared)
+    assert sorted(a.extra) == sorted(b.extra)
+    for k in a.extra:
+        assert np.array_equal(a.extra[k], b.extra[k], equal_nan=True), k
+
+
+# ------------------------------------------------------------------------------------------------ no Ray needed
+def test_chunks_are_contiguous_and_concat_pads_like_the_serial_run():
+    assert chunk_bounds(6, 2) == [(0, 3), (3, 6)]
+    assert chunk_bounds(2, 5) == [(0, 1), (1, 2)]            # never an empty chunk
+    bounds = chunk_bounds(7, 3)
+    assert bounds[0][0] == 0 and bounds[-1][1] == 7 and all(a[1] == b[0] for a, b in zip(bounds, bounds[1:]))
+    eps = draw_suite("random", 5, seed=123)                   # random flights: different lengths, so padding
+    assert len({e.n_looks for e in eps}) > 1
+    for tracker in ("kf_tuned", "cmin"):                      # cmin declares maneuvers: the bool array pads too
+        serial = run_tracker(tracker, eps)
+        parts = [run_tracker(tracker, eps[a:b]) for a, b in chunk_bounds(len(eps), 3)]
+        _assert_runs_equal(concat_runs(parts, max(e.n_looks for e in eps)), serial)
+
+
+def test_missing_ray_gives_a_one_line_error_naming_the_extra(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)             # import ray -> ImportError
+    with pytest.raises(SystemExit) as e:
+        evaluate_main(["--scenario", "bizup2002", "--runs", "2", "--trackers", "kf_tuned", "--workers", "2",
+                       "--no-plots", "--quiet"])
+    msg = str(e.value)
+    assert msg.startswith("error: ") and "\n" not in msg and ".[scale]" in msg and "--workers" in msg
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(TINY_SWEEP)
+    with pytest.raises(SystemExit) as e:
+        sweep_main([str(cfg), "--out", str(tmp_path / "out")])
+    msg = str(e.value)
+    assert msg.startswith("error: ") and "\n" not in msg and ".[scale]" in msg and "sweep" in msg
+
+
+def test_workers_option_is_checked():
+    with pytest.raises(SystemExit, match=r"--workers must be >= 1, got 0"):
+        evaluate_main(["--scenario", "bizup2002", "--runs", "2", "--trackers", "kf_tuned", "--workers", "0",
+                       "--no-plots", "--quiet"])
+
+
+@pytest.mark.parametrize("body, match", [
+    ("[sweep]\nsearch = 'bayes'\n[space]\nseed = [0]\n", r"search must be one of .*got 'bayes'"),
+    ("[sweep]\nalgo = 'td3'\n[space]\nseed = [0]\n", r"algo must be one of .*got 'td3'"),
+    ("[space]\nlearning_rate = {loguniform = [1e-4, 1e-3]}\n", r"learning_rate: search = 'grid' takes lists only"),
+    ("[sweep]\nsearch = 'random'\n[space]\ngamma = {uniform = [0.99, 0.9]}\n", r"gamma: uniform needs \[lo, hi\]"),
+    ("[sweep]\nnum_samples = 0\n[space]\nseed = [0]\n", r"num_samples must be an integer >= 1, got 0"),
+    ("[sweep]\nworkers = 2\n[space]\nseed = [0]\n", r"unknown \[sweep\] key\(s\) \['workers'\]"),
+    ("[sweep]\n", r"\[space\] is empty"),
+    ("[space]\nseed = [0.5]\n", r"seed must list integers"),
+])
+def test_sweep_config_errors_name_the_key(tmp_path, body, match):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(body)
+    with pytest.raises(ValueError, match=match):
+        load_sweep_config(cfg)
+
+
+def test_sweep_config_merges_base_over_the_file(tmp_path):
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(TINY_SWEEP)
+    c = load_sweep_config(cfg)
+    assert c["hp"]["eval_scenarios"] == {"random": 4}               # replaced, not merged
+    assert c["hp"]["policy_kwargs"]["activation_fn"] == "tanh"      # merged: the file's key is kept
+    assert c["hp"]["policy_kwargs"]["net_arch"] == [16, 16]
+    assert c["space"] == {"seed": [0, 1]}
+
+
+# ------------------------------------------------------------------------------------------------ on a local Ray
+@pytest.mark.skipif(not BUNDLED_POLICY.is_file(), reason="no bundled policy")
+def test_evaluation_on_two_workers_equals_the_serial_run(local_ray):
+    """Named suites (tasks draw their own episodes) and encounter pairs (episodes sent): every TrackRun array and
+    the JSON are bit-equal to the serial run, the learned policy included."""
+    suites = [("bizup2002", draw_suite("bizup2002", 4, seed=10_000_000)),
+              ("encounters", draw_suite("encounters", 1, seed=10_000_000))]
+    trackers = ["imm2", "cmin", "policy"]          # cmin: maneuver declarations (bool arrays) are padded too
+    res_s, runs_s = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False)
+    res_p, runs_p = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False, workers=2, seed=10_000_000)
+    assert json.dumps(_jsonable(res_p)) == json.dumps(_jsonable(res_s))
+    for suite in runs_s:
+        for t in trackers:
+            _assert_runs_equal(runs_p[suite][1][t], runs_s[suite][1][t])
+
+
+def test_cli_workers_json_equals_serial(local_ray, tmp_path):
+    common = ["--scenario", "kim_lee_accel", "--runs", "3", "--trackers", "imm2,kf_tuned", "--no-plots", "--quiet"]
+    evaluate_main(common + ["--json", str(tmp_path / "serial.json")])
+    evaluate_main(common + ["--json", str(tmp_path / "ray.json"), "--workers", "2"])
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("serial.json", "ray.json"))
+    a["meta"].pop("command"), b["meta"].pop("command")           # the command lines differ by --workers 2
+    assert a == b
+
+
+def test_sweep_of_two_trials_writes_its_table_and_resumes(local_ray, tmp_path):
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_SWEEP)
+    rows, exp = run_sweep(cfg, tmp_path / "out", verbose=0)
+    assert len(rows) == 2 and sorted(r["seed"] for r in rows) == [0, 1]
+    for r in rows:
+        assert r["status"] == "done" and r["error"] is None and r["timesteps"] >= 2048
+        hist = json.loads((exp / "runs" / r["trial"] / "summary.json").read_text())["selection_history"]
+        assert r["evals"] == len(hist)                              # every selection evaluation reached Tune
+        best = min(h["selection_ratio"] for h in hist)
+        assert math.isfinite(best) and r["best_selection_ratio"] == best
+        assert (exp / "runs" / r["trial"] / "best" / "policy.zip").is_file()
+    assert [r["best_selection_ratio"] for r in rows] == sorted(r["best_selection_ratio"] for r in rows)
+    assert json.loads((exp / "results.json").read_text())["trials"] == rows
+    with open(exp / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [t["trial"] for t in table] == [r["trial"] for r in rows]
+    assert [float(t["best_selection_ratio"]) for t in table] == [r["best_selection_ratio"] for r in rows]
+    # the same command again resumes: the finished trials are kept, nothing is trained again
+    mtimes = {r["trial"]: (exp / "runs" / r["trial"] / "summary.json").stat().st_mtime_ns for r in rows}
+    rows2, _ = run_sweep(cfg, tmp_path / "out", verbose=0)
+    assert rows2 == rows
+    assert mtimes == {r["trial"]: (exp / "runs" / r["trial"] / "summary.json").stat().st_mtime_ns for r in rows}
