@@ -187,7 +187,8 @@ def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_
     if common is not None:
         c = np.asarray(common, dtype=bool) & ok
         s, n = _pooled_rmse(np.where(used & c[:, None], ep, 0.0) ** 2, used & c[:, None])
-        est, (lo, hi) = _boot_rmse(s[c], n[c], rng, n_boot)
+        # the same resamples as pos_rmse_m's (fresh generator, same seed): equal intervals when no run is left out
+        est, (lo, hi) = _boot_rmse(s[c], n[c], np.random.default_rng(seed), n_boot)
         out["pos_rmse_m_common"], out["pos_rmse_m_common_ci95"] = est, [lo, hi]
         out["common_runs"], out["few_common_runs"] = int(c.sum()), int(c.sum()) < FEW_RUNS
         if not np.isfinite(est):
