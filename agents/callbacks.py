@@ -24,8 +24,8 @@ from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
-from .evaluate import model_choose_q
-from .metrics import errors, region_masks
+from .evaluate import _jsonable, model_choose_q
+from .metrics import errors, failed_runs, region_masks
 from .suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
 
 __all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
@@ -34,10 +34,14 @@ SELECTION_SEED_BASE = 900_000
 
 
 def pooled_rmse(batch, run):
-    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.metrics.evaluate_run`)."""
+    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.metrics.evaluate_run`);
+    ``inf`` if the run's estimate or covariance is non-finite at any of those looks (:func:`agents.metrics.failed_runs`),
+    so a policy whose estimate went NaN never scores better than one that tracked."""
     used = region_masks(batch, run.start_index)["used"]
+    if failed_runs(batch, run, used).any():
+        return np.inf
     ep, _ = errors(batch, run)
-    return float(np.sqrt(np.mean(np.nan_to_num(ep[used]) ** 2)))
+    return float(np.sqrt(np.mean(ep[used] ** 2)))
 
 
 class ImmRatioEvalCallback(BaseCallback):
@@ -100,7 +104,9 @@ class ImmRatioEvalCallback(BaseCallback):
         for name, (eps, batch, imm_rmse) in self.suites.items():
             run = run_q_policy(eps, choose_q, "policy", self.cfg)
             rmse = pooled_rmse(batch, run)
-            ratio = rmse / imm_rmse
+            # inf if the policy (or imm2) failed on a run: never the best (rmse / inf would read as 0)
+            ratio = rmse / imm_rmse if np.isfinite(rmse) and np.isfinite(imm_rmse) else np.inf
+            row[f"{name}_failed_runs"] = int(failed_runs(batch, run).sum())
             row[f"{name}_rmse_m"], row[f"{name}_ratio_imm2"] = rmse, ratio
             tag = "" if name == self.primary else f"_{name}"
             self.logger.record(f"eval/rmse_ratio_imm2{tag}", ratio)
@@ -120,7 +126,7 @@ class ImmRatioEvalCallback(BaseCallback):
                 self.best_dir.mkdir(parents=True, exist_ok=True)
                 self.model.save(self.best_dir / "policy.zip")
                 (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
-                (self.best_dir / "selection.json").write_text(json.dumps(row, indent=1))
+                (self.best_dir / "selection.json").write_text(json.dumps(_jsonable(row), indent=1))
         row["best"] = bool(improved)
         self.history.append(row)
         if self.on_row is not None:

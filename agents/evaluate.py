@@ -12,6 +12,7 @@ and the papers' named scenarios).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -27,7 +28,7 @@ from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
 from .downstream import intercept_metrics, warning_metrics
-from .metrics import evaluate_run, ratio_ci
+from .metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, ratio_ci
 from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
 
 __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLICY"]
@@ -91,7 +92,8 @@ def model_choose_q(model, cfg: EnvConfig):
 
 
 # ------------------------------------------------------------------------------------------------ evaluation
-def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None):
+def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
+             common_over=None):
     """Run ``trackers`` on every suite.
 
     Args:
@@ -101,15 +103,23 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
             the named suites themselves).
+        common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
+            (:func:`agents.metrics.common_runs`); default: all ``trackers``.
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
-        ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]``; ``runs[suite]`` = ``(batch, {name: TrackRun})``.
+        ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
+        ``"ratio_vs_" + reference + "_runs"``), ``..._common`` the same over the suite's ``common_runs``;
+        ``runs[suite]`` = ``(batch, {name: TrackRun})``.
     """
     choose_q = pol_cfg = None
     if "policy" in trackers:
         if policy_path is None:
             raise ValueError("tracker 'policy' needs a policy file (--policy PATH); none bundled")
         choose_q, pol_cfg = load_policy(policy_path)
+    common_over = list(trackers if common_over is None else common_over)
+    bad = [t for t in common_over if t not in trackers]
+    if bad:
+        raise ValueError(f"common_over names {bad}, which are not among the trackers {list(trackers)}")
     jobs = [(s, t) for s, _ in suites for t in trackers]
     bar = _progress(len(jobs), progress)
     results, runs = {}, {}
@@ -127,20 +137,67 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             else:
                 suite_runs[t] = run_tracker(t, episodes)
             bar(f"{suite}: {t} ({time.time() - t0:.1f} s)")
-        res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()), "trackers": {}}
+        common = common_runs(batch, [suite_runs[t] for t in common_over])
+        n_common = int(common.sum())
+        res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()),
+               "few_runs": len(episodes) < FEW_RUNS, "common_runs": n_common, "few_common_runs": n_common < FEW_RUNS,
+               "common_trackers": common_over, "trackers": {}}
         for t, r in suite_runs.items():
-            res["trackers"][t] = evaluate_run(batch, r)
-            if suite == "encounters":
-                res["trackers"][t].update(warning_metrics(batch, r))
-            else:
-                res["trackers"][t].update(intercept_metrics(batch, r))
+            m = evaluate_run(batch, r, common=common)
+            m.update(_downstream(suite, episodes, batch, r))
+            _note_undefined(m)
+            res["trackers"][t] = m
         if reference in suite_runs:
+            ref = suite_runs[reference]
+            ref_ok = ~failed_runs(batch, ref)
             res[f"ratio_vs_{reference}"] = {
-                t: list(_pair(ratio_ci(batch, r, suite_runs[reference]))) for t, r in suite_runs.items()}
+                t: list(_pair(ratio_ci(batch, r, ref))) for t, r in suite_runs.items()}
+            res[f"ratio_vs_{reference}_runs"] = {
+                t: int((ref_ok & ~failed_runs(batch, r)).sum()) for t, r in suite_runs.items()}
+            res[f"ratio_vs_{reference}_common"] = {
+                t: list(_pair(ratio_ci(batch, r, ref, runs=common))) for t, r in suite_runs.items()}
         results[suite] = res
         runs[suite] = (batch, suite_runs)
     bar(None)
     return results, runs
+
+
+def _downstream(suite, episodes, batch, run):
+    """Conflict warnings (``encounters``) or intercepts (other suites) over the runs the tracker did not fail (an
+    encounter pair goes with either of its runs); ``downstream_runs`` counts them."""
+    fn = warning_metrics if suite == "encounters" else intercept_metrics
+    keep = ~failed_runs(batch, run)
+    if suite == "encounters":
+        keep = np.repeat(keep.reshape(-1, 2).all(axis=1), 2)
+    if keep.all() or not keep.any():          # nothing to leave out, or nothing left (the values are then NaN)
+        return {**fn(batch, run), "downstream_runs": int(keep.sum())}
+    rows = np.flatnonzero(keep)
+    sub = stack_episodes([episodes[i] for i in rows])
+    return {**fn(sub, _take_rows(run, rows, sub.valid.shape[1])), "downstream_runs": int(rows.size)}
+
+
+def _take_rows(run, rows, K):
+    """The TrackRun of the episodes ``rows`` only, padded to ``K`` looks like a batch of just those episodes."""
+    return dataclasses.replace(
+        run, x=run.x[rows, :K], P=run.P[rows, :K], start_index=run.start_index[rows], q_m_s2=run.q_m_s2[rows, :K],
+        declared=None if run.declared is None else run.declared[rows, :K],
+        extra={k: v[rows, :K] for k, v in run.extra.items()})
+
+
+def _note_undefined(m):
+    """Give every non-finite value of a metrics dict a reason in ``m["undefined"]`` (the JSON writes it as null)."""
+    und = m.setdefault("undefined", {})
+    for k, v in m.items():
+        if k != "undefined" and k not in und and not _finite(v):
+            und[k] = f"not finite ({v!r}; {m.get('failed_runs', 0)} failed runs)"
+
+
+def _finite(v):
+    if isinstance(v, (list, tuple)):
+        return all(_finite(x) for x in v)
+    if isinstance(v, (float, np.floating)):
+        return bool(np.isfinite(v))
+    return True
 
 
 def _pair(rc):
@@ -176,29 +233,54 @@ def _progress(total, enabled):
 
 # ------------------------------------------------------------------------------------------------ output
 def format_table(results, reference="imm2"):
-    """Plain-text table: one block per suite, one row per tracker."""
+    """Plain-text table: one block per suite, one row per tracker.
+
+    ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``common`` over the suite's
+    common runs (no compared tracker lost or failed them); the ratio columns are paired over the runs neither
+    tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs."""
     lines = []
-    cols = ("pos RMSE m [95% CI]", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES", "in95",
-            "lost", f"/{reference} [95% CI]")
+    head = ("tracker", "pos RMSE m [95% CI]", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
+            "in95", "lost", "failed", "common RMSE m [95% CI]", f"/{reference} all [95% CI]",
+            f"/{reference} common [95% CI]")
+    widths = (20, 30, 9, 8, 9, 8, 8, 6, 5, 5, 6, 30, 28, 28)
     for suite, res in results.items():
-        lines.append(f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run ==")
-        lines.append(f"{'tracker':20s} {cols[0]:>24s} {cols[1]:>9s} {cols[2]:>8s} {cols[3]:>9s} {cols[4]:>8s} "
-                     f"{cols[5]:>8s} {cols[6]:>6s} {cols[7]:>5s} {cols[8]:>5s} {cols[9]:>22s}")
+        n_common = res.get("common_runs")
+        lines.append(f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run"
+                     + ("" if n_common is None else f"; {n_common} common runs (no tracker lost or failed them)")
+                     + (f"; (n<{FEW_RUNS}): fewer than {FEW_RUNS} runs, the intervals are no evidence"
+                        if res["runs"] < FEW_RUNS else "") + " ==")
+        lines.append(" ".join(f"{h:{'<' if i == 0 else '>'}{w}s}" for i, (h, w) in enumerate(zip(head, widths))))
         ratios = res.get(f"ratio_vs_{reference}", {})
+        ratio_runs = res.get(f"ratio_vs_{reference}_runs", {})
+        ratios_c = res.get(f"ratio_vs_{reference}_common", {})
         for t, m in res["trackers"].items():
-            lo, hi = m["pos_rmse_m_ci95"]
-            rr = ratios.get(t)
-            rtxt = f"{rr[0]:.3f} [{rr[1][0]:.3f},{rr[1][1]:.3f}]" if rr else ""
-            lines.append(
-                f"{t:20s} {m['pos_rmse_m']:9.1f} [{lo:6.1f},{hi:6.1f}] {_f(m['pos_rmse_m_maneuver'], 9)} "
-                f"{_f(m['pos_rmse_m_after'], 8)} {_f(m['pos_rmse_m_straight'], 9)} {m['vel_rmse_m_s']:8.2f} "
-                f"{m['peak_pos_err_m']:8.0f} {m['anees']:6.2f} {m['nees_in_95']:5.2f} {m['track_loss_rate']:5.2f} "
-                f"{rtxt:>22s}")
+            rr, rc = ratios.get(t), ratios_c.get(t)
+            cells = (
+                t,
+                _f_ci(m["pos_rmse_m"], m["pos_rmse_m_ci95"], m.get("runs_scored", res["runs"]), 1),
+                _f(m["pos_rmse_m_maneuver"], 9), _f(m["pos_rmse_m_after"], 8), _f(m["pos_rmse_m_straight"], 9),
+                _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _f(m["anees"], 6, 2),
+                _f(m["nees_in_95"], 5, 2), _f(m["track_loss_rate"], 5, 2), str(m.get("failed_runs", "-")),
+                _f_ci(m["pos_rmse_m_common"], m["pos_rmse_m_common_ci95"], m["common_runs"], 1)
+                if "pos_rmse_m_common" in m else "-",
+                _f_ci(rr[0], rr[1], ratio_runs.get(t, res["runs"]), 3) if rr else "",
+                _f_ci(rc[0], rc[1], n_common, 3) if rc else "")
+            lines.append(" ".join(f"{c:{'<' if i == 0 else '>'}{w}s}" for i, (c, w) in enumerate(zip(cells, widths))))
     return "\n".join(lines)
 
 
-def _f(v, w):
-    return f"{v:{w}.1f}" if v is not None and np.isfinite(v) else f"{'-':>{w}s}"
+def _f(v, w, nd=1):
+    """``v`` with ``nd`` decimals right-aligned in ``w`` characters, '-' if None or not finite."""
+    return f"{v:{w}.{nd}f}" if v is not None and np.isfinite(v) else f"{'-':>{w}s}"
+
+
+def _f_ci(est, ci, n, nd):
+    """``est [lo,hi]`` and ``(n<20)`` if the interval comes from fewer than ``FEW_RUNS`` runs; '-' if undefined."""
+    if est is None or not np.isfinite(est):
+        return "-"
+    lo, hi = ci
+    txt = f"{est:.{nd}f} [{_f(lo, 0, nd).strip()},{_f(hi, 0, nd).strip()}]"
+    return txt + (f" (n<{FEW_RUNS})" if n is not None and n < FEW_RUNS else "")
 
 
 def write_plots(runs, out_dir):
@@ -215,14 +297,20 @@ def write_plots(runs, out_dir):
 
 
 def _jsonable(o):
+    """``o`` with numpy scalars as Python numbers and every NaN or Inf as None (the metrics dicts say why in
+    ``undefined``), so ``json.dumps(..., allow_nan=False)`` accepts it."""
     if isinstance(o, dict):
         return {k: _jsonable(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [_jsonable(v) for v in o]
     if isinstance(o, (float, np.floating)):
         return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.bool_):
+        return bool(o)
     if isinstance(o, np.integer):
         return int(o)
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
     return o
 
 

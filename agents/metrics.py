@@ -7,21 +7,42 @@ They are split by the truth into
 * ``after``: not maneuvering, within ``after_window_s`` (default 60 s) after a maneuver ended (convergence back);
 * ``straight``: the rest.
 
+Failed and lost runs (a NaN or Inf estimate is never a zero error):
+
+* a run is **failed** for a tracker (:func:`failed_runs`) when its estimate ``x`` or covariance ``P`` is not finite
+  at some used look (or an error exceeds ``MAX_ERROR_M`` = 1e100 m, whose squares would overflow the pooled sums).
+  Failed runs are left out of that tracker's pooled metrics and counted: ``failed_runs``, ``failed_rate``,
+  ``runs_scored`` (= runs - failed runs);
+* a run is **lost** (:func:`lost_runs`) when it failed or its normalised position error ever exceeds the env's
+  track-loss gate (30 sigma of the plot noise); ``track_loss_rate`` = lost runs / runs, ``lost_runs`` the count;
+* the **common** runs of a suite (:func:`common_runs`) are those no compared tracker lost (nor failed):
+  ``pos_rmse_m_common`` (with its interval) is taken over exactly those runs for every tracker, so two trackers are
+  compared on the same runs; ``common_runs`` counts them. ``pos_rmse_m`` stays the pooled RMSE over all runs the
+  tracker did not fail (lost runs included, so one divergence can dominate it).
+
 Per tracker (all computed here from the arrays, none typed in):
 
-* ``pos_rmse_m`` / ``vel_rmse_m_s`` overall and per region (pooled over runs and looks), with a 95% bootstrap
-  confidence interval over runs (runs resampled with replacement, ``n_boot`` = 2000, fixed seed);
-* ``peak_pos_err_m``: mean over runs of the largest position error of the run;
+* ``pos_rmse_m`` / ``vel_rmse_m_s`` overall and per region (pooled over scored runs and looks), with a 95%
+  bootstrap confidence interval over runs (runs resampled with replacement, ``n_boot`` = 2000, fixed seed);
+* ``peak_pos_err_m``: mean over scored runs of the largest position error of the run;
 * ``anees``: mean over looks of NEES / 4 (1 for a consistent filter), ``nees_in_95``: fraction of looks with
-  NEES <= chi2_4(0.95) = 9.49 (0.95 for a consistent filter);
-* ``track_loss_rate``: fraction of runs whose normalised position error ever exceeds the env's track-loss gate;
+  NEES <= chi2_4(0.95) = 9.49 (0.95 for a consistent filter). A look whose P is not positive definite (or whose NEES
+  is not finite) has no NEES: it is left out of ``anees``, counted as outside the bound in ``nees_in_95`` and
+  counted in ``nees_invalid_looks``; it never raises;
+* ``track_loss_rate`` (above);
 * ``npe``: Kim & Lee's normalised position error, RMS position error / RMS plot error (detected looks);
 * for trackers that declare maneuvers: ``detection_delay_looks`` (mean looks from a maneuver's first look to the
   first declaration within the maneuver or the window after it), ``missed_maneuvers`` (fraction never declared),
   ``false_alarm_rate`` (declarations per look on straight legs).
 
+Intervals from fewer than ``FEW_RUNS`` = 20 runs are flagged (``few_runs``, ``few_common_runs``): the tables print
+``(n<20)`` beside them, as a handful of runs is no evidence whatever the interval says. A value that is not defined
+(no looks in a region, every run failed, no common run) is NaN here and its reason is in ``undefined``
+(``{key: reason}``); the JSON writes it as null.
+
 :func:`ratio_ci` gives the ratio of two trackers' pooled RMSE with a paired bootstrap interval over runs (same
-runs resampled for both), so that "A beats B" is said only when the interval excludes 1.
+runs resampled for both), over the runs neither failed (or a given subset, e.g. the common runs), so that
+"A beats B" is said only when the interval excludes 1.
 """
 
 from __future__ import annotations
@@ -31,9 +52,12 @@ from scipy.stats import chi2
 
 from radar_env.observation import measurement_sigma_m
 
-__all__ = ["region_masks", "evaluate_run", "ratio_ci", "NEES_95_4DOF"]
+__all__ = ["region_masks", "evaluate_run", "ratio_ci", "failed_runs", "lost_runs", "common_runs", "errors",
+           "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M"]
 
 NEES_95_4DOF = float(chi2.ppf(0.95, 4))
+FEW_RUNS = 20
+MAX_ERROR_M = 1e100
 
 
 def region_masks(batch, start_index, after_window_s=60.0):
@@ -74,38 +98,108 @@ def errors(batch, run):
     return np.hypot(d[..., 0], d[..., 1]), np.hypot(d[..., 2], d[..., 3])
 
 
-def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_boot=2000, seed=0):
-    """All metrics of one tracker on one suite, as a flat dict of floats (see module docstring)."""
+def failed_runs(batch, run, used=None):
+    """(B,) bool: the run's estimate or covariance is not finite at some used look (looks >= ``start_index``, valid),
+    or an error exceeds ``MAX_ERROR_M``. ``used``: the (B, K) mask of :func:`region_masks` if already computed."""
+    if used is None:
+        used = region_masks(batch, run.start_index)["used"]
+    ep, ev = errors(batch, run)
+    finite = np.isfinite(run.x).all(axis=-1) & np.isfinite(run.P).all(axis=(-2, -1))
+    bad = ~finite | ~(ep <= MAX_ERROR_M) | ~(ev <= MAX_ERROR_M)   # NaN compares False: caught here too
+    return np.any(used & bad, axis=1)
+
+
+def lost_runs(batch, run, track_loss_gate_sigma=30.0, used=None, failed=None):
+    """(B,) bool: the run failed (:func:`failed_runs`) or its position error exceeds ``track_loss_gate_sigma`` times
+    the plot noise (:func:`radar_env.observation.measurement_sigma_m` at the true range) at some used look."""
+    if used is None:
+        used = region_masks(batch, run.start_index)["used"]
+    if failed is None:
+        failed = failed_runs(batch, run, used)
+    ep, _ = errors(batch, run)
+    r = np.hypot(batch.truth[..., 0] - batch.site_xy_m[..., 0], batch.truth[..., 1] - batch.site_xy_m[..., 1])
+    sig = measurement_sigma_m(r, batch.range_noise_std_m, batch.bearing_noise_std_rad)
+    return failed | np.any(used & (ep / sig > track_loss_gate_sigma), axis=1)
+
+
+def common_runs(batch, runs, track_loss_gate_sigma=30.0):
+    """(B,) bool: the runs that none of ``runs`` (iterable of :class:`TrackRun`) lost or failed."""
+    common = np.ones(batch.valid.shape[0], dtype=bool)
+    for run in runs:
+        common &= ~lost_runs(batch, run, track_loss_gate_sigma)
+    return common
+
+
+def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_boot=2000, seed=0, common=None):
+    """All metrics of one tracker on one suite, as a flat dict (see module docstring).
+
+    Args:
+        common: optional (B,) bool mask of the suite's common runs (:func:`common_runs`); adds
+            ``pos_rmse_m_common``, ``pos_rmse_m_common_ci95``, ``common_runs`` and ``few_common_runs``.
+    """
     rng = np.random.default_rng(seed)
     masks = region_masks(batch, run.start_index, after_window_s)
     used = masks["used"]
     ep, ev = errors(batch, run)
-    out = {"runs": int(batch.valid.shape[0]), "looks": int(used.sum())}
+    failed = failed_runs(batch, run, used)
+    ok = ~failed
+    n_ok = int(ok.sum())
+    B = int(batch.valid.shape[0])
+    out = {"runs": B, "looks": int(used.sum()), "failed_runs": B - n_ok, "failed_rate": (B - n_ok) / B,
+           "runs_scored": n_ok, "few_runs": n_ok < FEW_RUNS}
+    undefined = {}
+    no_runs = f"all {B} runs failed (non-finite estimate or covariance)"
     for region, m in masks.items():
         key = "" if region == "used" else f"_{region}"
+        m = m & ok[:, None]
         for name, e in (("pos_rmse_m", ep), ("vel_rmse_m_s", ev)):
-            s, n = _pooled_rmse(np.nan_to_num(e) ** 2, m)
-            est, (lo, hi) = _boot_rmse(s, n, rng, n_boot)
+            s, n = _pooled_rmse(np.where(m, e, 0.0) ** 2, m)
+            est, (lo, hi) = _boot_rmse(s[ok], n[ok], rng, n_boot)
             out[f"{name}{key}"], out[f"{name}{key}_ci95"] = est, [lo, hi]
-    out["peak_pos_err_m"] = float(np.mean(np.max(np.where(used, ep, 0.0), axis=1)))
-    # NEES (4 dof)
-    d = run.x - batch.truth
-    P = np.where(used[..., None, None], run.P, np.eye(4))
-    sol = np.linalg.solve(P, np.where(used[..., None], d, 0.0)[..., None])[..., 0]
-    nees = np.einsum("bki,bki->bk", np.where(used[..., None], d, 0.0), sol)
-    out["anees"] = float(nees[used].mean() / 4.0)
-    out["nees_in_95"] = float((nees[used] <= NEES_95_4DOF).mean())
-    # track loss: normalised error beyond the env's gate at any used look
-    r = np.hypot(batch.truth[..., 0] - batch.site_xy_m[..., 0], batch.truth[..., 1] - batch.site_xy_m[..., 1])
-    sig = measurement_sigma_m(r, batch.range_noise_std_m, batch.bearing_noise_std_rad)
-    lost = np.any(used & (ep / sig > track_loss_gate_sigma), axis=1)
+            if not np.isfinite(est):
+                undefined[f"{name}{key}"] = undefined[f"{name}{key}_ci95"] = (
+                    no_runs if n_ok == 0 else f"no looks in region '{region}'")
+    peak = np.max(np.where(used & ok[:, None], ep, 0.0), axis=1)[ok]
+    out["peak_pos_err_m"] = float(np.mean(peak)) if n_ok else np.nan
+    # NEES (4 dof) at the used looks of the scored runs; a P that is not positive definite has none (no solve)
+    cand = used & ok[:, None]
+    d, P = (run.x - batch.truth)[cand], run.P[cand]
+    pd = np.linalg.eigvalsh(P)[:, 0] > 0 if P.shape[0] else np.zeros(0, dtype=bool)
+    sol = np.linalg.solve(P[pd], d[pd][..., None])[..., 0]
+    nees = np.einsum("ni,ni->n", d[pd], sol)
+    nees = nees[np.isfinite(nees)]
+    out["nees_invalid_looks"] = int(cand.sum() - nees.size)
+    out["anees"] = float(nees.mean() / 4.0) if nees.size else np.nan
+    out["nees_in_95"] = float((nees <= NEES_95_4DOF).sum() / cand.sum()) if cand.any() else np.nan
+    if not nees.size:
+        undefined["anees"] = no_runs if n_ok == 0 else "no look with a positive-definite covariance"
+    # track loss: failed, or normalised error beyond the env's gate at any used look
+    lost = lost_runs(batch, run, track_loss_gate_sigma, used, failed)
     out["track_loss_rate"] = float(lost.mean())
+    out["lost_runs"] = int(lost.sum())
     # Kim & Lee NPE
-    det = used & batch.detected
+    det = cand & batch.detected
     ez = np.hypot(*(np.nan_to_num(batch.z_m) - batch.truth[..., :2]).transpose(2, 0, 1))
-    out["npe"] = float(np.sqrt(np.mean(ep[used] ** 2)) / np.sqrt(np.mean(ez[det] ** 2))) if det.any() else np.nan
+    out["npe"] = float(np.sqrt(np.mean(ep[cand] ** 2)) / np.sqrt(np.mean(ez[det] ** 2))) if det.any() else np.nan
     if run.declared is not None:
-        out.update(detection_stats(batch, run.declared, masks, after_window_s))
+        out.update(detection_stats(batch, run.declared, {k: v & ok[:, None] for k, v in masks.items()},
+                                   after_window_s))
+    if common is not None:
+        c = np.asarray(common, dtype=bool) & ok
+        s, n = _pooled_rmse(np.where(used & c[:, None], ep, 0.0) ** 2, used & c[:, None])
+        # the same resamples as pos_rmse_m's (fresh generator, same seed): equal intervals when no run is left out
+        est, (lo, hi) = _boot_rmse(s[c], n[c], np.random.default_rng(seed), n_boot)
+        out["pos_rmse_m_common"], out["pos_rmse_m_common_ci95"] = est, [lo, hi]
+        out["common_runs"], out["few_common_runs"] = int(c.sum()), int(c.sum()) < FEW_RUNS
+        if not np.isfinite(est):
+            undefined["pos_rmse_m_common"] = undefined["pos_rmse_m_common_ci95"] = (
+                "no common run (every run was lost or failed by some tracker)")
+    why = {"npe": "no detected look", "detection_delay_looks": "no maneuver declared in time (or no maneuver)",
+           "missed_maneuvers": "no maneuver", "false_alarm_rate": "no straight look"}
+    for k, v in out.items():         # whatever is left undefined: say which key and why
+        if isinstance(v, float) and not np.isfinite(v) and k not in undefined:
+            undefined[k] = no_runs if n_ok == 0 else why.get(k, "not finite")
+    out["undefined"] = undefined
     return out
 
 
@@ -137,14 +231,22 @@ def detection_stats(batch, declared, masks, after_window_s=60.0):
     }
 
 
-def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_window_s=60.0):
-    """Pooled position RMSE of ``run_a`` / ``run_b`` over the looks both use, with a paired 95% bootstrap CI."""
+def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_window_s=60.0, runs=None):
+    """Pooled position RMSE of ``run_a`` / ``run_b`` over the looks both use, with a paired 95% bootstrap CI.
+
+    Pooled over the runs neither tracker failed (:func:`failed_runs`), restricted to ``runs`` ((B,) bool, e.g. the
+    common runs) if given. Returns ``(ratio, (lo, hi))``, NaN if no run is left."""
     rng = np.random.default_rng(seed)
     ma = region_masks(batch, np.maximum(run_a.start_index, run_b.start_index), after_window_s)[region]
+    sel = ~failed_runs(batch, run_a) & ~failed_runs(batch, run_b)
+    if runs is not None:
+        sel &= np.asarray(runs, dtype=bool)
+    ma = ma & sel[:, None]
     ea, _ = errors(batch, run_a)
     eb, _ = errors(batch, run_b)
-    sa, n = _pooled_rmse(np.nan_to_num(ea) ** 2, ma)
-    sb, _ = _pooled_rmse(np.nan_to_num(eb) ** 2, ma)
+    sa, n = _pooled_rmse(np.where(ma, ea, 0.0) ** 2, ma)
+    sb, _ = _pooled_rmse(np.where(ma, eb, 0.0) ** 2, ma)
+    sa, sb, n = sa[sel], sb[sel], n[sel]
     if n.sum() == 0 or sb.sum() == 0:
         return np.nan, (np.nan, np.nan)
     est = np.sqrt(sa.sum() / sb.sum())

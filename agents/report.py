@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .evaluate import BUNDLED_POLICY, DEFAULT_RUNS, _jsonable, evaluate
+from .metrics import FEW_RUNS
 from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
 
 __all__ = ["main", "markdown_tables"]
@@ -29,22 +30,43 @@ def _fmt(v, nd=1):
     return "-" if v is None or not np.isfinite(v) else f"{v:.{nd}f}"
 
 
+def _ci(est, ci, n, nd=1):
+    """``est [lo, hi]``, with ``(n<20)`` if the interval comes from fewer than ``FEW_RUNS`` runs; '-' if undefined."""
+    if est is None or not np.isfinite(est):
+        return "-"
+    few = f" (n<{FEW_RUNS})" if n is not None and n < FEW_RUNS else ""
+    return f"{est:.{nd}f} [{_fmt(ci[0], nd)}, {_fmt(ci[1], nd)}]{few}"
+
+
 def markdown_tables(results, reference="imm2"):
-    out = []
+    """Markdown: one table per suite, one row per tracker (every metric of :mod:`agents.metrics` the README shows)."""
+    out = [f"Columns: *pos RMSE* pooled over the runs the tracker did not fail (its lost runs included); *lost* = "
+           f"fraction of runs whose error passed the 30-sigma gate or went non-finite; *failed* = runs with a "
+           f"non-finite estimate or covariance (left out of that tracker's other metrics); *common RMSE* over the "
+           f"suite's common runs (no tracker of the table lost or failed them), the same runs for every tracker; "
+           f"*RMSE / {reference}, all* paired over the runs neither failed, *common* over the common runs. "
+           f"(n<{FEW_RUNS}) marks an interval from fewer than {FEW_RUNS} runs: no evidence either way.", ""]
     for suite, res in results.items():
-        out += [f"### {suite} ({res['runs']} runs, {res['looks_per_run_mean']:.0f} looks per run)", "",
+        n_common = res.get("common_runs")
+        out += [f"### {suite} ({res['runs']} runs, {res['looks_per_run_mean']:.0f} looks per run"
+                + ("" if n_common is None else f", {n_common} common runs") + ")", "",
                 "| tracker | pos RMSE m [95% CI] | maneuver | after | straight | vel RMSE m/s | peak m | ANEES | "
-                f"NEES in 95% | lost | RMSE / {reference} [95% CI] | delay (looks) | false alarms / look |",
-                "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                f"NEES in 95% | lost | failed | common RMSE m [95% CI] | RMSE / {reference}, all [95% CI] | "
+                f"RMSE / {reference}, common [95% CI] | delay (looks) | false alarms / look |",
+                "|---" * 16 + "|"]
         ratios = res.get(f"ratio_vs_{reference}", {})
+        ratio_runs = res.get(f"ratio_vs_{reference}_runs", {})
+        ratios_c = res.get(f"ratio_vs_{reference}_common", {})
         for t, m in res["trackers"].items():
-            r = ratios.get(t)
-            rt = f"{r[0]:.3f} [{r[1][0]:.3f}, {r[1][1]:.3f}]" if r else "-"
+            r, rc = ratios.get(t), ratios_c.get(t)
             out.append(
-                f"| {t} | {m['pos_rmse_m']:.1f} [{m['pos_rmse_m_ci95'][0]:.1f}, {m['pos_rmse_m_ci95'][1]:.1f}] | "
+                f"| {t} | {_ci(m['pos_rmse_m'], m['pos_rmse_m_ci95'], m.get('runs_scored', res['runs']))} | "
                 f"{_fmt(m['pos_rmse_m_maneuver'])} | {_fmt(m['pos_rmse_m_after'])} | {_fmt(m['pos_rmse_m_straight'])} | "
-                f"{m['vel_rmse_m_s']:.2f} | {m['peak_pos_err_m']:.0f} | {m['anees']:.2f} | {m['nees_in_95']:.2f} | "
-                f"{m['track_loss_rate']:.2f} | {rt} | {_fmt(m.get('detection_delay_looks'), 2)} | "
+                f"{_fmt(m['vel_rmse_m_s'], 2)} | {_fmt(m['peak_pos_err_m'], 0)} | {_fmt(m['anees'], 2)} | "
+                f"{_fmt(m['nees_in_95'], 2)} | {_fmt(m['track_loss_rate'], 2)} | {m.get('failed_runs', '-')} | "
+                f"{_ci(m.get('pos_rmse_m_common'), m.get('pos_rmse_m_common_ci95'), n_common)} | "
+                f"{_ci(r[0], r[1], ratio_runs.get(t, res['runs']), 3) if r else '-'} | "
+                f"{_ci(rc[0], rc[1], n_common, 3) if rc else '-'} | {_fmt(m.get('detection_delay_looks'), 2)} | "
                 f"{_fmt(m.get('false_alarm_rate'), 3)} |")
         out.append("")
     return "\n".join(out)
@@ -54,7 +76,9 @@ HEADLINE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "oracle
 
 
 def headline(results, has_policy):
-    """Compact table for the README: position RMSE (m) and ratio to imm2 with 95% CIs, per suite."""
+    """Compact table for the README: position RMSE (m) pooled over the runs each tracker did not fail, and its ratio
+    to imm2 paired over the runs neither failed, with 95% CIs, per suite; ``(n<20)`` beside an interval from fewer
+    than 20 runs, ``lost x%`` where the tracker lost (or failed) runs."""
     names = [t for t in HEADLINE_TRACKERS if t != "policy" or has_policy]
     lines = ["| suite | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for suite, res in results.items():
@@ -64,10 +88,13 @@ def headline(results, has_policy):
             r = res.get("ratio_vs_imm2", {}).get(t)
             if m is None:
                 cells.append("-")
-            elif t == "imm2" or r is None:
-                cells.append(f"{m['pos_rmse_m']:.0f}")
-            else:
-                cells.append(f"{m['pos_rmse_m']:.0f} ({r[0]:.2f} [{r[1][0]:.2f}, {r[1][1]:.2f}])")
+                continue
+            cell = _fmt(m["pos_rmse_m"], 0)
+            if t != "imm2" and r is not None:
+                cell += f" ({_ci(r[0], r[1], res.get('ratio_vs_imm2_runs', {}).get(t, res['runs']), 2)})"
+            if m["track_loss_rate"]:
+                cell += f", lost {100 * m['track_loss_rate']:.0f}%"
+            cells.append(cell)
         lines.append(f"| {suite} ({res['runs']} runs) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -99,8 +126,9 @@ def downstream_tables(results, trackers):
 
 
 def per_flight_table(batch, suite_runs, trackers, reference="imm2"):
-    """Markdown: position RMSE per ADS-B flight, ratio to the reference, and where each loses most."""
-    from .metrics import errors, region_masks
+    """Markdown: position RMSE per ADS-B flight, ratio to the reference, and where each loses most ('failed' where
+    the tracker's estimate or covariance went non-finite on the flight)."""
+    from .metrics import errors, failed_runs, region_masks
     names = [t for t in trackers if t in suite_runs]
     out = ["| flight | looks | maneuvering % | " + " | ".join(f"{t} m" for t in names) + " |",
            "|---" * (len(names) + 3) + "|"]
@@ -110,7 +138,8 @@ def per_flight_table(batch, suite_runs, trackers, reference="imm2"):
             run = suite_runs[t]
             used = region_masks(batch, run.start_index)["used"][b]
             e, _ = errors(batch, run)
-            cells.append(f"{np.sqrt(np.mean(e[b][used] ** 2)):.0f}")
+            failed = failed_runs(batch, run)[b]
+            cells.append("failed" if failed else f"{np.sqrt(np.mean(e[b][used] ** 2)):.0f}")
         used0 = region_masks(batch, suite_runs[names[0]].start_index)["used"][b]
         out.append(f"| {flight} | {int(used0.sum())} | {100 * batch.maneuvering[b][used0].mean():.0f} | "
                    + " | ".join(cells) + " |")

@@ -1,0 +1,203 @@
+"""Scoring: a NaN or Inf estimate is a failed run, never a zero error; losses, common runs, few-run flags, no NaN
+in tables or JSON; the training callback never prefers a policy whose estimate went NaN (issue 15, scoring)."""
+
+import copy
+import json
+
+import numpy as np
+import pytest
+
+import agents.evaluate as ev
+from agents.callbacks import pooled_rmse
+from agents.evaluate import _jsonable, evaluate, format_table
+from agents.metrics import FEW_RUNS, NEES_95_4DOF, evaluate_run, failed_runs, lost_runs, ratio_ci, region_masks
+from agents.report import headline, markdown_tables
+from agents.suites import draw_suite
+from baselines.registry import run_tracker
+from radar_env.episode import stack_episodes
+
+TRACKERS = ("imm2", "kf_tuned", "cmin")
+
+
+@pytest.fixture(scope="module")
+def suite():
+    eps = draw_suite("bizup2002", 3)
+    batch = stack_episodes(eps)
+    return eps, batch, {t: run_tracker(t, eps) for t in TRACKERS}
+
+
+def _corrupt(run, row, fn):
+    """A deep copy of ``run`` with ``fn(copy, row, k)`` applied at the used looks k >= the middle of run ``row``."""
+    bad = copy.deepcopy(run)
+    k0 = int(run.start_index[row])
+    k = np.arange(k0 + 10, bad.x.shape[1])
+    fn(bad, row, k)
+    return bad
+
+
+def _subset(batch, run, rows):
+    """The batch and the run restricted to ``rows`` (same padding: bizup2002 runs all have the same length)."""
+    sub = type(batch)(**{f: (getattr(batch, f)[rows] if isinstance(getattr(batch, f), np.ndarray)
+                             else tuple(np.asarray(getattr(batch, f))[rows]))
+                         for f in batch.__dataclass_fields__})
+    r = copy.deepcopy(run)
+    r.x, r.P, r.start_index, r.q_m_s2 = run.x[rows], run.P[rows], run.start_index[rows], run.q_m_s2[rows]
+    r.declared = None if run.declared is None else run.declared[rows]
+    return sub, r
+
+
+def _rmse_over(batch, run, rows):
+    used = region_masks(batch, run.start_index)["used"]
+    d = run.x - batch.truth
+    e2 = d[..., 0] ** 2 + d[..., 1] ** 2
+    return float(np.sqrt(e2[rows][used[rows]].mean()))
+
+
+def _with(monkeypatch, corrupted):
+    """Make :func:`agents.evaluate.evaluate` run the given (corrupted) TrackRuns instead of the real trackers."""
+    real = ev.run_tracker
+    monkeypatch.setattr(ev, "run_tracker", lambda name, eps: corrupted.get(name) or real(name, eps))
+
+
+def test_nan_estimate_is_a_failed_run_excluded_not_zero_error(suite, monkeypatch):
+    eps, batch, runs = suite
+    bad = _corrupt(runs["kf_tuned"], 1, lambda r, b, k: r.x.__setitem__((b, k), np.nan))
+    m = evaluate_run(batch, bad, n_boot=200)
+    assert m["failed_runs"] == 1 and m["runs_scored"] == 2 and m["failed_rate"] == pytest.approx(1 / 3)
+    assert m["lost_runs"] >= 1 and m["track_loss_rate"] >= 1 / 3       # a NaN estimate is a lost track
+    # the pooled metrics are those of the two other runs alone (not the NaN looks counted as zero error)
+    sub_b, sub_r = _subset(batch, bad, [0, 2])
+    ref = evaluate_run(sub_b, sub_r, n_boot=200)
+    for key in ("pos_rmse_m", "pos_rmse_m_maneuver", "vel_rmse_m_s", "peak_pos_err_m", "anees", "npe"):
+        assert m[key] == ref[key], key
+    assert m["pos_rmse_m"] == pytest.approx(_rmse_over(batch, bad, [0, 2]))
+    # in the suite, the other trackers are scored as if nothing happened
+    _with(monkeypatch, {"kf_tuned": bad})
+    results, _ = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False)
+    res = results["bizup2002"]
+    assert res["trackers"]["kf_tuned"]["failed_runs"] == 1
+    for t in ("imm2", "cmin"):
+        clean = evaluate_run(batch, runs[t])
+        got = res["trackers"][t]
+        assert got["failed_runs"] == 0
+        for key in ("pos_rmse_m", "pos_rmse_m_ci95", "anees", "track_loss_rate"):
+            assert got[key] == clean[key], (t, key)
+    assert res["ratio_vs_imm2_runs"]["kf_tuned"] == 2 and res["ratio_vs_imm2_runs"]["cmin"] == 3
+
+
+def test_nan_before_the_track_start_does_not_fail_the_run(suite):
+    _, batch, runs = suite
+    run = copy.deepcopy(runs["imm2"])
+    run.x[0, int(run.start_index[0]) - 1] = np.nan         # a look the metrics do not use
+    assert not failed_runs(batch, run).any()
+
+
+def test_singular_or_inf_covariance_does_not_abort_evaluate_run(suite):
+    _, batch, runs = suite
+    run = runs["imm2"]
+    k = int(run.start_index[0]) + 5
+    bad = copy.deepcopy(run)
+    bad.P[0, k] = 0.0                                       # finite but singular: no NEES at this look
+    bad.P[2, k + 1] = np.inf                                # non-finite: run 2 failed
+    m = evaluate_run(batch, bad, n_boot=100)
+    assert m["failed_runs"] == 1 and m["nees_invalid_looks"] == 1
+    assert np.isfinite(m["anees"]) and np.isfinite(m["pos_rmse_m"])
+    # the singular look counts as outside the 95 % bound, over the looks of the two scored runs
+    used = region_masks(batch, run.start_index)["used"]
+    inside = [_nees(batch, run, b, j) <= NEES_95_4DOF for b in (0, 1) for j in np.flatnonzero(used[b])
+              if (b, j) != (0, k)]
+    assert m["nees_in_95"] == pytest.approx(sum(inside) / used[[0, 1]].sum())
+
+
+def _nees(batch, run, b, k):
+    d = run.x[b, k] - batch.truth[b, k]
+    return float(d @ np.linalg.solve(run.P[b, k], d))
+
+
+def test_divergence_counts_as_loss_and_the_common_runs_exclude_it_for_all(suite, monkeypatch):
+    eps, batch, runs = suite
+    div = _corrupt(runs["kf_tuned"], 0, lambda r, b, k: r.x.__setitem__((b, k, 0), r.x[b, k, 0] + 1e7))
+    assert lost_runs(batch, div).tolist() == [True, False, False]
+    assert not any(lost_runs(batch, runs[t]).any() for t in TRACKERS)      # the clean trackers hold every run
+    _with(monkeypatch, {"kf_tuned": div})
+    results, _ = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False)
+    res = results["bizup2002"]
+    assert res["common_runs"] == 2 and res["common_trackers"] == list(TRACKERS)
+    kf = res["trackers"]["kf_tuned"]
+    assert kf["failed_runs"] == 0 and kf["lost_runs"] == 1 and kf["track_loss_rate"] == pytest.approx(1 / 3)
+    assert kf["pos_rmse_m"] > 1e6                          # the pooled all-runs RMSE keeps the divergence ...
+    for t, r in (("imm2", runs["imm2"]), ("kf_tuned", div), ("cmin", runs["cmin"])):
+        m = res["trackers"][t]                             # ... the common-run RMSE leaves run 0 out for everyone
+        assert m["common_runs"] == 2
+        assert m["pos_rmse_m_common"] == pytest.approx(_rmse_over(batch, r, [1, 2]))
+    ratio_c = res["ratio_vs_imm2_common"]["kf_tuned"][0]
+    assert ratio_c == pytest.approx(_rmse_over(batch, div, [1, 2]) / _rmse_over(batch, runs["imm2"], [1, 2]))
+    assert ratio_c == pytest.approx(ratio_ci(batch, runs["kf_tuned"], runs["imm2"], runs=[False, True, True])[0])
+    assert res["ratio_vs_imm2"]["kf_tuned"][0] > 100        # all-runs ratio: the divergence, labelled as such
+
+
+def test_fewer_than_20_runs_are_flagged_beside_every_interval(suite, monkeypatch):
+    eps, _, _ = suite
+    results, _ = evaluate([("bizup2002", eps)], ["imm2", "kf_tuned"], progress=False)
+    res = results["bizup2002"]
+    assert res["few_runs"] and res["few_common_runs"]
+    assert all(m["few_runs"] and m["few_common_runs"] for m in res["trackers"].values())
+    d = json.loads(json.dumps(_jsonable(results), allow_nan=False))
+    assert d["bizup2002"]["trackers"]["imm2"]["few_runs"] is True
+    for text in (format_table(results), markdown_tables(results)):
+        rows = [line for line in text.splitlines() if line.startswith(("imm2", "kf_tuned", "| imm2", "| kf_tuned"))]
+        n_ci = sum(line.count("[") for line in rows)
+        assert n_ci >= 8 and sum(line.count(f"(n<{FEW_RUNS})") for line in rows) == n_ci
+    assert headline(results, False).count(f"(n<{FEW_RUNS})") == 1             # kf_tuned's ratio to imm2
+    many = draw_suite("bizup2002", FEW_RUNS)
+    results, _ = evaluate([("bizup2002", many)], ["imm2", "kf_tuned"], progress=False)
+    assert not results["bizup2002"]["few_runs"] and not results["bizup2002"]["trackers"]["imm2"]["few_runs"]
+    for text in (format_table(results), markdown_tables(results).split("\n", 1)[1], headline(results, False)):
+        assert f"(n<{FEW_RUNS})" not in text
+
+
+def test_no_nan_or_inf_in_json_or_tables_when_a_tracker_fails_everywhere(suite, monkeypatch):
+    eps, batch, runs = suite
+    dead = copy.deepcopy(runs["cmin"])
+    dead.x[:] = np.nan
+    dead.P[:] = np.nan
+    _with(monkeypatch, {"cmin": dead})
+    results, _ = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False)
+    res = results["bizup2002"]
+    m = res["trackers"]["cmin"]
+    assert m["failed_runs"] == 3 and m["track_loss_rate"] == 1.0 and res["common_runs"] == 0
+    assert "all 3 runs failed" in m["undefined"]["pos_rmse_m"]
+    assert "no common run" in res["trackers"]["imm2"]["undefined"]["pos_rmse_m_common"]
+    text = json.dumps(_jsonable({"meta": {}, "suites": results}), allow_nan=False)      # raises on NaN / Inf
+    d = json.loads(text)["suites"]["bizup2002"]
+    assert d["trackers"]["cmin"]["pos_rmse_m"] is None and d["trackers"]["cmin"]["pos_rmse_m_ci95"] == [None, None]
+    assert set(d["trackers"]["cmin"]["undefined"]) >= {k for k, v in d["trackers"]["cmin"].items() if v is None}
+    assert d["ratio_vs_imm2"]["cmin"][0] is None and d["ratio_vs_imm2_runs"]["cmin"] == 0
+    for table in (format_table(results), markdown_tables(results), headline(results, False)):
+        low = table.lower()
+        assert "nan" not in low and "inf" not in low
+    assert "cmin" in format_table(json.loads(text)["suites"])     # the table also reads the JSON back (nulls)
+
+
+def test_callback_score_is_inf_for_a_nan_estimate(suite):
+    _, batch, runs = suite
+    run = runs["kf_tuned"]
+    assert np.isfinite(pooled_rmse(batch, run))
+    bad = _corrupt(run, 2, lambda r, b, k: r.x.__setitem__((b, k[:1]), np.nan))
+    assert pooled_rmse(batch, bad) == np.inf
+    bad = _corrupt(run, 0, lambda r, b, k: r.P.__setitem__((b, k[:1]), np.inf))
+    assert pooled_rmse(batch, bad) == np.inf
+
+
+def test_downstream_metrics_leave_the_failed_runs_out(suite, monkeypatch):
+    from agents.downstream import intercept_metrics
+    eps, batch, runs = suite
+    bad = _corrupt(runs["cmin"], 1, lambda r, b, k: r.x.__setitem__((b, k), np.nan))
+    _with(monkeypatch, {"cmin": bad})
+    results, _ = evaluate([("bizup2002", eps)], ["imm2", "cmin"], progress=False)
+    m = results["bizup2002"]["trackers"]["cmin"]
+    assert m["downstream_runs"] == 2 and results["bizup2002"]["trackers"]["imm2"]["downstream_runs"] == 3
+    want = intercept_metrics(*_subset(batch, bad, [0, 2]))
+    assert np.isfinite(want["intercept_miss_m_median"])
+    assert m["intercept_miss_m_median"] == want["intercept_miss_m_median"]
+    assert m["intercept_capture_rate"] == want["intercept_capture_rate"]
