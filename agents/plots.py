@@ -25,6 +25,8 @@ import numpy as np
 
 from radar_env.units import G0_M_S2
 
+from .metrics import failed_runs
+
 __all__ = ["suite_figures", "error_figure", "trajectory_figure", "q_figure", "features_figure",
            "training_curve_figure", "shared_look_times", "binned_error_stats"]
 
@@ -108,7 +110,8 @@ def _spans(t, mask):
 def error_figure(suite, batch, runs):
     """Position and speed error against time (see the module docstring for the time axis). Returns the figure.
 
-    Raises ``ValueError`` if a tracker's estimate is non-finite at a look after its track start."""
+    A tracker's failed runs (:func:`agents.metrics.failed_runs`: a non-finite estimate or covariance after its
+    track start) are left out of its curves and counted in its legend entry."""
     B = batch.batch_size
     shared = shared_look_times(batch)
     min_runs = _min_runs(B)
@@ -119,10 +122,11 @@ def error_figure(suite, batch, runs):
         used = _used(batch, run)
         ep = np.where(used, np.hypot(*(run.x[..., :2] - batch.truth[..., :2]).transpose(2, 0, 1)), np.nan)
         es = np.where(used, np.abs(np.hypot(run.x[..., 2], run.x[..., 3]) - speed_true), np.nan)
-        bad = int(np.sum(used & ~(np.isfinite(ep) & np.isfinite(es))))
-        if bad:   # a diverged track must not vanish from the mean as a NaN would
-            plt.close(fig)
-            raise ValueError(f"{suite}: tracker {name!r} has {bad} non-finite estimate(s) after its track start")
+        # a failed run (non-finite estimate, as agents.metrics scores it) must not vanish from the mean as a NaN
+        # would: it is left out whole, and the legend says how many were
+        failed = failed_runs(batch, run, used)
+        ep[failed], es[failed] = np.nan, np.nan
+        label = name if not failed.any() else f"{name} ({int(failed.sum())} failed run(s) left out)"
         for ax, e in ((axes[0], ep), (axes[1], es)):
             if shared:
                 t = batch.t_s[np.argmax(batch.n_looks)]
@@ -136,7 +140,7 @@ def error_figure(suite, batch, runs):
                 t_start = np.take_along_axis(batch.t_s, np.minimum(k0, batch.t_s.shape[1] - 1)[:, None], axis=1)
                 x, mean, lo, hi = binned_error_stats(np.where(used, batch.t_s - t_start, np.nan), e, width,
                                                      min_runs)
-            line, = ax.plot(x, mean, lw=1.2, label=name)
+            line, = ax.plot(x, mean, lw=1.2, label=label)
             ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.12, lw=0)
     for ax in axes:
         ax.set_yscale("log")

@@ -73,14 +73,29 @@ def test_error_curves_strictly_increasing_in_seconds(suites, suite):
     plt.close(fig)
 
 
-def test_error_figure_refuses_non_finite_estimates(suites):
+def test_error_figure_leaves_failed_runs_out_and_says_so(suites):
+    """A run whose estimate goes non-finite is left out of the tracker's curves whole (not silently dropped look by
+    look, which would bias the mean), and the legend counts it; the other trackers' curves do not change."""
     import dataclasses
     batch, runs = suites["random_radars"]
     x = runs["kf_low"].x.copy()
     x[1, int(runs["kf_low"].start_index[1]) + 3, 0] = np.inf
     bad = dict(runs, kf_low=dataclasses.replace(runs["kf_low"], x=x))
-    with pytest.raises(ValueError, match="kf_low.*1 non-finite"):
-        plots.error_figure("random_radars", batch, bad)
+    fig_ok = plots.error_figure("random_radars", batch, runs)
+    fig = plots.error_figure("random_radars", batch, bad)
+    labels = [ln.get_label() for ln in fig.axes[0].get_lines()]
+    assert "kf_low (1 failed run(s) left out)" in labels
+    ok_lines = {ln.get_label(): ln for ln in fig_ok.axes[0].get_lines()}
+    for ln in fig.axes[0].get_lines():
+        y = np.asarray(ln.get_ydata(), float)
+        assert np.all(np.isfinite(y))
+        if ln.get_label() in ok_lines and ln.get_label() != "kf_low":
+            np.testing.assert_array_equal(y, ok_lines[ln.get_label()].get_ydata())
+    # without run 1 the kf_low curve differs from the all-runs one
+    changed = [ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("kf_low")][0]
+    assert not np.array_equal(np.asarray(changed.get_ydata()), np.asarray(ok_lines["kf_low"].get_ydata()))
+    plt.close(fig)
+    plt.close(fig_ok)
 
 
 def test_binned_error_stats_are_per_run_means_over_the_runs_in_each_bin():
