@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines.registry import TRACKER_NAMES, run_tracker
-from baselines.trackers import run_q_policy
+from baselines.trackers import TrackRun, run_q_policy
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.episode import stack_episodes
@@ -132,10 +132,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         suite_runs = {} if ray_runs is None else ray_runs[suite]
         for t in trackers if ray_runs is None else ():
             t0 = time.time()
-            if t == "policy":
-                suite_runs[t] = run_q_policy(episodes, choose_q, "policy", pol_cfg)
-            else:
-                suite_runs[t] = run_tracker(t, episodes)
+            suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
             bar(f"{suite}: {t} ({time.time() - t0:.1f} s)")
         common = common_runs(batch, [suite_runs[t] for t in common_over])
         n_common = int(common.sum())
@@ -144,6 +141,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
                "common_trackers": common_over, "trackers": {}}
         for t, r in suite_runs.items():
             m = evaluate_run(batch, r, common=common)
+            if r.error is not None:
+                m["error"] = r.error
             m.update(_downstream(suite, episodes, batch, r))
             _note_undefined(m)
             res["trackers"][t] = m
@@ -160,6 +159,23 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         runs[suite] = (batch, suite_runs)
     bar(None)
     return results, runs
+
+
+def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
+    """Run one tracker (``policy``: through ``choose_q``) on a suite's episodes. A tracker that raises does not stop
+    the evaluation: it gets a :class:`TrackRun` of NaN (so every run counts as failed) with the exception in
+    ``error``, reported in its metrics and on stderr; the other trackers are scored as usual."""
+    try:
+        if tracker == "policy":
+            return run_q_policy(episodes, choose_q, "policy", policy_cfg)
+        return run_tracker(tracker, episodes)
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:
+        msg = f"{type(e).__name__}: {e}"
+        print(f"warning: tracker {tracker!r} failed on this suite ({msg}); every run counted as failed",
+              file=sys.stderr)
+        B, K = len(episodes), max(len(ep.t_s) for ep in episodes)
+        return TrackRun(tracker, np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.zeros(B, np.int64),
+                        np.full((B, K), np.nan), error=msg)
 
 
 def _downstream(suite, episodes, batch, run):

@@ -112,7 +112,8 @@ def concat_runs(parts, K):
     return TrackRun(first.name, np.concatenate([_pad(p.x, K, np.nan) for p in parts]),
                     np.concatenate([_pad(p.P, K, np.nan) for p in parts]),
                     np.concatenate([p.start_index for p in parts]),
-                    np.concatenate([_pad(p.q_m_s2, K, np.nan) for p in parts]), declared, extra)
+                    np.concatenate([_pad(p.q_m_s2, K, np.nan) for p in parts]), declared, extra,
+                    next((p.error for p in parts if p.error is not None), None))
 
 
 # ------------------------------------------------------------------------------------------------ worker side
@@ -134,12 +135,9 @@ def _policy_in_worker(blob):
 
 
 def _run_chunk(tracker, episodes, policy_blob):
-    from baselines.registry import run_tracker
-    from baselines.trackers import run_q_policy
-    if tracker == "policy":
-        choose_q, cfg = _policy_in_worker(policy_blob)
-        return run_q_policy(episodes, choose_q, "policy", cfg)
-    return run_tracker(tracker, episodes)
+    from .evaluate import run_one
+    choose_q, cfg = _policy_in_worker(policy_blob) if tracker == "policy" else (None, None)
+    return run_one(tracker, episodes, choose_q, cfg)
 
 
 def _task_draw(suite, seed, start, stop, tracker, policy_blob):

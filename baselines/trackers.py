@@ -43,6 +43,7 @@ class TrackRun:
         q_m_s2: (B, K) process-noise level used for the look (NaN for trackers without one).
         declared: (B, K) bool maneuver declarations, or None for trackers that do not declare.
         extra: named (B, K) series for plots (c_min, turn rate, mode probability ...).
+        error: why the tracker produced nothing (it raised; set by the evaluation), else None.
     """
 
     name: str
@@ -52,6 +53,7 @@ class TrackRun:
     q_m_s2: np.ndarray
     declared: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
+    error: str | None = None
 
 
 def _tracker(episodes, cfg: EnvConfig, known_input=False):

@@ -201,3 +201,26 @@ def test_downstream_metrics_leave_the_failed_runs_out(suite, monkeypatch):
     assert np.isfinite(want["intercept_miss_m_median"])
     assert m["intercept_miss_m_median"] == want["intercept_miss_m_median"]
     assert m["intercept_capture_rate"] == want["intercept_capture_rate"]
+
+
+def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(monkeypatch):
+    """One tracker's singular matrix (here: a LinAlgError raised by its runner) must not abort the evaluation."""
+    import json
+
+    from agents import evaluate as ev
+    from agents.suites import draw_suite
+    from baselines import registry
+
+    def boom(episodes, cfg):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setitem(registry._RUNNERS, "kf_low", boom)
+    suites = [("bizup2002", draw_suite("bizup2002", 3, seed=5000))]
+    results, _ = ev.evaluate(suites, ["imm2", "kf_low", "kf_tuned"], progress=False)
+    res = results["bizup2002"]
+    bad = res["trackers"]["kf_low"]
+    assert bad["failed_runs"] == 3 and bad["error"].startswith("LinAlgError")
+    assert res["trackers"]["imm2"]["failed_runs"] == 0 and np.isfinite(res["trackers"]["imm2"]["pos_rmse_m"])
+    assert np.isfinite(res["trackers"]["kf_tuned"]["pos_rmse_m"])
+    json.dumps(ev._jsonable(results), allow_nan=False)
+    assert "kf_low" in ev.format_table(results)
