@@ -45,6 +45,7 @@ from scipy.interpolate import CubicHermiteSpline
 
 from .filters import transition_ct
 from .units import DEG, G0_M_S2, KNOT_M_S
+from .validate import check_known_keys, check_number, check_pair
 
 __all__ = [
     "Segment",
@@ -408,37 +409,35 @@ class RandomScenarioConfig:
     min_duration_s: float = 120.0
     random_radar_probability: float = 1.0
 
-    _LIMITS = {
+    _PAIRS = {
         "speed_kt": (20.0, 3000.0), "n_legs": (1, 50), "leg_duration_s": (1.0, 3600.0),
         "turn_accel_g": (0.01, 20.0), "turn_heading_change_deg": (1.0, 720.0),
         "speed_change_accel_g": (0.001, 5.0), "range_km": (0.1, 1000.0),
     }
+    _SCALARS = {  # name: (low, high, low open, integer)
+        "max_turn_rate_deg_s": (0.0, 180.0, True, False), "speed_change_probability": (0.0, 1.0, False, False),
+        "site_candidates": (1, 100000, False, True), "min_duration_s": (1.0, 1e5, False, False),
+        "first_leg_min_s": (0.0, 1e5, False, False), "random_radar_probability": (0.0, 1.0, False, False),
+    }
 
     def __post_init__(self):
-        for name, (lo, hi) in self._LIMITS.items():
-            v = getattr(self, name)
-            if not (isinstance(v, (tuple, list)) and len(v) == 2):
-                raise ValueError(f"RandomScenarioConfig.{name} must be a (low, high) pair in [{lo}, {hi}], got {v!r}")
-            a, b = (float(x) for x in v)
-            if not (lo <= a <= b <= hi):
-                raise ValueError(f"RandomScenarioConfig.{name} must satisfy {lo} <= low <= high <= {hi}, got {v!r}")
-        _check_finite("RandomScenarioConfig.max_turn_rate_deg_s", self.max_turn_rate_deg_s, 0.0, 180.0, lo_open=True)
-        _check_finite("RandomScenarioConfig.speed_change_probability", self.speed_change_probability, 0.0, 1.0)
-        _check_finite("RandomScenarioConfig.site_candidates", self.site_candidates, 1, 100000)
-        _check_finite("RandomScenarioConfig.min_duration_s", self.min_duration_s, 1.0, 1e5)
-        _check_finite("RandomScenarioConfig.first_leg_min_s", self.first_leg_min_s, 0.0, 1e5)
-        _check_finite("RandomScenarioConfig.random_radar_probability", self.random_radar_probability, 0.0, 1.0)
-        if float(self.n_legs[0]) != int(self.n_legs[0]) or float(self.n_legs[1]) != int(self.n_legs[1]):
-            raise ValueError(f"RandomScenarioConfig.n_legs must be integers, got {self.n_legs!r}")
+        # the checked values are stored (pairs as tuples, floats, ints): a list or numpy scalar given here then
+        # draws exactly what the equal plain value draws
+        for name, (lo, hi) in self._PAIRS.items():
+            v = check_pair(f"RandomScenarioConfig.{name}", getattr(self, name), lo, hi, integer=name == "n_legs")
+            object.__setattr__(self, name, v)
+        for name, (lo, hi, lo_open, integer) in self._SCALARS.items():
+            v = check_number(f"RandomScenarioConfig.{name}", getattr(self, name), lo, hi, lo_open=lo_open,
+                             integer=integer)
+            object.__setattr__(self, name, v)
 
     @classmethod
     def from_dict(cls, d):
         """Build from a dict, rejecting unknown keys with a ``ValueError`` that lists the valid ones."""
-        names = [f.name for f in fields(cls)]
-        unknown = sorted(set(d) - set(names))
-        if unknown:
-            raise ValueError(f"unknown RandomScenarioConfig key(s) {unknown}; valid keys: {names}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        if not isinstance(d, dict):
+            raise ValueError(f"random_config must be a dict or RandomScenarioConfig, got {type(d).__name__}")
+        check_known_keys("RandomScenarioConfig", d, [f.name for f in fields(cls)])
+        return cls(**d)
 
 
 def _draw_segments(rng, cfg, speed):
@@ -510,8 +509,9 @@ def random_scenario(rng, config=None, max_tries=50):
             if until < sc.duration_s:
                 sc = _truncate(sc, until)
             return sc, site
-    raise RuntimeError(f"random_scenario: no draw stayed in range for min_duration_s={cfg.min_duration_s} s in "
-                       f"{max_tries} tries; widen range_km or shorten legs")
+    raise ValueError(f"random_scenario: no draw stayed in range_km={cfg.range_km} for min_duration_s="
+                     f"{cfg.min_duration_s} s in {max_tries} tries; widen range_km, lower min_duration_s or slow the "
+                     "flights (speed_kt)")
 
 
 def _truncate(sc, t_end):
