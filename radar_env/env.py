@@ -464,16 +464,33 @@ class RadarTrackEnv(gym.Env):
       {"scenario": ...})`` overrides it for that reset only.
     * ``radar``: a ``radar_env.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
       user trajectory, the ATC radar placed by ``place_radar_site``).
-    * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios.
+    * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios (unknown keys raise).
     * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
     * ``features``: tuple of observation names (table above).
-    * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03).
+    * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03). A random episode with fewer looks than the track
+      start needs (two hits, the warm-up, one look to act on) is redrawn from the same generator; a fixed scenario
+      too short for ``warmup_scans`` is refused when the env is built.
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+    * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
+      ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a
+      ``ValueError`` when matplotlib has no interactive backend, e.g. on a machine without a display).
+
+    Numbers must be real numbers (not strings, ``None``, booleans or complex); every wrong value raises
+    ``ValueError`` naming the argument. Actions likewise: an index (or a value in [-1, 1]) as int/float, never
+    bool, str or complex.
+
+    ## Info
+
+    ``truth``, ``estimate``, ``covariance``, ``measurement`` and ``measurement_covariance`` (NaN at a missed look),
+    ``polar`` (measured range m, bearing rad, radial velocity m/s), ``q_m_s2`` (q of the last prediction, m/s^2),
+    ``dt`` (s), ``time_s``, ``detected``, ``maneuvering`` (truth), ``track_lost``, ``reward_terms``. ``q`` is a
+    deprecated alias of ``q_m_s2`` (m/s^2, not g), kept for one version.
 
     ## Version History
 
-    * v0: initial version (the next-plot preview entries 14-22 were added before the first release).
+    * v0: initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
+      renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 10}
@@ -583,6 +600,16 @@ class RadarTrackVectorEnv(VectorEnv):
     so autoreset results are unchanged); an explicit ``reset()`` without a seed discards those prepared episodes,
     so after it the rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
+
+    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
+    raise ``ValueError``.
+
+    Gymnasium's vector wrappers: the observation wrappers of ``gymnasium.wrappers.vector``
+    (``NormalizeObservation``, ``FlattenObservation``, ...) accept only next-step autoreset and refuse this env
+    (same-step); ``NormalizeReward`` and ``RecordEpisodeStatistics`` work. ``gym.make_vec(..., "sync")`` or
+    ``"async"`` default to next-step autoreset, whose rows diverge from this env after their first episode end;
+    with ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}`` they equal this env row for row
+    (README "Use the environment"; tests/test_env_inputs.py).
     """
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
