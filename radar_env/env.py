@@ -83,7 +83,10 @@ class EnvConfig:
         if not (isinstance(self.features, (tuple, list)) and all(isinstance(f, str) for f in self.features)):
             raise ValueError(f"{p}features must be a tuple of feature names (e.g. ('nis', 'c_min_g')), got "
                              f"{self.features!r}")
-        ObservationLayout(self.features)  # raises for unknown / repeated names
+        try:
+            ObservationLayout(self.features)
+        except ValueError as e:   # unknown / repeated names: say which argument they came from
+            raise ValueError(f"{p}features: {e}") from None
         check_number(p + "warmup_scans", self.warmup_scans, 1, 1000, integer=True)
         check_number(p + "warmup_q_g", self.warmup_q_g, 0.0, 100.0)
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)

@@ -390,7 +390,13 @@ class RandomScenarioConfig:
         range_km: allowed range from the radar over the whole flight, km. Default (10, 150).
         site_candidates: number of candidate radar positions tried; the one that keeps the flight in range the
             longest is chosen and the scenario is cut at its first exit. Default 64.
-        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120.
+        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120. (The env also
+            redraws an episode with fewer looks than its track start needs, e.g. a short flight seen by a slow
+            radar: :func:`radar_env.env.draw_setup_and_episode`.)
+
+    Every value is checked when the config is built: a range must be a ``(low, high)`` pair of real numbers (a
+    list is accepted and stored as a tuple), a scalar a real number; strings, ``None``, booleans and complex
+    numbers raise ``ValueError`` naming the key.
         random_radar_probability: scenario ``random_radars`` only: the probability that the radar is drawn by
             :func:`radar_env.catalog.random_radar`; otherwise it is the ATC radar of ``random``. Default 1.
     """
