@@ -469,6 +469,10 @@ def _draw_segments(rng, cfg, speed):
     return segs
 
 
+_PLACEMENT_BLOCK = 2048
+"""Grid points per block in :func:`place_radar_site`."""
+
+
 def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=2.0):
     """Choose a radar position for ``scenario`` so that the flight stays within ``range_m`` for as long as possible.
 
@@ -477,18 +481,32 @@ def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid
     Returns ``(site_xy_m (2,), in_range_until_s)``; ``in_range_until_s`` is the time of the first exit (or the
     scenario's duration)."""
     lo, hi = range_m
-    t = np.arange(0.0, scenario.duration_s + 1e-9, grid_dt_s)
-    if t[-1] < scenario.duration_s:
-        t = np.append(t, scenario.duration_s)
-    p = scenario.states_at(t)[:, :2]
+    dur = scenario.duration_s
+    n_grid = int(math.ceil((dur + 1e-9) / grid_dt_s))           # np.arange(0, dur + 1e-9, grid_dt_s).size
+    extra = (n_grid - 1) * grid_dt_s < dur                      # the grid stops short: the duration is added
+    K = n_grid + int(extra)
+
+    def grid(k0, k1):   # grid points k0..k1-1 (k * grid_dt_s, as np.arange gives them, then the duration)
+        t = np.arange(k0, min(k1, n_grid), dtype=np.float64) * grid_dt_s
+        return np.append(t, dur) if extra and k1 >= K else t
+
     d = rng.uniform(lo, hi, size=n_candidates)
     a = rng.uniform(0.0, 2 * np.pi, size=n_candidates)
-    sites = p[0] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
-    r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])  # (C, K)
-    out = (r < lo) | (r > hi)
-    first_out = np.where(out.any(axis=1), out.argmax(axis=1), t.size)
+    sites = scenario.states_at(grid(0, 1))[0, :2] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
+    # The grid in blocks, stopping once every candidate has seen the flight leave its annulus: the same first
+    # exits as the whole (C, K) grid at once, without its memory on very long flights (slow turns, long legs).
+    first_out = np.full(n_candidates, K)
+    for k0 in range(0, K, _PLACEMENT_BLOCK):
+        p = scenario.states_at(grid(k0, k0 + _PLACEMENT_BLOCK))[:, :2]
+        r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])  # (C, block)
+        out = (r < lo) | (r > hi)
+        new = (first_out == K) & out.any(axis=1)
+        first_out[new] = k0 + out[new].argmax(axis=1)
+        if np.all(first_out < K):
+            break
     best = int(np.argmax(first_out))
-    until = scenario.duration_s if first_out[best] == t.size else float(t[max(first_out[best] - 1, 0)])
+    j = max(int(first_out[best]) - 1, 0)        # last grid point still in range
+    until = dur if first_out[best] == K else float(grid(j, j + 1)[0])
     return sites[best], until
 
 

@@ -405,3 +405,56 @@ def test_fuzz_env_configurations_and_actions(cfg, seed):
         for k in ("truth", "estimate", "covariance", "q_m_s2", "dt", "time_s"):
             assert np.all(np.isfinite(info[k])), k
         assert all(math.isfinite(v) for v in info["reward_terms"].values())
+
+
+# ------------------------------------------------------------------------------------------------ radar placement
+def _place_radar_site_whole_grid(rng, scenario, range_m, n_candidates, grid_dt_s=2.0):
+    """The previous implementation (every candidate against the whole grid at once), as an oracle."""
+    lo, hi = range_m
+    t = np.arange(0.0, scenario.duration_s + 1e-9, grid_dt_s)
+    if t[-1] < scenario.duration_s:
+        t = np.append(t, scenario.duration_s)
+    p = scenario.states_at(t)[:, :2]
+    d = rng.uniform(lo, hi, size=n_candidates)
+    a = rng.uniform(0.0, 2 * np.pi, size=n_candidates)
+    sites = p[0] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
+    r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])
+    out = (r < lo) | (r > hi)
+    first_out = np.where(out.any(axis=1), out.argmax(axis=1), t.size)
+    best = int(np.argmax(first_out))
+    until = scenario.duration_s if first_out[best] == t.size else float(t[max(first_out[best] - 1, 0)])
+    return sites[best], until
+
+
+@pytest.mark.parametrize("segments", [
+    [(9001.0, 0.01), (3000.0, 0.0)],     # circles for 9 ks (several blocks), then flies out in a later block
+    [(20001.3, 0.008)],                  # stays in range to the end; the duration is off the grid
+    [(300.0, 0.0), (40.0, 0.05), (500.0, 0.0)],
+])
+def test_radar_placement_in_blocks_equals_the_whole_grid(segments):
+    from radar_env.scenario import Segment, SegmentScenario, place_radar_site
+    sc = SegmentScenario([0.0, 0.0, 100.0, 0.0], [Segment(d, w) for d, w in segments])
+    for seed in range(5):
+        for range_m in ((10e3, 150e3), (5e3, 20e3)):
+            a = place_radar_site(np.random.default_rng(seed), sc, range_m, 64)
+            b = _place_radar_site_whole_grid(np.random.default_rng(seed), sc, range_m, 64)
+            assert a[0].tobytes() == b[0].tobytes() and a[1] == b[1]
+
+
+def test_radar_placement_memory_does_not_grow_with_the_flight():
+    """A 200 000 s flight (slow turns and long legs are valid): main held the whole (64, 100 001) grid (tens of
+    MB; with max_turn_rate_deg_s=1e-6 a 270 deg turn lasts 2.7e8 s and main ran out of memory)."""
+    import tracemalloc
+
+    from radar_env.scenario import Segment, SegmentScenario, place_radar_site
+    sc = SegmentScenario([0.0, 0.0, 200.0, 0.0], [Segment(200_000.0)])
+    tracemalloc.start()
+    try:
+        place_radar_site(np.random.default_rng(0), sc, (10e3, 150e3), 64)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 * 100_001 * 8 / 4   # a quarter of one (64, K) float64 array
+    env = RadarTrackEnv(random_config={"max_turn_rate_deg_s": 1e-6})
+    env.reset(seed=0)
+    env.step(4)
