@@ -618,12 +618,13 @@ class RadarTrackVectorEnv(VectorEnv):
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs=1, **kwargs):
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+        if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         # gym.make_vec passes the spec's / caller's max_episode_steps; apply it as gym.make's TimeLimit does
         # (truncated once a row has taken that many steps) rather than dropping it silently.
         max_steps = kwargs.pop("max_episode_steps", None)
-        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or max_steps < 1):
+        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or isinstance(max_steps, bool)
+                                      or max_steps < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_steps!r}")
         self.max_episode_steps = None if max_steps is None else int(max_steps)
         self.config = EnvConfig.from_kwargs(**kwargs)

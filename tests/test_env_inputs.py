@@ -149,6 +149,15 @@ def test_radar_site_wrong_types_name_the_attribute(name, value):
         RadarSite(**{name: value})
 
 
+@pytest.mark.parametrize("name, value", [("num_envs", True), ("num_envs", 2.0), ("num_envs", "2"),
+                                         ("max_episode_steps", True), ("max_episode_steps", 7.0)])
+def test_vector_env_size_arguments_wrong_types(name, value):
+    """Main took num_envs=True (and max_episode_steps=True) as 1."""
+    kw = {"num_envs": 2, name: value}
+    with pytest.raises(ValueError, match=name):
+        RadarTrackVectorEnv(**kw)
+
+
 def test_radar_wrong_sites():
     for bad in ("atc", None, (), (1, 2)):
         with pytest.raises(ValueError, match="Radar.sites"):
