@@ -655,10 +655,13 @@ class RadarTrackVectorEnv(VectorEnv):
             raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
         if seed is None:
             seeds = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)):
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(self.num_envs)]
         else:
-            seeds = list(seed)
+            ok_one = lambda s: s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool))  # noqa: E731
+            seeds = list(seed) if np.iterable(seed) and not isinstance(seed, (str, bytes)) else None
+            if seeds is None or not all(ok_one(s) for s in seeds):
+                raise ValueError(f"seed must be None, an integer or a list of num_envs integers / None, got {seed!r}")
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
         if seed is not None or not self._started:

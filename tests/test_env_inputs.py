@@ -158,6 +158,14 @@ def test_vector_env_size_arguments_wrong_types(name, value):
         RadarTrackVectorEnv(**kw)
 
 
+@pytest.mark.parametrize("seed", [True, "12", 1.5, ["a", "b"], [True, 1]])
+def test_vector_env_reset_seed_wrong_types(seed):
+    """Main seeded the rows with 1, 2 for seed=True and with a list of characters for '12'."""
+    venv = RadarTrackVectorEnv(num_envs=2)
+    with pytest.raises(ValueError, match="seed"):
+        venv.reset(seed=seed)
+
+
 def test_radar_wrong_sites():
     for bad in ("atc", None, (), (1, 2)):
         with pytest.raises(ValueError, match="Radar.sites"):
@@ -413,6 +421,8 @@ def test_fuzz_env_configurations_and_actions(cfg, seed):
         assert env.observation_space.contains(obs) and np.all(np.isfinite(obs)) and math.isfinite(rew)
         for k in ("truth", "estimate", "covariance", "q_m_s2", "dt", "time_s"):
             assert np.all(np.isfinite(info[k])), k
+        for k in ("measurement", "measurement_covariance", "polar"):   # NaN only at a missed look (documented)
+            assert np.all(np.isfinite(info[k])) == info["detected"], k
         assert all(math.isfinite(v) for v in info["reward_terms"].values())
 
 
