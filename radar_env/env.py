@@ -522,6 +522,8 @@ class RadarTrackEnv(gym.Env):
         return self._core.layout
 
     def reset(self, *, seed=None, options=None):
+        if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
+            raise ValueError(f"reset: seed must be None or an integer, got {seed!r}")   # True would be seed 1
         super().reset(seed=seed)
         options = dict(options or {})
         scenario = options.pop("scenario", None)

@@ -164,6 +164,9 @@ def test_vector_env_reset_seed_wrong_types(seed):
     venv = RadarTrackVectorEnv(num_envs=2)
     with pytest.raises(ValueError, match="seed"):
         venv.reset(seed=seed)
+    if not isinstance(seed, list):
+        with pytest.raises(ValueError, match="seed"):
+            RadarTrackEnv().reset(seed=seed)
 
 
 def test_radar_wrong_sites():
