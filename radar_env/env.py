@@ -24,8 +24,9 @@ from .episode import draw_episode
 from .observation import DEFAULT_FEATURES, FEATURE_SPECS, ObservationLayout, measurement_sigma_m
 from .radar import Radar, atc_radar
 from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario, place_radar_site
-from .tracking import Tracker
+from .tracking import Tracker, looks_for_track_start
 from .units import G0_M_S2
+from .validate import check_choice, check_known_keys, check_number, is_real_number
 
 __all__ = ["RadarTrackEnv", "RadarTrackVectorEnv", "EnvConfig", "DEFAULT_Q_LEVELS_G"]
 
@@ -65,46 +66,42 @@ class EnvConfig:
 
     @classmethod
     def from_kwargs(cls, **kwargs):
-        valid = [f.name for f in fields(cls)]
-        unknown = sorted(set(kwargs) - set(valid))
-        if unknown:
-            raise ValueError(f"RadarTrack-v0: unknown argument(s) {unknown}; valid arguments: {valid}")
+        check_known_keys("RadarTrack-v0", kwargs, [f.name for f in fields(cls)], noun="argument")
         cfg = cls(**kwargs)
         cfg._validate()
         return cfg
 
     def _validate(self):
-        def rng_check(name, v, lo, hi, integer=False):
-            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-            ok = ok and math.isfinite(float(v)) and lo <= float(v) <= hi and (not integer or float(v) == int(v))
-            if not ok:
-                kind = "an integer" if integer else "a number"
-                raise ValueError(f"RadarTrack-v0: {name} must be {kind} in [{lo}, {hi}], got {v!r}")
-
-        if self.action_type not in ("discrete", "continuous"):
-            raise ValueError(f"RadarTrack-v0: action_type must be 'discrete' or 'continuous', got {self.action_type!r}")
-        lv = np.asarray(self.q_levels_g, dtype=np.float64) if np.ndim(self.q_levels_g) == 1 else None
-        if (lv is None or lv.size < 2 or not np.all(np.isfinite(lv)) or np.any(lv <= 0) or np.any(lv > 100)
-                or np.any(np.diff(lv) <= 0)):
-            raise ValueError("RadarTrack-v0: q_levels_g must be >= 2 strictly increasing values in (0, 100] g, got "
+        p = "RadarTrack-v0: "   # every message names the argument after this prefix
+        check_choice(p + "action_type", self.action_type, ("discrete", "continuous"))
+        lv = self.q_levels_g
+        ok = isinstance(lv, (tuple, list, np.ndarray)) and np.ndim(lv) == 1 and len(lv) >= 2
+        ok = ok and all(is_real_number(v) and math.isfinite(float(v)) and 0 < float(v) <= 100 for v in lv)
+        if not ok or np.any(np.diff(np.asarray(lv, dtype=np.float64)) <= 0):
+            raise ValueError(f"{p}q_levels_g must be a tuple of >= 2 strictly increasing numbers in (0, 100] g, got "
                              f"{self.q_levels_g!r}")
-        ObservationLayout(self.features)  # raises for unknown / repeated names
-        rng_check("warmup_scans", self.warmup_scans, 1, 1000, integer=True)
-        rng_check("warmup_q_g", self.warmup_q_g, 0.0, 100.0)
-        if self.reward_type not in REWARD_TYPES:
-            raise ValueError(f"RadarTrack-v0: reward_type must be one of {list(REWARD_TYPES)}, got {self.reward_type!r}")
-        rng_check("reward_clip", self.reward_clip, 1e-3, 1e9)
-        rng_check("track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
-        rng_check("n_adrian", self.n_adrian, 1, 50, integer=True)
-        rng_check("window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
-        rng_check("fma_weight", self.fma_weight, 1e-6, 1.0)
-        if self.render_mode not in (None, *RENDER_MODES):
-            raise ValueError(f"RadarTrack-v0: render_mode must be one of {[None, *RENDER_MODES]}, got "
-                             f"{self.render_mode!r}")
+        if not (isinstance(self.features, (tuple, list)) and all(isinstance(f, str) for f in self.features)):
+            raise ValueError(f"{p}features must be a tuple of feature names (e.g. ('nis', 'c_min_g')), got "
+                             f"{self.features!r}")
+        try:
+            ObservationLayout(self.features)
+        except ValueError as e:   # unknown / repeated names: say which argument they came from
+            raise ValueError(f"{p}features: {e}") from None
+        check_number(p + "warmup_scans", self.warmup_scans, 1, 1000, integer=True)
+        check_number(p + "warmup_q_g", self.warmup_q_g, 0.0, 100.0)
+        check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
+        check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
+        check_number(p + "track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
+        check_number(p + "n_adrian", self.n_adrian, 1, 50, integer=True)
+        check_number(p + "window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
+        check_number(p + "fma_weight", self.fma_weight, 1e-6, 1.0)
+        check_choice(p + "render_mode", self.render_mode, (None, *RENDER_MODES))
         if self.radar is not None and not isinstance(self.radar, Radar):
-            raise ValueError(f"RadarTrack-v0: radar must be a radar_env.radar.Radar or None, got {type(self.radar).__name__}")
+            raise ValueError(f"{p}radar must be a radar_env.radar.Radar or None, got {type(self.radar).__name__}")
         if self.random_config is not None and not isinstance(self.random_config, (dict, RandomScenarioConfig)):
-            raise ValueError("RadarTrack-v0: random_config must be a dict or RandomScenarioConfig")
+            raise ValueError(f"{p}random_config must be a dict or RandomScenarioConfig, got "
+                             f"{type(self.random_config).__name__}")
+        self.random_scenario_config  # noqa: B018 - builds (validates) a dict's RandomScenarioConfig
         resolve_scenario(self.scenario)  # raises for unknown names / bad files
 
     @property
@@ -134,9 +131,7 @@ def resolve_scenario(scenario):
                      f"{type(scenario).__name__}")
 
 
-def draw_setup_and_episode(scenario, radar, random_config, rng):
-    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only."""
-    sc = resolve_scenario(scenario)
+def _draw_once(sc, radar, random_config, rng):
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
     elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
@@ -151,6 +146,41 @@ def draw_setup_and_episode(scenario, radar, random_config, rng):
         else:
             setup = Setup(sc, radar)
     return draw_episode(setup.scenario, setup.radar, rng)
+
+
+MAX_EPISODE_DRAWS = 200
+"""Draws tried per reset for an episode long enough for the track start (:func:`draw_setup_and_episode`)."""
+
+
+def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans):
+    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only.
+
+    An episode too short for the track start (two hits, ``warmup_scans`` warm-up looks, then at least one look
+    for the policy; e.g. a short random flight seen by a slow radar, or missed plots) is redrawn from ``rng``, at
+    most ``MAX_EPISODE_DRAWS`` times. Only draws that could not be run are replaced, so every episode that runs
+    is the one it was before the redraw existed. A fixed scenario whose looks are all detected and still too few
+    raises ``ValueError`` at once (the env checks this when it is built)."""
+    sc = resolve_scenario(scenario)
+    fixed = isinstance(sc, (Setup, SegmentScenario, TrajectoryScenario)) or (
+        isinstance(sc, str) and sc not in ("random", "random_radars"))
+    for _ in range(MAX_EPISODE_DRAWS):
+        ep = _draw_once(sc, radar, random_config, rng)
+        need = looks_for_track_start(ep.detected, ep.t_s, warmup_scans)
+        if need is not None and ep.n_looks >= need:
+            return ep
+        if fixed and ep.detected.all():
+            if need is None:
+                raise ValueError(f"RadarTrack-v0: scenario {ep.name!r} has no two looks at different times for "
+                                 "the two-hit track start")
+            raise ValueError(
+                f"RadarTrack-v0: scenario {ep.name!r} has {ep.n_looks} looks but warmup_scans={warmup_scans} needs "
+                f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); lower warmup_scans (valid "
+                f"here: <= {ep.n_looks - (need - warmup_scans)}) or use a longer scenario or faster radar")
+    raise ValueError(
+        f"RadarTrack-v0: none of {MAX_EPISODE_DRAWS} episode draws of scenario {getattr(sc, 'name', sc)!r} had "
+        f"enough looks for the track start with warmup_scans={warmup_scans} (two hits, the warm-up, one look to "
+        "act on); lower warmup_scans, or make the flights longer (random_config min_duration_s, leg_duration_s, "
+        "range_km) or the radar faster / more reliable (scan_period_s, detection_probability)")
 
 
 def actions_to_q_m_s2(actions, action_type, levels_m_s2):
@@ -182,10 +212,18 @@ class _Core:
         self.scenario = resolve_scenario(cfg.scenario)
         self.random_config = cfg.random_scenario_config
         self._lq0, self._lq1 = math.log10(self.q_min), math.log10(self.q_max)
+        # Refuse at build what would fail at a reset (a scenario too short for warmup_scans, a random_config whose
+        # flights never stay in range): one probe draw from a throwaway generator; no row's stream is touched.
+        draw_setup_and_episode(self.scenario, cfg.radar, self.random_config, np.random.default_rng(0),
+                               cfg.warmup_scans)
 
     # ---- actions
     def action_to_q(self, action):
         a = np.asarray(action)
+        # bool, complex, str and object actions are refused, not cast: True would silently be level 1
+        if a.dtype.kind not in "iuf":
+            raise ValueError(f"action must be {'integer' if self.cfg.action_type == 'discrete' else 'real'} "
+                             f"number(s), got {action!r} (dtype {a.dtype})")
         if self.cfg.action_type == "discrete":
             a = a.reshape(self.n) if a.size == self.n else a
             if a.shape != (self.n,) or not np.all(np.isfinite(a.astype(np.float64))) or np.any(a != np.round(a)):
@@ -204,7 +242,8 @@ class _Core:
     # ---- episodes
     def _draw(self, rows, scenario=None):
         sc = self.scenario if scenario is None else resolve_scenario(scenario)
-        return [draw_setup_and_episode(sc, self.cfg.radar, self.random_config, self.rngs[r]) for r in rows]
+        return [draw_setup_and_episode(sc, self.cfg.radar, self.random_config, self.rngs[r], self.cfg.warmup_scans)
+                for r in rows]
 
     def enable_prefetch(self):
         """Start the next episode of rows in batches (vector env autoreset). A row's next episode is drawn from its
@@ -284,7 +323,8 @@ class _Core:
             "measurement": out.z_m,
             "measurement_covariance": out.R_m2,
             "polar": np.stack([out.range_m, out.bearing_rad, out.radial_velocity_m_s], axis=-1),
-            "q": out.q_m_s2,
+            "q_m_s2": out.q_m_s2,
+            "q": out.q_m_s2,      # deprecated alias of q_m_s2 (m/s^2, not g), removed in the next version
             "dt": out.dt_s,
             "detected": out.detected,
             "maneuvering": out.maneuvering,
@@ -427,16 +467,33 @@ class RadarTrackEnv(gym.Env):
       {"scenario": ...})`` overrides it for that reset only.
     * ``radar``: a ``radar_env.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
       user trajectory, the ATC radar placed by ``place_radar_site``).
-    * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios.
+    * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios (unknown keys raise).
     * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
     * ``features``: tuple of observation names (table above).
-    * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03).
+    * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03). A random episode with fewer looks than the track
+      start needs (two hits, the warm-up, one look to act on) is redrawn from the same generator; a fixed scenario
+      too short for ``warmup_scans`` is refused when the env is built.
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+    * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
+      ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a
+      ``ValueError`` when matplotlib has no interactive backend, e.g. on a machine without a display).
+
+    Numbers must be real numbers (not strings, ``None``, booleans or complex); every wrong value raises
+    ``ValueError`` naming the argument. Actions likewise: an index (or a value in [-1, 1]) as int/float, never
+    bool, str or complex.
+
+    ## Info
+
+    ``truth``, ``estimate``, ``covariance``, ``measurement`` and ``measurement_covariance`` (NaN at a missed look),
+    ``polar`` (measured range m, bearing rad, radial velocity m/s), ``q_m_s2`` (q of the last prediction, m/s^2),
+    ``dt`` (s), ``time_s``, ``detected``, ``maneuvering`` (truth), ``track_lost``, ``reward_terms``. ``q`` is a
+    deprecated alias of ``q_m_s2`` (m/s^2, not g), kept for one version.
 
     ## Version History
 
-    * v0: initial version (the next-plot preview entries 14-22 were added before the first release).
+    * v0: initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
+      renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 10}
@@ -444,6 +501,12 @@ class RadarTrackEnv(gym.Env):
     def __init__(self, **kwargs):
         self.config = EnvConfig.from_kwargs(**kwargs)
         self.render_mode = self.config.render_mode
+        if self.render_mode == "human":
+            from .render import human_display_problem  # lazy: matplotlib only when rendering
+            problem = human_display_problem()
+            if problem is not None:
+                raise ValueError(f"RadarTrack-v0: render_mode='human' needs a window, but {problem}; use "
+                                 "render_mode='rgb_array' (frames as arrays, e.g. for gymnasium.wrappers.RecordVideo)")
         self._core = _Core(1, self.config)
         n_act = len(self.config.q_levels_g)
         self.action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
@@ -459,6 +522,8 @@ class RadarTrackEnv(gym.Env):
         return self._core.layout
 
     def reset(self, *, seed=None, options=None):
+        if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
+            raise ValueError(f"reset: seed must be None or an integer, got {seed!r}")   # True would be seed 1
         super().reset(seed=seed)
         options = dict(options or {})
         scenario = options.pop("scenario", None)
@@ -468,7 +533,7 @@ class RadarTrackEnv(gym.Env):
         obs, info, _ = self._core.reset_rows(np.array([0]), scenario)
         self._needs_reset = False
         info = _row(info, 0)
-        self._history = [(info["estimate"], info["covariance"], info["q"], info["time_s"], obs[0])]
+        self._history = [(info["estimate"], info["covariance"], info["q_m_s2"], info["time_s"], obs[0])]
         if self.render_mode == "human":
             self.render()
         return obs[0], info
@@ -483,7 +548,7 @@ class RadarTrackEnv(gym.Env):
         self._needs_reset = bool(term[0] or trunc[0])
         info = _row(info, 0)
         if self.render_mode is not None:
-            self._history.append((info["estimate"], info["covariance"], info["q"], info["time_s"], obs[0]))
+            self._history.append((info["estimate"], info["covariance"], info["q_m_s2"], info["time_s"], obs[0]))
         if self.render_mode == "human":
             self.render()
         return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), info
@@ -515,7 +580,7 @@ class RadarTrackEnv(gym.Env):
         return render_frame(self)
 
 
-_SCALAR_INFO = ("q", "dt", "detected", "maneuvering", "track_lost", "time_s")
+_SCALAR_INFO = ("q_m_s2", "q", "dt", "detected", "maneuvering", "track_lost", "time_s")
 
 
 def _row(info, i):
@@ -540,17 +605,28 @@ class RadarTrackVectorEnv(VectorEnv):
     so autoreset results are unchanged); an explicit ``reset()`` without a seed discards those prepared episodes,
     so after it the rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
+
+    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
+    raise ``ValueError``.
+
+    Gymnasium's vector wrappers: the observation wrappers of ``gymnasium.wrappers.vector``
+    (``NormalizeObservation``, ``FlattenObservation``, ...) accept only next-step autoreset and refuse this env
+    (same-step); ``NormalizeReward`` and ``RecordEpisodeStatistics`` work. ``gym.make_vec(..., "sync")`` or
+    ``"async"`` default to next-step autoreset, whose rows diverge from this env after their first episode end;
+    with ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}`` they equal this env row for row
+    (README "Use the environment"; tests/test_env_inputs.py).
     """
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs=1, **kwargs):
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+        if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         # gym.make_vec passes the spec's / caller's max_episode_steps; apply it as gym.make's TimeLimit does
         # (truncated once a row has taken that many steps) rather than dropping it silently.
         max_steps = kwargs.pop("max_episode_steps", None)
-        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or max_steps < 1):
+        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or isinstance(max_steps, bool)
+                                      or max_steps < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_steps!r}")
         self.max_episode_steps = None if max_steps is None else int(max_steps)
         self.config = EnvConfig.from_kwargs(**kwargs)
@@ -581,10 +657,13 @@ class RadarTrackVectorEnv(VectorEnv):
             raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
         if seed is None:
             seeds = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)):
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(self.num_envs)]
         else:
-            seeds = list(seed)
+            ok_one = lambda s: s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool))  # noqa: E731
+            seeds = list(seed) if np.iterable(seed) and not isinstance(seed, (str, bytes)) else None
+            if seeds is None or not all(ok_one(s) for s in seeds):
+                raise ValueError(f"seed must be None, an integer or a list of num_envs integers / None, got {seed!r}")
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
         if seed is not None or not self._started:
@@ -599,9 +678,12 @@ class RadarTrackVectorEnv(VectorEnv):
             raise RuntimeError("RadarTrackVectorEnv: call reset() before step()")
         core = self._core
         a = np.asarray(actions)
-        if self.config.action_type == "continuous":
-            a = a.reshape(self.num_envs, -1)[:, 0] if a.size == self.num_envs else a
-        obs, rew, term, trunc, info = core.step(a)
+        n = self.num_envs
+        shapes = [(n,)] if self.config.action_type == "discrete" else [(n, 1), (n,)]
+        if a.shape not in shapes:
+            raise ValueError(f"actions must have shape {' or '.join(map(str, shapes))} ({self.action_space}), got "
+                             f"shape {a.shape}: {actions!r}")
+        obs, rew, term, trunc, info = core.step(a.reshape(n))
         self._elapsed += 1
         if self.max_episode_steps is not None:
             trunc = trunc | (self._elapsed >= self.max_episode_steps)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .units import DEG, FT_M, KNOT_M_S, NM_M
+from .validate import check_known_keys, check_number, is_real_number
 
 __all__ = [
     "RadarSite",
@@ -84,10 +85,7 @@ def converted_covariance(range_m, bearing_rad, range_noise_std_m, bearing_noise_
 
 
 def _check(name, v, lo, hi, lo_open=False):
-    x = float(v)
-    if not (math.isfinite(x) and (x > lo if lo_open else x >= lo) and x <= hi):
-        raise ValueError(f"{name} must be in {'(' if lo_open else '['}{lo}, {hi}], got {v!r}")
-    return x
+    return check_number(name, v, lo, hi, lo_open=lo_open)
 
 
 @dataclass(frozen=True)
@@ -119,28 +117,29 @@ class RadarSite:
     name: str = "radar"
 
     def __post_init__(self):
-        p = tuple(float(v) for v in np.asarray(self.position_m, dtype=np.float64).reshape(-1))
-        if len(p) != 2 or not all(math.isfinite(v) for v in p):
+        pos = self.position_m
+        flat = list(np.asarray(pos, dtype=object).reshape(-1)) if np.ndim(pos) == 1 else [pos]
+        if len(flat) != 2 or not all(is_real_number(v) and math.isfinite(float(v)) for v in flat):
             raise ValueError(f"RadarSite.position_m must be 2 finite numbers (x, y) in m, got {self.position_m!r}")
-        object.__setattr__(self, "position_m", p)
-        _check("RadarSite.scan_period_s", self.scan_period_s, 0.0, 3600.0, lo_open=True)
-        _check("RadarSite.range_noise_std_m", self.range_noise_std_m, 0.0, 1e5, lo_open=True)
-        _check("RadarSite.bearing_noise_std_rad", self.bearing_noise_std_rad, 0.0, 0.5, lo_open=True)
-        _check("RadarSite.radial_velocity_noise_std_m_s", self.radial_velocity_noise_std_m_s, 0.0, 1e3, lo_open=True)
-        _check("RadarSite.detection_probability", self.detection_probability, 0.0, 1.0, lo_open=True)
-        _check("RadarSite.range_bias_m", self.range_bias_m, -1e4, 1e4)
-        _check("RadarSite.bearing_bias_rad", self.bearing_bias_rad, -0.1, 0.1)
-        _check("RadarSite.first_scan_s", self.first_scan_s, 0.0, self.scan_period_s)
+        object.__setattr__(self, "position_m", tuple(float(v) for v in flat))
+        if not isinstance(self.name, str):
+            raise ValueError(f"RadarSite.name must be a str, got {self.name!r}")
+        # stored as floats: a numpy scalar or int given here must not change the arithmetic downstream
+        for name, lo, hi, lo_open in (("scan_period_s", 0.0, 3600.0, True), ("range_noise_std_m", 0.0, 1e5, True),
+                                      ("bearing_noise_std_rad", 0.0, 0.5, True),
+                                      ("radial_velocity_noise_std_m_s", 0.0, 1e3, True),
+                                      ("detection_probability", 0.0, 1.0, True), ("range_bias_m", -1e4, 1e4, False),
+                                      ("bearing_bias_rad", -0.1, 0.1, False)):
+            object.__setattr__(self, name, _check(f"RadarSite.{name}", getattr(self, name), lo, hi, lo_open))
+        object.__setattr__(self, "first_scan_s", _check("RadarSite.first_scan_s", self.first_scan_s, 0.0,
+                                                        self.scan_period_s))
         if self.first_scan_s == self.scan_period_s:
             raise ValueError(f"RadarSite.first_scan_s must be in [0, scan_period_s={self.scan_period_s}), "
                              f"got {self.first_scan_s!r}")
 
     def replace(self, **changes):
         """A copy with some attributes changed (validated); unknown names raise ``ValueError``."""
-        names = [f.name for f in fields(self)]
-        unknown = sorted(set(changes) - set(names))
-        if unknown:
-            raise ValueError(f"unknown RadarSite attribute(s) {unknown}; valid: {names}")
+        check_known_keys("RadarSite", changes, [f.name for f in fields(self)], noun="attribute")
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d.update(changes)
         return RadarSite(**d)
@@ -157,9 +156,11 @@ class Radar:
     sites: tuple = field(default_factory=lambda: (RadarSite(),))
 
     def __post_init__(self):
-        s = tuple(self.sites) if not isinstance(self.sites, RadarSite) else (self.sites,)
+        s = self.sites
+        s = (s,) if isinstance(s, RadarSite) else tuple(s) if isinstance(s, (tuple, list)) else None
         if not s or not all(isinstance(x, RadarSite) for x in s):
-            raise ValueError("Radar.sites must be a non-empty sequence of RadarSite")
+            raise ValueError(f"Radar.sites must be a RadarSite or a non-empty tuple/list of RadarSite, got "
+                             f"{self.sites!r}")
         object.__setattr__(self, "sites", s)
 
     @property

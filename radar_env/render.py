@@ -12,7 +12,7 @@ import numpy as np
 
 from .units import G0_M_S2
 
-__all__ = ["render_frame", "FRAME_SHAPE"]
+__all__ = ["render_frame", "FRAME_SHAPE", "human_display_problem"]
 
 FRAME_SHAPE = (640, 640, 3)
 _BG, _FG, _DIM = "#03140a", "#39ff88", "#1d6b3f"
@@ -26,6 +26,32 @@ def _import_matplotlib():
     except ImportError as e:  # pragma: no cover - depends on the install
         raise ImportError("rendering RadarTrack-v0 needs matplotlib: pip install -e '.[plot]'") from e
     return matplotlib, Figure, FigureCanvasAgg
+
+
+def human_display_problem():
+    """Why ``render_mode="human"`` cannot show a window here (a phrase), or ``None`` if it can.
+
+    The window is matplotlib's: with a non-interactive backend (Agg, which matplotlib falls back to when there is
+    no display) ``plt.pause`` draws nothing, so the env refuses ``"human"`` at build time instead of rendering into
+    the void."""
+    import os
+    import sys
+    try:
+        matplotlib, _, _ = _import_matplotlib()
+        import matplotlib.pyplot  # noqa: F401 - resolves the default backend (it falls back to Agg if headless)
+    except ImportError as e:
+        return str(e)
+    backend = str(matplotlib.get_backend()).lower()
+    try:
+        from matplotlib.backends import BackendFilter, backend_registry
+        non_interactive = backend_registry.list_builtin(BackendFilter.NON_INTERACTIVE)
+    except ImportError:  # pragma: no cover - matplotlib < 3.9
+        from matplotlib.rcsetup import non_interactive_bk as non_interactive
+    if backend not in {b.lower() for b in non_interactive}:
+        return None
+    headless = sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return (f"matplotlib's backend is {backend!r}, which cannot open a window"
+            + (" (no display: DISPLAY and WAYLAND_DISPLAY are unset)" if headless else ""))
 
 
 def _ellipse(x, P, n_sigma=2.0, n=60):

@@ -46,6 +46,7 @@ from scipy.interpolate import CubicHermiteSpline
 
 from .filters import transition_ct
 from .units import DEG, G0_M_S2, KNOT_M_S
+from .validate import check_known_keys, check_number, check_pair
 
 __all__ = [
     "Segment",
@@ -540,7 +541,13 @@ class RandomScenarioConfig:
         range_km: allowed range from the radar over the whole flight, km. Default (10, 150).
         site_candidates: number of candidate radar positions tried; the one that keeps the flight in range the
             longest is chosen and the scenario is cut at its first exit. Default 64.
-        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120.
+        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120. (The env also
+            redraws an episode with fewer looks than its track start needs, e.g. a short flight seen by a slow
+            radar: :func:`radar_env.env.draw_setup_and_episode`.)
+
+    Every value is checked when the config is built: a range must be a ``(low, high)`` pair of real numbers (a
+    list is accepted and stored as a tuple), a scalar a real number; strings, ``None``, booleans and complex
+    numbers raise ``ValueError`` naming the key.
         random_radar_probability: scenario ``random_radars`` only: the probability that the radar is drawn by
             :func:`radar_env.catalog.random_radar`; otherwise it is the ATC radar of ``random``. Default 1.
     """
@@ -559,37 +566,35 @@ class RandomScenarioConfig:
     min_duration_s: float = 120.0
     random_radar_probability: float = 1.0
 
-    _LIMITS = {
+    _PAIRS = {
         "speed_kt": (20.0, 3000.0), "n_legs": (1, 50), "leg_duration_s": (1.0, 3600.0),
         "turn_accel_g": (0.01, 20.0), "turn_heading_change_deg": (1.0, 720.0),
         "speed_change_accel_g": (0.001, 5.0), "range_km": (0.1, 1000.0),
     }
+    _SCALARS = {  # name: (low, high, low open, integer)
+        "max_turn_rate_deg_s": (0.0, 180.0, True, False), "speed_change_probability": (0.0, 1.0, False, False),
+        "site_candidates": (1, 100000, False, True), "min_duration_s": (1.0, 1e5, False, False),
+        "first_leg_min_s": (0.0, 1e5, False, False), "random_radar_probability": (0.0, 1.0, False, False),
+    }
 
     def __post_init__(self):
-        for name, (lo, hi) in self._LIMITS.items():
-            v = getattr(self, name)
-            if not (isinstance(v, (tuple, list)) and len(v) == 2):
-                raise ValueError(f"RandomScenarioConfig.{name} must be a (low, high) pair in [{lo}, {hi}], got {v!r}")
-            a, b = (float(x) for x in v)
-            if not (lo <= a <= b <= hi):
-                raise ValueError(f"RandomScenarioConfig.{name} must satisfy {lo} <= low <= high <= {hi}, got {v!r}")
-        _check_finite("RandomScenarioConfig.max_turn_rate_deg_s", self.max_turn_rate_deg_s, 0.0, 180.0, lo_open=True)
-        _check_finite("RandomScenarioConfig.speed_change_probability", self.speed_change_probability, 0.0, 1.0)
-        _check_finite("RandomScenarioConfig.site_candidates", self.site_candidates, 1, 100000)
-        _check_finite("RandomScenarioConfig.min_duration_s", self.min_duration_s, 1.0, 1e5)
-        _check_finite("RandomScenarioConfig.first_leg_min_s", self.first_leg_min_s, 0.0, 1e5)
-        _check_finite("RandomScenarioConfig.random_radar_probability", self.random_radar_probability, 0.0, 1.0)
-        if float(self.n_legs[0]) != int(self.n_legs[0]) or float(self.n_legs[1]) != int(self.n_legs[1]):
-            raise ValueError(f"RandomScenarioConfig.n_legs must be integers, got {self.n_legs!r}")
+        # the checked values are stored (pairs as tuples, floats, ints): a list or numpy scalar given here then
+        # draws exactly what the equal plain value draws
+        for name, (lo, hi) in self._PAIRS.items():
+            v = check_pair(f"RandomScenarioConfig.{name}", getattr(self, name), lo, hi, integer=name == "n_legs")
+            object.__setattr__(self, name, v)
+        for name, (lo, hi, lo_open, integer) in self._SCALARS.items():
+            v = check_number(f"RandomScenarioConfig.{name}", getattr(self, name), lo, hi, lo_open=lo_open,
+                             integer=integer)
+            object.__setattr__(self, name, v)
 
     @classmethod
     def from_dict(cls, d):
         """Build from a dict, rejecting unknown keys with a ``ValueError`` that lists the valid ones."""
-        names = [f.name for f in fields(cls)]
-        unknown = sorted(set(d) - set(names))
-        if unknown:
-            raise ValueError(f"unknown RandomScenarioConfig key(s) {unknown}; valid keys: {names}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        if not isinstance(d, dict):
+            raise ValueError(f"random_config must be a dict or RandomScenarioConfig, got {type(d).__name__}")
+        check_known_keys("RandomScenarioConfig", d, [f.name for f in fields(cls)])
+        return cls(**d)
 
 
 def _draw_segments(rng, cfg, speed):
@@ -615,6 +620,10 @@ def _draw_segments(rng, cfg, speed):
     return segs
 
 
+_PLACEMENT_BLOCK = 2048
+"""Grid points per block in :func:`place_radar_site`."""
+
+
 def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=2.0):
     """Choose a radar position for ``scenario`` so that the flight stays within ``range_m`` for as long as possible.
 
@@ -623,18 +632,32 @@ def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid
     Returns ``(site_xy_m (2,), in_range_until_s)``; ``in_range_until_s`` is the time of the first exit (or the
     scenario's duration)."""
     lo, hi = range_m
-    t = np.arange(0.0, scenario.duration_s + 1e-9, grid_dt_s)
-    if t[-1] < scenario.duration_s:
-        t = np.append(t, scenario.duration_s)
-    p = scenario.states_at(t)[:, :2]
+    dur = scenario.duration_s
+    n_grid = int(math.ceil((dur + 1e-9) / grid_dt_s))           # np.arange(0, dur + 1e-9, grid_dt_s).size
+    extra = (n_grid - 1) * grid_dt_s < dur                      # the grid stops short: the duration is added
+    K = n_grid + int(extra)
+
+    def grid(k0, k1):   # grid points k0..k1-1 (k * grid_dt_s, as np.arange gives them, then the duration)
+        t = np.arange(k0, min(k1, n_grid), dtype=np.float64) * grid_dt_s
+        return np.append(t, dur) if extra and k1 >= K else t
+
     d = rng.uniform(lo, hi, size=n_candidates)
     a = rng.uniform(0.0, 2 * np.pi, size=n_candidates)
-    sites = p[0] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
-    r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])  # (C, K)
-    out = (r < lo) | (r > hi)
-    first_out = np.where(out.any(axis=1), out.argmax(axis=1), t.size)
+    sites = scenario.states_at(grid(0, 1))[0, :2] + np.stack([d * np.sin(a), d * np.cos(a)], axis=-1)
+    # The grid in blocks, stopping once every candidate has seen the flight leave its annulus: the same first
+    # exits as the whole (C, K) grid at once, without its memory on very long flights (slow turns, long legs).
+    first_out = np.full(n_candidates, K)
+    for k0 in range(0, K, _PLACEMENT_BLOCK):
+        p = scenario.states_at(grid(k0, k0 + _PLACEMENT_BLOCK))[:, :2]
+        r = np.hypot(p[None, :, 0] - sites[:, None, 0], p[None, :, 1] - sites[:, None, 1])  # (C, block)
+        out = (r < lo) | (r > hi)
+        new = (first_out == K) & out.any(axis=1)
+        first_out[new] = k0 + out[new].argmax(axis=1)
+        if np.all(first_out < K):
+            break
     best = int(np.argmax(first_out))
-    until = scenario.duration_s if first_out[best] == t.size else float(t[max(first_out[best] - 1, 0)])
+    j = max(int(first_out[best]) - 1, 0)        # last grid point still in range
+    until = dur if first_out[best] == K else float(grid(j, j + 1)[0])
     return sites[best], until
 
 
@@ -661,8 +684,9 @@ def random_scenario(rng, config=None, max_tries=50):
             if until < sc.duration_s:
                 sc = _truncate(sc, until)
             return sc, site
-    raise RuntimeError(f"random_scenario: no draw stayed in range for min_duration_s={cfg.min_duration_s} s in "
-                       f"{max_tries} tries; widen range_km or shorten legs")
+    raise ValueError(f"random_scenario: no draw stayed in range_km={cfg.range_km} for min_duration_s="
+                     f"{cfg.min_duration_s} s in {max_tries} tries; widen range_km, lower min_duration_s or slow the "
+                     "flights (speed_kt)")
 
 
 def _truncate(sc, t_end):

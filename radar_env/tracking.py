@@ -36,7 +36,7 @@ from .features import MIN_DT_S, FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, no
 from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
 from .units import G0_M_S2
 
-__all__ = ["Tracker", "StepOutput", "init_looks", "preview_next_plot", "MAX_Q_M_S2"]
+__all__ = ["Tracker", "StepOutput", "init_looks", "looks_for_track_start", "preview_next_plot", "MAX_Q_M_S2"]
 
 MAX_Q_M_S2 = 100.0 * G0_M_S2
 """Largest process-noise level the chain accepts (m/s^2)."""
@@ -87,6 +87,17 @@ def init_looks(detected, t_s):
     if later.size == 0:
         raise ValueError("an episode needs two detected looks at different times for the two-hit track start")
     return i1, int(later[0])
+
+
+def looks_for_track_start(detected, t_s, warmup_scans):
+    """Number of looks an episode needs so that the track start (two hits, then ``warmup_scans`` warm-up looks)
+    leaves at least one look for a policy to act on: index of the second hit + 2 + ``warmup_scans``. ``None`` if
+    the episode has no two hits at different times."""
+    try:
+        _, i2 = init_looks(detected, t_s)
+    except ValueError:
+        return None
+    return i2 + 2 + int(warmup_scans)
 
 
 def preview_next_plot(x_post, P_post, t_s, next_look):

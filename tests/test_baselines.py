@@ -130,9 +130,9 @@ def test_reference_policies_predict_interface_in_env():
                 q_rule = np.clip(pol.q_m_s2(obs[None])[0], LEVELS[0], LEVELS[-1])
                 obs, _, term, trunc, info = env.step(a1)
                 if action_type == "continuous":   # the env applies exactly the rule's q (float32 action)
-                    np.testing.assert_allclose(info["q"], q_rule, rtol=1e-5)
+                    np.testing.assert_allclose(info["q_m_s2"], q_rule, rtol=1e-5)
                 else:                             # nearest level in log10
-                    assert abs(np.log10(info["q"] / q_rule)) <= 0.5 * np.log10(LEVELS[1] / LEVELS[0]) + 1e-9
+                    assert abs(np.log10(info["q_m_s2"] / q_rule)) <= 0.5 * np.log10(LEVELS[1] / LEVELS[0]) + 1e-9
                 if term or trunc:
                     break
         batch_obs = np.stack([env.observation_space.sample() for _ in range(5)])

@@ -20,10 +20,11 @@ from radar_env.observation import DEFAULT_FEATURES
 from radar_env.units import G0_M_S2
 
 ENV_ID = "RadarTrack-v0"
-INFO_KEYS = {"truth", "estimate", "covariance", "measurement", "measurement_covariance", "polar", "q", "dt",
+INFO_KEYS = {"truth", "estimate", "covariance", "measurement", "measurement_covariance", "polar", "q_m_s2", "dt",
              "detected", "maneuvering", "reward_terms", "track_lost"}
-# The env also reports the look time (not in the lead's list; documented here so an addition/removal is seen).
-EXTRA_INFO_KEYS = {"time_s"}
+# The env also reports the look time (not in the lead's list; documented here so an addition/removal is seen) and
+# the deprecated alias "q" of "q_m_s2" (kept for one version).
+EXTRA_INFO_KEYS = {"time_s", "q"}
 
 
 def _bytes_equal(a, b):
@@ -160,7 +161,7 @@ def test_info_keys_shapes_q_and_reward_terms():
     assert set(info) == INFO_KEYS | EXTRA_INFO_KEYS
     assert obs.dtype == np.float32 and obs.shape == env.observation_space.shape
     levels = np.asarray(DEFAULT_Q_LEVELS_G) * G0_M_S2
-    assert info["q"] == pytest.approx(0.03 * G0_M_S2)  # warm-up level
+    assert info["q_m_s2"] == pytest.approx(0.03 * G0_M_S2)  # warm-up level
     for a in [0, 4, 10, 12, 6, 0]:
         obs, r, te, tr, info = env.step(a)
         assert set(info) == INFO_KEYS | EXTRA_INFO_KEYS
@@ -168,11 +169,11 @@ def test_info_keys_shapes_q_and_reward_terms():
                   "measurement_covariance": (2, 2), "polar": (3,)}
         for k, s in shapes.items():
             assert np.shape(info[k]) == s, k
-        for k in ("q", "dt"):
+        for k in ("q_m_s2", "dt"):
             assert isinstance(info[k], float) and np.isfinite(info[k])
         for k in ("detected", "maneuvering", "track_lost"):
             assert isinstance(info[k], bool)
-        assert info["q"] == levels[a]  # exactly the chosen level, m/s^2
+        assert info["q_m_s2"] == levels[a]  # exactly the chosen level, m/s^2
         assert info["dt"] > 0
         assert set(info["reward_terms"]) == {"position_error", "track_lost"}
         assert r == pytest.approx(sum(info["reward_terms"].values()), rel=0, abs=1e-12)
@@ -185,7 +186,7 @@ def test_continuous_action_maps_to_range_ends(a, end):
     env = gym.make(ENV_ID, action_type="continuous")
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([a], dtype=np.float32))
-    assert info["q"] == pytest.approx(DEFAULT_Q_LEVELS_G[end] * G0_M_S2, rel=1e-12)
+    assert info["q_m_s2"] == pytest.approx(DEFAULT_Q_LEVELS_G[end] * G0_M_S2, rel=1e-12)
 
 
 def test_continuous_midpoint_is_geometric_mean():
@@ -193,7 +194,7 @@ def test_continuous_midpoint_is_geometric_mean():
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([0.0], dtype=np.float32))
     lo, hi = DEFAULT_Q_LEVELS_G[0] * G0_M_S2, DEFAULT_Q_LEVELS_G[-1] * G0_M_S2
-    assert info["q"] == pytest.approx(np.sqrt(lo * hi), rel=1e-12)
+    assert info["q_m_s2"] == pytest.approx(np.sqrt(lo * hi), rel=1e-12)
 
 
 def test_observation_does_not_depend_on_truth(monkeypatch):
@@ -375,7 +376,7 @@ def _compare_vector_row_to_single(seed, row, num_envs, n_steps, action_type="dis
         else:
             assert not vi.get("_final_obs", np.zeros(num_envs, bool))[row]
         assert vo[row].tobytes() == so.tobytes()
-        for k in ("truth", "estimate", "covariance", "measurement", "q", "dt"):
+        for k in ("truth", "estimate", "covariance", "measurement", "q_m_s2", "dt"):
             assert _bytes_equal(np.asarray(vi[k][row]), np.asarray(si[k])), k
     return boundaries
 

@@ -1,0 +1,69 @@
+"""The env a saved policy was trained in, from the ``env_config.json`` beside its zip.
+
+A policy only runs in an env with its own spaces: the bundled one (``agents/bundled/policy.zip``) chooses among
+15 q levels, while ``gym.make("RadarTrack-v0")`` has 13, so ``PPO.load(...).predict`` on the default env picks
+the wrong levels (or fails on the observation size for a policy trained with other features). Use::
+
+    from stable_baselines3 import PPO
+    from agents.bundle import BUNDLED_POLICY, make_policy_env
+
+    model = PPO.load(BUNDLED_POLICY, device="cpu")
+    env = make_policy_env()                       # gym.make("RadarTrack-v0", **env_config.json)
+    obs, info = env.reset(seed=0)
+    action, _ = model.predict(obs, deterministic=True)
+
+``make_policy_env(scenario="bizup2002")`` changes an argument; ``make_policy_env(num_envs=64)`` returns the native
+vector env with the same arguments.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+
+import radar_env  # noqa: F401 - registers RadarTrack-v0
+from radar_env.env import RadarTrackVectorEnv
+
+__all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env"]
+
+BUNDLED_POLICY = Path(__file__).resolve().parent / "bundled" / "policy.zip"
+"""The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
+
+
+def _tuples(v):
+    """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
+    if isinstance(v, list):
+        return tuple(_tuples(x) for x in v)
+    if isinstance(v, dict):
+        return {k: _tuples(x) for k, x in v.items()}
+    return v
+
+
+def policy_env_kwargs(policy_path=None):
+    """The ``RadarTrack-v0`` keyword arguments a policy was trained with: ``env_config.json`` beside
+    ``policy_path`` (default :data:`BUNDLED_POLICY`), lists turned into tuples. Raises ``ValueError`` if the file
+    is missing or is not a JSON object."""
+    path = Path(BUNDLED_POLICY if policy_path is None else policy_path)
+    cfg = path.with_name("env_config.json")
+    if not cfg.is_file():
+        raise ValueError(f"policy_path: no env_config.json beside {str(path)!r} (looked for {str(cfg)!r})")
+    try:
+        kw = json.loads(cfg.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{cfg}: not valid JSON ({e})") from e
+    if not isinstance(kw, dict):
+        raise ValueError(f"{cfg}: must hold a JSON object of RadarTrack-v0 arguments, got {type(kw).__name__}")
+    return _tuples(kw)
+
+
+def make_policy_env(policy_path=None, num_envs=None, **overrides):
+    """The env a policy was trained in: ``gym.make("RadarTrack-v0", **kwargs)`` with ``kwargs`` from
+    :func:`policy_env_kwargs` updated by ``overrides``, or, with ``num_envs``, the native
+    :class:`radar_env.env.RadarTrackVectorEnv` with the same arguments."""
+    kw = policy_env_kwargs(policy_path)
+    kw.update(overrides)
+    if num_envs is None:
+        return gym.make("RadarTrack-v0", **kw)
+    return RadarTrackVectorEnv(num_envs=num_envs, **kw)
