@@ -134,8 +134,11 @@ def resolve_scenario(scenario):
                      f"{type(scenario).__name__}")
 
 
-def draw_setup_and_episode(scenario, radar, random_config, rng):
-    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only."""
+def draw_setup_and_episode(scenario, radar, random_config, rng, radar_range_m=(10e3, 150e3)):
+    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only.
+
+    A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed by
+    :func:`radar_env.scenario.place_radar_site` with ``range_m=radar_range_m`` (m)."""
     sc = resolve_scenario(scenario)
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
@@ -146,7 +149,7 @@ def draw_setup_and_episode(scenario, radar, random_config, rng):
         setup = sc if radar is None else Setup(sc.scenario, radar)
     else:
         if radar is None:
-            site, _ = place_radar_site(rng, sc)
+            site, _ = place_radar_site(rng, sc, range_m=radar_range_m)
             setup = Setup(sc, atc_radar(position_m=tuple(site)))
         else:
             setup = Setup(sc, radar)
