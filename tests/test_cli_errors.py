@@ -173,3 +173,99 @@ def test_radar_site_option_places_the_radar_and_is_validated(tmp_path):
         _one_line_exit(e, option)
     with pytest.raises(ValueError, match="radar_range_m"):
         draw_suite("kim_lee_accel", 1, radar_range_m=(1e3, 2e3))
+
+
+# ------------------------------------------------------------------------------------------------ train
+TINY_TRAIN = ["--timesteps", "256", "--n-envs", "2", "--no-progress", "--quiet", "--hp", "eval_freq=100000",
+              "--hp", 'eval_scenarios={"random": 2}', "--hp", 'select_on=["random"]',
+              "--hp", "checkpoint_freq=100000"]
+TINY_PPO = ["--algo", "ppo", *TINY_TRAIN, "--hp", "n_steps=128", "--hp", "batch_size=64", "--hp", "n_epochs=1"]
+
+
+@pytest.mark.parametrize("args, option, text", [
+    (["--hp", "gama=0.9"], "--hp gama", "unknown hyperparameter"),
+    (["--hp", "gamma=abc"], "--hp gamma", "number"),
+    (["--hp", "gamma=1.5"], "--hp gamma", "[0.0, 1.0]"),
+    (["--hp", "n_steps=-5"], "--hp n_steps", "[1, inf]"),
+    (["--hp", "n_steps=12.5"], "--hp n_steps", "integer"),
+    (["--hp", "learning_rate=lin_x"], "--hp learning_rate", "lin_"),
+    (["--hp", "eval_freq=0"], "--hp eval_freq", ">= 1"),
+    (["--hp", "init_from=/nonexistent/policy.zip"], "--hp init_from", "does not exist"),
+    (["--hyperparams", "/nonexistent/ppo.toml"], "--hyperparams", "does not exist"),
+    (["--timesteps", "0"], "--timesteps", ">= 1"),
+])
+def test_train_option_errors_leave_no_run_folder(tmp_path, args, option, text):
+    with pytest.raises(SystemExit) as e:
+        train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "r", *args])
+    assert text in _one_line_exit(e, option)
+    assert not any(tmp_path.iterdir())
+
+
+def test_train_init_from_a_model_of_another_algorithm(tmp_path):
+    dqn = _tiny_model(tmp_path, "DQN")
+    with pytest.raises(SystemExit) as e:
+        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={dqn}"])
+    assert "is a DQN model" in _one_line_exit(e, "--hp init_from")
+    not_a_model = tmp_path / "x.zip"
+    not_a_model.write_text("x")
+    with pytest.raises(SystemExit) as e:
+        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={not_a_model}"])
+    assert "not a stable-baselines3 model" in _one_line_exit(e, "--hp init_from")
+    assert not (tmp_path / "runs").exists()
+
+
+def test_dqn_that_never_reaches_learning_starts_warns(tmp_path):
+    with pytest.warns(UserWarning, match="learning_starts"):
+        run = train_main(["--algo", "dqn", *TINY_TRAIN, "--hp", "learning_starts=1000", "--hp", "buffer_size=2000",
+                          "--out", str(tmp_path), "--name", "d"])
+    assert json.loads((run / "summary.json").read_text())["n_updates"] == 0
+
+
+def test_failed_training_run_is_marked_and_not_finished(tmp_path, monkeypatch):
+    import stable_baselines3 as sb3
+
+    def boom(self, *a, **k):
+        raise RuntimeError("simulated crash during learn")
+    monkeypatch.setattr(sb3.PPO, "learn", boom)
+    with pytest.raises(RuntimeError, match="simulated"):
+        train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "r"])
+    assert not (tmp_path / "r").exists()
+    part = tmp_path / "r.partial"
+    assert "simulated crash" in (part / "FAILED").read_text()
+    assert not (part / "policy.zip").exists() and not (part / "summary.json").exists()
+    with pytest.raises(SystemExit) as e:                 # the name stays taken until the user removes it
+        train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "r"])
+    _one_line_exit(e, "--name")
+
+
+def test_tensorboard_gets_the_final_evaluation_of_a_short_run(tmp_path):
+    run = train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "tb"])
+    summary = json.loads((run / "summary.json").read_text())
+    sc = _tb_scalars(run, ["eval/rmse_ratio_imm2", "eval/pos_rmse_m"])
+    steps, values = sc["eval/rmse_ratio_imm2"]
+    assert steps[-1] == summary["timesteps"]
+    assert values[-1] == pytest.approx(summary["selection_history"][-1]["random_ratio_imm2"], rel=1e-6)
+    assert sc["eval/pos_rmse_m"][0][-1] == summary["timesteps"]
+    assert not (tmp_path / "tb.partial").exists() and (run / "policy.zip").is_file()
+
+
+# ------------------------------------------------------------------------------------------------ packaging
+def test_hyperparameter_files_are_package_data(tmp_path):
+    """The wheel holds agents/hyperparams/*.toml (``radar-track train`` reads them from an installed package)."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "policy.zip", "data")
+    for pkg in ("radar_env", "baselines", "agents"):
+        shutil.copytree(ROOT / pkg, src / pkg, ignore=ignore)
+    out = tmp_path / "wheel"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
+                    "-w", str(out), str(src)], check=True, capture_output=True, env={**os.environ,
+                                                                                   "PIP_NO_INPUT": "1"})
+    (whl,) = out.glob("*.whl")
+    names = set(zipfile.ZipFile(whl).namelist())
+    tomls = {f"agents/hyperparams/{p.name}" for p in (ROOT / "agents" / "hyperparams").glob("*.toml")}
+    assert tomls and tomls <= names, sorted(n for n in names if n.startswith("agents/"))
+    for algo in ("ppo", "dqn", "sac"):
+        assert "n_timesteps" in load_hyperparams(algo)
