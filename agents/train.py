@@ -299,7 +299,10 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
-    part.mkdir(parents=True)
+    try:
+        part.mkdir(parents=True)
+    except OSError as e:
+        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
     try:
         (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
         (part / "args.json").write_text(json.dumps(args or {}, indent=1))
