@@ -367,17 +367,23 @@ def main(argv=None, prog="radar-track evaluate"):
     if dup:
         raise SystemExit(f"error: --scenario: {dup} given more than once")
     suites = []
+    files = list(args.trajectory or [])
     try:
-        files = list(args.trajectory or [])
         file_names = trajectory_suite_names(files, taken=names)
-        for n in names:
-            runs = args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50)
-            suites.append((n, draw_suite(n, runs, seed=args.seed)))
-        for n, f in zip(file_names, files):
-            suites.append((n, draw_suite(f, args.runs or 50, seed=args.seed, radar=radar,
-                                         radar_range_m=radar_range_m)))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    for n in names:
+        runs = args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50)
+        try:
+            suites.append((n, draw_suite(n, runs, seed=args.seed)))
+        except ValueError as e:
+            raise SystemExit(f"error: --scenario: {e}") from None
+    for n, f in zip(file_names, files):
+        try:
+            suites.append((n, draw_suite(f, args.runs or 50, seed=args.seed, radar=radar,
+                                         radar_range_m=radar_range_m)))
+        except ValueError as e:
+            raise SystemExit(f"error: --trajectory: {e}") from None
     t0 = time.time()
     results, runs = evaluate(suites, trackers, policy, progress=not args.quiet)
     print(format_table(results))

@@ -62,6 +62,7 @@ def _tiny_model(tmp_path, algo="PPO", **env_kwargs):
     (["--scenario", "kim_lee_accel", "--radar-site", "10,20"], "--radar-site"),
     (["--scenario", "kim_lee_accel", "--radar-range-km", "5,50"], "--radar-range-km"),
     (["--scenario", "kim_lee_accel", "--scenario", "kim_lee_accel"], "--scenario"),
+    (["--trajectory", "/nonexistent/flight.csv"], "--trajectory"),
 ])
 def test_evaluate_option_errors(args, option):
     with pytest.raises(SystemExit) as e:
