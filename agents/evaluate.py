@@ -396,7 +396,8 @@ def main(argv=None, prog="radar-track evaluate"):
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},
                 "radar_site_km": None if radar is None else [x_km, y_km],
-                "radar_range_km": [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)],
+                "radar_range_km": (None if radar is not None or not files else
+                                   [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
         Path(args.json).write_text(json.dumps(_jsonable({"meta": meta, "suites": results}), indent=1))
         print(f"metrics: {args.json}")

@@ -268,5 +268,10 @@ def test_hyperparameter_files_are_package_data(tmp_path):
     names = set(zipfile.ZipFile(whl).namelist())
     tomls = {f"agents/hyperparams/{p.name}" for p in (ROOT / "agents" / "hyperparams").glob("*.toml")}
     assert tomls and tomls <= names, sorted(n for n in names if n.startswith("agents/"))
-    for algo in ("ppo", "dqn", "sac"):
-        assert "n_timesteps" in load_hyperparams(algo)
+    # load_hyperparams reads them from the installed layout (the unpacked wheel, imported first)
+    site = tmp_path / "site"
+    zipfile.ZipFile(whl).extractall(site)
+    code = ("import agents.train as t, pathlib; assert pathlib.Path(t.__file__).parent.parent == pathlib.Path.cwd(); "
+            "print(sorted(t.load_hyperparams(a)['n_timesteps'] > 0 for a in t.ALGOS))")
+    res = subprocess.run([sys.executable, "-c", code], cwd=site, capture_output=True, text=True, check=True)
+    assert res.stdout.strip() == "[True, True, True]"
