@@ -172,7 +172,8 @@ def _check_hp(algo, cls, hp):
             if not (np.isfinite(x0) and x0 >= 0):
                 raise ValueError(f"--hp {k}: must be a number or 'lin_<x>' with x >= 0, got {v!r}")
             continue
-        if _is_int(default) and k in _RANGES and not _is_int(v):
+        int_only = _is_int(default) and k != "max_grad_norm"      # DQN's default max_grad_norm is the int 10
+        if int_only and not _is_int(v) and not (isinstance(v, list) and k == "train_freq"):
             raise ValueError(f"--hp {k}: must be an integer, got {v!r}")
         if _is_num(default) and not _is_num(v) and not (isinstance(v, list) and k == "train_freq"):
             raise ValueError(f"--hp {k}: must be a number, got {v!r}")
