@@ -14,8 +14,9 @@ adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed 
 ``[0, 1_000_000)``). Hyperparameters are checked before anything is written (unknown keys, wrong types, a missing
 ``init_from`` or one of another algorithm are one-line errors). The run is written into
 ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only once the final model and ``summary.json`` are saved;
-a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback) and no final
-``policy.zip``. A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
+a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback; none if the
+process was killed) and no final ``policy.zip``; a later run under the same name replaces it, while a finished
+``<name>/`` is never overwritten (an error). A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
 (``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
 ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
@@ -34,6 +35,7 @@ import argparse
 import inspect
 import json
 import shlex
+import shutil
 import sys
 import time
 import tomllib
@@ -257,9 +259,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
     part = run.with_name(run.name + ".partial")
-    for d in (run, part):
-        if d.exists():
-            raise ValueError(f"--name: run folder {str(d)!r} already exists; choose another name (or remove it)")
+    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
+        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
     if Path(out).exists() and not Path(out).is_dir():
         raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
 
@@ -301,6 +302,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
     try:
+        if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
+            shutil.rmtree(part)
         part.mkdir(parents=True)
     except OSError as e:
         raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None

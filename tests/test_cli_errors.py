@@ -234,7 +234,11 @@ def test_failed_training_run_is_marked_and_not_finished(tmp_path, monkeypatch):
     part = tmp_path / "r.partial"
     assert "simulated crash" in (part / "FAILED").read_text()
     assert not (part / "policy.zip").exists() and not (part / "summary.json").exists()
-    with pytest.raises(SystemExit) as e:                 # the name stays taken until the user removes it
+    monkeypatch.undo()
+    run = train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "r"])     # a rerun replaces the unfinished one
+    assert run == tmp_path / "r" and (run / "policy.zip").is_file() and not part.exists()
+    assert not (run / "FAILED").exists()
+    with pytest.raises(SystemExit) as e:                 # a finished run is never overwritten
         train_main([*TINY_PPO, "--out", str(tmp_path), "--name", "r"])
     _one_line_exit(e, "--name")
 
