@@ -96,6 +96,10 @@ class ImmRatioEvalCallback(BaseCallback):
     def _on_training_end(self):
         if not self.history or self.history[-1]["timesteps"] != self.num_timesteps:
             self.evaluate_now()
+        # SB3 writes the logger only at its own log points, none after the last rollout: write the final scores
+        # now, so TensorBoard gets them (also for a run shorter than eval_freq, whose only evaluation is this one)
+        if self.logger.name_to_value:
+            self.logger.dump(self.num_timesteps)
 
     def evaluate_now(self):
         t0 = time.time()

@@ -8,17 +8,30 @@ Seeds (each run of a suite draws its whole episode, truth and noise, from ``nump
 
 Run ``i`` of suite ``s`` with base seed ``S`` uses ``default_rng([S + i, crc32(s)])``, so every suite gets its own
 stream and every tracker in one evaluation sees the same episodes (common random numbers).
+
+A user trajectory (CSV file) is keyed by its content, not its path: run ``i`` uses ``default_rng([S + i, w0, ...,
+w7])`` with ``w0..w7`` the SHA-256 digest of the file's bytes read as eight little-endian 32-bit words
+(:func:`suite_key`). ``a.csv``, ``./a.csv``, an absolute path or a renamed copy give the same episodes; any edit of
+the file (even whitespace) gives new ones. Its suite is named after the file's stem (``flight.csv`` -> ``flight``);
+two files with the same stem, or a stem that is a built-in suite's name, are refused
+(:func:`trajectory_suite_names`). Its radar is Adrian's ATC radar, placed per run by
+:func:`radar_env.scenario.place_radar_site` at 10-150 km (``radar_range_m``), or a fixed site (``radar``).
 """
 
 from __future__ import annotations
 
+import hashlib
 import zlib
+from pathlib import Path
 
 import numpy as np
 
+from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import draw_setup_and_episode, resolve_scenario
+from radar_env.scenario import SegmentScenario, TrajectoryScenario
 
-__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "draw_suite", "suite_rng"]
+__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
+           "suite_rng", "suite_key", "trajectory_suite_names"]
 
 TRAIN_SEEDS = range(0, 1_000_000)
 TUNING_SEEDS = range(1_000_000, 2_000_000)
@@ -29,22 +42,91 @@ EXTRA_SUITES = ("encounters", "adsb_calibration")
 """Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights."""
 
 
+DEFAULT_RADAR_RANGE_M = (10e3, 150e3)
+"""Range annulus (m) of the ATC radar placement for a trajectory suite (:func:`radar_env.scenario.place_radar_site`)."""
+
+
+def _is_csv(scenario):
+    return isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv"))
+
+
+def suite_key(scenario):
+    """The stream key of a suite: its name, or ``"sha256:<hex>"`` of a CSV file's bytes (path-independent)."""
+    if _is_csv(scenario):
+        path = Path(scenario)
+        if not path.is_file():
+            raise ValueError(f"trajectory file {str(path)!r} does not exist")
+        return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+    return scenario if isinstance(scenario, str) else getattr(scenario, "name", "custom")
+
+
 def suite_rng(suite_name, seed):
-    return np.random.default_rng([int(seed), zlib.crc32(str(suite_name).encode())])
+    """The generator of run ``seed`` of the suite keyed ``suite_name`` (a name or a :func:`suite_key`)."""
+    key = str(suite_name)
+    if key.startswith("sha256:"):
+        digest = bytes.fromhex(key[len("sha256:"):])
+        words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, len(digest), 4)]
+    else:
+        words = [zlib.crc32(key.encode())]
+    return np.random.default_rng([int(seed), *words])
 
 
-def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=None):
-    """``runs`` episodes of ``scenario`` (a name in ``SCENARIO_NAMES``, a CSV path, a Setup or scenario object)."""
-    if int(runs) < 1:
-        raise ValueError(f"runs must be >= 1, got {runs!r}")
-    key = scenario if isinstance(scenario, str) else getattr(scenario, "name", "custom")
+def trajectory_suite_names(paths, taken=()):
+    """Suite names of trajectory CSV files: each file's stem. Raises ``ValueError`` (naming ``--trajectory``) if two
+    files share a stem, or a stem is the name of a built-in suite or of one in ``taken``, so that no suite's
+    results, plots or JSON entry overwrite another's."""
+    builtin = set(SCENARIO_NAMES) | set(EXTRA_SUITES) | set(DEFAULT_SUITES)
+    seen, names = {}, []
+    for p in paths:
+        name = Path(p).stem
+        if name in seen:
+            raise ValueError(f"--trajectory: {str(seen[name])!r} and {str(p)!r} would both be suite {name!r} (suites "
+                             "are named after the file name); rename one")
+        if name in builtin or name in taken or name.startswith("adsb:"):
+            raise ValueError(f"--trajectory: {str(p)!r} would be suite {name!r}, the name of a built-in suite; "
+                             "rename the file")
+        seen[name] = p
+        names.append(name)
+    return names
+
+
+def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=None, radar_range_m=None):
+    """``runs`` episodes of ``scenario`` (a name in ``SCENARIO_NAMES``, a CSV path, a Setup or scenario object).
+
+    Args:
+        seed: base seed (an integer >= 0); run ``i`` uses ``suite_rng(suite_key(scenario), seed + i)``.
+        radar: a :class:`radar_env.radar.Radar` replacing the scenario's (for a trajectory: a fixed site).
+        radar_range_m: ``(lo, hi)`` in m, ``0 < lo < hi``: range annulus of the ATC radar placement for a trajectory
+            without ``radar`` (default :data:`DEFAULT_RADAR_RANGE_M`); trajectories only.
+    """
+    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or int(runs) < 1:
+        raise ValueError(f"runs must be an integer >= 1, got {runs!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    key = suite_key(scenario)
     if scenario == "encounters":     # pairs of aircraft for the conflict-warning test (agents.downstream)
         from .downstream import draw_encounters
         return draw_encounters(runs, lambda i: suite_rng(key, seed + i))
     resolved = resolve_scenario(scenario)
+    trajectory = isinstance(resolved, (TrajectoryScenario, SegmentScenario))   # radar placed per run
+    if radar_range_m is not None:
+        if not trajectory:
+            raise ValueError(f"radar_range_m applies to trajectory suites only, not {key!r}")
+        lo, hi = _check_range_m(radar_range_m)
+        radar_range_m = (lo, hi)
+    rr = radar_range_m or DEFAULT_RADAR_RANGE_M
     if hasattr(resolved, "setup"):   # a pool (adsb_calibration): run i flies member i mod n, every member once
         return [draw_setup_and_episode(resolved.setup(i), radar, None, suite_rng(key, seed + i))
                 for i in range(int(runs))]
-    return [draw_setup_and_episode(resolved, radar, random_config, suite_rng(key, seed + i)) for i in range(int(runs))]
+    return [draw_setup_and_episode(resolved, radar, random_config, suite_rng(key, seed + i), radar_range_m=rr)
+            for i in range(int(runs))]
 
 
+def _check_range_m(r):
+    try:
+        lo, hi = (float(v) for v in r)
+    except (TypeError, ValueError):
+        raise ValueError(f"radar_range_m must be two numbers (lo, hi) in m, got {r!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo < hi):
+        raise ValueError(f"radar_range_m must be finite with 0 < lo < hi (m), got {r!r}")
+    return lo, hi

@@ -11,7 +11,14 @@ Special keys: ``eval_scenarios`` / ``eval_runs`` / ``eval_freq`` / ``select_on``
 
 Rollouts run on the native batched vector env (:class:`radar_env.env.RadarTrackVectorEnv`) through the SB3
 adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
-``[0, 1_000_000)``). The run folder ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
+``[0, 1_000_000)``). Hyperparameters are checked before anything is written (unknown keys, wrong types, a missing
+``init_from`` or one of another algorithm are one-line errors). The run is written into
+``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only once the final model and ``summary.json`` are saved;
+a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback; none if the
+process was killed) and no final ``policy.zip``; a later run under the same name replaces it, while a finished
+``<name>/`` is never overwritten (an error). A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
+(``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
+``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
 * ``policy.zip`` (final model) and ``env_config.json`` beside it (``radar-track evaluate --policy`` reads both);
 * ``best/policy.zip`` + ``best/env_config.json`` + ``best/selection.json``: the model with the lowest position
@@ -25,11 +32,16 @@ adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import shlex
+import shutil
 import sys
 import time
 import tomllib
+import traceback
+import warnings
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -52,12 +64,24 @@ _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs",
 
 
 def load_hyperparams(algo, path=None):
-    """The ``RadarTrack-v0`` table of ``agents/hyperparams/<algo>.toml`` (or ``path``)."""
-    path = Path(path) if path else HP_DIR / f"{algo}.toml"
-    with open(path, "rb") as f:
-        table = tomllib.load(f)
+    """The ``RadarTrack-v0`` table of ``agents/hyperparams/<algo>.toml`` (package data, read through
+    ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``."""
+    if path:
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"--hyperparams: file {str(path)!r} does not exist")
+        text, where = path.read_bytes(), str(path)
+    else:
+        if algo not in ALGOS:
+            raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+        res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
+        text, where = res.read_bytes(), f"agents/hyperparams/{algo}.toml"
+    try:
+        table = tomllib.loads(text.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"--hyperparams: {where} is not TOML ({e})") from None
     if ENV_ID not in table:
-        raise ValueError(f"{path}: no [\"{ENV_ID}\"] table")
+        raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
     return table[ENV_ID]
 
 
@@ -94,12 +118,108 @@ def _parse_hp(items):
     return out
 
 
+# types of the special keys: (check, what it must be)
+_SPECIAL_TYPES = {
+    "n_envs": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "n_timesteps": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "eval_freq": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "eval_runs": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "checkpoint_freq": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "policy": (lambda v: isinstance(v, str), "a policy name such as 'MlpPolicy'"),
+    "normalize_reward": (lambda v: isinstance(v, bool), "true or false"),
+    "env_kwargs": (lambda v: isinstance(v, dict), "a JSON object of RadarTrack-v0 arguments"),
+    "policy_kwargs": (lambda v: isinstance(v, dict), "a JSON object"),
+    "eval_scenarios": (lambda v: isinstance(v, dict) and all(_is_int(r) and r >= 1 for r in v.values()),
+                       "a JSON object {suite: runs >= 1}"),
+    "select_on": (lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v), "a list of suite names"),
+    "init_from": (lambda v: isinstance(v, str) and v != "", "the path of a saved model"),
+}
+# ranges of common constructor arguments (the type comes from the constructor's default)
+_RANGES = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "learning_rate": (0.0, None), "batch_size": (1, None),
+           "n_steps": (1, None), "n_epochs": (1, None), "buffer_size": (1, None), "learning_starts": (0, None),
+           "clip_range": (0.0, None), "max_grad_norm": (0.0, None), "vf_coef": (0.0, None), "tau": (0.0, 1.0),
+           "exploration_fraction": (0.0, 1.0), "exploration_initial_eps": (0.0, 1.0),
+           "exploration_final_eps": (0.0, 1.0), "target_update_interval": (1, None), "gradient_steps": (-1, None)}
+_NOT_HP = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "policy_kwargs",
+           "_init_setup_model")
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_hp(algo, cls, hp):
+    """Validate ``hp`` against the special keys and ``cls``'s constructor; returns the constructor kwargs.
+    Raises ``ValueError`` naming ``--hp KEY``, what it must be and the value given."""
+    params = {k: p for k, p in inspect.signature(cls.__init__).parameters.items() if k not in _NOT_HP}
+    for k, v in hp.items():
+        if k in _SPECIAL:
+            ok, what = _SPECIAL_TYPES[k]
+            if not ok(v):
+                raise ValueError(f"--hp {k}: must be {what}, got {v!r}")
+            continue
+        if k not in params:
+            raise ValueError(f"--hp {k}: unknown hyperparameter for {cls.__name__}; valid: "
+                             f"{sorted([*params, *_SPECIAL])}")
+        default = params[k].default
+        if k in ("learning_rate", "clip_range") and isinstance(v, str):
+            try:
+                x0 = float(v[4:]) if v.startswith("lin_") else float("nan")
+            except ValueError:
+                x0 = float("nan")
+            if not (np.isfinite(x0) and x0 >= 0):
+                raise ValueError(f"--hp {k}: must be a number or 'lin_<x>' with x >= 0, got {v!r}")
+            continue
+        int_only = _is_int(default) and k != "max_grad_norm"      # DQN's default max_grad_norm is the int 10
+        if int_only and not _is_int(v) and not (isinstance(v, list) and k == "train_freq"):
+            raise ValueError(f"--hp {k}: must be an integer, got {v!r}")
+        if _is_num(default) and not _is_num(v) and not (isinstance(v, list) and k == "train_freq"):
+            raise ValueError(f"--hp {k}: must be a number, got {v!r}")
+        if isinstance(default, bool) and not isinstance(v, bool):
+            raise ValueError(f"--hp {k}: must be true or false, got {v!r}")
+        if k in _RANGES and _is_num(v):
+            lo, hi = _RANGES[k]
+            if not np.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+                raise ValueError(f"--hp {k}: must lie in [{lo}, {'inf' if hi is None else hi}], got {v!r}")
+    return {k: v for k, v in hp.items() if k not in _SPECIAL}
+
+
+def _load_init_from(cls, algo, path):
+    """The saved model to fine-tune from; ``ValueError`` naming ``--hp init_from`` if it is missing, not a model,
+    or a model of another algorithm."""
+    import stable_baselines3 as sb3
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"--hp init_from: file {str(path)!r} does not exist")
+    try:
+        return cls.load(str(p), device="cpu")
+    except Exception as e:  # noqa: BLE001 - name the algorithm it belongs to, if any
+        err = f"{type(e).__name__}: {e}".splitlines()[0]
+    for other in ("PPO", "DQN", "SAC", "A2C", "TD3"):
+        if other == cls.__name__:
+            continue
+        try:
+            getattr(sb3, other).load(str(p), device="cpu")
+        except Exception:  # noqa: BLE001 - try the next algorithm
+            continue
+        raise ValueError(f"--hp init_from: {str(path)!r} is a {other} model; --algo {algo} fine-tunes "
+                         f"{cls.__name__} models only")
+    raise ValueError(f"--hp init_from: {str(path)!r} is not a stable-baselines3 model ({err})")
+
+
 def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None,
           on_selection=None):
     """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder.
 
     ``on_selection(row)`` (optional) is called after each selection evaluation (``row`` as in ``summary.json``'s
-    ``selection_history``); the sweeps (:mod:`agents.sweep`) report it to Ray Tune."""
+    ``selection_history``); the sweeps (:mod:`agents.sweep`) report it to Ray Tune.
+
+    Everything is checked (``ValueError``) before the run folder is made; the run is written to
+    ``<out>/<name>.partial`` and renamed to ``<out>/<name>`` when complete (see the module docstring)."""
     import torch
     import stable_baselines3 as sb3
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
@@ -112,6 +232,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     hp = dict(hp)
+    cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
+    kwargs = _check_hp(algo, cls, hp)
     env_kwargs = dict(hp.get("env_kwargs") or {})
     if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
         raise ValueError(f"training uses the random scenario generators only (env_kwargs.scenario must be one of "
@@ -129,65 +251,98 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     seed = int(seed)
     if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
         raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
+    src = _load_init_from(cls, algo, hp["init_from"]) if hp.get("init_from") else None
+    if algo in ("dqn", "sac"):
+        default_starts = inspect.signature(cls.__init__).parameters["learning_starts"].default
+        starts = int(kwargs.get("learning_starts", default_starts))
+        if n_timesteps <= starts:
+            warnings.warn(f"--timesteps {n_timesteps} does not exceed learning_starts {starts}: {cls.__name__} makes "
+                          "no gradient update, the saved policy is its random initialisation", UserWarning,
+                          stacklevel=2)
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
-    run.mkdir(parents=True, exist_ok=True)
-    (run / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
-    (run / "args.json").write_text(json.dumps(args or {}, indent=1))
-    (run / "command.txt").write_text((command or "") + "\n")
-    (run / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+    part = run.with_name(run.name + ".partial")
+    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
+        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
 
-    env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
+    try:
+        env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"--env-kwargs: {e}") from None
     if hp.get("normalize_reward", False):
         gamma = float(hp.get("gamma", 0.99))
         env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=gamma)
-
-    kwargs = {k: v for k, v in hp.items() if k not in _SPECIAL}
     for k in ("learning_rate", "clip_range"):
         if k in kwargs:
             kwargs[k] = _schedule(kwargs[k])
-    cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
-    model = cls(hp.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=0,
-                tensorboard_log=str(run / "tb"), policy_kwargs=_policy_kwargs(hp.get("policy_kwargs")), **kwargs)
-    if hp.get("init_from"):    # fine-tuning: start from a saved model's weights (same network and spaces)
-        src = cls.load(str(hp["init_from"]), device="cpu")
+    try:
+        model = cls(hp.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=0,
+                    tensorboard_log=str(part / "tb"), policy_kwargs=_policy_kwargs(hp.get("policy_kwargs")),
+                    **kwargs)
+    except (TypeError, ValueError, AssertionError, KeyError) as e:
+        raise ValueError(f"--hp: {cls.__name__} rejects the hyperparameters ({type(e).__name__}: {e})") from None
+    if src is not None:    # fine-tuning: start from a saved model's weights (same network and spaces)
         if src.observation_space != model.observation_space or src.action_space != model.action_space:
-            raise ValueError(f"init_from {hp['init_from']!r}: its spaces {src.observation_space}, {src.action_space} "
-                             f"differ from this env's {model.observation_space}, {model.action_space}")
+            raise ValueError(f"--hp init_from {hp['init_from']!r}: its spaces {src.observation_space}, "
+                             f"{src.action_space} differ from this env's {model.observation_space}, "
+                             f"{model.action_space}")
         try:
             model.policy.load_state_dict(src.policy.state_dict())
         except RuntimeError as e:
-            raise ValueError(f"init_from {hp['init_from']!r}: network does not match policy_kwargs ({e})") from e
+            raise ValueError(f"--hp init_from {hp['init_from']!r}: network does not match policy_kwargs "
+                             f"({str(e).splitlines()[0]})") from None
 
     scenarios = hp.get("eval_scenarios") or {"random": int(hp.get("eval_runs", 100))}
-    eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,
-                                   best_dir=run / "best", verbose=verbose, select_on=hp.get("select_on"),
-                                   on_row=on_selection)
+    try:
+        eval_cb = ImmRatioEvalCallback(env_kwargs, eval_freq=int(hp.get("eval_freq", 100_000)), scenarios=scenarios,
+                                       best_dir=part / "best", verbose=verbose, select_on=hp.get("select_on"),
+                                       on_row=on_selection)
+    except ValueError as e:
+        raise ValueError(f"--hp eval_scenarios / eval_runs / select_on: {e}") from None
     time_cb = EnvTimeCallback(adapter)
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
-    ckpt = CheckpointCallback(ckpt_freq, str(run / "checkpoints"), name_prefix=algo)
-    t0 = time.perf_counter()
-    model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
-                tb_log_name=algo)
-    wall = time.perf_counter() - t0
-    model.save(run / "policy.zip")
-    if isinstance(env, VecNormalize):
-        env.save(str(run / "vecnormalize.pkl"))
-    eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
-    summary = {
-        "timesteps": int(model.num_timesteps), "wall_s": wall, "env_s": adapter.env_time_s,
-        "env_share_of_wall": adapter.env_time_s / wall, "selection_eval_s": eval_s,
-        "env_share_of_wall_excluding_selection": adapter.env_time_s / max(wall - eval_s, 1e-9),
-        "steps_per_s": model.num_timesteps / wall, "best_selection_ratio_imm2": eval_cb.best_ratio,
-        "selection_history": eval_cb.history,
-    }
-    (run / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
+
+    try:
+        if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
+            shutil.rmtree(part)
+        part.mkdir(parents=True)
+    except OSError as e:
+        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
+    try:
+        (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
+        (part / "args.json").write_text(json.dumps(args or {}, indent=1))
+        (part / "command.txt").write_text((command or "") + "\n")
+        (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+        t0 = time.perf_counter()
+        model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
+                    tb_log_name=algo)
+        wall = time.perf_counter() - t0
+        model.save(part / "policy.zip")
+        if isinstance(env, VecNormalize):
+            env.save(str(part / "vecnormalize.pkl"))
+        eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
+        summary = {
+            "timesteps": int(model.num_timesteps), "n_updates": int(getattr(model, "_n_updates", -1)),
+            "wall_s": wall, "env_s": adapter.env_time_s,
+            "env_share_of_wall": adapter.env_time_s / wall, "selection_eval_s": eval_s,
+            "env_share_of_wall_excluding_selection": adapter.env_time_s / max(wall - eval_s, 1e-9),
+            "steps_per_s": model.num_timesteps / wall, "best_selection_ratio_imm2": eval_cb.best_ratio,
+            "selection_history": eval_cb.history,
+        }
+        (part / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+        env.close()
+    except BaseException:
+        (part / "FAILED").write_text(traceback.format_exc())
+        raise
+    part.rename(run)
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
               f" excluding selection evals); best selection ratio policy/imm2 {eval_cb.best_ratio:.3f}")
-    env.close()
     try:
         plot_training_curve(run)
     except ImportError:  # pragma: no cover - matplotlib is optional
@@ -289,9 +444,19 @@ def build_parser(prog="radar-track train"):
 
 
 def main(argv=None, prog="radar-track train"):
+    """The ``radar-track train`` command. A user error (options, hyperparameters, ``init_from``, run folder) stops
+    with a one-line ``error: --option ...`` (``SystemExit``) before the run folder is made. Returns the run folder."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
-    hp = load_hyperparams(args.algo, args.hyperparams)
+    for opt, v in (("--timesteps", args.timesteps), ("--n-envs", args.n_envs)):
+        if v is not None and v < 1:
+            raise SystemExit(f"error: {opt} must be an integer >= 1, got {v}")
+    if args.seed < 0:
+        raise SystemExit(f"error: --seed must be an integer in {TRAIN_SEEDS}, got {args.seed}")
+    try:
+        hp = load_hyperparams(args.algo, args.hyperparams)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
     try:
         ek = json.loads(args.env_kwargs)
     except json.JSONDecodeError as e:

@@ -131,7 +131,7 @@ def resolve_scenario(scenario):
                      f"{type(scenario).__name__}")
 
 
-def _draw_once(sc, radar, random_config, rng):
+def _draw_once(sc, radar, random_config, rng, radar_range_m):
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
     elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
@@ -141,7 +141,7 @@ def _draw_once(sc, radar, random_config, rng):
         setup = sc if radar is None else Setup(sc.scenario, radar)
     else:
         if radar is None:
-            site, _ = place_radar_site(rng, sc)
+            site, _ = place_radar_site(rng, sc, range_m=radar_range_m)
             setup = Setup(sc, atc_radar(position_m=tuple(site)))
         else:
             setup = Setup(sc, radar)
@@ -152,8 +152,12 @@ MAX_EPISODE_DRAWS = 200
 """Draws tried per reset for an episode long enough for the track start (:func:`draw_setup_and_episode`)."""
 
 
-def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans):
+def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
+                           radar_range_m=(10e3, 150e3)):
     """The episode of one reset: the truth (if random) and all plots, from ``rng`` only.
+
+    A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed by
+    :func:`radar_env.scenario.place_radar_site` with ``range_m=radar_range_m`` (m).
 
     An episode too short for the track start (two hits, ``warmup_scans`` warm-up looks, then at least one look
     for the policy; e.g. a short random flight seen by a slow radar, or missed plots) is redrawn from ``rng``, at
@@ -164,7 +168,7 @@ def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=Env
     fixed = isinstance(sc, (Setup, SegmentScenario, TrajectoryScenario)) or (
         isinstance(sc, str) and sc not in ("random", "random_radars"))
     for _ in range(MAX_EPISODE_DRAWS):
-        ep = _draw_once(sc, radar, random_config, rng)
+        ep = _draw_once(sc, radar, random_config, rng, radar_range_m)
         need = looks_for_track_start(ep.detected, ep.t_s, warmup_scans)
         if need is not None and ep.n_looks >= need:
             return ep
