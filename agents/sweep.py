@@ -245,7 +245,11 @@ def results_table(result_grid, space_keys, n_timesteps):
         row["status"] = ("error" if r.error else "done" if finished
                          else "stopped early" if state == "TERMINATED" else "unfinished")
         row["error"] = None if r.error is None else str(r.error).strip().splitlines()[-1][:200]
-        row["best_policy"] = str(Path(m["run_dir"]) / "best" / "policy.zip") if m.get("run_dir") else None
+        row["best_policy"] = None
+        if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.train)
+            d = Path(m["run_dir"])
+            d = d if d.is_dir() or not d.with_name(d.name + ".partial").is_dir() else d.with_name(d.name + ".partial")
+            row["best_policy"] = str(d / "best" / "policy.zip")
         rows.append(row)
     rows.sort(key=lambda r: (r["best_selection_ratio"] is None, r["best_selection_ratio"] or 0.0, r["trial"]))
     return rows
