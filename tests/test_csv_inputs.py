@@ -84,7 +84,7 @@ def test_implausible_csv_refused_with_file_line_and_reason(tmp_path, case):
         gym.make("RadarTrack-v0", scenario=str(p))
     with pytest.raises(SystemExit, match=msg) as e:     # the CLI: one line, no traceback
         evaluate_main(["--trajectory", str(p), "--runs", "1", "--trackers", "kf_low", "--no-plots", "--quiet"])
-    assert str(e.value).startswith(f"error: {p}: line ") and "\n" not in str(e.value)
+    assert str(e.value).startswith(f"error: --trajectory: {p}: line ") and "\n" not in str(e.value)
 
 
 def test_velocity_tolerance_scales_with_spacing(tmp_path):
