@@ -131,7 +131,7 @@ def resolve_scenario(scenario):
                      f"{type(scenario).__name__}")
 
 
-def _draw_once(sc, radar, random_config, rng, radar_range_m):
+def _draw_once(sc, radar, random_config, rng, radar_range_m=(10e3, 150e3)):
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
     elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
