@@ -29,13 +29,13 @@ from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
+from .bundle import BUNDLED_POLICY, policy_env_kwargs
 from .downstream import intercept_metrics, warning_metrics
 from .metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, ratio_ci
 from .suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, suite_key, trajectory_suite_names
 
 __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLICY"]
 
-BUNDLED_POLICY = Path(__file__).with_name("bundled") / "policy.zip"
 DEFAULT_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "encounters": 100}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
@@ -66,16 +66,8 @@ def load_policy(path):
             errors.append(f"{algo}: {type(e).__name__}")
     if model is None:
         raise ValueError(f"{path}: not a stable-baselines3 model this version can load ({'; '.join(errors)})")
-    kw = {}
     cfg_file = path.with_name("env_config.json")
-    if cfg_file.is_file():
-        try:
-            kw = json.loads(cfg_file.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{cfg_file}: not JSON ({e})") from None
-        if not isinstance(kw, dict):
-            raise ValueError(f"{cfg_file}: must hold a JSON object of RadarTrack-v0 arguments")
-        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
+    kw = policy_env_kwargs(path) if cfg_file.is_file() else {}
     from gymnasium import spaces
     discrete = isinstance(model.action_space, spaces.Discrete)
     kw.setdefault("action_type", "discrete" if discrete else "continuous")
