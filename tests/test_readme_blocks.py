@@ -4,8 +4,8 @@ and the numbers cannot drift apart.
 Generators called, by name: ``agents.report.headline(results, has_policy)`` and
 ``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.report.main``
 passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.paper_checks.readme_block(data)`` on
-``docs/paper_checks.json``. ``adsb-flights`` (``report.per_flight_table``) needs the per-look runs, which
-docs/results.json does not hold, so it cannot be rendered from the JSON yet (skipped, with that reason).
+``docs/paper_checks.json``, and ``agents.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
+for ``adsb-flights``.
 """
 
 import json
@@ -42,20 +42,22 @@ def _paper_checks():
     return paper_checks.readme_block(json.loads((ROOT / "docs" / "paper_checks.json").read_text()))
 
 
-RENDERERS = {"headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks}
-NOT_FROM_JSON = {"adsb-flights": "report.per_flight_table needs the runs; docs/results.json has no per-flight RMSE"}
+def _adsb_flights():
+    return report.per_flight_table(_results()["adsb_calibration"]["per_flight"])
+
+
+RENDERERS = {"headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks,
+             "adsb-flights": _adsb_flights}
 
 
 def test_every_readme_block_has_a_generator():
     names = block_names(README)
     assert len(names) == len(set(names)), f"duplicate blocks: {names}"
-    assert set(names) == set(RENDERERS) | set(NOT_FROM_JSON)
+    assert set(names) == set(RENDERERS)
 
 
-@pytest.mark.parametrize("name", sorted(RENDERERS) + sorted(NOT_FROM_JSON))
+@pytest.mark.parametrize("name", sorted(RENDERERS))
 def test_readme_block_equals_generator_output(name):
-    if name in NOT_FROM_JSON:
-        pytest.skip(NOT_FROM_JSON[name])
     assert read_block(name, README) == RENDERERS[name]().strip(), (
         f"README block {name!r} differs from its generator's output on the committed JSON; regenerate it")
 
