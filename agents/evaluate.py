@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import TRACKER_NAMES, run_tracker
+from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, run_tracker
 from baselines.trackers import TrackRun, run_q_policy
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import EnvConfig, actions_to_q_m_s2
@@ -119,7 +119,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
             the named suites themselves).
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
-            (:func:`agents.metrics.common_runs`); default: all ``trackers``.
+            (:func:`agents.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
+            every run (named in ``common_excluded_failed_everywhere``).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
@@ -131,6 +132,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         if policy_path is None:
             raise ValueError("tracker 'policy' needs a policy file (--policy PATH); none bundled")
         choose_q, pol_cfg = load_policy(policy_path)
+    default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
     if bad:
@@ -149,11 +151,14 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             t0 = time.time()
             suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
             bar(f"{suite}: {t} ({time.time() - t0:.1f} s)")
-        common = common_runs(batch, [suite_runs[t] for t in common_over])
+        # by default a tracker that failed every run does not empty the common set for all the others
+        dropped = [t for t in common_over if default_common and failed_runs(batch, suite_runs[t]).all()]
+        cover = [t for t in common_over if t not in dropped]
+        common = common_runs(batch, [suite_runs[t] for t in cover])
         n_common = int(common.sum())
         res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()),
                "few_runs": len(episodes) < FEW_RUNS, "common_runs": n_common, "few_common_runs": n_common < FEW_RUNS,
-               "common_trackers": common_over, "trackers": {}}
+               "common_trackers": cover, "common_excluded_failed_everywhere": dropped, "trackers": {}}
         for t, r in suite_runs.items():
             m = evaluate_run(batch, r, common=common)
             if r.error is not None:
@@ -297,7 +302,20 @@ def format_table(results, reference="imm2"):
                 _f_ci(rr[0], rr[1], ratio_runs.get(t, res["runs"]), 3) if rr else "",
                 _f_ci(rc[0], rc[1], n_common, 3) if rc else "")
             lines.append(" ".join(f"{c:{'<' if i == 0 else '>'}{w}s}" for i, (c, w) in enumerate(zip(cells, widths))))
+        lines += [f"  {n}" for n in table_notes(res)]
     return "\n".join(lines)
+
+
+def table_notes(suite_result):
+    """Notes printed under a suite's table: a tracker that raised (its error), and the design envelope of each
+    tracker used outside the conditions its paper assumed (:data:`baselines.registry.DESIGN_ENVELOPES`)."""
+    notes = []
+    for t, m in suite_result["trackers"].items():
+        if m.get("error"):
+            notes.append(f"{t}: failed on every run: {m['error']}")
+        if t in DESIGN_ENVELOPES:
+            notes.append(f"{t}: design envelope: {DESIGN_ENVELOPES[t]}")
+    return notes
 
 
 def _f(v, w, nd=1):
@@ -424,6 +442,11 @@ def main(argv=None, prog="radar-track evaluate"):
     """The ``radar-track evaluate`` command. Every user error (options, files, outputs) stops with a one-line
     ``error: --option: ...`` (``SystemExit``) before any evaluation runs. Returns the results dict."""
     args = build_parser(prog).parse_args(argv)
+    # a CSV path given to --scenario is a trajectory suite (named by its stem, seeded by its content)
+    csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv")]
+    if csv_scenarios:
+        args.scenario = [n for n in args.scenario if not n.endswith(".csv")]
+        args.trajectory = list(args.trajectory or []) + csv_scenarios
     if args.seed < 0:
         raise SystemExit(f"error: --seed must be an integer >= 0, got {args.seed}")
     if args.runs is not None and args.runs < 1:
@@ -501,9 +524,6 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
-    if not args.no_plots:
-        files = write_plots(runs, args.out)
-        print(f"plots: {len(files)} files in {args.out}/")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "policy": policy, "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
@@ -515,6 +535,9 @@ def main(argv=None, prog="radar-track evaluate"):
         Path(args.json).write_text(json.dumps(_jsonable({"meta": meta, "suites": results}), indent=1,
                                               allow_nan=False))
         print(f"metrics: {args.json}")
+    if not args.no_plots:
+        written = write_plots(runs, args.out)
+        print(f"plots: {len(written)} files in {args.out}/")
     return results
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluate import BUNDLED_POLICY, DEFAULT_RUNS, _jsonable, evaluate
+from .evaluate import BUNDLED_POLICY, DEFAULT_RUNS, _jsonable, evaluate, table_notes
 from .metrics import FEW_RUNS
 from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
 
@@ -68,6 +68,8 @@ def markdown_tables(results, reference="imm2"):
                 f"{_ci(r[0], r[1], ratio_runs.get(t, res['runs']), 3) if r else '-'} | "
                 f"{_ci(rc[0], rc[1], n_common, 3) if rc else '-'} | {_fmt(m.get('detection_delay_looks'), 2)} | "
                 f"{_fmt(m.get('false_alarm_rate'), 3)} |")
+        notes = table_notes(res)
+        out += [""] + [f"* {n}" for n in notes] if notes else []
         out.append("")
     return "\n".join(out)
 
@@ -99,6 +101,12 @@ def headline(results, has_policy):
     return "\n".join(lines)
 
 
+def _fewer(m, suite_result):
+    """' (n=k of N)' where a downstream metric comes from fewer runs than the suite has (failed runs left out)."""
+    k = m.get("downstream_runs")
+    return "" if k is None or k >= suite_result["runs"] else f" (n={k} of {suite_result['runs']})"
+
+
 def downstream_tables(results, trackers):
     """Markdown: conflict warnings on the encounters suite, intercept miss distance per suite."""
     out = []
@@ -109,7 +117,7 @@ def downstream_tables(results, trackers):
         for t in trackers:
             m = enc["trackers"].get(t)
             if m:
-                out.append(f"| {t} | {_fmt(m['warning_lead_time_s'])} ({_fmt(m['ideal_lead_time_s'])}) | "
+                out.append(f"| {t}{_fewer(m, enc)} | {_fmt(m['warning_lead_time_s'])} ({_fmt(m['ideal_lead_time_s'])}) | "
                            f"{_fmt(m['missed_warnings'], 2)} | {_fmt(m['false_warning_rate'], 3)} | "
                            f"{_fmt(m['missed_warning_rate'], 3)} |")
         out.append("")
@@ -120,7 +128,8 @@ def downstream_tables(results, trackers):
         cells = []
         for su in suites:
             m = results[su]["trackers"].get(t, {})
-            cells.append(f"{_fmt(m.get('intercept_miss_m_median'))} ({_fmt(m.get('intercept_capture_rate'), 2)})")
+            cells.append(f"{_fmt(m.get('intercept_miss_m_median'))} ({_fmt(m.get('intercept_capture_rate'), 2)})"
+                         f"{_fewer(m, results[su])}")
         out.append(f"| {t} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 

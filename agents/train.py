@@ -261,6 +261,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                           stacklevel=2)
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
+    if run_name is not None and (not isinstance(run_name, str) or run_name in ("", ".", "..")
+                                 or Path(run_name).name != run_name or "\\" in run_name):
+        raise ValueError(f"--name: must be a plain folder name inside --out (no '/', '..'), got {run_name!r}")
     run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
     part = run.with_name(run.name + ".partial")
     if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
@@ -333,7 +336,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
             "steps_per_s": model.num_timesteps / wall, "best_selection_ratio_imm2": eval_cb.best_ratio,
             "selection_history": eval_cb.history,
         }
-        (part / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+        from .evaluate import _jsonable    # inf (a failed selection evaluation) -> null, never 'Infinity'
+        (part / "summary.json").write_text(json.dumps(_jsonable(summary), indent=1, allow_nan=False))
         env.close()
     except BaseException:
         (part / "FAILED").write_text(traceback.format_exc())

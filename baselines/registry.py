@@ -21,7 +21,7 @@ from . import trackers as T
 from .policies import make_policy
 from .tuned_params import TUNED_PATH, tuned_parameters
 
-__all__ = ["TRACKER_NAMES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
+__all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
 
 def tuned_imm2_spec():
     p = tuned_parameters()["imm2"]
@@ -67,6 +67,17 @@ _RUNNERS = {
 }
 
 TRACKER_NAMES = ("policy",) + tuple(_RUNNERS)
+
+DESIGN_ENVELOPES = {
+    "alpha_beta": "Kalata gains assume a constant scan period; with irregular or two-site looks each gap gets the "
+                  "steady-state gain of its own period (baselines/alpha_beta.py)",
+    "alpha_beta_adaptive": "as alpha_beta, and the 12-look fudge-factor window assumes one scan period "
+                           "(baselines/alpha_beta.py)",
+    "konle": "the differential EKF assumes plot noise small against the chord v*dt between plots; far outside it "
+             "(e.g. 1 deg at 250 km, 0.5 s) it is stable but poor (baselines/konle.py)",
+}
+"""Trackers used outside the conditions their papers designed them for on some suites: the evaluation tables
+print these notes beside them, so a poor number is read as what it is."""
 
 
 def run_tracker(name, episodes, cfg: EnvConfig | None = None):

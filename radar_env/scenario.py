@@ -275,6 +275,14 @@ TRAJECTORY_MAX_DURATION_S = 1e5
 """Longest trajectory (27.8 h, longer than any flight)."""
 
 _MS_RATIO = (300.0, 3000.0)  # velocity columns / positions' rate on this order: milliseconds (or kilometres)
+TRAJECTORY_RATE_RATIO = (0.8, 1.25)
+"""Accepted range of the median over the intervals of |mean of the velocity columns| / |positions' rate|:
+velocity columns in another unit (knots: 1.94x, km/h: 3.6x) or scaled are refused even where the 20 g bound on
+the spline, which widens with the spacing, would pass them."""
+TRAJECTORY_MIN_RATE_COS = 0.98
+"""Accepted median over the intervals of the cosine between the velocity columns' mean and the positions' rate
+(11.5 deg): swapped (off the diagonal) or sign-flipped velocity columns are refused. A steady turn keeps this near 1 (the chord is
+parallel to the mean of its end velocities)."""
 
 
 def _num(x):
@@ -360,6 +368,23 @@ def _check_trajectory(t, p, v, prefix, where):
                     f"the spline through the samples reaches a speed of {sp:.6g} m/s, outside [{MIN_SPEED_M_S:g}, "
                     f"{TRAJECTORY_MAX_SPEED_M_S:g}] m/s: velocity columns inconsistent with the positions, or "
                     "samples too far apart for the motion")
+    # Median checks over the intervals that move (a unit or column mix-up affects every interval; one bad sample
+    # is the 20 g check's job), after the specific checks above so that they give their clearer messages first.
+    moving = np.hypot(d[:, 0], d[:, 1]) >= 0.5 * MIN_SPEED_M_S
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cos = np.einsum("ij,ij->i", vm, d) / (np.hypot(vm[:, 0], vm[:, 1]) * np.hypot(d[:, 0], d[:, 1]))
+    med = float(np.median(ratio[moving])) if moving.any() else 1.0
+    med_cos = float(np.median(cos[moving])) if moving.any() else 1.0
+    if not TRAJECTORY_RATE_RATIO[0] <= med <= TRAJECTORY_RATE_RATIO[1] or med_cos < TRAJECTORY_MIN_RATE_COS:
+        bad = moving & ~((ratio >= TRAJECTORY_RATE_RATIO[0]) & (ratio <= TRAJECTORY_RATE_RATIO[1])
+                         & (cos >= TRAJECTORY_MIN_RATE_COS))
+        i = int(np.flatnonzero(bad)[0]) + 1 if bad.any() else 1
+        raise ValueError(
+            f"{prefix}{where(i)}: velocity columns inconsistent with the positions' time derivative over the whole "
+            f"trajectory: their speed is {med:.3g}x the positions' rate (median over the intervals; accepted "
+            f"{TRAJECTORY_RATE_RATIO[0]:g}-{TRAJECTORY_RATE_RATIO[1]:g}x) and their direction agrees with it by a "
+            f"median cosine of {med_cos:.3g} (accepted >= {TRAJECTORY_MIN_RATE_COS:g}); vx_m_s, vy_m_s must be m/s "
+            "east/north (knots are 1.94x, km/h 3.6x)")
     return CubicHermiteSpline(tr, p[:, 0], v[:, 0]), CubicHermiteSpline(tr, p[:, 1], v[:, 1])
 
 
@@ -402,7 +427,10 @@ class TrajectoryScenario:
       linear on each interval and thus peaks at its ends, ``|6 d - 4 v_i - 2 v_{i+1}| / h`` and
       ``|6 d - 2 v_i - 4 v_{i+1}| / h`` (``d`` the mean velocity from the positions, ``h`` the spacing), must not
       exceed ``TRAJECTORY_MAX_ACCEL_G`` = 20 g. E.g. at 1 s spacing a velocity column off by 40 m/s is refused,
-      at 10 s by 400 m/s.
+      at 10 s by 400 m/s. Over the whole trajectory, the median over the intervals of the velocity columns' mean
+      speed / the positions' rate must lie in ``TRAJECTORY_RATE_RATIO`` (0.8-1.25) and the median cosine of the
+      angle between them be at least ``TRAJECTORY_MIN_RATE_COS`` (0.98, 11.5 deg): velocity columns in knots or km/h, scaled,
+      swapped or at right angles to the motion are refused however long the spacing.
     """
 
     def __init__(self, t_s, x_m, y_m, vx_m_s, vy_m_s, name="trajectory", maneuver_threshold_m_s2=0.05 * G0_M_S2):

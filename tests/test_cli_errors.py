@@ -279,3 +279,34 @@ def test_hyperparameter_files_are_package_data(tmp_path):
             "print(sorted(t.load_hyperparams(a)['n_timesteps'] > 0 for a in t.ALGOS))")
     res = subprocess.run([sys.executable, "-c", code], cwd=site, capture_output=True, text=True, check=True)
     assert res.stdout.strip() == "[True, True, True]"
+
+
+def test_csv_given_to_scenario_is_a_trajectory_suite_and_json_comes_first(tmp_path, monkeypatch):
+    """`--scenario sub/a.csv` runs as the trajectory suite `a` (stem name, content seed), so its plots land in --out
+    and its JSON is written; before, the raw path became a plot file name and the run died after the table."""
+    import json
+
+    from agents import evaluate as ev
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    t = np.arange(0.0, 601.0, 1.0)
+    rows = ["t_s,x_m,y_m,vx_m_s,vy_m_s"] + [f"{a},{50e3 + 200 * a},30000.0,200.0,0.0" for a in t]
+    (sub / "a.csv").write_text("\n".join(rows) + "\n")
+    monkeypatch.chdir(tmp_path)
+    out, js = tmp_path / "plots", tmp_path / "r.json"
+    ev.main(["--scenario", "sub/a.csv", "--runs", "2", "--trackers", "kf_tuned", "--out", str(out),
+             "--json", str(js), "--quiet"])
+    data = json.loads(js.read_text())
+    assert list(data["suites"]) == ["a"] and "a" in data["meta"]["trajectories"]
+    assert sorted(p.name for p in out.iterdir())[0].startswith("a_")
+    via_traj = ev.main(["--trajectory", "sub/a.csv", "--runs", "2", "--trackers", "kf_tuned", "--no-plots",
+                        "--quiet"])
+    assert via_traj["a"]["trackers"]["kf_tuned"]["pos_rmse_m"] == data["suites"]["a"]["trackers"]["kf_tuned"][
+        "pos_rmse_m"]
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "..", "."])
+def test_train_name_must_be_a_plain_folder_name(tmp_path, name):
+    with pytest.raises(SystemExit, match=r"--name: must be a plain folder name"):
+        train_main(["--algo", "ppo", "--timesteps", "256", "--out", str(tmp_path), "--name", name])
+    assert not any(tmp_path.parent.glob("x.partial"))

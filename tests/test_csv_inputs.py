@@ -219,3 +219,20 @@ def test_fuzz_csv_refused_naming_the_file_or_finite(lines, encoding, newline):
     event("accepted")
     assert np.all(np.isfinite(ep.truth)) and np.all(np.isfinite(ep.truth_accel_m_s2))
 
+
+
+@pytest.mark.parametrize("spacing_s", [10.0, 30.0])
+@pytest.mark.parametrize("case", ["knots", "km_h", "swapped", "right_angle"])
+def test_velocity_columns_in_another_unit_or_order_refused_at_any_spacing(tmp_path, case, spacing_s):
+    # A straight 200 m/s flight whose velocity columns are in knots (1.94x) passes the 20 g spline bound at 10 s
+    # and 30 s spacing (the bound widens with the spacing) and would be flown as a speed-oscillating path; the
+    # median rate-ratio / direction checks refuse it, naming the file, a line and the reason.
+    t = np.arange(0.0, 600.0 + spacing_s, spacing_s)
+    x, y = 50e3 + 160.0 * t, 20e3 + 120.0 * t
+    vx, vy = np.full_like(t, 160.0), np.full_like(t, 120.0)
+    vx, vy = {"knots": (vx * 1.943844, vy * 1.943844), "km_h": (vx * 3.6, vy * 3.6), "swapped": (vy, vx),
+              "right_angle": (-vy, vx)}[case]
+    p = _write(tmp_path / f"{case}.csv", [f"{a},{b},{c},{d},{e}" for a, b, c, d, e in zip(t, x, y, vx, vy)])
+    with pytest.raises(ValueError, match=r"line \d+: .*velocity columns inconsistent with the positions") as e:
+        TrajectoryScenario.from_csv(p)
+    assert str(e.value).startswith(f"{p}: line ")

@@ -165,9 +165,16 @@ def test_no_nan_or_inf_in_json_or_tables_when_a_tracker_fails_everywhere(suite, 
     results, _ = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False)
     res = results["bizup2002"]
     m = res["trackers"]["cmin"]
-    assert m["failed_runs"] == 3 and m["track_loss_rate"] == 1.0 and res["common_runs"] == 0
+    # a tracker that failed every run is left out of the common set (named), not allowed to empty it
+    assert m["failed_runs"] == 3 and m["track_loss_rate"] == 1.0 and res["common_runs"] == 3
+    assert res["common_excluded_failed_everywhere"] == ["cmin"]
     assert "all 3 runs failed" in m["undefined"]["pos_rmse_m"]
-    assert "no common run" in res["trackers"]["imm2"]["undefined"]["pos_rmse_m_common"]
+    assert np.isfinite(res["trackers"]["imm2"]["pos_rmse_m_common"])
+    # asked for explicitly, the common set over every tracker is empty, and says why
+    strict = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False, common_over=list(TRACKERS))[0]
+    assert strict["bizup2002"]["common_runs"] == 0
+    assert "no common run" in strict["bizup2002"]["trackers"]["imm2"]["undefined"]["pos_rmse_m_common"]
+    json.dumps(_jsonable(strict), allow_nan=False)
     text = json.dumps(_jsonable({"meta": {}, "suites": results}), allow_nan=False)      # raises on NaN / Inf
     d = json.loads(text)["suites"]["bizup2002"]
     assert d["trackers"]["cmin"]["pos_rmse_m"] is None and d["trackers"]["cmin"]["pos_rmse_m_ci95"] == [None, None]
@@ -224,3 +231,30 @@ def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(mo
     assert np.isfinite(res["trackers"]["kf_tuned"]["pos_rmse_m"])
     json.dumps(ev._jsonable(results), allow_nan=False)
     assert "kf_low" in ev.format_table(results)
+
+
+def test_tracker_failing_everywhere_does_not_empty_the_common_set_and_is_noted(monkeypatch):
+    from agents import evaluate as ev
+    from agents.suites import draw_suite
+    from baselines import registry
+
+    def boom(episodes, cfg):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setitem(registry._RUNNERS, "kf_low", boom)
+    suites = [("bizup2002", draw_suite("bizup2002", 3, seed=5000))]
+    res = ev.evaluate(suites, ["imm2", "kf_low", "konle"], progress=False)[0]["bizup2002"]
+    assert res["common_excluded_failed_everywhere"] == ["kf_low"] and res["common_runs"] == 3
+    assert np.isfinite(res["trackers"]["imm2"]["pos_rmse_m_common"])
+    table = ev.format_table({"bizup2002": res})
+    assert "kf_low: failed on every run: LinAlgError" in table and "konle: design envelope:" in table
+
+
+def test_downstream_cells_say_when_they_come_from_fewer_runs():
+    from agents.report import downstream_tables
+    res = {"bizup2002": {"runs": 8, "trackers": {"a": {"intercept_miss_m_median": 5.0, "intercept_capture_rate": 1.0,
+                                                       "downstream_runs": 6},
+                                                 "b": {"intercept_miss_m_median": 4.0, "intercept_capture_rate": 1.0,
+                                                       "downstream_runs": 8}}}}
+    text = downstream_tables(res, ["a", "b"])
+    assert "(n=6 of 8)" in text and text.count("(n=") == 1
