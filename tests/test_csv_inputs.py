@@ -3,6 +3,7 @@ and the reason, by ``TrajectoryScenario.from_csv``, ``gym.make`` and ``radar-tra
 gives finite truth."""
 
 import math
+import json
 import tempfile
 from pathlib import Path
 
@@ -218,6 +219,17 @@ def test_fuzz_csv_refused_naming_the_file_or_finite(lines, encoding, newline):
         return
     event("accepted")
     assert np.all(np.isfinite(ep.truth)) and np.all(np.isfinite(ep.truth_accel_m_s2))
+    # and the evaluation's table and JSON of it hold no NaN or Inf, whatever the tracker did (too short for the
+    # track start: the whole episode is refused by name, as above)
+    from agents.evaluate import _jsonable, evaluate, format_table
+    try:
+        results, _ = evaluate([("fuzz_flight", [ep])], ["kf_tuned", "imm2"], progress=False)
+    except ValueError as e:
+        assert "fuzz_flight" in str(e), str(e)
+        return
+    json.dumps(_jsonable(results), allow_nan=False)
+    low = format_table(results).lower()
+    assert "nan" not in low and " inf" not in low
 
 
 
