@@ -138,11 +138,12 @@ def _policy_in_worker(blob):
     key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
     if key not in _POLICY_CACHE:
         from .evaluate import load_policy
-        d = Path(tempfile.mkdtemp(prefix="radar_track_policy_"))
-        (d / "policy.zip").write_bytes(zip_bytes)
-        if env_cfg is not None:
-            (d / "env_config.json").write_bytes(env_cfg)
-        _POLICY_CACHE[key] = load_policy(d / "policy.zip")
+        with tempfile.TemporaryDirectory(prefix="radar_track_policy_") as tmp:   # the model is in memory after
+            d = Path(tmp)
+            (d / "policy.zip").write_bytes(zip_bytes)
+            if env_cfg is not None:
+                (d / "env_config.json").write_bytes(env_cfg)
+            _POLICY_CACHE[key] = load_policy(d / "policy.zip")
     return _POLICY_CACHE[key]
 
 

@@ -10,9 +10,11 @@ import sys
 import numpy as np
 import pytest
 
+import agents.parallel
 from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate, run_one
 from agents.evaluate import main as evaluate_main
-from agents.parallel import chunk_bounds, concat_runs, episodes_digest, merge_chunk_runs, run_suites_ray
+from agents.parallel import (_policy_blob, _policy_in_worker, chunk_bounds, concat_runs, episodes_digest,
+                             merge_chunk_runs, run_suites_ray)
 from agents.suites import draw_suite
 from agents.sweep import load_sweep_config, run_sweep
 from agents.sweep import main as sweep_main
@@ -123,6 +125,16 @@ def test_a_tracker_failing_in_one_chunk_fails_the_whole_suite_as_serially(monkey
     assert f"warning: tracker {tracker!r} failed on this suite" in err and serial.error in err
     _assert_runs_equal(merge_chunk_runs("kf_tuned", [run_one("kf_tuned", eps[a:b]) for a, b in
                                                      chunk_bounds(len(eps), 2)], eps), run_one("kf_tuned", eps))
+
+
+@pytest.mark.skipif(not BUNDLED_POLICY.is_file(), reason="no bundled policy")
+def test_loading_the_policy_in_a_worker_leaves_no_temp_dir(monkeypatch, tmp_path):
+    monkeypatch.setattr(agents.parallel.tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(agents.parallel, "_POLICY_CACHE", {})
+    choose_q, cfg = _policy_in_worker(_policy_blob(BUNDLED_POLICY))
+    assert list(tmp_path.glob("radar_track_policy_*")) == []          # (torch may leave its own cache dirs)
+    obs = np.zeros((3, len(cfg.features)))
+    assert choose_q(obs).shape == (3,)                    # the model works with its files gone
 
 
 def test_missing_ray_gives_a_one_line_error_naming_the_extra(monkeypatch, tmp_path, capsys):
