@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 import agents.parallel
+import agents.train
 from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate, run_one
 from agents.evaluate import main as evaluate_main
 from agents.parallel import (_policy_blob, _policy_in_worker, chunk_bounds, concat_runs, episodes_digest,
                              merge_chunk_runs, run_suites_ray)
 from agents.suites import draw_suite
-from agents.sweep import load_sweep_config, run_sweep
+from agents.sweep import _trial, load_sweep_config, run_sweep
 from agents.sweep import main as sweep_main
 from baselines import registry
 from baselines.registry import run_tracker
@@ -125,6 +126,29 @@ def test_a_tracker_failing_in_one_chunk_fails_the_whole_suite_as_serially(monkey
     assert f"warning: tracker {tracker!r} failed on this suite" in err and serial.error in err
     _assert_runs_equal(merge_chunk_runs("kf_tuned", [run_one("kf_tuned", eps[a:b]) for a, b in
                                                      chunk_bounds(len(eps), 2)], eps), run_one("kf_tuned", eps))
+
+
+def test_a_finished_trial_is_reported_again_not_retrained(monkeypatch, tmp_path):
+    """A trial whose run folder was finished before an interruption, restarted by Tune on restore, re-reports its
+    selection history (train would refuse the existing run folder on every retry)."""
+    tune = pytest.importorskip("ray.tune")
+    hist = [{"timesteps": 1024, "selection_ratio": 0.9, "random_ratio_imm2": 0.9, "eval_s": 1.0},
+            {"timesteps": 2048, "selection_ratio": 0.8, "random_ratio_imm2": 0.8, "eval_s": 1.0}]
+    run = tmp_path / "runs" / "trial_abc"
+    run.mkdir(parents=True)
+    (run / "summary.json").write_text(json.dumps({"timesteps": 2048, "selection_history": hist}))
+    reported = []
+    monkeypatch.setattr(tune, "get_context", lambda: type("Ctx", (), {"get_trial_name": lambda self: run.name})())
+    monkeypatch.setattr(tune, "report", reported.append)
+
+    def no_train(*a, **k):
+        raise AssertionError("a finished trial was trained again")
+    monkeypatch.setattr(agents.train, "train", no_train)
+    _trial({"seed": 0}, "ppo", {"n_timesteps": 2048}, str(run.parent))
+    assert [r["selection_ratio"] for r in reported] == [h["selection_ratio"] for h in hist]
+    assert [r["timesteps"] for r in reported] == [h["timesteps"] for h in hist]
+    assert all(r["run_dir"] == str(run) and r["random_ratio_imm2"] == h["random_ratio_imm2"]
+               for r, h in zip(reported, hist))
 
 
 @pytest.mark.skipif(not BUNDLED_POLICY.is_file(), reason="no bundled policy")
