@@ -190,12 +190,17 @@ def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
             return run_q_policy(episodes, choose_q, "policy", policy_cfg)
         return run_tracker(tracker, episodes)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:
-        msg = f"{type(e).__name__}: {e}"
-        print(f"warning: tracker {tracker!r} failed on this suite ({msg}); every run counted as failed",
-              file=sys.stderr)
-        B, K = len(episodes), max(len(ep.t_s) for ep in episodes)
-        return TrackRun(tracker, np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.zeros(B, np.int64),
-                        np.full((B, K), np.nan), error=msg)
+        return failed_track_run(tracker, episodes, f"{type(e).__name__}: {e}")
+
+
+def failed_track_run(tracker, episodes, msg):
+    """The :class:`TrackRun` of a tracker that raised ``msg`` on a suite: NaN on every run and look (so every run
+    counts as failed), ``error=msg``; the warning goes to stderr. Shared by the serial and the Ray evaluations
+    (:mod:`agents.parallel`: a failure in any chunk fails the whole suite, as serially)."""
+    print(f"warning: tracker {tracker!r} failed on this suite ({msg}); every run counted as failed", file=sys.stderr)
+    B, K = len(episodes), max(len(ep.t_s) for ep in episodes)
+    return TrackRun(tracker, np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.zeros(B, np.int64),
+                    np.full((B, K), np.nan), error=msg)
 
 
 def _downstream(suite, episodes, batch, run):

@@ -28,8 +28,8 @@ import numpy as np
 from baselines.trackers import TrackRun
 from radar_env.catalog import SCENARIO_NAMES
 
-__all__ = ["require_ray", "ray_session", "chunk_bounds", "concat_runs", "episodes_digest", "run_suites_ray",
-           "SCALE_EXTRA_HINT"]
+__all__ = ["require_ray", "ray_session", "chunk_bounds", "concat_runs", "merge_chunk_runs", "episodes_digest",
+           "run_suites_ray", "SCALE_EXTRA_HINT"]
 
 SCALE_EXTRA_HINT = "pip install -e '.[scale]'"
 
@@ -102,8 +102,8 @@ def _pad(a, K, fill):
 
 
 def concat_runs(parts, K):
-    """One :class:`TrackRun` from per-chunk runs (in run order), every (B, k, ...) array padded to ``K`` looks with
-    the serial run's fill (NaN; False for declarations)."""
+    """One :class:`TrackRun` from per-chunk runs (in run order, none failed: see :func:`merge_chunk_runs`), every
+    (B, k, ...) array padded to ``K`` looks with the serial run's fill (NaN; False for declarations)."""
     first = parts[0]
     declared = None
     if first.declared is not None:
@@ -116,6 +116,18 @@ def concat_runs(parts, K):
                     next((p.error for p in parts if p.error is not None), None))
 
 
+def merge_chunk_runs(tracker, parts, episodes):
+    """The suite's :class:`TrackRun` from its per-chunk runs (in run order) on ``episodes`` (the whole suite): the
+    concatenation, or, if any chunk failed, what the serial run gives a tracker that raises on the suite
+    (:func:`agents.evaluate.failed_track_run`: NaN on every run, the first failed chunk's error, the warning on
+    the driver's stderr; a worker's stderr is not forwarded)."""
+    err = next((p.error for p in parts if p.error is not None), None)
+    if err is not None:
+        from .evaluate import failed_track_run
+        return failed_track_run(tracker, episodes, err)
+    return concat_runs(parts, max(e.n_looks for e in episodes))
+
+
 # ------------------------------------------------------------------------------------------------ worker side
 _POLICY_CACHE = {}
 
@@ -126,11 +138,12 @@ def _policy_in_worker(blob):
     key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
     if key not in _POLICY_CACHE:
         from .evaluate import load_policy
-        d = Path(tempfile.mkdtemp(prefix="radar_track_policy_"))
-        (d / "policy.zip").write_bytes(zip_bytes)
-        if env_cfg is not None:
-            (d / "env_config.json").write_bytes(env_cfg)
-        _POLICY_CACHE[key] = load_policy(d / "policy.zip")
+        with tempfile.TemporaryDirectory(prefix="radar_track_policy_") as tmp:   # the model is in memory after
+            d = Path(tmp)
+            (d / "policy.zip").write_bytes(zip_bytes)
+            if env_cfg is not None:
+                (d / "env_config.json").write_bytes(env_cfg)
+            _POLICY_CACHE[key] = load_policy(d / "policy.zip")
     return _POLICY_CACHE[key]
 
 
@@ -200,7 +213,6 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
                            else given.remote(eps_refs[c], t, blob_ref))
                     pending[ref] = (suite, t, c)
         n_chunks = {s: len(chunk_bounds(len(e), workers)) for s, e in suites}
-        K = {s: max(e.n_looks for e in eps) for s, eps in suites}
         parts = {}
         try:
             while pending:
@@ -217,5 +229,5 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
             for ref in pending:
                 ray.cancel(ref, force=True)
             raise
-    return {s: {t: concat_runs([parts[s, t][c] for c in range(n_chunks[s])], K[s]) for t in trackers}
-            for s, _ in suites}
+    return {s: {t: merge_chunk_runs(t, [parts[s, t][c] for c in range(n_chunks[s])], eps) for t in trackers}
+            for s, eps in suites}

@@ -194,6 +194,15 @@ def _trial(config, algo, hp, runs_dir):
         tune.report({METRIC: float(ratio), "timesteps": int(row["timesteps"]), "run_dir": str(run_dir),
                      **{k: float(v) for k, v in row.items() if k.endswith("_ratio_imm2")}})
 
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        # finished (renamed from '<trial>.partial') before Tune's last experiment save, then interrupted: on
+        # restore, Tune restarts the trial; report its selection evaluations again instead of training anew
+        # (train refuses a finished run folder, so the trial would fail on every retry)
+        for row in json.loads(summary.read_text())["selection_history"]:
+            report(row)
+        return
+
     train(algo, trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
           command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
           on_selection=report)

@@ -2,6 +2,7 @@
 their table and resume; without the 'scale' extra a one-line error names it. One local Ray (2 CPUs) per module."""
 
 import csv
+import functools
 import json
 import math
 import sys
@@ -9,12 +10,16 @@ import sys
 import numpy as np
 import pytest
 
-from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate
+import agents.parallel
+import agents.train
+from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate, run_one
 from agents.evaluate import main as evaluate_main
-from agents.parallel import chunk_bounds, concat_runs
+from agents.parallel import (_policy_blob, _policy_in_worker, chunk_bounds, concat_runs, episodes_digest,
+                             merge_chunk_runs, run_suites_ray)
 from agents.suites import draw_suite
-from agents.sweep import load_sweep_config, run_sweep
+from agents.sweep import _trial, load_sweep_config, run_sweep
 from agents.sweep import main as sweep_main
+from baselines import registry
 from baselines.registry import run_tracker
 
 TINY_SWEEP = """
@@ -39,15 +44,39 @@ seed = [0, 1]
 """
 
 
+FAIL_SEED = 10_000_000          # bizup2002, 4 runs from this seed: chunks (0, 2), (2, 4) on 2 workers
+
+
+def _fail_on_run(i, episodes, cfg):
+    """A kf_tuned that raises on any batch holding run ``i`` of bizup2002 from FAIL_SEED (recognised by content, so
+    also on a Ray worker that drew its own episodes)."""
+    bad = episodes_digest(draw_suite("bizup2002", 1, seed=FAIL_SEED + i))
+    if any(episodes_digest([ep]) == bad for ep in episodes):
+        raise np.linalg.LinAlgError(f"singular matrix (simulated, run {i})")
+    return registry._RUNNERS["kf_tuned"](episodes, cfg)
+
+
+FAILING_TRACKERS = {"fails_on_run0": functools.partial(_fail_on_run, 0),     # lands in chunk 0
+                    "fails_on_run3": functools.partial(_fail_on_run, 3)}     # lands in chunk 1
+
+
+def _register_failing_trackers():
+    """Ray worker setup hook: the test trackers exist in every worker process (a monkeypatch stays in the driver)."""
+    registry._RUNNERS.update(FAILING_TRACKERS)
+
+
 @pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray")
     started = not ray.is_initialized()
     if started:
-        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
+        ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])     # workers cannot import this module
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"worker_process_setup_hook": _register_failing_trackers})
+    yield ray, started
     if started:
         ray.shutdown()
+        ray.cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
 
 
 def _assert_runs_equal(a, b):
@@ -76,6 +105,60 @@ def test_chunks_are_contiguous_and_concat_pads_like_the_serial_run():
         serial = run_tracker(tracker, eps)
         parts = [run_tracker(tracker, eps[a:b]) for a, b in chunk_bounds(len(eps), 3)]
         _assert_runs_equal(concat_runs(parts, max(e.n_looks for e in eps)), serial)
+
+
+@pytest.mark.parametrize("tracker", list(FAILING_TRACKERS))
+def test_a_tracker_failing_in_one_chunk_fails_the_whole_suite_as_serially(monkeypatch, capsys, tracker):
+    """Serially a tracker that raises gets NaN on every run of the suite; the Ray driver's merge of the chunks must
+    give the same TrackRun (not NaN on one chunk only, not a KeyError from concatenating a failed chunk)."""
+    monkeypatch.setitem(registry._RUNNERS, tracker, FAILING_TRACKERS[tracker])
+    eps = draw_suite("bizup2002", 4, seed=FAIL_SEED)
+    serial = run_one(tracker, eps)
+    assert serial.error is not None and np.isnan(serial.x).all()
+    capsys.readouterr()
+    parts = [run_one(tracker, eps[a:b]) for a, b in chunk_bounds(len(eps), 2)]
+    assert sum(p.error is not None for p in parts) == 1                    # only one chunk raised
+    capsys.readouterr()
+    merged = merge_chunk_runs(tracker, parts, eps)
+    _assert_runs_equal(merged, serial)
+    assert merged.error == serial.error
+    err = capsys.readouterr().err
+    assert f"warning: tracker {tracker!r} failed on this suite" in err and serial.error in err
+    _assert_runs_equal(merge_chunk_runs("kf_tuned", [run_one("kf_tuned", eps[a:b]) for a, b in
+                                                     chunk_bounds(len(eps), 2)], eps), run_one("kf_tuned", eps))
+
+
+def test_a_finished_trial_is_reported_again_not_retrained(monkeypatch, tmp_path):
+    """A trial whose run folder was finished before an interruption, restarted by Tune on restore, re-reports its
+    selection history (train would refuse the existing run folder on every retry)."""
+    tune = pytest.importorskip("ray.tune")
+    hist = [{"timesteps": 1024, "selection_ratio": 0.9, "random_ratio_imm2": 0.9, "eval_s": 1.0},
+            {"timesteps": 2048, "selection_ratio": 0.8, "random_ratio_imm2": 0.8, "eval_s": 1.0}]
+    run = tmp_path / "runs" / "trial_abc"
+    run.mkdir(parents=True)
+    (run / "summary.json").write_text(json.dumps({"timesteps": 2048, "selection_history": hist}))
+    reported = []
+    monkeypatch.setattr(tune, "get_context", lambda: type("Ctx", (), {"get_trial_name": lambda self: run.name})())
+    monkeypatch.setattr(tune, "report", reported.append)
+
+    def no_train(*a, **k):
+        raise AssertionError("a finished trial was trained again")
+    monkeypatch.setattr(agents.train, "train", no_train)
+    _trial({"seed": 0}, "ppo", {"n_timesteps": 2048}, str(run.parent))
+    assert [r["selection_ratio"] for r in reported] == [h["selection_ratio"] for h in hist]
+    assert [r["timesteps"] for r in reported] == [h["timesteps"] for h in hist]
+    assert all(r["run_dir"] == str(run) and r["random_ratio_imm2"] == h["random_ratio_imm2"]
+               for r, h in zip(reported, hist))
+
+
+@pytest.mark.skipif(not BUNDLED_POLICY.is_file(), reason="no bundled policy")
+def test_loading_the_policy_in_a_worker_leaves_no_temp_dir(monkeypatch, tmp_path):
+    monkeypatch.setattr(agents.parallel.tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(agents.parallel, "_POLICY_CACHE", {})
+    choose_q, cfg = _policy_in_worker(_policy_blob(BUNDLED_POLICY))
+    assert list(tmp_path.glob("radar_track_policy_*")) == []          # (torch may leave its own cache dirs)
+    obs = np.zeros((3, len(cfg.features)))
+    assert choose_q(obs).shape == (3,)                    # the model works with its files gone
 
 
 def test_missing_ray_gives_a_one_line_error_naming_the_extra(monkeypatch, tmp_path, capsys):
@@ -140,6 +223,22 @@ def test_evaluation_on_two_workers_equals_the_serial_run(local_ray):
     for suite in runs_s:
         for t in trackers:
             _assert_runs_equal(runs_p[suite][1][t], runs_s[suite][1][t])
+
+
+def test_a_tracker_failing_on_some_runs_on_two_workers_equals_the_serial_run(local_ray, monkeypatch):
+    """Genuinely failing trackers on Ray workers (registered there by the module's worker setup hook): a failure in
+    chunk 0 or chunk 1 gives the serial all-NaN TrackRun and error; a tracker that works is unaffected."""
+    if not local_ray[1]:
+        pytest.skip("Ray was started elsewhere, without this module's worker setup hook")
+    for name, runner in FAILING_TRACKERS.items():
+        monkeypatch.setitem(registry._RUNNERS, name, runner)
+    eps = draw_suite("bizup2002", 4, seed=FAIL_SEED)
+    trackers = [*FAILING_TRACKERS, "kf_tuned"]
+    par = run_suites_ray([("bizup2002", eps)], trackers, workers=2, seed=FAIL_SEED)["bizup2002"]
+    for t in trackers:
+        serial = run_one(t, eps)
+        _assert_runs_equal(par[t], serial)
+        assert par[t].error == serial.error and (serial.error is None) == (t == "kf_tuned")
 
 
 def test_cli_workers_json_equals_serial(local_ray, tmp_path):
