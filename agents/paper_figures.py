@@ -12,7 +12,7 @@ _STYLE = {"cmin": ("tab:blue", "-", 1.4, "KF using c_min"),
           "kf_low": ("0.45", "-", 3.0, "uniform-motion KF (0.03 g)"),
           "ckf": ("tab:red", ":", 1.6, "CKF at 5 NM (never switches: same as the uniform-motion KF)"),
           "imm2_bizup": ("tab:green", "-", 1.4, "2-mode IMM"),
-          "ckf_tuned": ("tab:red", "--", 1.4, "CKF at {thr:.2f} km (variant, threshold chosen on these runs)")}
+          "ckf_tuned": ("tab:red", "--", 1.4, "CKF at {thr:.2f} km (variant, threshold chosen on other runs)")}
 
 
 def maneuver_spans(t, man, end_at_next_look=True):

@@ -99,6 +99,7 @@ def kim_lee_1d_check(runs=500, seed=0, lead_in_s=LEAD_IN_S):
             "npe_cv_first_leg": pooled(ep, first) / pooled(z - x, first),
             "npe_cv_last_leg": pooled(ep, last) / pooled(z - x, last),
             "median_q_m_s2_first_leg": float(np.median(res.q_m_s2[:, scored][:, first, 0])),
+            "median_q_m_s2_last_leg": float(np.median(res.q_m_s2[:, scored][:, last, 0])),
         }
     return {"runs": int(runs), "lead_in_s": int(lead_in_s), "sigma_m": SIGMA_M, "low_q_m_s2": LOW_Q_M_S2,
             "tuned_q_m_s2": float(q_tuned),

@@ -230,3 +230,102 @@ def test_non_finite_quantity_is_an_error():
         paper_checks._check_finite({"bizup": {"phases": {"cmin": {"all": {"pos_m_mean": float("nan")}}}}})
     paper_checks._check_finite({"bizup": {"convergence_s": {"cmin": [float("nan")]}}})   # "never" is allowed
     paper_checks._check_finite(json.loads((ROOT / "docs" / "paper_checks.json").read_text()))
+
+
+# ------------------------------------------------------------------------------------------------ review fixes
+def _committed():
+    return json.loads((ROOT / "docs" / "paper_checks.json").read_text())
+
+
+def test_committed_paper_checks_json_is_not_stale():
+    # reruns the cheap sections with the JSON's own seed and run counts: exact equality (deterministic code)
+    data = _committed()
+    assert paper_checks.stale_entries(data) == []
+    old = json.loads(json.dumps(data))           # a copy as older code would have written one value
+    tr = old["kim_lee_paper_def"]["trackers"]["adaptive (eq 15 as printed)"]
+    tr["npe_cv_first_leg"] = np.nextafter(tr["npe_cv_first_leg"], np.inf)
+    old["bizup_cmin"]["delay_turn2_scans"][3] = float("nan")
+    stale = paper_checks.stale_entries(old)
+    assert len(stale) == 2
+    assert "npe_cv_first_leg" in stale[0] and "delay_turn2_scans[3]" in stale[1]
+
+
+def _kim_lee_verdict(data):
+    line = [ln for ln in paper_checks.render_markdown(data).splitlines()
+            if ln.startswith("| the adaptive tracker on the constant-velocity legs")]
+    assert len(line) == 1
+    return line[0]
+
+
+def test_kim_lee_cv_verdict_needs_both_constant_velocity_legs_and_computes_its_note():
+    data = _committed()
+    tr = data["kim_lee_paper_def"]["trackers"]["adaptive (eq 15 as printed)"]
+    tr["npe_cv_first_leg"], tr["npe_cv_last_leg"] = 0.9, 1.04       # first leg fine, last leg not
+    tr["median_q_m_s2_first_leg"], tr["median_q_m_s2_last_leg"] = 12.5, 34.5
+    line = _kim_lee_verdict(data)
+    assert "not reproduced: worse than the raw plots on the last leg" in line
+    assert "first leg 12.5, last leg 34.5 m/s^2" in line               # computed from the numbers
+    tr["npe_cv_last_leg"] = 0.95
+    line = _kim_lee_verdict(data)
+    assert "| reproduced (NPE < 1 on both" in line and "worse" not in line
+
+
+def test_bizup_delay_verdict_counts_runs_that_never_declare_the_turn():
+    data = _committed()
+    d = data["bizup_cmin"]["delay_turn1_scans"]
+    d[:] = [1] * len(d)
+    d[0] = float("nan")                               # one run never declares turn 1
+    line = [ln for ln in paper_checks.render_markdown(data).splitlines() if ln.startswith("| delay to declare turn 1")]
+    assert f"never declared: 1 of {len(d)} runs" in line[0] and line[0].endswith("| not reproduced |")
+    d[0] = 1
+    line = [ln for ln in paper_checks.render_markdown(data).splitlines() if ln.startswith("| delay to declare turn 1")]
+    assert f"never declared: 0 of {len(d)} runs" in line[0] and line[0].endswith("| reproduced |")
+
+
+def test_bizup_turn_2_speed_convergence_is_judged_under_both_readings():
+    data = _committed()
+    conv = data["bizup"]["convergence_s"]
+    conv["cmin"]["speed_m_s"], conv["kf_low"]["speed_m_s"] = [100.0, 150.0], [230.0, 120.0]   # longer than both
+    text = paper_checks.render_markdown(data)
+    assert "turn 2 (a) reproduced (150 vs 120 s of the baseline); turn 2 (b) reproduced (150 vs 100 s" in text
+    conv["cmin"]["speed_m_s"], conv["kf_low"]["speed_m_s"] = [120.0, 130.0], [230.0, 220.0]   # only (b)
+    text = paper_checks.render_markdown(data)
+    assert "turn 2 (a) not reproduced (130 vs 220 s of the baseline); turn 2 (b) reproduced (130 vs 120 s" in text
+    conv["cmin"]["speed_m_s"] = [120.0, float("nan")]                                          # never back
+    assert "turn 2 (a) reproduced (- vs 220 s" in paper_checks.render_markdown(data)
+
+
+def test_bizup_variance_across_runs_excludes_the_mean_curve_and_decides_the_claim():
+    from agents.paper_bizup import _var_over_runs
+    rng = np.random.default_rng(0)
+    e = np.linspace(0.0, 100.0, 40)[None, :] + rng.standard_normal((50, 40))   # mean curve moves, spread 1
+    mk = np.ones_like(e, dtype=bool)
+    mk[0, :10] = False
+    v = _var_over_runs(e, mk)
+    ref = np.mean([np.var(e[mk[:, k], k], ddof=1) for k in range(40)])
+    assert v == pytest.approx(ref, rel=1e-12) and v < 2 < np.var(e[mk])   # pooled contains the ramp (~850)
+    assert np.isnan(_var_over_runs(e, np.zeros_like(mk)))                 # never a silent zero
+    data = _committed()
+    ph = data["bizup"]["phases"]
+    ph["imm2_bizup"]["all"]["pos_m_var_runs"] = 1.5 * ph["cmin"]["all"]["pos_m_var_runs"]
+    ph["imm2_bizup"]["all"]["pos_m_var_pooled"] = 1.0 * ph["cmin"]["all"]["pos_m_var_pooled"]
+    line = [ln for ln in paper_checks.render_markdown(data).splitlines()
+            if ln.startswith("| IMM position-error variance")][0]
+    assert "across runs 1.50 overall" in line and "pooled: 1.00" in line and "| reproduced overall" in line
+
+
+def test_ckf_tuned_threshold_is_chosen_on_a_disjoint_seed_block():
+    from agents.paper_bizup import TUNING_SEED_OFFSET, bizup_figures_check
+    from radar_env.episode import stack_episodes
+    seed = 10_000_000
+    r = bizup_figures_check(runs=3, seed=seed)["ckf"]
+    assert r["threshold_tuned_seed"] == seed + TUNING_SEED_OFFSET and r["threshold_tuned_runs"] == 3
+    tune = draw_suite("bizup2002", 3, seed=seed + TUNING_SEED_OFFSET)
+    run, fma = ckf_fma(tune)
+    thr, first, peaks = fma_threshold(fma, phase_masks(stack_episodes(tune), run.start_index))
+    assert r["threshold_tuned_m"] == thr and r["threshold_tuned_first_leg_max_m"] == first
+    scored = draw_suite("bizup2002", 3, seed=seed)
+    run_s, fma_s = ckf_fma(scored)
+    assert fma_threshold(fma_s, phase_masks(stack_episodes(scored), run_s.start_index))[0] != thr
+    with pytest.raises(ValueError, match="runs must be <= 100000"):
+        bizup_figures_check(runs=TUNING_SEED_OFFSET + 1)
