@@ -28,7 +28,7 @@ import numpy as np
 
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import draw_setup_and_episode, resolve_scenario
-from radar_env.scenario import SegmentScenario, TrajectoryScenario
+from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
 __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
            "suite_rng", "suite_key", "trajectory_suite_names"]
@@ -42,7 +42,7 @@ EXTRA_SUITES = ("encounters", "adsb_calibration")
 """Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights."""
 
 
-DEFAULT_RADAR_RANGE_M = (10e3, 150e3)
+DEFAULT_RADAR_RANGE_M = RADAR_PLACEMENT_RANGE_M
 """Range annulus (m) of the ATC radar placement for a trajectory suite (:func:`radar_env.scenario.place_radar_site`)."""
 
 

@@ -23,7 +23,8 @@ from .catalog import SCENARIO_NAMES, Setup, make_setup
 from .episode import draw_episode
 from .observation import DEFAULT_FEATURES, FEATURE_SPECS, ObservationLayout, measurement_sigma_m
 from .radar import Radar, atc_radar
-from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario, place_radar_site
+from .scenario import (RADAR_PLACEMENT_RANGE_M, RandomScenarioConfig, SegmentScenario, TrajectoryScenario,
+                       place_radar_site)
 from .tracking import Tracker, looks_for_track_start
 from .units import G0_M_S2
 from .validate import check_choice, check_known_keys, check_number, is_real_number
@@ -131,7 +132,7 @@ def resolve_scenario(scenario):
                      f"{type(scenario).__name__}")
 
 
-def _draw_once(sc, radar, random_config, rng, radar_range_m=(10e3, 150e3)):
+def _draw_once(sc, radar, random_config, rng, radar_range_m=RADAR_PLACEMENT_RANGE_M):
     if isinstance(sc, str):
         setup = make_setup(sc, rng, random_config, radar)
     elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
@@ -153,7 +154,7 @@ MAX_EPISODE_DRAWS = 200
 
 
 def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
-                           radar_range_m=(10e3, 150e3)):
+                           radar_range_m=RADAR_PLACEMENT_RANGE_M):
     """The episode of one reset: the truth (if random) and all plots, from ``rng`` only.
 
     A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed by

@@ -63,15 +63,6 @@ MIN_SPEED_M_S = 10.0
 """Lowest speed a scenario may reach (m/s); headings and turn rates are undefined near zero speed."""
 
 
-def _check_finite(name, value, lo=-math.inf, hi=math.inf, lo_open=False):
-    v = float(value)
-    ok = math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
-    if not ok:
-        lb = "(" if lo_open else "["
-        raise ValueError(f"{name} must be a finite number in {lb}{lo}, {hi}], got {value!r}")
-    return v
-
-
 # ---------------------------------------------------------------------------------------------------- segments
 @dataclass(frozen=True)
 class Segment:
@@ -88,9 +79,9 @@ class Segment:
     accel_m_s2: float = 0.0
 
     def __post_init__(self):
-        _check_finite("Segment.duration_s", self.duration_s, 0.0, math.inf, lo_open=True)
-        _check_finite("Segment.turn_rate_rad_s", self.turn_rate_rad_s, -math.pi, math.pi)
-        _check_finite("Segment.accel_m_s2", self.accel_m_s2, -100 * G0_M_S2, 100 * G0_M_S2)
+        check_number("Segment.duration_s", self.duration_s, 0.0, math.inf, lo_open=True)
+        check_number("Segment.turn_rate_rad_s", self.turn_rate_rad_s, -math.pi, math.pi)
+        check_number("Segment.accel_m_s2", self.accel_m_s2, -100 * G0_M_S2, 100 * G0_M_S2)
         if self.turn_rate_rad_s != 0.0 and self.accel_m_s2 != 0.0:
             raise ValueError("Segment: a segment is a coordinated turn (turn_rate_rad_s != 0) or a speed change "
                              "(accel_m_s2 != 0), not both; split it into two segments")
@@ -213,8 +204,8 @@ class ScenarioBuilder:
         if (speed_m_s is None) == (speed_kt is None):
             raise ValueError("ScenarioBuilder: give exactly one of speed_m_s or speed_kt")
         speed = float(speed_m_s) if speed_m_s is not None else float(speed_kt) * KNOT_M_S
-        _check_finite("speed_m_s", speed, MIN_SPEED_M_S, 3000.0)
-        h = _check_finite("heading_deg", heading_deg) * DEG
+        check_number("speed_m_s", speed, MIN_SPEED_M_S, 3000.0)
+        h = check_number("heading_deg", heading_deg) * DEG
         px, py = (float(v) for v in position_m)
         self.initial_state = np.array([px, py, speed * math.sin(h), speed * math.cos(h)])
         self._speed = speed
@@ -225,21 +216,21 @@ class ScenarioBuilder:
         return self
 
     def turn(self, heading_change_deg, *, rate_deg_s=None, accel_g=None):
-        dh = _check_finite("heading_change_deg", heading_change_deg, -3600.0, 3600.0) * DEG
+        dh = check_number("heading_change_deg", heading_change_deg, -3600.0, 3600.0) * DEG
         if dh == 0.0:
             raise ValueError("heading_change_deg must be non-zero")
         if (rate_deg_s is None) == (accel_g is None):
             raise ValueError("turn: give exactly one of rate_deg_s or accel_g")
         if rate_deg_s is not None:
-            w = _check_finite("rate_deg_s", rate_deg_s, 0.0, 180.0, lo_open=True) * DEG
+            w = check_number("rate_deg_s", rate_deg_s, 0.0, 180.0, lo_open=True) * DEG
         else:
-            w = _check_finite("accel_g", accel_g, 0.0, 100.0, lo_open=True) * G0_M_S2 / self._speed
+            w = check_number("accel_g", accel_g, 0.0, 100.0, lo_open=True) * G0_M_S2 / self._speed
         self.segments.append(Segment(abs(dh) / w, turn_rate_rad_s=math.copysign(w, dh)))
         return self
 
     def change_speed(self, to_speed_m_s, accel_m_s2):
-        to = _check_finite("to_speed_m_s", to_speed_m_s, MIN_SPEED_M_S, 3000.0)
-        a = _check_finite("accel_m_s2", abs(accel_m_s2), 0.0, 100 * G0_M_S2, lo_open=True)
+        to = check_number("to_speed_m_s", to_speed_m_s, MIN_SPEED_M_S, 3000.0)
+        a = check_number("accel_m_s2", abs(accel_m_s2), 0.0, 100 * G0_M_S2, lo_open=True)
         if to == self._speed:
             return self
         self.segments.append(Segment(abs(to - self._speed) / a, accel_m_s2=math.copysign(a, to - self._speed)))
@@ -652,7 +643,11 @@ _PLACEMENT_BLOCK = 2048
 """Grid points per block in :func:`place_radar_site`."""
 
 
-def place_radar_site(rng, scenario, range_m=(10e3, 150e3), n_candidates=64, grid_dt_s=2.0):
+RADAR_PLACEMENT_RANGE_M = (10e3, 150e3)
+"""Default range annulus (m) of :func:`place_radar_site`: where the ATC radar for a trajectory is put."""
+
+
+def place_radar_site(rng, scenario, range_m=RADAR_PLACEMENT_RANGE_M, n_candidates=64, grid_dt_s=2.0):
     """Choose a radar position for ``scenario`` so that the flight stays within ``range_m`` for as long as possible.
 
     ``n_candidates`` positions are drawn around the track's start (distance uniform in ``range_m``, direction
