@@ -108,7 +108,7 @@ def model_choose_q(model, cfg: EnvConfig):
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None):
+             common_over=None, loaded_policy=None):
     """Run ``trackers`` on every suite.
 
     Args:
@@ -121,6 +121,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
             (:func:`agents.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
+        loaded_policy: ``load_policy(policy_path)``'s result if the caller has it already (not loaded again).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
@@ -131,7 +132,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     if "policy" in trackers:
         if policy_path is None:
             raise ValueError("tracker 'policy' needs a policy file (--policy PATH); none bundled")
-        choose_q, pol_cfg = load_policy(policy_path)
+        choose_q, pol_cfg = loaded_policy if loaded_policy is not None else load_policy(policy_path)
     default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
@@ -477,9 +478,10 @@ def main(argv=None, prog="radar-track evaluate"):
             raise SystemExit(f"error: --trackers: a tracker is named twice in {args.trackers!r}")
     else:
         trackers = [t for t in DEFAULT_TRACKERS if t != "policy" or policy is not None]
-    if "policy" in trackers:        # load once now: a file that is not a usable policy is a user error
+    loaded = None
+    if "policy" in trackers:        # load once, now: a file that is not a usable policy is a user error
         try:
-            load_policy(policy)
+            loaded = load_policy(policy)
         except ValueError as e:
             raise SystemExit(f"error: --policy: {e}") from None
     radar, radar_range_m = None, None
@@ -524,7 +526,7 @@ def main(argv=None, prog="radar-track evaluate"):
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed)
+                                 address=args.address, seed=args.seed, loaded_policy=loaded)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
