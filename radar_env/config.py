@@ -13,20 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from .catalog import SCENARIO_NAMES, Setup
-from .observation import DEFAULT_FEATURES, ObservationLayout
+from .observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, ObservationLayout
 from .radar import Radar
 from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario
+from .tracking import TrackStart
 from .validate import check_choice, check_known_keys, check_number, is_real_number
 
 __all__ = ["EnvConfig", "DEFAULT_Q_LEVELS_G", "RENDER_MODES", "REWARD_TYPES", "REWARD_SCALE_M", "resolve_scenario"]
 
 RENDER_MODES = ("rgb_array", "human")
 """Render modes of the single env: a radar-scope picture (radar_env/render.py, needs matplotlib)."""
-
-DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
-"""13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
-(j = 0) and 2 g (j = 6), from 0.00182 g to 8.11 g."""
-
 
 REWARD_TYPES = ("squared", "absolute", "squared_m")
 REWARD_SCALE_M = 100.0
@@ -77,14 +73,10 @@ class EnvConfig:
             ObservationLayout(self.features)
         except ValueError as e:   # unknown / repeated names: say which argument they came from
             raise ValueError(f"{p}features: {e}") from None
-        check_number(p + "warmup_scans", self.warmup_scans, 1, 1000, integer=True)
-        check_number(p + "warmup_q_g", self.warmup_q_g, 0.0, 100.0)
+        self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
         check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
         check_number(p + "track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
-        check_number(p + "n_adrian", self.n_adrian, 1, 50, integer=True)
-        check_number(p + "window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
-        check_number(p + "fma_weight", self.fma_weight, 1e-6, 1.0)
         check_choice(p + "render_mode", self.render_mode, (None, *RENDER_MODES))
         if self.radar is not None and not isinstance(self.radar, Radar):
             raise ValueError(f"{p}radar must be a radar_env.radar.Radar or None, got {type(self.radar).__name__}")
@@ -93,6 +85,12 @@ class EnvConfig:
                              f"{type(self.random_config).__name__}")
         self.random_scenario_config  # noqa: B018 - builds (validates) a dict's RandomScenarioConfig
         resolve_scenario(self.scenario)  # raises for unknown names / bad files
+
+    @property
+    def track_start(self):
+        """The track-start and feature parameters (:class:`radar_env.tracking.TrackStart`) the env and every tracker
+        share."""
+        return TrackStart(self.warmup_scans, self.warmup_q_g, self.n_adrian, self.window_kim_lee, self.fma_weight)
 
     @property
     def random_scenario_config(self):

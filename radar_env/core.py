@@ -17,7 +17,7 @@ from .episode import draw_episode
 from .observation import ObservationLayout, measurement_sigma_m
 from .radar import atc_radar
 from .scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario, place_radar_site
-from .tracking import Tracker, looks_for_track_start
+from .tracking import looks_for_track_start
 from .units import G0_M_S2
 
 __all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
@@ -100,14 +100,12 @@ class _Core:
         self.levels_m_s2 = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         self.q_min, self.q_max = self.levels_m_s2[0], self.levels_m_s2[-1]
         self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
-        self.tracker = Tracker(n, warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2,
-                               n_adrian=cfg.n_adrian, window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
+        self.tracker = cfg.track_start.tracker(n)
         self.q_prev = np.full(n, cfg.warmup_q_g * G0_M_S2)
         self.rngs = [None] * n
         # resolved once: a CSV trajectory is read here, not at every reset
         self.scenario = resolve_scenario(cfg.scenario)
         self.random_config = cfg.random_scenario_config
-        self._lq0, self._lq1 = math.log10(self.q_min), math.log10(self.q_max)
         # Refuse at build what would fail at a reset (a scenario too short for warmup_scans, a random_config whose
         # flights never stay in range): one probe draw from a throwaway generator; no row's stream is touched.
         draw_setup_and_episode(self.scenario, cfg.radar, self.random_config, np.random.default_rng(0),
@@ -145,9 +143,7 @@ class _Core:
         """Start the next episode of rows in batches (vector env autoreset). A row's next episode is drawn from its
         own generator exactly as it would be at its reset, so results do not change; only the warm-up of many
         rows runs as one batched call instead of one small call per finishing row."""
-        self._pf = Tracker(self.n, warmup_scans=self.cfg.warmup_scans, warmup_q_m_s2=self.cfg.warmup_q_g * G0_M_S2,
-                           n_adrian=self.cfg.n_adrian, window_kim_lee=self.cfg.window_kim_lee,
-                           fma_weight=self.cfg.fma_weight)
+        self._pf = self.cfg.track_start.tracker(self.n)
         self._pf_ready = np.zeros(self.n, dtype=bool)
         self._pf_out = None
 

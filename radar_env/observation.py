@@ -53,7 +53,13 @@ import numpy as np
 
 from .units import G0_M_S2
 
-__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "ObservationLayout", "measurement_sigma_m"]
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout",
+           "measurement_sigma_m"]
+
+DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
+"""13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
+(j = 0) and 2 g (j = 6), from 0.00182 g to 8.11 g. The env's default action levels; their first and last bound
+the continuous action and the ``q_prev_g`` / ``next_q_fit_g`` map."""
 
 
 @dataclass(frozen=True)
