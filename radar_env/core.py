@@ -113,24 +113,30 @@ class _Core:
 
     # ---- actions
     def action_to_q(self, action):
+        """Validated action -> (n,) q in m/s^2 (:func:`actions_to_q_m_s2`); ``ValueError`` naming the valid range.
+        Cheap checks on small arrays: this runs every step."""
         a = np.asarray(action)
+        kind = a.dtype.kind
         # bool, complex, str and object actions are refused, not cast: True would silently be level 1
-        if a.dtype.kind not in "iuf":
+        if kind not in "iuf":
             raise ValueError(f"action must be {'integer' if self.cfg.action_type == 'discrete' else 'real'} "
                              f"number(s), got {action!r} (dtype {a.dtype})")
+        n, n_levels = self.n, self.levels_m_s2.size
         if self.cfg.action_type == "discrete":
-            a = a.reshape(self.n) if a.size == self.n else a
-            if a.shape != (self.n,) or not np.all(np.isfinite(a.astype(np.float64))) or np.any(a != np.round(a)):
-                raise ValueError(f"action must be {self.n} integer(s) in [0, {len(self.levels_m_s2) - 1}], got "
-                                 f"{action!r}")
-            ai = a.astype(np.int64)
-            if np.any(ai < 0) or np.any(ai >= len(self.levels_m_s2)):
-                raise ValueError(f"action must be in [0, {len(self.levels_m_s2) - 1}] (Discrete("
-                                 f"{len(self.levels_m_s2)})), got {action!r}")
-            return actions_to_q_m_s2(ai, "discrete", self.levels_m_s2)
+            if a.size != n or (kind == "f" and not (np.isfinite(a) & (a == np.round(a))).all()):
+                raise ValueError(f"action must be {n} integer(s) in [0, {n_levels - 1}], got {action!r}")
+            if kind == "f":   # range checked before the cast, which is undefined for huge values
+                ok = ((a >= 0) & (a < n_levels)).all()
+                ai = a.reshape(n).astype(np.int64)
+            else:
+                ai = a.reshape(n).astype(np.int64, copy=False)
+                ok = not (ai.view(np.uint64) >= n_levels).any()   # a negative index wraps to a huge unsigned one
+            if not ok:
+                raise ValueError(f"action must be in [0, {n_levels - 1}] (Discrete({n_levels})), got {action!r}")
+            return self.levels_m_s2[ai]
         a = a.astype(np.float64).reshape(-1)
-        if a.size != self.n or not np.all(np.isfinite(a)) or np.any(np.abs(a) > 1.0 + 1e-6):
-            raise ValueError(f"action must be {self.n} finite value(s) in [-1, 1] (Box(-1, 1)), got {action!r}")
+        if a.size != n or not (np.abs(a) <= 1.0 + 1e-6).all():   # False for NaN / inf
+            raise ValueError(f"action must be {n} finite value(s) in [-1, 1] (Box(-1, 1)), got {action!r}")
         return actions_to_q_m_s2(a, "continuous", self.levels_m_s2)
 
     # ---- episodes
@@ -208,13 +214,15 @@ class _Core:
     def _info(self, out, terms):
         # StepOutput arrays are new every step (gathered or computed), so the info can hold them without copies.
         x = out.x
+        polar = np.empty((x.shape[0], 3))   # np.stack costs more than the three copies at these sizes
+        polar[:, 0], polar[:, 1], polar[:, 2] = out.range_m, out.bearing_rad, out.radial_velocity_m_s
         return {
             "truth": out.truth,
             "estimate": x,
             "covariance": out.P,
             "measurement": out.z_m,
             "measurement_covariance": out.R_m2,
-            "polar": np.stack([out.range_m, out.bearing_rad, out.radial_velocity_m_s], axis=-1),
+            "polar": polar,
             "q_m_s2": out.q_m_s2,
             "q": out.q_m_s2,      # deprecated alias of q_m_s2 (m/s^2, not g), removed in the next version
             "dt": out.dt_s,
@@ -251,13 +259,11 @@ def _gather_rows(store, rows):
     return type(store)(*[({k: a[rows] for k, a in v.items()} if isinstance(v, dict) else v[rows]) for v in store])
 
 
-_SCALAR_INFO = ("q_m_s2", "q", "dt", "detected", "maneuvering", "track_lost", "time_s")
+_SCALAR_INFO = frozenset(("q_m_s2", "q", "dt", "detected", "maneuvering", "track_lost", "time_s"))
 
 
 def _row(info, i):
     """Row ``i`` of a batched info dict, with Python scalars for the scalar keys and reward terms."""
-    out = {k: v[i] for k, v in info.items() if not isinstance(v, dict)}
-    for k in _SCALAR_INFO:
-        out[k] = out[k].item()
-    out["reward_terms"] = {k: float(v[i]) for k, v in info["reward_terms"].items()}
+    out = {k: (v[i].item() if k in _SCALAR_INFO else v[i]) for k, v in info.items() if k != "reward_terms"}
+    out["reward_terms"] = {k: v[i].item() for k, v in info["reward_terms"].items()}
     return out
