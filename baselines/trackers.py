@@ -29,8 +29,9 @@ import numpy as np
 
 from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
 from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, ObservationLayout
-from radar_env.tracking import TrackStart, init_looks
+from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
+from radar_env.validate import check_number, check_probabilities
 
 __all__ = ["TrackRun", "run_q_policy", "run_imm", "run_turn_rate_kf", "run_reinit", "run_clairvoyant",
            "run_oracle_q", "IMMSpec", "IMM2_BIZUP", "IMM3_CT"]
@@ -159,13 +160,17 @@ class IMMSpec:
 
     def __post_init__(self):
         M = len(self.q_m_s2)
-        Pi = np.asarray(self.Pi, dtype=np.float64)
-        if len(self.turn_rate_rad_s) != M or Pi.shape != (M, M) or len(self.mu0) != M:
-            raise ValueError("IMMSpec: q_m_s2, turn_rate_rad_s, Pi (M x M) and mu0 must agree on M modes")
-        if np.any(Pi < 0) or not np.allclose(Pi.sum(axis=1), 1.0):
-            raise ValueError("IMMSpec: Pi rows must be probabilities summing to 1")
-        if not np.isclose(sum(self.mu0), 1.0) or min(self.mu0) < 0:
-            raise ValueError("IMMSpec: mu0 must be probabilities summing to 1")
+        if M < 1 or len(self.turn_rate_rad_s) != M or np.shape(self.Pi) != (M, M) or len(self.mu0) != M:
+            raise ValueError(f"IMMSpec: q_m_s2, turn_rate_rad_s, Pi (M x M) and mu0 must agree on M >= 1 modes, got "
+                             f"{M} q levels, {len(self.turn_rate_rad_s)} turn rates, Pi of shape "
+                             f"{np.shape(self.Pi)} and {len(self.mu0)} initial probabilities")
+        for j in range(M):
+            check_number(f"IMMSpec.q_m_s2[{j}]", self.q_m_s2[j], 0.0, MAX_Q_M_S2)
+            check_number(f"IMMSpec.turn_rate_rad_s[{j}]", self.turn_rate_rad_s[j], -np.pi, np.pi)
+        check_probabilities("IMMSpec.Pi", self.Pi, (M, M))
+        check_probabilities("IMMSpec.mu0", self.mu0, (M,))
+        for j in self.maneuver_modes:
+            check_number("IMMSpec.maneuver_modes entry", j, 0, M - 1, integer=True)
 
 
 IMM2_BIZUP = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 2.0 * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .units import G0_M_S2
+from .validate import check_known_keys
 
 __all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout",
            "measurement_sigma_m"]
@@ -138,9 +139,7 @@ class ObservationLayout:
         names = tuple(names)
         if not names:
             raise ValueError(f"features must name at least one of {list(FEATURE_SPECS)}")
-        bad = [n for n in names if n not in FEATURE_SPECS]
-        if bad:
-            raise ValueError(f"unknown feature(s) {bad}; valid: {list(FEATURE_SPECS)}")
+        check_known_keys("", names, FEATURE_SPECS, noun="feature")
         if len(set(names)) != len(names):
             raise ValueError(f"features contains repeats: {list(names)}")
         self.names = names

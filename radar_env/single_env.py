@@ -8,6 +8,7 @@ from gymnasium import spaces
 
 from .config import RENDER_MODES, EnvConfig
 from .core import _Core, _row
+from .validate import check_known_keys
 
 __all__ = ["RadarTrackEnv"]
 
@@ -180,8 +181,7 @@ class RadarTrackEnv(gym.Env):
         super().reset(seed=seed)
         options = dict(options or {})
         scenario = options.pop("scenario", None)
-        if options:
-            raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
+        check_known_keys("reset", options, ["scenario"], noun="option")
         self._core.rngs[0] = self.np_random
         obs, info, _ = self._core.reset_rows(np.array([0]), scenario)
         self._needs_reset = False

@@ -12,6 +12,7 @@ from gymnasium.vector.vector_env import AutoresetMode
 
 from .config import EnvConfig
 from .core import _Core
+from .validate import check_known_keys
 
 __all__ = ["RadarTrackVectorEnv"]
 
@@ -77,8 +78,7 @@ class RadarTrackVectorEnv(VectorEnv):
     def reset(self, *, seed=None, options=None):
         options = dict(options or {})
         scenario = options.pop("scenario", None)
-        if options:
-            raise ValueError(f"reset: unknown option(s) {sorted(options)}; valid: ['scenario']")
+        check_known_keys("reset", options, ["scenario"], noun="option")
         if seed is None:
             seeds = [None] * self.num_envs
         elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):

@@ -86,3 +86,13 @@ def test_action_to_q_matches_the_action_map_and_refuses_bad_actions(action_type)
     for a in bad:
         with pytest.raises(ValueError, match="action must"):
             core.action_to_q(a)
+
+
+def test_unknown_reset_options_and_features_name_the_valid_ones():
+    from radar_env.env import RadarTrackEnv, RadarTrackVectorEnv
+
+    for env in (RadarTrackEnv(scenario="kim_lee_accel"), RadarTrackVectorEnv(2, scenario="kim_lee_accel")):
+        with pytest.raises(ValueError, match=r"unknown reset option\(s\) \['speed'\]; valid: \['scenario'\]"):
+            env.reset(seed=0, options={"speed": 1, "scenario": "kim_lee_accel"})
+    with pytest.raises(ValueError, match=r"^unknown feature\(s\) \['bogus'\]; valid: \['nu_along'"):
+        ObservationLayout(("nis", "bogus"))

@@ -2,6 +2,8 @@
 Konle's blend) now go through the Tracker's cursor (next_look / advance / set_posterior). Their output must be
 bit for bit what the old runners gave; the old logic is kept here, frozen, as the independent reference."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -211,3 +213,18 @@ def test_trackers_accept_a_track_start_or_an_env_config():
     c = T.run_imm(eps, T.IMM2_BIZUP)
     np.testing.assert_array_equal(a.x, b.x)
     assert (a.start_index == c.start_index - 7).all()
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"Pi": ((0.9, 0.2), (0.9, 0.1))}, r"IMMSpec.Pi must be rows of probabilities .* got \(\(0.9, 0.2\)"),
+    ({"Pi": ((0.9, 0.1),)}, r"must agree on M >= 1 modes, got 2 q levels, 2 turn rates, Pi of shape \(1, 2\)"),
+    ({"mu0": (1.1, -0.1)}, r"IMMSpec.mu0 must be probabilities .* got \(1.1, -0.1\)"),
+    ({"mu0": (np.nan, 1.0)}, r"IMMSpec.mu0 must be probabilities"),
+    ({"q_m_s2": (-1.0, 2.0)}, r"IMMSpec.q_m_s2\[0\] must be a finite number in \[0.0, 980.665\], got -1.0"),
+    ({"q_m_s2": (1.0, "2")}, r"IMMSpec.q_m_s2\[1\] must be a finite number .* \(str\)"),
+    ({"turn_rate_rad_s": (0.0, np.inf)}, r"IMMSpec.turn_rate_rad_s\[1\] must be a finite number"),
+    ({"maneuver_modes": (2,)}, r"IMMSpec.maneuver_modes entry must be an integer in \[0, 1\], got 2"),
+])
+def test_imm_spec_errors_name_the_field_and_value(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        dataclasses.replace(T.IMM2_BIZUP, **kwargs)
