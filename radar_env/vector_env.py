@@ -120,8 +120,7 @@ class RadarTrackVectorEnv(VectorEnv):
                 final_obs[r] = obs[r].copy()
             final_info = _with_masks(info, done)
             new_obs, new_info, _ = core.reset_rows(rows, use_prefetch=True)
-            obs = obs.copy()
-            obs[rows] = new_obs
+            obs[rows] = new_obs   # obs is new every step (the ended rows' last observations are copied above)
             info = _merge_rows(info, new_info, rows)
             info["final_obs"] = final_obs
             info["_final_obs"] = done.copy()
@@ -143,7 +142,9 @@ def _merge_rows(info, new, rows):
 
 
 def _with_masks(info, mask=None):
+    """``info`` with Gymnasium's ``_key`` mask beside every entry (all True, or a copy of ``mask``)."""
     out = {}
+    template = None
     for k, v in info.items():
         if k.startswith("_") or k in ("final_obs", "final_info"):
             out[k] = v
@@ -152,6 +153,8 @@ def _with_masks(info, mask=None):
             out[k] = _with_masks(v, mask)
         else:
             out[k] = v
-        n = len(v[next(iter(v))]) if isinstance(v, dict) else len(v)
-        out["_" + k] = np.ones(n, dtype=bool) if mask is None else mask.copy()
+        if template is None:
+            n = len(v[next(iter(v))]) if isinstance(v, dict) else len(v)
+            template = np.ones(n, dtype=bool) if mask is None else mask
+        out["_" + k] = template.copy()   # one array per key: a caller may edit one mask
     return out
