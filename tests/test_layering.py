@@ -23,7 +23,8 @@ sys.meta_path.insert(0, _NoGymnasium())
 
 GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.scenario", "radar_env.episode",
             "radar_env.radar", "radar_env.features", "radar_env.observation", "radar_env.catalog",
-            "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry")
+            "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry", "baselines.policies",
+            "baselines.alpha_beta", "baselines.konle")
 
 
 def _run(code):
