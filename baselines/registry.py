@@ -11,10 +11,6 @@ Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilit
 
 from __future__ import annotations
 
-import numpy as np
-
-from radar_env.env import EnvConfig
-from radar_env.observation import ObservationLayout
 from radar_env.units import G0_M_S2
 
 from . import trackers as T
@@ -22,6 +18,7 @@ from .policies import make_policy
 from .tuned_params import TUNED_PATH, tuned_parameters
 
 __all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
+
 
 def tuned_imm2_spec():
     p = tuned_parameters()["imm2"]
@@ -31,15 +28,10 @@ def tuned_imm2_spec():
                      maneuver_modes=(1,))
 
 
-def _layout(cfg):
-    lv = np.asarray(cfg.q_levels_g) * G0_M_S2
-    return ObservationLayout(cfg.features, lv[0], lv[-1]), lv
-
-
 def _policy_run(name):
     """A reference policy (:func:`baselines.policies.make_policy`) run through the tracking chain."""
     def run(episodes, cfg):
-        layout, lv = _layout(cfg)
+        layout, lv = T.observation_layout(cfg)
         pol = make_policy(name, layout, "continuous", lv)
         return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=getattr(pol, "declared", None))
     return run
@@ -80,8 +72,10 @@ DESIGN_ENVELOPES = {
 print these notes beside them, so a poor number is read as what it is."""
 
 
-def run_tracker(name, episodes, cfg: EnvConfig | None = None):
-    """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.episode.Episode`)."""
+def run_tracker(name, episodes, cfg=None):
+    """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.episode.Episode`). ``cfg``: the
+    track start and observation (an env config or a :class:`radar_env.tracking.TrackStart`; default the env's
+    defaults), see :mod:`baselines.trackers`."""
     if name not in _RUNNERS:
         raise ValueError(f"unknown tracker {name!r}; valid: {list(TRACKER_NAMES)}")
-    return _RUNNERS[name](list(episodes), cfg or EnvConfig())
+    return _RUNNERS[name](list(episodes), cfg)

@@ -13,6 +13,12 @@ Kinds:
 * :func:`run_turn_rate_kf` -- Adrian's KF with ``F(omega)`` fed by algorithm 1 or 2.
 * :func:`run_reinit` -- seed 002's re-initialising KF.
 * :func:`run_clairvoyant` -- the known-input KF (the physical limit) and :func:`run_oracle_q` (q = |a_true|).
+
+Each is the chain (a KF) plus a q-rule, or its own filter beside the chain behind the Tracker's cursor
+(``next_look``, ``advance``, ``set_posterior``): no runner writes the Tracker's internals. ``cfg`` of every runner
+is the common track start: a :class:`radar_env.tracking.TrackStart`, an env config with a ``track_start`` (e.g.
+:class:`radar_env.config.EnvConfig`, whose ``features`` and ``q_levels_g`` also give a q-policy's observation),
+or None for the defaults; the trackers' own parameters are their arguments.
 """
 
 from __future__ import annotations
@@ -21,11 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radar_env.env import EnvConfig
 from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
-from radar_env.observation import ObservationLayout
-from radar_env.tracking import Tracker, init_looks
+from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, ObservationLayout
+from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
+from radar_env.validate import check_number, check_probabilities
 
 __all__ = ["TrackRun", "run_q_policy", "run_imm", "run_turn_rate_kf", "run_reinit", "run_clairvoyant",
            "run_oracle_q", "IMMSpec", "IMM2_BIZUP", "IMM3_CT"]
@@ -56,11 +62,17 @@ class TrackRun:
     error: str | None = None
 
 
-def _tracker(episodes, cfg: EnvConfig, known_input=False):
-    B = len(episodes)
-    tr = Tracker(B, warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2, n_adrian=cfg.n_adrian,
-                 window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
-    out = tr.load(np.arange(B), episodes, known_input=known_input)
+def _start(cfg):
+    """The common track start of ``cfg``: a :class:`radar_env.tracking.TrackStart`, an env config (anything with a
+    ``track_start``, e.g. :class:`radar_env.config.EnvConfig`), or None (the defaults)."""
+    if cfg is None:
+        return TrackStart()
+    return cfg if isinstance(cfg, TrackStart) else cfg.track_start
+
+
+def _tracker(episodes, cfg, known_input=False):
+    tr = _start(cfg).tracker(len(episodes))
+    out = tr.load(np.arange(len(episodes)), episodes, known_input=known_input)
     return tr, out
 
 
@@ -89,20 +101,25 @@ def _loop(tr, out, step_fn):
 
 
 # ------------------------------------------------------------------------------------------------ q policies
-def run_q_policy(episodes, choose_q, name="policy", cfg: EnvConfig | None = None, declare=None):
+def observation_layout(cfg=None):
+    """The observation a q-policy sees and the q levels (m/s^2): those of ``cfg`` (the env config a policy was
+    trained with: anything with ``features`` and ``q_levels_g``), else the env's defaults."""
+    lv = np.asarray(getattr(cfg, "q_levels_g", DEFAULT_Q_LEVELS_G)) * G0_M_S2
+    return ObservationLayout(getattr(cfg, "features", DEFAULT_FEATURES), lv[0], lv[-1]), lv
+
+
+def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
     """Run the tracking chain with ``q = choose_q(obs_rows)`` (m/s^2) each look.
 
-    ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does), so a
-    learned policy sees here what it saw in training. ``declare(obs_rows) -> bool`` records maneuver declarations
-    (optional)."""
-    cfg = cfg or EnvConfig()
+    ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does; the
+    defaults without ``cfg``), so a learned policy sees here what it saw in training. ``declare(obs_rows) -> bool``
+    records maneuver declarations (optional). ``cfg`` also gives the track start (:func:`_start`)."""
     tr, out = _tracker(episodes, cfg)
-    lv = np.asarray(cfg.q_levels_g) * G0_M_S2
-    layout = ObservationLayout(cfg.features, lv[0], lv[-1])
+    layout, _ = observation_layout(cfg)
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
     declared = np.zeros((B, K), dtype=bool) if declare is not None else None
-    q_prev = np.full(B, cfg.warmup_q_g * G0_M_S2)
+    q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
     obs = layout.encode(out, q_prev)
     rows0 = np.arange(B)
     rec.put(rows0, out.look_index, out.x, out.P, out.q_m_s2, **_feature_extra(out))
@@ -143,13 +160,17 @@ class IMMSpec:
 
     def __post_init__(self):
         M = len(self.q_m_s2)
-        Pi = np.asarray(self.Pi, dtype=np.float64)
-        if len(self.turn_rate_rad_s) != M or Pi.shape != (M, M) or len(self.mu0) != M:
-            raise ValueError("IMMSpec: q_m_s2, turn_rate_rad_s, Pi (M x M) and mu0 must agree on M modes")
-        if np.any(Pi < 0) or not np.allclose(Pi.sum(axis=1), 1.0):
-            raise ValueError("IMMSpec: Pi rows must be probabilities summing to 1")
-        if not np.isclose(sum(self.mu0), 1.0) or min(self.mu0) < 0:
-            raise ValueError("IMMSpec: mu0 must be probabilities summing to 1")
+        if M < 1 or len(self.turn_rate_rad_s) != M or np.shape(self.Pi) != (M, M) or len(self.mu0) != M:
+            raise ValueError(f"IMMSpec: q_m_s2, turn_rate_rad_s, Pi (M x M) and mu0 must agree on M >= 1 modes, got "
+                             f"{M} q levels, {len(self.turn_rate_rad_s)} turn rates, Pi of shape "
+                             f"{np.shape(self.Pi)} and {len(self.mu0)} initial probabilities")
+        for j in range(M):
+            check_number(f"IMMSpec.q_m_s2[{j}]", self.q_m_s2[j], 0.0, MAX_Q_M_S2)
+            check_number(f"IMMSpec.turn_rate_rad_s[{j}]", self.turn_rate_rad_s[j], -np.pi, np.pi)
+        check_probabilities("IMMSpec.Pi", self.Pi, (M, M))
+        check_probabilities("IMMSpec.mu0", self.mu0, (M,))
+        for j in self.maneuver_modes:
+            check_number("IMMSpec.maneuver_modes entry", j, 0, M - 1, integer=True)
 
 
 IMM2_BIZUP = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 2.0 * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
@@ -165,52 +186,65 @@ IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
 0.1 g CT as in Adrian's KF) and the transition matrix are our choices."""
 
 
-def run_imm(episodes, spec: IMMSpec, name="imm", cfg: EnvConfig | None = None):
-    """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate)."""
-    cfg = cfg or EnvConfig()
+class IMMFilter:
+    """The IMM as its own filter on the chain's looks (:func:`radar_env.filters.imm_step`): per row the log mode
+    probabilities and the mode estimates, started with every mode at ``x0, P0`` (B, 4) / (B, 4, 4)."""
+
+    LOOK_FIELDS = ("t_s", "z_m", "R_m2", "detected")
+    """What :meth:`step` reads of a look (:meth:`radar_env.tracking.Tracker.next_look`), besides ``dt_s``."""
+
+    def __init__(self, spec: IMMSpec, x0, P0):
+        M = len(spec.q_m_s2)
+        self.x_m = np.repeat(x0[:, None], M, axis=1)
+        self.P_m = np.repeat(P0[:, None], M, axis=1)
+        self.log_mu = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (x0.shape[0], 1)))
+        with np.errstate(divide="ignore"):
+            self.log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
+        self.q = np.asarray(spec.q_m_s2, dtype=np.float64)
+        self.w = np.asarray(spec.turn_rate_rad_s, dtype=np.float64)
+        self.maneuver_modes = list(spec.maneuver_modes)
+
+    def step(self, rows, look):
+        """One look of ``rows``; returns the combined ``(x, P)`` and the probability of the maneuver modes."""
+        M = self.q.size
+        dt = np.repeat(look["dt_s"][:, None], M, 1)
+        F = transition_ct(dt, np.broadcast_to(self.w, (rows.size, M)))
+        Q = process_noise(dt, np.broadcast_to(self.q, (rows.size, M)))
+        res = imm_step(self.log_mu[rows], self.x_m[rows], self.P_m[rows], self.log_Pi, F, Q, look["z_m"],
+                       look["R_m2"], look["detected"])
+        self.log_mu[rows], self.x_m[rows], self.P_m[rows] = res.log_mu, res.x_modes, res.P_modes
+        return res.x, res.P, np.exp(res.log_mu[:, self.maneuver_modes]).sum(axis=1)
+
+
+def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
+    """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate), then
+    runs as a separate filter behind the chain's cursor (``Tracker.next_look`` / ``advance``)."""
     tr, out = _tracker(episodes, cfg)
-    B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
+    B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K, extra=("maneuver_probability",))
     declared = np.zeros((B, K), dtype=bool)
     rec.put(np.arange(B), out.look_index, out.x, out.P)
     rec.run.start_index[:] = out.look_index + 1
-    x_m = np.repeat(tr.x[:, None], M, axis=1)
-    P_m = np.repeat(tr.P[:, None], M, axis=1)
-    log_mu = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (B, 1)))
-    with np.errstate(divide="ignore"):
-        log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
-    q = np.asarray(spec.q_m_s2, dtype=np.float64)
-    w = np.asarray(spec.turn_rate_rad_s, dtype=np.float64)
-    man = list(spec.maneuver_modes)
+    imm = IMMFilter(spec, tr.x, tr.P)
     active = ~out.done
-    d = {f: tr.look_data(f) for f in ("t_s", "z_m", "R_m2", "detected")}
     while active.any():
         rows = np.flatnonzero(active)
-        k = tr.k[rows]
-        t = d["t_s"][rows, k]
-        dt = t - tr.t_last[rows]
-        F = transition_ct(np.repeat(dt[:, None], M, 1), np.broadcast_to(w, (rows.size, M)))
-        Q = process_noise(np.repeat(dt[:, None], M, 1), np.broadcast_to(q, (rows.size, M)))
-        res = imm_step(log_mu[rows], x_m[rows], P_m[rows], log_Pi, F, Q, d["z_m"][rows, k], d["R_m2"][rows, k],
-                       d["detected"][rows, k])
-        log_mu[rows], x_m[rows], P_m[rows] = res.log_mu, res.x_modes, res.P_modes
-        p_man = np.exp(res.log_mu[:, man]).sum(axis=1)
-        rec.put(rows, k, res.x, res.P, maneuver_probability=p_man)
-        declared[rows, k] = p_man > 0.5
-        tr.t_last[rows], tr.k[rows] = t, k + 1
-        active[rows] = tr.k[rows] < tr.n_looks[rows]
+        look = tr.next_look(rows, IMMFilter.LOOK_FIELDS)
+        x, P, p_man = imm.step(rows, look)
+        rec.put(rows, look["k"], x, P, maneuver_probability=p_man)
+        declared[rows, look["k"]] = p_man > 0.5
+        active[rows] = ~tr.advance(rows, x, P)
     rec.run.declared = declared
     return rec.run
 
 
 # ------------------------------------------------------------------------------------------------ Adrian
-def run_turn_rate_kf(episodes, algorithm=2, q_m_s2=0.1 * G0_M_S2, name=None, cfg: EnvConfig | None = None):
+def run_turn_rate_kf(episodes, algorithm=2, q_m_s2=0.1 * G0_M_S2, name=None, cfg=None):
     """Adrian's turn-rate KF: predict with ``F(omega_{k-1})`` where omega is the latest estimate of algorithm 1
-    (plot headings n apart) or 2 (filtered headings n apart), ``q`` = 0.1 g as in the paper; ``n = cfg.n_adrian``.
-    Before an estimate is available the filter is CV."""
+    (plot headings n apart) or 2 (filtered headings n apart), ``q`` = 0.1 g as in the paper; ``n`` is the track
+    start's ``n_adrian``. Before an estimate is available the filter is CV."""
     if algorithm not in (1, 2):
         raise ValueError(f"algorithm must be 1 or 2, got {algorithm!r}")
-    cfg = cfg or EnvConfig()
     tr, out = _tracker(episodes, cfg)
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name or f"adrian{algorithm}", B, K, extra=("turn_rate_deg_s",))
@@ -232,12 +266,10 @@ def run_turn_rate_kf(episodes, algorithm=2, q_m_s2=0.1 * G0_M_S2, name=None, cfg
 
 
 # ------------------------------------------------------------------------------------------------ seed 002
-def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name="reinit",
-               cfg: EnvConfig | None = None):
+def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name="reinit", cfg=None):
     """Seed 002's maneuver response: a KF at ``q``; when the Mahalanobis distance of the plot from the prediction
     exceeds ``n_sigma`` (``NIS > n_sigma^2``) on ``consecutive`` detected looks in a row, the maneuver is declared and
-    the track re-initialised from the latest two plots (two-hit start)."""
-    cfg = cfg or EnvConfig()
+    the track re-initialised from the latest two plots (two-hit start; ``Tracker.set_posterior``)."""
     tr, out = _tracker(episodes, cfg)
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K)
@@ -245,15 +277,12 @@ def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name
     rec.put(np.arange(B), out.look_index, out.x, out.P, out.q_m_s2)
     rec.run.start_index[:] = out.look_index + 1
     run_len = np.zeros(B, dtype=np.int64)
-    last_plot = np.full((B, 2), np.nan)       # latest detected plot (z, R, t) per row, for the re-start
-    last_R = np.tile(np.eye(2), (B, 1, 1))
-    last_t = np.full(B, np.nan)
-    d = {f: tr.look_data(f) for f in ("z_m", "R_m2", "t_s", "detected")}
-    # the latest plot before the warm-up ended
-    for b in range(B):
-        det = np.flatnonzero(d["detected"][b, : tr.k[b]])
-        i = det[-1]
-        last_plot[b], last_R[b], last_t[b] = d["z_m"][b, i], d["R_m2"][b, i], d["t_s"][b, i]
+    # the latest detected plot (z, R, t) per row, for the re-start: at first the last one before the warm-up ended
+    det = tr.look_data("detected")
+    before = det & (np.arange(det.shape[1]) < tr.k[:, None])
+    i = det.shape[1] - 1 - np.argmax(before[:, ::-1], axis=1)
+    rows0 = np.arange(B)
+    last_plot, last_R, last_t = (tr.look_data(f)[rows0, i] for f in ("z_m", "R_m2", "t_s"))
 
     def step(rows):
         o = tr.step(np.full(rows.size, q_m_s2), rows=None if rows.size == B else rows)
@@ -269,7 +298,7 @@ def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name
                                         o.R_m2[fire][ok], o.t_s[fire][ok])
                 idx = np.flatnonzero(fire)[ok]
                 x[idx], P[idx] = x0, P0
-                tr.x[fr[ok]], tr.P[fr[ok]] = x0, P0
+                tr.set_posterior(fr[ok], x0, P0)
             run_len[fr] = 0
         declared[rows, o.look_index] = fire
         upd = o.detected
@@ -283,12 +312,11 @@ def run_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4, name
 
 
 # ------------------------------------------------------------------------------------------------ bounds
-def run_clairvoyant(episodes, name="clairvoyant", q_m_s2=0.0, cfg: EnvConfig | None = None):
+def run_clairvoyant(episodes, name="clairvoyant", q_m_s2=0.0, cfg=None):
     """The physical limit for a q-chooser: a CV KF that is told the true maneuver as a known input
     ``u_k = x_true[k] - F(dt) x_true[k-1]`` (turn rate and speed change exactly), with ``q`` = 0, from the first
     warm-up look on (so a maneuver during the warm-up does not leave it a start-up error the others can correct).
     Its error is the measurement noise filtered by a CV filter that never lags."""
-    cfg = cfg or EnvConfig()
     tr, out = _tracker(episodes, cfg, known_input=True)
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K)
@@ -304,10 +332,9 @@ def run_clairvoyant(episodes, name="clairvoyant", q_m_s2=0.0, cfg: EnvConfig | N
     return rec.run
 
 
-def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg: EnvConfig | None = None):
+def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg=None):
     """A CV KF told the true acceleration magnitude every look: ``q = max(|a_true(t_k)|, floor)`` for the
     prediction to look k (it still does not know the direction, so it lags and is noisy like any q-chooser)."""
-    cfg = cfg or EnvConfig()
     tr, out = _tracker(episodes, cfg)
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K)
@@ -330,43 +357,48 @@ def run_oracle_q(episodes, name="oracle_q", floor_g=0.03, cfg: EnvConfig | None 
 def _common_start(episodes, cfg):
     """First look after the common track start (two hits + warm-up), per episode: where every other tracker's
     metrics start."""
-    return np.array([init_looks(e.detected, e.t_s)[1] + 1 + cfg.warmup_scans for e in episodes], dtype=np.int64)
+    warmup = _start(cfg).warmup_scans
+    return np.array([init_looks(e.detected, e.t_s)[1] + 1 + warmup for e in episodes], dtype=np.int64)
 
 
-def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg: EnvConfig | None = None):
+def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg=None, window=None,
+                           q_max_m_s2=None):
     """Kim & Lee's alpha-beta trackers on the converted plots, one per axis (:func:`baselines.alpha_beta.
     run_alpha_beta`): the conventional one with fixed Kalata gains from ``q`` (default: the tuned constant-q KF's
-    q) or the adaptive one (fudge factor from a 12-look innovation window). Per-axis sigma from the plot's R.
-    The alpha-beta starts from its own two-plot start; metrics use the same looks as every other tracker."""
+    q) or the adaptive one (fudge factor from a ``window``-look innovation window, default the track start's
+    ``window_kim_lee``, 12). Per-axis sigma from the plot's R. The adapted acceleration std is bounded by
+    ``q_max_m_s2`` (default the largest q level of ``cfg`` or of the env's defaults: the largest q any q-chooser
+    of the comparison may use). The alpha-beta starts from its own two-plot start; metrics use the same looks as
+    every other tracker."""
     from radar_env.episode import stack_episodes
 
     from .alpha_beta import run_alpha_beta
     from .tuned_params import tuned_parameters
 
-    cfg = cfg or EnvConfig()
     batch = stack_episodes(episodes)
     q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
     R = np.where(batch.detected[..., None, None], batch.R_m2, np.eye(2))
-    # the adapted acceleration std is bounded by the largest q any q-chooser of the comparison may use
-    q_max = float(cfg.q_levels_g[-1]) * G0_M_S2 if adaptive else None
+    if q_max_m_s2 is None:
+        q_max_m_s2 = float(getattr(cfg, "q_levels_g", DEFAULT_Q_LEVELS_G)[-1]) * G0_M_S2
     res = run_alpha_beta(batch.t_s, batch.z_m, batch.detected, R_m2=R, q_m_s2=q, adaptive=adaptive,
-                         window=cfg.window_kim_lee, q_max_m_s2=q_max)
+                         window=_start(cfg).window_kim_lee if window is None else window,
+                         q_max_m_s2=q_max_m_s2 if adaptive else None)
     nm = name or ("alpha_beta_adaptive" if adaptive else "alpha_beta")
     qq = res.q_m_s2.mean(axis=-1) if adaptive else np.full(batch.valid.shape, q)
     return TrackRun(nm, np.where(batch.valid[..., None], res.x, np.nan), res.P, _common_start(episodes, cfg),
                     np.where(batch.valid, qq, np.nan))
 
 
-def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg: EnvConfig | None = None):
+def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg=None):
     """Konle's speed/heading EKF on differential plots of each sensor (:func:`baselines.konle.run_konle`), run
     beside the position KF (the tracking chain at ``q``, default the tuned constant q) and replacing ``weight``
-    (75%) of the KF's speed and heading after every look. The KF covariance is left as the KF computed it."""
+    (75%) of the KF's speed and heading after every look (``Tracker.set_posterior``). The KF covariance is left as
+    the KF computed it."""
     from radar_env.episode import stack_episodes
 
     from .konle import blend_speed_heading, run_konle
     from .tuned_params import tuned_parameters
 
-    cfg = cfg or EnvConfig()
     batch = stack_episodes(episodes)
     sr = np.where(batch.detected, batch.range_noise_std_m, 1.0)
     sb = np.where(batch.detected, batch.bearing_noise_std_rad, 1e-3)
@@ -383,7 +415,7 @@ def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg: Env
         o = tr.step(np.full(rows.size, q), rows=None if rows.size == B else rows)
         k = o.look_index
         x = blend_speed_heading(o.x, kon.speed_m_s[rows, k], kon.heading_rad[rows, k], weight)
-        tr.x[rows] = x
+        tr.set_posterior(rows, x)
         rec.put(rows, k, x, o.P, o.q_m_s2)
         return o
 

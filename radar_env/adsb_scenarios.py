@@ -16,14 +16,9 @@ from . import adsb
 from .catalog import Setup
 from .radar import atc_radar
 
-__all__ = ["resolve_adsb", "AdsbPool", "ADSB_SUITE", "adsb_flight_names"]
+__all__ = ["resolve_adsb", "AdsbPool", "ADSB_SUITE"]
 
 ADSB_SUITE = "adsb_calibration"
-
-
-def adsb_flight_names():
-    """``adsb:<flight>`` names of the shipped flights."""
-    return [f"adsb:{f}" for f in adsb.list_flights()]
 
 
 @lru_cache(maxsize=64)

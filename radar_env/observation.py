@@ -52,8 +52,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .units import G0_M_S2
+from .validate import check_known_keys
 
-__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "ObservationLayout", "measurement_sigma_m"]
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout",
+           "measurement_sigma_m"]
+
+DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
+"""13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
+(j = 0) and 2 g (j = 6), from 0.00182 g to 8.11 g. The env's default action levels; their first and last bound
+the continuous action and the ``q_prev_g`` / ``next_q_fit_g`` map."""
 
 
 @dataclass(frozen=True)
@@ -132,9 +139,7 @@ class ObservationLayout:
         names = tuple(names)
         if not names:
             raise ValueError(f"features must name at least one of {list(FEATURE_SPECS)}")
-        bad = [n for n in names if n not in FEATURE_SPECS]
-        if bad:
-            raise ValueError(f"unknown feature(s) {bad}; valid: {list(FEATURE_SPECS)}")
+        check_known_keys("", names, FEATURE_SPECS, noun="feature")
         if len(set(names)) != len(names):
             raise ValueError(f"features contains repeats: {list(names)}")
         self.names = names
@@ -146,6 +151,14 @@ class ObservationLayout:
         self._scale = np.array([s.scale for s in self.specs])
         self._log10p = np.array([s.kind == "log10p" for s in self.specs])
         self._logq = np.array([s.kind == "logq" for s in self.specs])
+        # encode's plan, made once: the columns that are a feature over a divisor (one stack and one division for
+        # all of them), the entries of the two non-linear scalings, and the other columns by name
+        self._columns = [(_FROM_FEATURES[n][0] if n in _FROM_FEATURES else None, n) for n in names]
+        self._divisor_col = np.array([_FROM_FEATURES[n][1] if n in _FROM_FEATURES else 1.0 for n in names])[:, None]
+        self._log10p_idx, self._logq_idx = np.flatnonzero(self._log10p), np.flatnonzero(self._logq)
+        self._scale_col = self._scale[:, None]
+        self._log10p_scale_col = self._scale[self._log10p_idx][:, None]
+        self._low_col, self._high_col = self.low.astype(np.float64)[:, None], self.high.astype(np.float64)[:, None]
 
     def __contains__(self, name):
         return name in self._index
@@ -177,18 +190,47 @@ class ObservationLayout:
     def encode_physical(self, phys):
         """(n, F) physical values -> (n, F) float32 observation, clipped to the Box."""
         phys = np.asarray(phys, dtype=np.float64)
-        obs = phys / self._scale
-        if self._log10p.any():
-            obs[..., self._log10p] = np.log10(1.0 + np.maximum(phys[..., self._log10p], 0.0)) / \
-                self._scale[self._log10p]
-        if self._logq.any():
-            lq = np.log10(np.maximum(phys[..., self._logq], 1e-12))
-            obs[..., self._logq] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
-        obs[np.isnan(obs)] = 0.0
-        return np.clip(obs, self.low, self.high).astype(np.float32)
+        F = len(self.names)
+        return self._encode_rows(phys.reshape(-1, F).T).reshape(phys.shape)
+
+    def _encode_rows(self, pt):
+        """(F, n) physical values, one row per feature -> (n, F) float32 observation (C order). Rows, so each
+        scaling touches a few contiguous rows; the same element-wise operations as the scaling table, bit for bit."""
+        obs = pt / self._scale_col
+        i = self._log10p_idx
+        if i.size:
+            obs[i] = np.log10(1.0 + np.maximum(pt[i], 0.0)) / self._log10p_scale_col
+        i = self._logq_idx
+        if i.size:
+            lq = np.log10(np.maximum(pt[i], 1e-12))
+            obs[i] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
+        np.copyto(obs, 0.0, where=np.isnan(obs))
+        np.minimum(np.maximum(obs, self._low_col, out=obs), self._high_col, out=obs)   # np.clip, NaN gone
+        return obs.T.astype(np.float32, order="C")
 
     def encode(self, out, q_prev_m_s2):
-        return self.encode_physical(self.physical(out, q_prev_m_s2))
+        """The (n, F) float32 observation of a :class:`radar_env.tracking.StepOutput`: ``encode_physical(
+        physical(out, q_prev_m_s2))``, bit for bit, in a few vectorised calls (the env's per-step path)."""
+        f = out.features
+        cols = [f[key] if key is not None else self._special(name, out, q_prev_m_s2) for key, name in self._columns]
+        return self._encode_rows(np.concatenate(cols).reshape(len(cols), -1) / self._divisor_col)
+
+    def _special(self, name, out, q_prev_m_s2):
+        """A column of :meth:`physical` that is not a feature over a divisor."""
+        f = out.features
+        if name in _DEGREES_FROM:
+            return np.degrees(f[_DEGREES_FROM[name]])
+        if name == "kim_lee_q_g":
+            return np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2
+        if name == "dt_s":
+            return out.dt_s
+        if name == "pos_std_ratio":
+            sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
+            return np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig
+        if name == "q_prev_g":
+            q = np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2
+            return q if q.shape == out.dt_s.shape else np.full(out.dt_s.shape, q)
+        return out.detected   # "detected"
 
     def decode(self, obs, name):
         """Physical value of feature ``name`` from observations ``obs`` (..., F) (clipped values stay clipped)."""

@@ -168,10 +168,6 @@ class Radar:
         """(n_sites, 2) site positions."""
         return np.array([s.position_m for s in self.sites])
 
-    @property
-    def min_scan_period_s(self):
-        return min(s.scan_period_s for s in self.sites)
-
     def moved_to(self, position_m):
         """The same radar with its first site at ``position_m`` and the others moved by the same offset."""
         off = np.asarray(position_m, dtype=np.float64) - self.site_positions_m[0]

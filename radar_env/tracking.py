@@ -343,3 +343,78 @@ class Tracker:
         v = self._data[name].view()
         v.flags.writeable = False
         return v
+
+    # ------------------------------------------------------------------------------------------ cursor
+    # For filters that run beside the chain on the same looks (the IMM, re-initialisation, Konle's blend): they read
+    # the next look, and either record their own posterior for it (advance) or replace the chain's posterior after
+    # a step (set_posterior). Built only on x, P, k, t_last, n_looks and look_data.
+    _CURSOR_FIELDS = ("t_s", "z_m", "R_m2", "detected", "site_xy_m", "range_m", "bearing_rad", "radial_velocity_m_s",
+                      "range_noise_std_m", "bearing_noise_std_rad", "radial_velocity_noise_std_m_s")
+
+    def _cursor_rows(self, rows):
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        if np.any(self.k[rows] >= self.n_looks[rows]):
+            raise ValueError("a row's episode has ended; load a new episode first")
+        return rows
+
+    def next_look(self, rows, fields=None):
+        """The next look of ``rows`` (index array), not processed: a dict of (n, ...) arrays ``k`` (its index),
+        ``dt_s`` (since the row's last processed look) and the look fields ``fields`` (default: ``t_s``, ``z_m``,
+        ``R_m2``, ``detected``, ``site_xy_m``, the measured polar values and the sigmas of the site that looked)."""
+        rows = self._cursor_rows(rows)
+        k = self.k[rows]
+        look = {f: self.look_data(f)[rows, k] for f in (self._CURSOR_FIELDS if fields is None else fields)}
+        look["k"] = k
+        look["dt_s"] = self.look_data("t_s")[rows, k] - self.t_last[rows]
+        return look
+
+    def advance(self, rows, x, P):
+        """Record the posterior ``x`` (n, 4), ``P`` (n, 4, 4) that a separate filter computed for the next look of
+        ``rows`` and move their cursors past it (``k``, ``t_last``). Returns (n,) bool: the episode has ended. The
+        feature bank is not updated (the chain's features are not produced for these looks)."""
+        rows = self._cursor_rows(rows)
+        k = self.k[rows]
+        self.x[rows], self.P[rows] = x, P
+        self.t_last[rows] = self.look_data("t_s")[rows, k]
+        self.k[rows] = k + 1
+        return self.k[rows] >= self.n_looks[rows]
+
+    def set_posterior(self, rows, x, P=None):
+        """Replace the posterior of ``rows`` after a step (re-initialisation, a blend with another estimate); the
+        next step predicts from it. ``P=None`` keeps the covariance."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        self.x[rows] = x
+        if P is not None:
+            self.P[rows] = P
+
+
+class TrackStart(NamedTuple):
+    """The parameters of the common track start and of the chain's features, shared by the env and every tracker
+    (see the module docstring): ``warmup_scans`` looks at ``warmup_q_g`` after the two-hit start, and the
+    :class:`radar_env.features.FeatureBank` parameters ``n_adrian``, ``window_kim_lee``, ``fma_weight``. Checked
+    by :meth:`checked`; :class:`radar_env.config.EnvConfig` builds one from its arguments (``track_start``)."""
+
+    warmup_scans: int = 12
+    warmup_q_g: float = 0.03
+    n_adrian: int = 4
+    window_kim_lee: int = 12
+    fma_weight: float = 0.1
+
+    def checked(self, prefix=""):
+        """``self`` if every field is in range; else ``ValueError`` naming the field (after ``prefix``)."""
+        from .validate import check_number
+        check_number(prefix + "warmup_scans", self.warmup_scans, 1, 1000, integer=True)
+        check_number(prefix + "warmup_q_g", self.warmup_q_g, 0.0, 100.0)
+        check_number(prefix + "n_adrian", self.n_adrian, 1, 50, integer=True)
+        check_number(prefix + "window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
+        check_number(prefix + "fma_weight", self.fma_weight, 1e-6, 1.0)
+        return self
+
+    @property
+    def warmup_q_m_s2(self):
+        return self.warmup_q_g * G0_M_S2
+
+    def tracker(self, batch_size):
+        """A :class:`Tracker` of ``batch_size`` rows with these parameters."""
+        return Tracker(batch_size, warmup_scans=self.warmup_scans, warmup_q_m_s2=self.warmup_q_m_s2,
+                       n_adrian=self.n_adrian, window_kim_lee=self.window_kim_lee, fma_weight=self.fma_weight)

@@ -12,7 +12,7 @@ import numbers
 
 import numpy as np
 
-__all__ = ["check_number", "check_pair", "check_choice", "check_known_keys", "is_real_number"]
+__all__ = ["check_number", "check_pair", "check_choice", "check_known_keys", "check_probabilities", "is_real_number"]
 
 
 def is_real_number(v):
@@ -59,7 +59,25 @@ def check_choice(name, value, choices):
 
 def check_known_keys(what, given, valid, noun="key"):
     """``ValueError`` listing the unknown names of ``given`` (a mapping or names) and the valid ones, e.g.
-    ``unknown RandomScenarioConfig key(s) ['speed']; valid: [...]``."""
+    ``unknown RandomScenarioConfig key(s) ['speed']; valid: [...]``.
+    ``what`` may be empty (``unknown feature(s) [...]``)."""
     unknown = sorted(set(given) - set(valid), key=str)
     if unknown:
-        raise ValueError(f"unknown {what} {noun}(s) {unknown}; valid: {list(valid)}")
+        raise ValueError(f"unknown {what + ' ' if what else ''}{noun}(s) {unknown}; valid: {list(valid)}")
+
+
+def check_probabilities(name, value, shape=None):
+    """``value`` as a float array of probabilities (finite, >= 0) summing to 1 along the last axis (to
+    ``np.allclose``), of ``shape`` if given (e.g. ``(M, M)`` for a transition matrix whose rows are
+    distributions); else ``ValueError`` naming ``name`` and the value."""
+    try:
+        p = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        p = None
+    ok = p is not None and p.ndim >= 1 and (shape is None or p.shape == tuple(shape))
+    ok = ok and bool(np.all(np.isfinite(p)) and np.all(p >= 0) and np.allclose(p.sum(axis=-1), 1.0))
+    if not ok:
+        what = "rows of probabilities" if (shape is not None and len(shape) > 1) else "probabilities"
+        raise ValueError(f"{name} must be {what} (finite, >= 0) summing to 1"
+                         + (f" with shape {tuple(shape)}" if shape is not None else "") + f", got {value!r}")
+    return p

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import radar_env
+import radar_env.core as rcore
 import radar_env.env as renv
 from radar_env.catalog import make_setup
 from radar_env.radar import atc_radar
@@ -220,7 +221,7 @@ def test_observation_does_not_depend_on_truth(monkeypatch):
                                    truth_turn_rate_rad_s=ep.truth_turn_rate_rad_s + 0.1,
                                    maneuvering=np.ones(K, dtype=bool) ^ ep.maneuvering)
 
-    monkeypatch.setattr(renv, "draw_setup_and_episode", perturbed)
+    monkeypatch.setattr(rcore, "draw_setup_and_episode", perturbed)   # the core draws the episodes
     alt = run()
     assert len(ref) == len(alt)
     for a, b in zip(ref, alt):

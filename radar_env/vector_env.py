@@ -1,0 +1,160 @@
+"""RadarTrack-v0's native batched vector env (:class:`RadarTrackVectorEnv`): N rows of the core, same-step
+autoreset."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import VectorEnv
+from gymnasium.vector.utils import batch_space
+from gymnasium.vector.vector_env import AutoresetMode
+
+from .config import EnvConfig
+from .core import _Core
+from .validate import check_known_keys
+
+__all__ = ["RadarTrackVectorEnv"]
+
+
+# ---------------------------------------------------------------------------------------------------- vector env
+class RadarTrackVectorEnv(VectorEnv):
+    """Native batched vector version of RadarTrack-v0 (``gym.make_vec(..., vectorization_mode=
+    "vector_entry_point")``): N tracks in one set of numpy arrays, same-step autoreset.
+
+    On the step where row i ends, the returned observation is the first observation of its next episode, and
+    ``info["final_obs"][i]`` / ``info["final_info"]`` hold the last observation and info of the finished one
+    (``info["_final_obs"]`` is the mask of rows that ended). Seeding: ``reset(seed=s)`` seeds row i with
+    ``s + i``, as Gymnasium's ``SyncVectorEnv`` does, so row i equals ``RadarTrackEnv`` reset with ``s + i``.
+    Finished rows start their next tracks in batches (each row's next episode drawn ahead from its own generator,
+    so autoreset results are unchanged); an explicit ``reset()`` without a seed discards those prepared episodes,
+    so after it the rows continue from their generators' advanced state.
+    All other arguments as :class:`RadarTrackEnv`.
+
+    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
+    raise ``ValueError``.
+
+    Gymnasium's vector wrappers: the observation wrappers of ``gymnasium.wrappers.vector``
+    (``NormalizeObservation``, ``FlattenObservation``, ...) accept only next-step autoreset and refuse this env
+    (same-step); ``NormalizeReward`` and ``RecordEpisodeStatistics`` work. ``gym.make_vec(..., "sync")`` or
+    ``"async"`` default to next-step autoreset, whose rows diverge from this env after their first episode end;
+    with ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}`` they equal this env row for row
+    (README "Use the environment"; tests/test_env_inputs.py).
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs=1, **kwargs):
+        if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        # gym.make_vec passes the spec's / caller's max_episode_steps; apply it as gym.make's TimeLimit does
+        # (truncated once a row has taken that many steps) rather than dropping it silently.
+        max_steps = kwargs.pop("max_episode_steps", None)
+        if max_steps is not None and (not isinstance(max_steps, (int, np.integer)) or isinstance(max_steps, bool)
+                                      or max_steps < 1):
+            raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_steps!r}")
+        self.max_episode_steps = None if max_steps is None else int(max_steps)
+        self.config = EnvConfig.from_kwargs(**kwargs)
+        if self.config.render_mode is not None:
+            raise ValueError("RadarTrackVectorEnv does not render; use the single env")
+        self.num_envs = int(num_envs)
+        self._core = _Core(self.num_envs, self.config)
+        self._core.enable_prefetch()
+        n_act = len(self.config.q_levels_g)
+        self.single_action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
+                                    else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
+        lay = self._core.layout
+        self.single_observation_space = spaces.Box(lay.low, lay.high, dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._all = np.arange(self.num_envs)
+        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self._started = False
+
+    @property
+    def layout(self):
+        return self._core.layout
+
+    def reset(self, *, seed=None, options=None):
+        options = dict(options or {})
+        scenario = options.pop("scenario", None)
+        check_known_keys("reset", options, ["scenario"], noun="option")
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            ok_one = lambda s: s is None or (isinstance(s, (int, np.integer)) and not isinstance(s, bool))  # noqa: E731
+            seeds = list(seed) if np.iterable(seed) and not isinstance(seed, (str, bytes)) else None
+            if seeds is None or not all(ok_one(s) for s in seeds):
+                raise ValueError(f"seed must be None, an integer or a list of num_envs integers / None, got {seed!r}")
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
+        if seed is not None or not self._started:
+            self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
+        obs, info, _ = self._core.reset_rows(self._all, scenario)
+        self._elapsed[:] = 0
+        self._started = True
+        return obs, _with_masks(info)
+
+    def step(self, actions):
+        if not self._started:
+            raise RuntimeError("RadarTrackVectorEnv: call reset() before step()")
+        core = self._core
+        a = np.asarray(actions)
+        n = self.num_envs
+        shapes = [(n,)] if self.config.action_type == "discrete" else [(n, 1), (n,)]
+        if a.shape not in shapes:
+            raise ValueError(f"actions must have shape {' or '.join(map(str, shapes))} ({self.action_space}), got "
+                             f"shape {a.shape}: {actions!r}")
+        obs, rew, term, trunc, info = core.step(a.reshape(n))
+        self._elapsed += 1
+        if self.max_episode_steps is not None:
+            trunc = trunc | (self._elapsed >= self.max_episode_steps)
+        done = term | trunc
+        self._elapsed[done] = 0
+        if np.any(done):
+            rows = np.flatnonzero(done)
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for r in rows:
+                final_obs[r] = obs[r].copy()
+            final_info = _with_masks(info, done)
+            new_obs, new_info, _ = core.reset_rows(rows, use_prefetch=True)
+            obs[rows] = new_obs   # obs is new every step (the ended rows' last observations are copied above)
+            info = _merge_rows(info, new_info, rows)
+            info["final_obs"] = final_obs
+            info["_final_obs"] = done.copy()
+            info["final_info"] = final_info
+            info["_final_info"] = done.copy()
+        return obs, rew, term, trunc, _with_masks(info)
+
+
+def _merge_rows(info, new, rows):
+    out = {}
+    for k, v in info.items():
+        if isinstance(v, dict):
+            out[k] = _merge_rows(v, new[k], rows)
+        else:
+            a = np.array(v, copy=True)
+            a[rows] = new[k]
+            out[k] = a
+    return out
+
+
+def _with_masks(info, mask=None):
+    """``info`` with Gymnasium's ``_key`` mask beside every entry (all True, or a copy of ``mask``)."""
+    out = {}
+    template = None
+    for k, v in info.items():
+        if k.startswith("_") or k in ("final_obs", "final_info"):
+            out[k] = v
+            continue
+        if isinstance(v, dict):
+            out[k] = _with_masks(v, mask)
+        else:
+            out[k] = v
+        if template is None:
+            n = len(v[next(iter(v))]) if isinstance(v, dict) else len(v)
+            template = np.ones(n, dtype=bool) if mask is None else mask
+        out["_" + k] = template.copy()   # one array per key: a caller may edit one mask
+    return out
