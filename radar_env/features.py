@@ -391,13 +391,13 @@ class FeatureBank:
         if plots_xy is None:
             pz, pt = np.zeros((rows.size, 0, 2)), np.zeros((rows.size, 0))
         else:
-            pz = np.ascontiguousarray(_f64(plots_xy)[rows])
-            pt = np.ascontiguousarray(_f64(plot_times_s)[rows])
+            pz = _k.c_array(_f64(plots_xy)[rows])
+            pt = _k.c_array(_f64(plot_times_s)[rows])
         if x is None:
             xs, ts = np.zeros((rows.size, 4)), np.zeros(rows.size)
         else:
-            xs = np.ascontiguousarray(_f64(x)[rows])
-            ts = np.ascontiguousarray(np.broadcast_to(_f64(t_s), (self.B,))[rows])
+            xs = _k.c_array(_f64(x)[rows])
+            ts = _k.c_array(np.broadcast_to(_f64(t_s), (self.B,))[rows])
         _k.k_bank_reset(rows, self._f, self._i, self._b, self.n, pz, pt, pz.shape[1], xs, ts, x is not None)
 
     # ------------------------------------------------------------------ update
@@ -420,9 +420,9 @@ class FeatureBank:
         B = self.B
 
         def arr(a, tail):
-            return np.ascontiguousarray(np.broadcast_to(_f64(a), (B,) + tail))
+            return _k.c_array(np.broadcast_to(_f64(a), (B,) + tail))
 
-        det = np.ascontiguousarray(np.broadcast_to(np.asarray(detected, dtype=bool).reshape(-1), (B,)))
+        det = _k.c_array(np.broadcast_to(np.asarray(detected, dtype=bool).reshape(-1), (B,)))
         of = np.empty((B, _k.W_BANK_OUT))
         ob = np.empty((B, _k.W_BANK_OUTB), dtype=bool)
         _k.k_bank_update(self._f, self._i, self._b, self._par, arr(x_prev, (4,)), arr(x_prior, (4,)),

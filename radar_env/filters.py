@@ -79,14 +79,14 @@ def _as_batch(a) -> np.ndarray:
 
 def _flat(a, shape, tail):
     """``a`` broadcast to ``shape + tail``, as a C-contiguous float64 array of shape ``(-1,) + tail``."""
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape + tail)).reshape((-1,) + tail)
+    return _k.c_array(np.broadcast_to(np.asarray(a, dtype=np.float64), shape + tail)).reshape((-1,) + tail)
 
 
 def transition_cv(dt_s) -> np.ndarray:
     """Constant-velocity transition matrices ``F (B,4,4)`` for time steps ``dt_s (B,)``."""
     dt = _as_batch(dt_s)
     F = np.empty((dt.size, 4, 4))
-    _k.k_transition(np.ascontiguousarray(dt).reshape(-1), np.zeros(dt.size), False, F)
+    _k.k_transition(_k.c_array(dt).reshape(-1), np.zeros(dt.size), False, F)
     return F.reshape(dt.shape + (4, 4))
 
 
@@ -166,7 +166,7 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, detected=
     shape = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], z.shape[:-1], R.shape[:-2], det.shape)
     xf, Pf = _flat(x, shape, (4,)), _flat(P, shape, (4, 4))
     zf, Rf = _flat(z, shape, (2,)), _flat(R, shape, (2, 2))
-    df = np.ascontiguousarray(np.broadcast_to(det, shape)).reshape(-1)
+    df = _k.c_array(np.broadcast_to(det, shape)).reshape(-1)
     n = xf.shape[0]
     xo, Po, nu, S, nis, ll = (np.empty_like(xf), np.empty_like(Pf), np.empty((n, 2)), np.empty((n, 2, 2)),
                               np.empty(n), np.empty(n))
@@ -208,7 +208,7 @@ def imm_mix(log_mu: np.ndarray, log_Pi: np.ndarray, x: np.ndarray, P: np.ndarray
     Returns:
         ``x0 (B,M,4), P0 (B,M,4,4)`` mixed initial conditions and ``log_c (B,M)`` predicted log mode probabilities.
     """
-    log_mu = np.ascontiguousarray(log_mu, dtype=np.float64)
+    log_mu = _k.c_array(log_mu, np.float64)
     B, M = log_mu.shape
     x0, P0, log_c = np.empty((B, M, 4)), np.empty((B, M, 4, 4)), np.empty((B, M))
     _k.k_imm_mix(log_mu, _log_pi(log_Pi, B, M), _flat(x, (B, M), (4,)).reshape(B, M, 4),
@@ -218,16 +218,16 @@ def imm_mix(log_mu: np.ndarray, log_Pi: np.ndarray, x: np.ndarray, P: np.ndarray
 
 def imm_mode_probabilities(log_c: np.ndarray, loglik: np.ndarray) -> np.ndarray:
     """Posterior log mode probabilities ``log mu_j = log c_j + l_j - logsumexp`` (B,M)."""
-    log_c = np.ascontiguousarray(log_c, dtype=np.float64)
+    log_c = _k.c_array(log_c, np.float64)
     out = np.empty_like(log_c)
-    _k.k_imm_mode_probabilities(log_c, np.ascontiguousarray(np.broadcast_to(loglik, log_c.shape), dtype=np.float64),
+    _k.k_imm_mode_probabilities(log_c, _k.c_array(np.broadcast_to(loglik, log_c.shape), dtype=np.float64),
                                 out)
     return out
 
 
 def imm_combine(log_mu: np.ndarray, x: np.ndarray, P: np.ndarray):
     """Moment-matched combined estimate ``(x (B,4), P (B,4,4))`` of the mode-matched posteriors."""
-    log_mu = np.ascontiguousarray(log_mu, dtype=np.float64)
+    log_mu = _k.c_array(log_mu, np.float64)
     B, M = log_mu.shape
     xc, Pc = np.empty((B, 4)), np.empty((B, 4, 4))
     _k.k_imm_combine(log_mu, _flat(x, (B, M), (4,)).reshape(B, M, 4), _flat(P, (B, M), (4, 4)).reshape(B, M, 4, 4),
@@ -261,10 +261,10 @@ def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMM
     ``nis``, ``nu``, ``S`` are those of the combined prediction (the moment-matched mixture of the mode-matched
     predictions): what the IMM "saw", a maneuver feature.
     """
-    log_mu = np.ascontiguousarray(log_mu, dtype=np.float64)
+    log_mu = _k.c_array(log_mu, np.float64)
     B, M = log_mu.shape
     det = np.ones(B, dtype=bool) if detected is None else \
-        np.ascontiguousarray(np.broadcast_to(np.asarray(detected, dtype=bool), (B,)))
+        _k.c_array(np.broadcast_to(np.asarray(detected, dtype=bool), (B,)))
     out = (np.empty((B, M)), np.empty((B, M, 4)), np.empty((B, M, 4, 4)), np.empty((B, 4)), np.empty((B, 4, 4)),
            np.empty((B, M)), np.empty(B), np.empty((B, 2)), np.empty((B, 2, 2)))
     _k.k_imm_step(log_mu, _flat(x_modes, (B, M), (4,)).reshape(B, M, 4),

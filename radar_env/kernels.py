@@ -78,6 +78,15 @@ PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
 W_PAR = 7
 
 
+def c_array(a, dtype=None):
+    """``a`` as a C-contiguous, writeable array (of ``dtype``): the one array type the kernels are compiled for
+    (a read-only or strided argument would compile another specialisation). Copies only when needed."""
+    a = np.asarray(a, dtype=dtype)
+    if a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=dtype, order="C")
+
+
 def bank_offsets(n, N):
     """Column offsets of the float bank state: ``(plot_xy, plot_t, head, head_t, outer, fma, last, width)``."""
     L1, L2 = n + 2, n + 1
@@ -562,18 +571,20 @@ def _check_q(q, max_q):
 
 
 @njit(cache=True)
-def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, x, P, k, t_last, n_looks, looks, bf, bi, bb, par,
-                   o, ob, oi):
-    """Tracker.step for ``rows`` (or every row if ``all_rows``). Outputs: ``o (n, W_OUT + W_FEAT)`` float,
-    ``ob (n, W_OUTB + W_BANK_OUTB)`` bool, ``oi (n,)`` look index. Returns (status, index): status 1 = q[index] out
-    of range, 2 = row index has ended; nothing is changed then."""
+def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, n_rep, x, P, k, t_last, n_looks, looks, bf, bi, bb,
+                   par, o, ob, oi):
+    """Tracker.step for ``rows`` (or every row if ``all_rows``), ``n_rep`` looks in a row at the same q (1 for a
+    step, ``warmup_scans`` for the warm-up of a track start); the outputs are those of the last look:
+    ``o (n, W_OUT + W_FEAT)`` float, ``ob (n, W_OUTB + W_BANK_OUTB)`` bool, ``oi (n,)`` look index. Returns
+    (status, index): status 1 = q[index] out of range, 2 = row of index i has not n_rep looks left; nothing is
+    changed then."""
     n = q.shape[0]
     bad = _check_q(q, max_q)
     if bad >= 0:
         return 1, bad
     for i in range(n):
         r = i if all_rows else rows[i]
-        if k[r] >= n_looks[r]:
+        if k[r] + n_rep > n_looks[r]:
             return 2, i
     F = np.empty((4, 4))
     Q = np.empty((4, 4))
@@ -585,32 +596,23 @@ def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, x, P, k, t_last
     Pp = np.empty((4, 4))
     for i in range(n):
         r = i if all_rows else rows[i]
-        oi[i] = k[r]
-        _step_row(r, q[i], w[i] if ct else 0.0, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb, par,
-                  o[i, :W_OUT], ob[i, :W_OUTB], o[i, W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xp, Pp)
+        for _ in range(n_rep):
+            oi[i] = k[r]
+            _step_row(r, q[i], w[i] if ct else 0.0, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb,
+                      par, o[i, :W_OUT], ob[i, :W_OUTB], o[i, W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xp, Pp)
     return 0, 0
 
 
 @njit(cache=True)
-def k_tracker_load(rows, i1s, i2s, warmup_scans, warmup_q, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb,
-                   par, o, ob, oi):
-    """Track start of ``rows`` (episode data already in ``looks``/``n_looks``; ``i1s``, ``i2s`` the two looks of
-    the two-hit start, tracking.init_looks): two-point start, feature-bank reset seeded with those plots and the
-    start heading, then ``warmup_scans`` steps at ``warmup_q``; outputs of the last warm-up step."""
-    n = rows.shape[0]
-    F = np.empty((4, 4))
-    Q = np.empty((4, 4))
-    FP = np.empty((4, 4))
-    u = np.zeros(4)
-    R = np.empty((2, 2))
-    zz = np.empty(2)
-    xp = np.empty(4)
-    Pp = np.empty((4, 4))
+def k_track_start(rows, i1s, i2s, x, P, k, t_last, looks, bf, bi, bb, par):
+    """Two-hit start of ``rows`` from looks ``i1s``, ``i2s`` (tracking.init_looks; episode data already in
+    ``looks``): two-point initialisation, the next look to process, and the feature bank reset and seeded with the
+    two plots and the start heading. The warm-up is then ``k_tracker_step`` with ``n_rep = warmup_scans``."""
     seed_xy = np.empty((2, 2))
     seed_t = np.empty(2)
     R1 = np.empty((2, 2))
     R2 = np.empty((2, 2))
-    for i in range(n):
+    for i in range(rows.shape[0]):
         r = rows[i]
         l1, l2 = looks[r, i1s[i]], looks[r, i2s[i]]
         for a in range(2):
@@ -622,11 +624,6 @@ def k_tracker_load(rows, i1s, i2s, warmup_scans, warmup_q, known_input, x, P, k,
         k[r] = i2s[i] + 1
         t_last[r] = l2[L_T]
         _bank_reset(bf[r], bi[r], bb[r], int(par[PAR_N]), seed_xy, seed_t, 2, x[r], l2[L_T], True)
-        for _ in range(warmup_scans):
-            oi[i] = k[r]
-            _step_row(r, warmup_q, 0.0, False, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb, par,
-                      o[i, :W_OUT], ob[i, :W_OUTB], o[i, W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xp, Pp)
-    return 0, 0
 
 
 # ================================================================================================ batched filters

@@ -129,16 +129,16 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
 
     Every plot feature is 0 where the next look is missed or does not exist (``next_look["detected"]`` False).
     """
-    det = np.ascontiguousarray(np.asarray(next_look["detected"], dtype=bool).reshape(-1))
+    det = _k.c_array(np.asarray(next_look["detected"], dtype=bool).reshape(-1))
     n = det.size
 
     def arr(name, tail):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(next_look[name], dtype=np.float64), (n,) + tail))
+        return _k.c_array(np.broadcast_to(np.asarray(next_look[name], dtype=np.float64), (n,) + tail))
 
-    x_post = np.ascontiguousarray(x_post, dtype=np.float64)
+    x_post = _k.c_array(x_post, np.float64)
     of = np.empty((n, _k.W_PREVIEW))
-    _k.k_preview(x_post, np.ascontiguousarray(P_post, dtype=np.float64),
-                 np.ascontiguousarray(np.broadcast_to(np.asarray(t_s, dtype=np.float64), (n,))), det,
+    _k.k_preview(x_post, _k.c_array(P_post, np.float64),
+                 _k.c_array(np.broadcast_to(np.asarray(t_s, dtype=np.float64), (n,))), det,
                  arr("t_s", ()), arr("z_m", (2,)), arr("R_m2", (2, 2)), arr("bearing_rad", ()),
                  arr("radial_velocity_m_s", ()), arr("radial_velocity_noise_std_m_s", ()), arr("site_xy_m", (2,)),
                  _k.MIN_DT_S, of)
@@ -220,7 +220,7 @@ class Tracker:
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
         :class:`StepOutput` for those rows (in the order of ``rows``). ``known_input`` is passed to the warm-up
         steps (only the clairvoyant bound uses it)."""
-        rows = np.ascontiguousarray(np.asarray(rows, dtype=np.int64).reshape(-1))
+        rows = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
         episodes = list(episodes)
         if rows.size != len(episodes):
             raise ValueError(f"got {rows.size} rows and {len(episodes)} episodes")
@@ -244,11 +244,9 @@ class Tracker:
                 fl[f][r, K:] = fl[f][r, K - 1]
             fl["detected"][r, K:] = False
             self.n_looks[r], self.names[r] = K, e.name
-        o, ob, oi = self._out_blocks(rows.size)
-        _k.k_tracker_load(rows, i1s, i2s, self.warmup_scans, self.warmup_q_m_s2, bool(known_input), self.x, self.P,
-                          self.k, self.t_last, self.n_looks, self._looks, self.bank._f, self.bank._i, self.bank._b,
-                          self.bank._par, o, ob, oi)
-        return _outputs(o, ob, oi)
+        b = self.bank
+        _k.k_track_start(rows, i1s, i2s, self.x, self.P, self.k, self.t_last, self._looks, b._f, b._i, b._b, b._par)
+        return self._step(np.full(rows.size, self.warmup_q_m_s2), rows, False, None, known_input, self.warmup_scans)
 
     @staticmethod
     def _out_blocks(n):
@@ -266,24 +264,25 @@ class Tracker:
             known_input: if True, add the true motion not explained by ``F`` (``u = x_true[k] - F x_true[k-1]``):
                 the clairvoyant bound's known-input KF. Never used by a policy.
         """
-        if rows is None:
+        return self._step(q_m_s2, rows, rows is None, turn_rate_rad_s, known_input, 1)
+
+    def _step(self, q_m_s2, rows, all_rows, turn_rate_rad_s, known_input, n_rep):
+        if all_rows:
             n, sel = self.B, _EMPTY_ROWS
         else:
-            sel = np.asarray(rows, dtype=np.int64).reshape(-1)
-            if not sel.flags.c_contiguous:
-                sel = np.ascontiguousarray(sel)
+            sel = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
             n = sel.size
         q = np.asarray(q_m_s2, dtype=np.float64)
-        if q.shape != (n,) or not q.flags.c_contiguous:
-            q = np.ascontiguousarray(np.broadcast_to(q, (n,)))
+        q = _k.c_array(q if q.shape == (n,) else np.broadcast_to(q, (n,)))
         if turn_rate_rad_s is None:
             w = _NO_TURN
         else:
-            w = np.ascontiguousarray(np.broadcast_to(np.asarray(turn_rate_rad_s, dtype=np.float64), (n,)))
+            w = _k.c_array(np.broadcast_to(np.asarray(turn_rate_rad_s, dtype=np.float64), (n,)))
         o, ob, oi = self._out_blocks(n)
-        status, i = _k.k_tracker_step(sel, rows is None, q, w, turn_rate_rad_s is not None, bool(known_input),
-                                      MAX_Q_M_S2, self.x, self.P, self.k, self.t_last, self.n_looks, self._looks,
-                                      self.bank._f, self.bank._i, self.bank._b, self.bank._par, o, ob, oi)
+        b = self.bank
+        status, i = _k.k_tracker_step(sel, all_rows, q, w, turn_rate_rad_s is not None, bool(known_input), MAX_Q_M_S2,
+                                      n_rep, self.x, self.P, self.k, self.t_last, self.n_looks, self._looks, b._f,
+                                      b._i, b._b, b._par, o, ob, oi)
         if status == 1:
             raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {q[i]!r}")
         if status == 2:
