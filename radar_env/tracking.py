@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels as _k
-from .features import FeatureBank, bank_outputs
+from .features import FeatureBank
 from .units import G0_M_S2
 
 __all__ = ["Tracker", "StepOutput", "init_looks", "looks_for_track_start", "preview_next_plot", "MAX_Q_M_S2"]
@@ -153,8 +153,8 @@ _O, _OF = _k.W_OUT, _k.W_OUT + _k.W_BANK_OUT
 def _outputs(o, ob, oi):
     """StepOutput of the kernels' output blocks (column views, no copies)."""
     n = o.shape[0]
-    feats = bank_outputs(o[:, _O:_OF], ob[:, _k.W_OUTB:])
-    feats.update(zip(_k.PREVIEW_KEYS, o[:, _OF:].T))
+    feats = dict(zip(FEATURE_FLOAT_KEYS, o[:, _O:].T))
+    feats.update(zip(_k.BANK_FLAG_KEYS, ob[:, _k.W_OUTB:].T))
     return StepOutput(
         look_index=oi, t_s=o[:, _k.O_T], dt_s=o[:, _k.O_DT], q_m_s2=o[:, _k.O_Q],
         x_prior=o[:, _k.O_XPR:_k.O_XPR + 4], P_prior=o[:, _k.O_PPR:_k.O_PPR + 16].reshape(n, 4, 4),
