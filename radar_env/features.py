@@ -1,4 +1,4 @@
-"""Per-scan maneuver features for the 4-state CV Kalman filter (pure numpy, float64, batched, no RNG).
+"""Per-scan maneuver features for the 4-state CV Kalman filter (float64, batched, no RNG).
 
 Conventions (docs/architecture.md): SI units, x east / y north, state ``[x, y, vx, vy]``, ``H = [I2 0]``,
 heading and bearing clockwise from north (``atan2(east, north)``), radial velocity positive when receding,
@@ -10,7 +10,11 @@ Two layers:
   batch size, returning finite values for every finite input (the fallbacks are documented per function);
 * :class:`FeatureBank`, a stateful batched bank holding the ring buffers the history-based features need
   (Adrian's turn-rate algorithms 1 and 2, Kim & Lee's sliding innovation window, Bizup's CKF fading-memory
-  average). Its ``update`` is vectorised over the batch (no Python loop over rows).
+  average). Its ``update`` is one compiled kernel call (:mod:`radar_env.kernels`, the per-row code that the
+  fused :meth:`radar_env.tracking.Tracker.step` kernel runs too).
+
+The formula functions are plain numpy: they are the readable reference of the kernels' per-row code (tests check
+the bank against them) and are used by the paper checks and baselines (``wrap_angle``, ``kim_lee_variance``).
 
 Readings of ambiguous paper items (see also /work/shared/seeds/README.md):
 
@@ -37,6 +41,8 @@ Readings of ambiguous paper items (see also /work/shared/seeds/README.md):
 from __future__ import annotations
 
 import numpy as np
+
+from . import kernels as _k
 
 __all__ = [
     "wrap_angle",
@@ -264,14 +270,14 @@ def kim_lee_variance(phi, sigma_D2):
     return np.where(phi >= 0.0, phi, _f64(sigma_D2))
 
 
-_HELD = ("nu_along", "nu_cross", "nis", "c_min_m_s2", "turn_rate_alg1_rad_s", "fma_innovation_m",
-         "kim_lee_phi_m2_s4", "nu_along_fm", "nu_cross_fm", "nis_fm")
+_HELD = _k.BANK_HELD[:-1]
 
 
 class FeatureBank:
     """Batched per-track feature state (B rows), updated once per scan by :meth:`update`.
 
-    Buffers (numpy arrays, one ring-buffer write index per row as an int array):
+    Buffers (views into three packed per-row arrays ``_f`` (float), ``_i`` (int), ``_b`` (bool) that the kernels
+    update in place; one ring-buffer write index per row):
 
     * ``plot_xy (B, n+2, 2)``, ``plot_t (B, n+2)``: last n+2 DETECTED plot positions (m) and times (s), for
       Adrian's algorithm 1;
@@ -314,41 +320,57 @@ class FeatureBank:
         self.sigma_D2 = float(sigma_D2_m2_s4)
         self.kim_lee_min_count = self.N if kim_lee_min_count is None else int(kim_lee_min_count)
         self.min_dt_s = float(min_dt_s)
-        B, n, N = self.B, self.n, self.N
-        self._rows = np.arange(B)
-        self.plot_xy = np.zeros((B, n + 2, 2))
-        self.plot_t = np.zeros((B, n + 2))
-        self.plot_idx = np.zeros(B, dtype=np.int64)  # next write slot
-        self.plot_count = np.zeros(B, dtype=np.int64)
-        self.head = np.zeros((B, n + 1))
-        self.head_t = np.zeros((B, n + 1))
-        self.head_idx = np.zeros(B, dtype=np.int64)
-        self.head_count = np.zeros(B, dtype=np.int64)
-        self.outer = np.zeros((B, N, 2, 2))
-        self.outer_idx = np.zeros(B, dtype=np.int64)
-        self.outer_count = np.zeros(B, dtype=np.int64)
-        self.fma = np.zeros(B)
-        self.n_detections = np.zeros(B, dtype=np.int64)
-        self.last = {k: np.zeros(B) for k in _HELD}
-        self.last["kim_lee_q2_m2_s4"] = np.zeros(B)
-        self.last_valid = {k: np.zeros(B, dtype=bool) for k in ("nu", "turn_rate_alg1", "kim_lee")}
+        self._par = np.zeros(_k.W_PAR)
+        self._par[[_k.PAR_N, _k.PAR_NKL, _k.PAR_KLMIN, _k.PAR_FMA_W, _k.PAR_FM_W, _k.PAR_SD2, _k.PAR_MIN_DT]] = (
+            self.n, self.N, self.kim_lee_min_count, self.fma_weight, self.fm_weight, self.sigma_D2, self.min_dt_s)
+        self._off = _k.bank_offsets(self.n, self.N)
+        self._rows = np.arange(self.B)
+        self._f = np.zeros((self.B, self._off[-1]))
+        self._i = np.zeros((self.B, _k.W_BANK_I), dtype=np.int64)
+        self._b = np.zeros((self.B, _k.W_BANK_B), dtype=bool)
+
+    # ------------------------------------------------------------------ views of the packed state
+    def _fcols(self, j, shape):
+        a, b = self._off[j], self._off[j + 1]
+        return self._f[:, a:b].reshape((self.B,) + shape)
+
+    plot_xy = property(lambda s: s._fcols(0, (s.n + 2, 2)))
+    plot_t = property(lambda s: s._fcols(1, (s.n + 2,)))
+    head = property(lambda s: s._fcols(2, (s.n + 1,)))
+    head_t = property(lambda s: s._fcols(3, (s.n + 1,)))
+    outer = property(lambda s: s._fcols(4, (s.N, 2, 2)))
+    fma = property(lambda s: s._f[:, s._off[5]])
+    plot_idx = property(lambda s: s._i[:, _k.BI_PIDX])
+    plot_count = property(lambda s: s._i[:, _k.BI_PCNT])
+    head_idx = property(lambda s: s._i[:, _k.BI_HIDX])
+    head_count = property(lambda s: s._i[:, _k.BI_HCNT])
+    outer_idx = property(lambda s: s._i[:, _k.BI_OIDX])
+    outer_count = property(lambda s: s._i[:, _k.BI_OCNT])
+    n_detections = property(lambda s: s._i[:, _k.BI_NDET])
+
+    @property
+    def last(self):
+        """Held feature values, name -> (B,) view."""
+        o = self._off[6]
+        return {k: self._f[:, o + j] for j, k in enumerate(_k.BANK_HELD)}
+
+    @property
+    def last_valid(self):
+        """Validity flags of the held features, name -> (B,) view."""
+        return {"nu": self._b[:, _k.BB_NU], "turn_rate_alg1": self._b[:, _k.BB_A1], "kim_lee": self._b[:, _k.BB_KL]}
 
     # ------------------------------------------------------------------ row subsets
-    _ROW_ARRAYS = ("plot_xy", "plot_t", "plot_idx", "plot_count", "head", "head_t", "head_idx", "head_count",
-                   "outer", "outer_idx", "outer_count", "fma", "n_detections")
-    _ROW_DICTS = ("last", "last_valid")
+    _ROW_ARRAYS = ("_f", "_i", "_b")
+    _ROW_DICTS = ()
 
     def take_rows(self, rows):
         """A new bank holding copies of rows ``rows`` (index array) of this one, same parameters."""
         rows = np.asarray(rows, dtype=np.int64)
         sub = object.__new__(type(self))
-        sub.__dict__.update({k: v for k, v in vars(self).items()
-                             if k not in self._ROW_ARRAYS + self._ROW_DICTS})
+        sub.__dict__.update({k: v for k, v in vars(self).items() if k not in self._ROW_ARRAYS})
         sub.B, sub._rows = int(rows.size), np.arange(rows.size)
         for name in self._ROW_ARRAYS:
             setattr(sub, name, getattr(self, name)[rows])
-        for name in self._ROW_DICTS:
-            setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})
         return sub
 
     def put_rows(self, rows, other):
@@ -356,10 +378,6 @@ class FeatureBank:
         rows = np.asarray(rows, dtype=np.int64)
         for name in self._ROW_ARRAYS:
             getattr(self, name)[rows] = getattr(other, name)
-        for name in self._ROW_DICTS:
-            mine = getattr(self, name)
-            for k, v in getattr(other, name).items():
-                mine[k][rows] = v
 
     # ------------------------------------------------------------------ reset
     def reset(self, mask=None, plots_xy=None, plot_times_s=None, x=None, t_s=None):
@@ -369,40 +387,18 @@ class FeatureBank:
         oldest first, are pushed into the plot buffer (only the last n+2 kept); ``x`` (B,4) and ``t_s`` (B,)
         push the heading of the initial estimate into the algorithm-2 buffer. Only masked rows are read."""
         m = np.ones(self.B, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).reshape(self.B)
-        for arr in (self.plot_xy, self.plot_t, self.head, self.head_t, self.outer, self.fma):
-            arr[m] = 0.0
-        for arr in (self.plot_idx, self.plot_count, self.head_idx, self.head_count, self.outer_idx,
-                    self.outer_count, self.n_detections):
-            arr[m] = 0
-        for v in self.last.values():
-            v[m] = 0.0
-        for v in self.last_valid.values():
-            v[m] = False
-        if plots_xy is not None:
-            pz = _f64(plots_xy)
-            pt = _f64(plot_times_s)
-            for j in range(pz.shape[1]):  # loop over seed plots (m ~ 2), not over rows
-                self._push_plot(m, pz[:, j], pt[:, j])
-        if x is not None:
-            x = _f64(x)
-            self._push_heading(m, heading_rad(x[:, 2], x[:, 3]), _f64(t_s))
-
-    # ------------------------------------------------------------------ ring buffers
-    def _push_plot(self, m, z, t):
-        r, i = self._rows, self.plot_idx
-        self.plot_xy[r, i] = np.where(m[:, None], z, self.plot_xy[r, i])
-        self.plot_t[r, i] = np.where(m, t, self.plot_t[r, i])
-        L = self.n + 2
-        self.plot_idx = np.where(m, (i + 1) % L, i)
-        self.plot_count = np.where(m, np.minimum(self.plot_count + 1, L), self.plot_count)
-
-    def _push_heading(self, m, h, t):
-        r, i = self._rows, self.head_idx
-        self.head[r, i] = np.where(m, h, self.head[r, i])
-        self.head_t[r, i] = np.where(m, t, self.head_t[r, i])
-        L = self.n + 1
-        self.head_idx = np.where(m, (i + 1) % L, i)
-        self.head_count = np.where(m, np.minimum(self.head_count + 1, L), self.head_count)
+        rows = np.flatnonzero(m)
+        if plots_xy is None:
+            pz, pt = np.zeros((rows.size, 0, 2)), np.zeros((rows.size, 0))
+        else:
+            pz = _k.c_array(_f64(plots_xy)[rows])
+            pt = _k.c_array(_f64(plot_times_s)[rows])
+        if x is None:
+            xs, ts = np.zeros((rows.size, 4)), np.zeros(rows.size)
+        else:
+            xs = _k.c_array(_f64(x)[rows])
+            ts = _k.c_array(np.broadcast_to(_f64(t_s), (self.B,))[rows])
+        _k.k_bank_reset(rows, self._f, self._i, self._b, self.n, pz, pt, pz.shape[1], xs, ts, x is not None)
 
     # ------------------------------------------------------------------ update
     def update(self, x_prev, x_prior, P_post_prev, F, R, nu, S, x_post, z, t_s, dt_s, bearing_rad,
@@ -421,77 +417,26 @@ class FeatureBank:
         ``nis_fm`` (fading-memory averages), and bool flags ``nu_valid`` (also for
         nis and c_min: at least one detection since reset), ``turn_rate_alg1_valid`` (n+2 plots),
         ``turn_rate_alg2_valid`` (n+1 headings), ``fma_valid``, ``kim_lee_valid``."""
-        det = np.asarray(detected, dtype=bool).reshape(self.B)
-        x_post = _f64(x_post)
-        x_prior = _f64(x_prior)
-        nu = _f64(nu)
-        t = _f64(t_s)
-        last = self.last
-        out = {}
+        B = self.B
 
-        # --- innovation features (held on misses)
-        nac = normalized_innovation_along_cross(nu, S, x_prior[:, 2:4])
-        last["nu_along"] = np.where(det, nac[:, 0], last["nu_along"])
-        last["nu_cross"] = np.where(det, nac[:, 1], last["nu_cross"])
-        last["nis"] = np.where(det, nis(nu, S), last["nis"])
-        for key, sample in (("nu_along_fm", nac[:, 0]), ("nu_cross_fm", nac[:, 1]), ("nis_fm", last["nis"])):
-            last[key] = np.where(det, fading_memory_average(last[key], sample, self.fm_weight), last[key])
-        cm = c_min_m_s2(x_prev, bearing_rad, radial_velocity_m_s, dt_s, self.min_dt_s)
-        last["c_min_m_s2"] = np.where(det, cm, last["c_min_m_s2"])
-        self.n_detections = self.n_detections + det
-        nu_valid = self.n_detections > 0
+        def arr(a, tail):
+            return _k.c_array(np.broadcast_to(_f64(a), (B,) + tail))
 
-        # --- FMA of |nu|
-        self.fma = np.where(det, fading_memory_average(self.fma, np.hypot(nu[:, 0], nu[:, 1]),
-                                                       self.fma_weight), self.fma)
-        last["fma_innovation_m"] = self.fma
+        det = _k.c_array(np.broadcast_to(np.asarray(detected, dtype=bool).reshape(-1), (B,)))
+        of = np.empty((B, _k.W_BANK_OUT))
+        ob = np.empty((B, _k.W_BANK_OUTB), dtype=bool)
+        _k.k_bank_update(self._f, self._i, self._b, self._par, arr(x_prev, (4,)), arr(x_prior, (4,)),
+                         arr(P_post_prev, (4, 4)), arr(F, (4, 4)), arr(R, (2, 2)), arr(nu, (2,)), arr(S, (2, 2)),
+                         arr(x_post, (4,)), arr(z, (2,)), arr(t_s, ()), arr(dt_s, ()), arr(bearing_rad, ()),
+                         arr(radial_velocity_m_s, ()), det, arr(site_xy, (2,)), of, ob)
+        return bank_outputs(of, ob)
 
-        # --- Adrian algorithm 1 (plots)
-        self._push_plot(det, _f64(z), t)
-        L = self.n + 2
-        r, i = self._rows, self.plot_idx  # i = oldest slot = plot k-1-n when full
-        zk, zkm1 = self.plot_xy[r, (i - 1) % L], self.plot_xy[r, (i - 2) % L]
-        zkmn, zkm1mn = self.plot_xy[r, (i + 1) % L], self.plot_xy[r, i]
-        tk, tkm1 = self.plot_t[r, (i - 1) % L], self.plot_t[r, (i - 2) % L]
-        tkmn, tkm1mn = self.plot_t[r, (i + 1) % L], self.plot_t[r, i]
-        a1_ok = self.plot_count >= L
-        a1 = _rate(adrian_heading_from_plots(zk, zkmn) - adrian_heading_from_plots(zkm1, zkm1mn),
-                   adrian_mid_time_dt_s(tk, tkm1, tkmn, tkm1mn), self.min_dt_s)
-        a1_new = det & a1_ok
-        last["turn_rate_alg1_rad_s"] = np.where(a1_new, a1, last["turn_rate_alg1_rad_s"])
-        self.last_valid["turn_rate_alg1"] = self.last_valid["turn_rate_alg1"] | a1_new
 
-        # --- Adrian algorithm 2 (filtered headings, every update)
-        h_post = heading_rad(x_post[:, 2], x_post[:, 3])
-        self._push_heading(np.ones(self.B, dtype=bool), h_post, t)
-        j = self.head_idx  # oldest slot = heading k-n when full
-        a2_ok = self.head_count >= self.n + 1
-        a2 = _rate(h_post - self.head[r, j], t - self.head_t[r, j], self.min_dt_s)
-        out["turn_rate_alg2_rad_s"] = np.where(a2_ok, a2, 0.0)
-
-        # --- Kim & Lee (window of detected innovations)
-        k = self.outer_idx
-        op = nu[:, :, None] * nu[:, None, :]
-        self.outer[r, k] = np.where(det[:, None, None], op, self.outer[r, k])
-        self.outer_idx = np.where(det, (k + 1) % self.N, k)
-        self.outer_count = np.where(det, np.minimum(self.outer_count + 1, self.N), self.outer_count)
-        cnt = self.outer_count
-        S_hat = self.outer.sum(axis=1) / np.maximum(cnt, 1)[:, None, None]
-        phi = kim_lee_phi_2d(S_hat, innovation_cov_without_process_noise(F, P_post_prev, R), dt_s, self.min_dt_s)
-        kl_new = det & (cnt >= self.kim_lee_min_count)
-        last["kim_lee_phi_m2_s4"] = np.where(kl_new, phi, last["kim_lee_phi_m2_s4"])
-        last["kim_lee_q2_m2_s4"] = np.where(kl_new, kim_lee_variance(phi, self.sigma_D2), last["kim_lee_q2_m2_s4"])
-        self.last_valid["kim_lee"] = self.last_valid["kim_lee"] | kl_new
-
-        for key, v in last.items():
-            out[key] = v.copy()
-        out["speed_m_s"] = np.hypot(x_post[:, 2], x_post[:, 3])
-        out["heading_rad"] = h_post
-        site = np.broadcast_to(_f64(site_xy), (self.B, 2))
-        out["range_m"] = np.hypot(x_post[:, 0] - site[:, 0], x_post[:, 1] - site[:, 1])
-        out["nu_valid"] = nu_valid
-        out["fma_valid"] = nu_valid.copy()
-        out["turn_rate_alg1_valid"] = self.last_valid["turn_rate_alg1"].copy()
-        out["turn_rate_alg2_valid"] = a2_ok
-        out["kim_lee_valid"] = self.last_valid["kim_lee"].copy()
-        return out
+def bank_outputs(of, ob):
+    """The feature dict of :meth:`FeatureBank.update` from the kernel's output blocks ``of (n, W_BANK_OUT)`` and
+    ``ob (n, W_BANK_OUTB)`` (column views, no copies)."""
+    out = {"turn_rate_alg2_rad_s": of[:, _k.FB_A2]}
+    out.update(zip(_k.BANK_HELD, of[:, _k.FB_HELD:_k.FB_HELD + _k.N_HELD].T))
+    out["speed_m_s"], out["heading_rad"], out["range_m"] = of[:, _k.FB_SPEED], of[:, _k.FB_HEAD], of[:, _k.FB_RANGE]
+    out.update(zip(_k.BANK_FLAG_KEYS, ob.T))
+    return out

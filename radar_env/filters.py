@@ -1,6 +1,9 @@
 r"""Kalman and IMM filter math: one batched implementation used by the env, the baselines and the evaluation.
 
-All functions are pure, float64, batch axis first, and free of randomness. State order is ``[x, y, vx, vy]``
+All functions are pure, float64, batch axis first, and free of randomness. The arithmetic is written once, as
+compiled per-row code in :mod:`radar_env.kernels`; the functions here broadcast their inputs, flatten the batch
+axes and call those kernels (the only numpy reference left is :func:`inv2`, a two-line closed form used by
+baselines/konle.py). State order is ``[x, y, vx, vy]``
 (metres, m/s), the measurement is the converted position ``z = H x + v`` with ``H = [I2 0]``.
 
 Models
@@ -49,6 +52,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import kernels as _k
+
 __all__ = [
     "transition_cv",
     "transition_ct",
@@ -72,21 +77,17 @@ def _as_batch(a) -> np.ndarray:
     return np.atleast_1d(np.asarray(a, dtype=np.float64))
 
 
-def _mT(A: np.ndarray) -> np.ndarray:
-    return np.swapaxes(A, -1, -2)
-
-
-def _sym(A: np.ndarray) -> np.ndarray:
-    return 0.5 * (A + _mT(A))
+def _flat(a, shape, tail):
+    """``a`` broadcast to ``shape + tail``, as a C-contiguous float64 array of shape ``(-1,) + tail``."""
+    return _k.c_array(np.broadcast_to(np.asarray(a, dtype=np.float64), shape + tail)).reshape((-1,) + tail)
 
 
 def transition_cv(dt_s) -> np.ndarray:
     """Constant-velocity transition matrices ``F (B,4,4)`` for time steps ``dt_s (B,)``."""
     dt = _as_batch(dt_s)
-    F = np.zeros(dt.shape + (4, 4))
-    F[..., 0, 0] = F[..., 1, 1] = F[..., 2, 2] = F[..., 3, 3] = 1.0
-    F[..., 0, 2] = F[..., 1, 3] = dt
-    return F
+    F = np.empty((dt.size, 4, 4))
+    _k.k_transition(_k.c_array(dt).reshape(-1), np.zeros(dt.size), False, F)
+    return F.reshape(dt.shape + (4, 4))
 
 
 def transition_ct(dt_s, turn_rate_rad_s) -> np.ndarray:
@@ -96,19 +97,11 @@ def transition_ct(dt_s, turn_rate_rad_s) -> np.ndarray:
         dt_s: time steps (B,) or scalar.
         turn_rate_rad_s: heading rate (B,) or scalar, positive = clockwise (right turn). Zero gives ``F_cv``.
     """
-    dt, w = np.broadcast_arrays(_as_batch(dt_s), _as_batch(turn_rate_rad_s))
-    theta = w * dt
-    s, c = np.sin(theta), np.cos(theta)
     # sin(theta)/w = dt*sinc(theta); (1-cos(theta))/w = dt*(theta/2)*sinc(theta/2)^2 -- exact, smooth at w = 0.
-    a = dt * np.sinc(theta / np.pi)
-    b = dt * (theta / 2.0) * np.sinc(theta / (2.0 * np.pi)) ** 2
-    F = np.zeros(dt.shape + (4, 4))
-    F[..., 0, 0] = F[..., 1, 1] = 1.0
-    F[..., 0, 2], F[..., 0, 3] = a, b
-    F[..., 1, 2], F[..., 1, 3] = -b, a
-    F[..., 2, 2], F[..., 2, 3] = c, s
-    F[..., 3, 2], F[..., 3, 3] = -s, c
-    return F
+    dt, w = np.broadcast_arrays(_as_batch(dt_s), _as_batch(turn_rate_rad_s))
+    F = np.empty((dt.size, 4, 4))
+    _k.k_transition(_flat(dt, dt.shape, ()), _flat(w, dt.shape, ()), True, F)
+    return F.reshape(dt.shape + (4, 4))
 
 
 def process_noise(dt_s, q_m_s2) -> np.ndarray:
@@ -119,25 +112,27 @@ def process_noise(dt_s, q_m_s2) -> np.ndarray:
         q_m_s2: acceleration standard deviation (B,) or scalar, m/s^2 (Bizup's ``Q = q^2 I`` on the acceleration).
     """
     dt, q = np.broadcast_arrays(_as_batch(dt_s), _as_batch(q_m_s2))
-    q2 = q * q
-    pp, pv, vv = q2 * dt**4 / 4.0, q2 * dt**3 / 2.0, q2 * dt**2
-    Q = np.zeros(dt.shape + (4, 4))
-    Q[..., 0, 0] = Q[..., 1, 1] = pp
-    Q[..., 0, 2] = Q[..., 2, 0] = Q[..., 1, 3] = Q[..., 3, 1] = pv
-    Q[..., 2, 2] = Q[..., 3, 3] = vv
-    return Q
+    Q = np.empty((dt.size, 4, 4))
+    _k.k_process_noise(_flat(dt, dt.shape, ()), _flat(q, dt.shape, ()), Q)
+    return Q.reshape(dt.shape + (4, 4))
 
 
 def predict(x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray, u: np.ndarray | None = None):
     """Kalman prediction ``x- = F x (+ u)``, ``P- = F P F^T + Q`` (symmetrised). Shapes (...,4), (...,4,4)."""
-    x_prior = np.einsum("...ij,...j->...i", F, x)
-    if u is not None:
-        x_prior = x_prior + u
-    return x_prior, _sym(F @ P @ _mT(F) + Q)
+    x, P, F, Q = (np.asarray(a, dtype=np.float64) for a in (x, P, F, Q))
+    shape = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], F.shape[:-2], Q.shape[:-2],
+                                () if u is None else np.shape(u)[:-1])
+    xf, Pf, Ff, Qf = _flat(x, shape, (4,)), _flat(P, shape, (4, 4)), _flat(F, shape, (4, 4)), _flat(Q, shape, (4, 4))
+    uf = np.zeros((1, 4)) if u is None else _flat(u, shape, (4,))
+    xo, Po = np.empty_like(xf), np.empty_like(Pf)
+    _k.k_predict(xf, Pf, Ff, Qf, uf, u is not None, xo, Po)
+    return xo.reshape(shape + (4,)), Po.reshape(shape + (4, 4))
 
 
 def inv2(S: np.ndarray):
-    """Closed-form inverse and determinant of 2x2 matrices ``S (...,2,2)``. Returns ``(S_inv, det)``."""
+    """Closed-form inverse and determinant of 2x2 matrices ``S (...,2,2)``. Returns ``(S_inv, det)``.
+
+    Plain numpy (a helper of baselines/konle.py); the kernels inline the same closed form."""
     a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
     det = a * d - b * c
     inv = np.empty_like(S)
@@ -163,28 +158,21 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, detected=
     Args:
         x, P: prior state (...,4) and covariance (...,4,4).
         z, R: converted position (...,2) and its covariance (...,2,2). May hold NaN where ``detected`` is False.
-        detected: bool (...) or None (all detected). Where False the posterior equals the prior.
+        detected: bool (...) or None (all detected). Where False the posterior equals the prior (bit for bit), the
+            innovation is 0 and ``S = P[:2,:2] + I`` (R is not read, so NaN there does no harm).
     """
-    if detected is None:
-        detected = np.ones(x.shape[:-1], dtype=bool)
-    detected = np.asarray(detected, dtype=bool)
-    # Missed plots are replaced by harmless values so that no NaN enters the arithmetic; a zero gain then
-    # leaves x and P bit-for-bit unchanged.
-    nu = np.where(detected[..., None], z - x[..., :2], 0.0)
-    R = np.where(detected[..., None, None], R, np.eye(2))
-    S = _sym(P[..., :2, :2] + R)
-    S_inv, det = inv2(S)
-    K = np.where(detected[..., None, None], P[..., :, :2] @ S_inv, 0.0)  # P H^T S^-1, (...,4,2)
-    x_post = x + np.einsum("...ij,...j->...i", K, nu)
-    # Joseph form with H = [I 0]: M = (I - K H) P, P+ = M (I - K H)^T + K R K^T = M + (K R - M H^T) K^T,
-    # where M H^T = P H^T - K (H P H^T) is formed directly (contiguous 4x2 products are the cheap ones).
-    M = P - K @ P[..., :2, :]
-    MHt = P[..., :, :2] - K @ P[..., :2, :2]
-    P_post = _sym(M + (K @ R - MHt) @ _mT(K))
-    n0, n1 = nu[..., 0], nu[..., 1]
-    nis = n0 * n0 * S_inv[..., 0, 0] + 2.0 * n0 * n1 * S_inv[..., 0, 1] + n1 * n1 * S_inv[..., 1, 1]
-    loglik = -0.5 * (nis + 2.0 * _LOG_2PI + np.log(det))
-    return UpdateResult(x_post, P_post, nu, S, np.where(detected, nis, 0.0), np.where(detected, loglik, 0.0))
+    x, P, z, R = (np.asarray(a, dtype=np.float64) for a in (x, P, z, R))
+    det = np.ones((), dtype=bool) if detected is None else np.asarray(detected, dtype=bool)
+    shape = np.broadcast_shapes(x.shape[:-1], P.shape[:-2], z.shape[:-1], R.shape[:-2], det.shape)
+    xf, Pf = _flat(x, shape, (4,)), _flat(P, shape, (4, 4))
+    zf, Rf = _flat(z, shape, (2,)), _flat(R, shape, (2, 2))
+    df = _k.c_array(np.broadcast_to(det, shape)).reshape(-1)
+    n = xf.shape[0]
+    xo, Po, nu, S, nis, ll = (np.empty_like(xf), np.empty_like(Pf), np.empty((n, 2)), np.empty((n, 2, 2)),
+                              np.empty(n), np.empty(n))
+    _k.k_update(xf, Pf, zf, Rf, df, xo, Po, nu, S, nis, ll)
+    return UpdateResult(xo.reshape(shape + (4,)), Po.reshape(shape + (4, 4)), nu.reshape(shape + (2,)),
+                        S.reshape(shape + (2, 2)), nis.reshape(shape), ll.reshape(shape))
 
 
 def two_point_init(z1, R1, t1_s, z2, R2, t2_s):
@@ -194,24 +182,20 @@ def two_point_init(z1, R1, t1_s, z2, R2, t2_s):
     estimate when the plots' errors are independent and the target moves uniformly).
     """
     z1, z2, R1, R2 = (np.asarray(a, dtype=np.float64) for a in (z1, z2, R1, R2))
-    dt = np.asarray(t2_s, dtype=np.float64) - np.asarray(t1_s, dtype=np.float64)
-    if np.any(dt <= 0):
+    t1, t2 = np.asarray(t1_s, dtype=np.float64), np.asarray(t2_s, dtype=np.float64)
+    if np.any(t2 - t1 <= 0):
         raise ValueError("two_point_init: t2_s must be later than t1_s")
-    dt2 = dt[..., None, None]
-    x = np.concatenate([z2, (z2 - z1) / dt[..., None]], axis=-1)
-    P = np.zeros(z1.shape[:-1] + (4, 4))
-    P[..., :2, :2] = R2
-    P[..., :2, 2:] = R2 / dt2
-    P[..., 2:, :2] = R2 / dt2
-    P[..., 2:, 2:] = (R1 + R2) / dt2**2
-    return x, P
+    shape = np.broadcast_shapes(z1.shape[:-1], z2.shape[:-1], R1.shape[:-2], R2.shape[:-2], t1.shape, t2.shape)
+    n = int(np.prod(shape))
+    x, P = np.empty((n, 4)), np.empty((n, 4, 4))
+    _k.k_two_point_init(_flat(z1, shape, (2,)), _flat(R1, shape, (2, 2)), _flat(t1, shape, ()),
+                        _flat(z2, shape, (2,)), _flat(R2, shape, (2, 2)), _flat(t2, shape, ()), x, P)
+    return x.reshape(shape + (4,)), P.reshape(shape + (4, 4))
 
 
 # ----------------------------------------------------------------------------------------------------------- IMM
-def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
-    m = np.max(a, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(a - m), axis=axis))
+def _log_pi(log_Pi, B, M):
+    return _flat(log_Pi, (B,), (M, M))
 
 
 def imm_mix(log_mu: np.ndarray, log_Pi: np.ndarray, x: np.ndarray, P: np.ndarray):
@@ -224,28 +208,31 @@ def imm_mix(log_mu: np.ndarray, log_Pi: np.ndarray, x: np.ndarray, P: np.ndarray
     Returns:
         ``x0 (B,M,4), P0 (B,M,4,4)`` mixed initial conditions and ``log_c (B,M)`` predicted log mode probabilities.
     """
-    a = log_Pi + log_mu[..., :, None]  # (B,M_from,M_to)
-    log_c = _logsumexp(a, axis=-2)  # (B,M_to)
-    w = np.exp(a - log_c[..., None, :])  # mu_{i|j}, columns sum to 1
-    x0 = np.einsum("bij,bid->bjd", w, x)
-    dx = x[:, :, None, :] - x0[:, None, :, :]  # (B,i,j,4)
-    P0 = np.einsum("bij,bijde->bjde", w, P[:, :, None] + dx[..., :, None] * dx[..., None, :])
-    return x0, 0.5 * (P0 + np.swapaxes(P0, -1, -2)), log_c
+    log_mu = _k.c_array(log_mu, np.float64)
+    B, M = log_mu.shape
+    x0, P0, log_c = np.empty((B, M, 4)), np.empty((B, M, 4, 4)), np.empty((B, M))
+    _k.k_imm_mix(log_mu, _log_pi(log_Pi, B, M), _flat(x, (B, M), (4,)).reshape(B, M, 4),
+                 _flat(P, (B, M), (4, 4)).reshape(B, M, 4, 4), x0, P0, log_c)
+    return x0, P0, log_c
 
 
 def imm_mode_probabilities(log_c: np.ndarray, loglik: np.ndarray) -> np.ndarray:
     """Posterior log mode probabilities ``log mu_j = log c_j + l_j - logsumexp`` (B,M)."""
-    a = log_c + loglik
-    return a - _logsumexp(a, axis=-1)[..., None]
+    log_c = _k.c_array(log_c, np.float64)
+    out = np.empty_like(log_c)
+    _k.k_imm_mode_probabilities(log_c, _k.c_array(np.broadcast_to(loglik, log_c.shape), dtype=np.float64),
+                                out)
+    return out
 
 
 def imm_combine(log_mu: np.ndarray, x: np.ndarray, P: np.ndarray):
     """Moment-matched combined estimate ``(x (B,4), P (B,4,4))`` of the mode-matched posteriors."""
-    mu = np.exp(log_mu)
-    xc = np.einsum("bm,bmd->bd", mu, x)
-    dx = x - xc[:, None, :]
-    Pc = np.einsum("bm,bmde->bde", mu, P + dx[..., :, None] * dx[..., None, :])
-    return xc, 0.5 * (Pc + np.swapaxes(Pc, -1, -2))
+    log_mu = _k.c_array(log_mu, np.float64)
+    B, M = log_mu.shape
+    xc, Pc = np.empty((B, 4)), np.empty((B, 4, 4))
+    _k.k_imm_combine(log_mu, _flat(x, (B, M), (4,)).reshape(B, M, 4), _flat(P, (B, M), (4, 4)).reshape(B, M, 4, 4),
+                     xc, Pc)
+    return xc, Pc
 
 
 class IMMResult(NamedTuple):
@@ -270,15 +257,18 @@ def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMM
         log_Pi: (M,M) or (B,M,M) log transition matrix.
         F, Q: per-mode transition and process noise, (B,M,4,4) (or broadcastable, e.g. (M,4,4)).
         z (B,2), R (B,2,2), detected (B,) or None: the plot.
+
+    ``nis``, ``nu``, ``S`` are those of the combined prediction (the moment-matched mixture of the mode-matched
+    predictions): what the IMM "saw", a maneuver feature.
     """
+    log_mu = _k.c_array(log_mu, np.float64)
     B, M = log_mu.shape
-    x0, P0, log_c = imm_mix(log_mu, log_Pi, x_modes, P_modes)
-    x_pr, P_pr = predict(x0, P0, F, Q)
-    det_bm = np.ones((B, M), bool) if detected is None else np.broadcast_to(np.asarray(detected)[:, None], (B, M))
-    upd = update(x_pr, P_pr, z[:, None, :], R[:, None, :, :], det_bm)
-    log_mu_new = imm_mode_probabilities(log_c, upd.loglik)
-    xc, Pc = imm_combine(log_mu_new, upd.x, upd.P)
-    # Innovation of the combined prediction (a maneuver feature, and what the IMM "saw").
-    xp_c, Pp_c = imm_combine(log_c - _logsumexp(log_c, -1)[..., None], x_pr, P_pr)
-    comb = update(xp_c, Pp_c, z, R, detected)
-    return IMMResult(log_mu_new, upd.x, upd.P, xc, Pc, upd.loglik, comb.nis, comb.nu, comb.S)
+    det = np.ones(B, dtype=bool) if detected is None else \
+        _k.c_array(np.broadcast_to(np.asarray(detected, dtype=bool), (B,)))
+    out = (np.empty((B, M)), np.empty((B, M, 4)), np.empty((B, M, 4, 4)), np.empty((B, 4)), np.empty((B, 4, 4)),
+           np.empty((B, M)), np.empty(B), np.empty((B, 2)), np.empty((B, 2, 2)))
+    _k.k_imm_step(log_mu, _flat(x_modes, (B, M), (4,)).reshape(B, M, 4),
+                  _flat(P_modes, (B, M), (4, 4)).reshape(B, M, 4, 4), _log_pi(log_Pi, B, M),
+                  _flat(F, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(Q, (B, M), (4, 4)).reshape(B, M, 4, 4),
+                  _flat(z, (B,), (2,)), _flat(R, (B,), (2, 2)), det, *out)
+    return IMMResult(*out)

@@ -23,6 +23,12 @@ Track start (Bizup section 3.3, used for every tracker so that comparisons are a
 initialisation from the first two detected looks (position from the second, velocity by differencing), then
 ``warmup_scans`` looks filtered at ``warmup_q_m_s2`` (Bizup: 12 at 0.03 g). :meth:`Tracker.load` does both and
 returns the output of the last warm-up look, from which the first choice of q is made.
+
+Implementation: the whole step (predict, update, features, preview) of all stepped rows is one compiled kernel
+call (:func:`radar_env.kernels.k_tracker_step`), and the track start with its warm-up another
+(:func:`radar_env.kernels.k_tracker_load`). The state lives in preallocated arrays that the kernels update in
+place: ``x (B,4)``, ``P (B,4,4)``, ``k``, ``t_last``, ``n_looks (B,)``, the feature bank's packed ring buffers and
+the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`).
 """
 
 from __future__ import annotations
@@ -31,20 +37,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .episode import Episode
-from .features import MIN_DT_S, FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, normalized_innovation_along_cross
-from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
+from . import kernels as _k
+from .features import FeatureBank
 from .units import G0_M_S2
 
 __all__ = ["Tracker", "StepOutput", "init_looks", "looks_for_track_start", "preview_next_plot", "MAX_Q_M_S2"]
 
 MAX_Q_M_S2 = 100.0 * G0_M_S2
 """Largest process-noise level the chain accepts (m/s^2)."""
-
-_LOOK_FIELDS = ("t_s", "site_xy_m", "range_m", "range_noise_std_m", "bearing_noise_std_rad",
-                "radial_velocity_noise_std_m_s", "truth", "truth_accel_m_s2", "truth_turn_rate_rad_s", "maneuvering",
-                "detected", "bearing_rad", "radial_velocity_m_s", "z_m", "R_m2")
-
 
 class StepOutput(NamedTuple):
     """What one step produced for the stepped rows (leading axis = those rows)."""
@@ -74,6 +74,11 @@ class StepOutput(NamedTuple):
     maneuvering: np.ndarray     # (n,) bool
     features: dict              # name -> (n,) arrays (see FeatureBank.update and preview_next_plot)
     done: np.ndarray            # (n,) bool, the episode's last look was processed
+    feature_block: np.ndarray | None = None  # (n, W_FEAT) float features in kernel column order (FEATURE_FLOAT_KEYS)
+
+
+FEATURE_FLOAT_KEYS = _k.BANK_FLOAT_KEYS + _k.PREVIEW_KEYS
+"""Column names of ``StepOutput.feature_block`` (the float features; the flags are only in ``features``)."""
 
 
 def init_looks(detected, t_s):
@@ -124,43 +129,53 @@ def preview_next_plot(x_post, P_post, t_s, next_look):
 
     Every plot feature is 0 where the next look is missed or does not exist (``next_look["detected"]`` False).
     """
-    det = np.asarray(next_look["detected"], dtype=bool)
-    dt = next_look["t_s"] - t_s
-    F = transition_cv(dt)
-    x_hat = np.einsum("bij,bj->bi", F, x_post)
-    FP = F @ P_post
-    S0 = np.einsum("bij,bkj->bik", FP[:, :2], F[:, :2]) + next_look["R_m2"]
-    S0 = np.where(det[:, None, None], S0, np.eye(2))
-    nu = np.where(det[:, None], next_look["z_m"] - x_hat[:, :2], 0.0)
-    nac = normalized_innovation_along_cross(nu, S0, x_hat[:, 2:4])
-    phi = kim_lee_phi_2d(nu[:, :, None] * nu[:, None, :], S0, dt)
-    rdot = np.where(det, next_look["radial_velocity_m_s"], 0.0)
-    cm = c_min_m_s2(x_post, np.where(det, next_look["bearing_rad"], 0.0), rdot, dt)
-    los = x_hat[:, :2] - next_look["site_xy_m"]
-    rng = np.maximum(np.hypot(los[:, 0], los[:, 1]), 1.0)
-    rdot_hat = (los[:, 0] * x_hat[:, 2] + los[:, 1] * x_hat[:, 3]) / rng
-    los_accel = np.where(det, (rdot - rdot_hat) / np.maximum(dt, MIN_DT_S), 0.0)
-    u = los / rng[:, None]
-    h = np.concatenate([(x_hat[:, 2:4] - rdot_hat[:, None] * u) / rng[:, None], u], axis=1)
-    s_r = np.einsum("bi,bij,bj->b", h, FP @ np.swapaxes(F, 1, 2), h) + next_look["radial_velocity_noise_std_m_s"] ** 2
-    rdot_nu = np.where(det, (rdot - rdot_hat) / np.sqrt(s_r), 0.0)
-    return {"next_nu_along": nac[:, 0], "next_nu_cross": nac[:, 1], "next_nis": nis(nu, S0),
-            "next_q_fit_m_s2": np.where(det, np.sqrt(np.maximum(phi, 0.0)), 0.0),
-            "next_c_min_m_s2": np.where(det, cm, 0.0), "next_los_accel_m_s2": los_accel,
-            "next_rdot_nu": rdot_nu, "next_dt_s": dt,
-            "next_meas_std_m": np.where(det, np.sqrt(0.5 * (next_look["R_m2"][:, 0, 0] + next_look["R_m2"][:, 1, 1])),
-                                        0.0), "next_detected": det.astype(np.float64)}
+    det = _k.c_array(np.asarray(next_look["detected"], dtype=bool).reshape(-1))
+    n = det.size
+
+    def arr(name, tail):
+        return _k.c_array(np.broadcast_to(np.asarray(next_look[name], dtype=np.float64), (n,) + tail))
+
+    x_post = _k.c_array(x_post, np.float64)
+    of = np.empty((n, _k.W_PREVIEW))
+    _k.k_preview(x_post, _k.c_array(P_post, np.float64),
+                 _k.c_array(np.broadcast_to(np.asarray(t_s, dtype=np.float64), (n,))), det,
+                 arr("t_s", ()), arr("z_m", (2,)), arr("R_m2", (2, 2)), arr("bearing_rad", ()),
+                 arr("radial_velocity_m_s", ()), arr("radial_velocity_noise_std_m_s", ()), arr("site_xy_m", (2,)),
+                 _k.MIN_DT_S, of)
+    return dict(zip(_k.PREVIEW_KEYS, of.T))
 
 
-def _bank_update(bank, rows, **inputs):
-    """``bank.update(**inputs)`` for a subset of rows (index array; None = all rows): the rows' feature state is
-    taken out, updated and put back, so the other rows are untouched (track start of freshly reset rows)."""
-    if rows is None:
-        return bank.update(**inputs)
-    sub = bank.take_rows(rows)
-    out = sub.update(**inputs)
-    bank.put_rows(rows, sub)
-    return out
+_EMPTY_ROWS = np.zeros(0, dtype=np.int64)
+_NO_TURN = np.zeros(0)
+_O, _OF = _k.W_OUT, _k.W_OUT + _k.W_BANK_OUT
+
+
+def _outputs(o, ob, oi):
+    """StepOutput of the kernels' output blocks (column views, no copies)."""
+    n = o.shape[0]
+    feats = dict(zip(FEATURE_FLOAT_KEYS, o[:, _O:].T))
+    feats.update(zip(_k.BANK_FLAG_KEYS, ob[:, _k.W_OUTB:].T))
+    return StepOutput(
+        look_index=oi, t_s=o[:, _k.O_T], dt_s=o[:, _k.O_DT], q_m_s2=o[:, _k.O_Q],
+        x_prior=o[:, _k.O_XPR:_k.O_XPR + 4], P_prior=o[:, _k.O_PPR:_k.O_PPR + 16].reshape(n, 4, 4),
+        x=o[:, _k.O_X:_k.O_X + 4], P=o[:, _k.O_P:_k.O_P + 16].reshape(n, 4, 4), nu=o[:, _k.O_NU:_k.O_NU + 2],
+        S=o[:, _k.O_S:_k.O_S + 4].reshape(n, 2, 2), nis=o[:, _k.O_NIS], detected=ob[:, _k.OB_DET],
+        z_m=o[:, _k.O_Z:_k.O_Z + 2], R_m2=o[:, _k.O_R:_k.O_R + 4].reshape(n, 2, 2),
+        site_xy_m=o[:, _k.O_SITE:_k.O_SITE + 2], range_m=o[:, _k.O_RANGE], bearing_rad=o[:, _k.O_BEAR],
+        radial_velocity_m_s=o[:, _k.O_RDOT], range_noise_std_m=o[:, _k.O_RSTD],
+        bearing_noise_std_rad=o[:, _k.O_BSTD], truth=o[:, _k.O_TRUTH:_k.O_TRUTH + 4],
+        truth_accel_m_s2=o[:, _k.O_TACC:_k.O_TACC + 2], maneuvering=ob[:, _k.OB_MAN], features=feats,
+        done=ob[:, _k.OB_DONE], feature_block=o[:, _O:])
+
+
+def _episode_rows(e):
+    """One episode's looks as a (K, W_LOOK) float64 block (the packed look layout)."""
+    K = e.n_looks
+    blk = np.empty((K, _k.W_LOOK))
+    for f, (c, tail) in _k.LOOK_COLUMNS.items():
+        w = int(np.prod(tail)) if tail else 1
+        blk[:, c:c + w] = np.asarray(getattr(e, f), dtype=np.float64).reshape(K, w)
+    return blk
 
 
 class Tracker:
@@ -187,7 +202,8 @@ class Tracker:
             raise ValueError(f"warmup_q_m_s2 must be in [0, {MAX_Q_M_S2}], got {warmup_q_m_s2!r}")
         self.bank = FeatureBank(self.B, n_adrian=n_adrian, window_kim_lee=window_kim_lee, fma_weight=fma_weight)
         self._cap = 0
-        self._data = {}
+        self._looks = np.zeros((self.B, 0, _k.W_LOOK))   # packed look rows (B, K_cap, W_LOOK)
+        self._flags = {"detected": np.zeros((self.B, 0), bool), "maneuvering": np.zeros((self.B, 0), bool)}
         self.n_looks = np.zeros(self.B, dtype=np.int64)
         self.k = np.zeros(self.B, dtype=np.int64)          # next look to process
         self.t_last = np.zeros(self.B)
@@ -196,51 +212,46 @@ class Tracker:
         self.names = [""] * self.B
 
     # ------------------------------------------------------------------------------------------ episode data
-    def _ensure_capacity(self, K, like: Episode):
+    def _ensure_capacity(self, K):
         if K > self._cap:
-            self._grow(K, {f: getattr(like, f)[None] for f in _LOOK_FIELDS})
+            self._grow(K)
 
     def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
         :class:`StepOutput` for those rows (in the order of ``rows``). ``known_input`` is passed to the warm-up
         steps (only the clairvoyant bound uses it)."""
-        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        rows = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
         episodes = list(episodes)
         if rows.size != len(episodes):
             raise ValueError(f"got {rows.size} rows and {len(episodes)} episodes")
-        self._ensure_capacity(max(e.n_looks for e in episodes), episodes[0])
-        z1, R1, t1, z2, R2, t2 = [], [], [], [], [], []
-        for r, e in zip(rows, episodes):
-            i1, i2 = init_looks(e.detected, e.t_s)
+        i1s, i2s = np.empty(rows.size, np.int64), np.empty(rows.size, np.int64)
+        for j, e in enumerate(episodes):   # checked before anything is written
+            i1, i2 = i1s[j], i2s[j] = init_looks(e.detected, e.t_s)
             need = i2 + 1 + self.warmup_scans
             if e.n_looks < need:
                 raise ValueError(f"episode {e.name!r} has {e.n_looks} looks; the track start needs {need} "
                                  f"(two hits at looks {i1} and {i2}, then {self.warmup_scans} warm-up looks)")
+        self._ensure_capacity(max(e.n_looks for e in episodes))
+        L, fl = self._looks, self._flags
+        for r, e in zip(rows, episodes):
             K = e.n_looks
-            for f in _LOOK_FIELDS:
-                self._data[f][r, :K] = getattr(e, f)
-                self._data[f][r, K:] = self._data[f][r, K - 1]   # pad: repeat the last look, not detected
-            self._data["detected"][r, K:] = False
+            blk = _episode_rows(e)
+            L[r, :K] = blk
+            L[r, K:] = blk[-1]          # pad: repeat the last look, not detected
+            L[r, K:, _k.L_DET] = 0.0
+            for f in fl:
+                fl[f][r, :K] = getattr(e, f)
+                fl[f][r, K:] = fl[f][r, K - 1]
+            fl["detected"][r, K:] = False
             self.n_looks[r], self.names[r] = K, e.name
-            self.k[r], self.t_last[r] = i2 + 1, e.t_s[i2]
-            z1.append(e.z_m[i1]); R1.append(e.R_m2[i1]); t1.append(e.t_s[i1])
-            z2.append(e.z_m[i2]); R2.append(e.R_m2[i2]); t2.append(e.t_s[i2])
-        z1, R1, t1, z2, R2, t2 = map(np.array, (z1, R1, t1, z2, R2, t2))
-        x0, P0 = two_point_init(z1, R1, t1, z2, R2, t2)
-        self.x[rows], self.P[rows] = x0, P0
-        mask = np.zeros(self.B, dtype=bool)
-        mask[rows] = True
-        plots = np.zeros((self.B, 2, 2))
-        times = np.zeros((self.B, 2))
-        plots[rows, 0], plots[rows, 1], times[rows, 0], times[rows, 1] = z1, z2, t1, t2
-        xfull = np.zeros((self.B, 4))
-        tfull = np.zeros(self.B)
-        xfull[rows], tfull[rows] = x0, t2
-        self.bank.reset(mask, plots_xy=plots, plot_times_s=times, x=xfull, t_s=tfull)
-        out = None
-        for _ in range(self.warmup_scans):
-            out = self.step(np.full(rows.size, self.warmup_q_m_s2), rows=rows, known_input=known_input)
-        return out
+        b = self.bank
+        _k.k_track_start(rows, i1s, i2s, self.x, self.P, self.k, self.t_last, self._looks, b._f, b._i, b._b, b._par)
+        return self._step(np.full(rows.size, self.warmup_q_m_s2), rows, False, None, known_input, self.warmup_scans)
+
+    @staticmethod
+    def _out_blocks(n):
+        return (np.empty((n, _k.W_OUT + _k.W_FEAT)), np.empty((n, _k.W_OUTB + _k.W_BANK_OUTB), dtype=bool),
+                np.empty(n, dtype=np.int64))
 
     # ------------------------------------------------------------------------------------------ the chain
     def step(self, q_m_s2, rows=None, turn_rate_rad_s=None, known_input=False) -> StepOutput:
@@ -253,53 +264,30 @@ class Tracker:
             known_input: if True, add the true motion not explained by ``F`` (``u = x_true[k] - F x_true[k-1]``):
                 the clairvoyant bound's known-input KF. Never used by a policy.
         """
-        sel = np.arange(self.B) if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
-        n = sel.size
-        q = np.broadcast_to(np.asarray(q_m_s2, dtype=np.float64), (n,))
-        if not np.all(np.isfinite(q)) or np.any(q < 0) or np.any(q > MAX_Q_M_S2):
-            bad = q[~(np.isfinite(q) & (q >= 0) & (q <= MAX_Q_M_S2))][0]
-            raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {bad!r}")
-        k = self.k[sel]
-        if np.any(k >= self.n_looks[sel]):
+        return self._step(q_m_s2, rows, rows is None, turn_rate_rad_s, known_input, 1)
+
+    def _step(self, q_m_s2, rows, all_rows, turn_rate_rad_s, known_input, n_rep):
+        if all_rows:
+            n, sel = self.B, _EMPTY_ROWS
+        else:
+            sel = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
+            n = sel.size
+        q = np.asarray(q_m_s2, dtype=np.float64)
+        q = _k.c_array(q if q.shape == (n,) else np.broadcast_to(q, (n,)))
+        if turn_rate_rad_s is None:
+            w = _NO_TURN
+        else:
+            w = _k.c_array(np.broadcast_to(np.asarray(turn_rate_rad_s, dtype=np.float64), (n,)))
+        o, ob, oi = self._out_blocks(n)
+        b = self.bank
+        status, i = _k.k_tracker_step(sel, all_rows, q, w, turn_rate_rad_s is not None, bool(known_input), MAX_Q_M_S2,
+                                      n_rep, self.x, self.P, self.k, self.t_last, self.n_looks, self._looks, b._f,
+                                      b._i, b._b, b._par, o, ob, oi)
+        if status == 1:
+            raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {q[i]!r}")
+        if status == 2:
             raise ValueError("step() called on a row whose episode has ended; load a new episode first")
-        d = self._data
-        look = {f: d[f][sel, k] for f in _LOOK_FIELDS}
-        t = look["t_s"]
-        dt = t - self.t_last[sel]
-        F = transition_cv(dt) if turn_rate_rad_s is None else transition_ct(dt, turn_rate_rad_s)
-        Q = process_noise(dt, q)
-        x_prev, P_prev = self.x[sel], self.P[sel]
-        u = None
-        if known_input:
-            prev_truth = d["truth"][sel, k - 1]
-            u = look["truth"] - np.einsum("bij,bj->bi", F, prev_truth)
-        x_prior, P_prior = predict(x_prev, P_prev, F, Q, u)
-        det = look["detected"]
-        det2 = det[:, None]
-        upd = update(x_prior, P_prior, look["z_m"], look["R_m2"], det)
-        feats = _bank_update(
-            self.bank, None if rows is None else sel, x_prev=x_prev, x_prior=x_prior, P_post_prev=P_prev, F=F,
-            R=np.where(det2[:, :, None], look["R_m2"], 0.0),
-            nu=upd.nu, S=upd.S, x_post=upd.x, z=np.where(det2, look["z_m"], 0.0), t_s=t, dt_s=dt,
-            bearing_rad=np.where(det, look["bearing_rad"], 0.0),
-            radial_velocity_m_s=np.where(det, look["radial_velocity_m_s"], 0.0), detected=det,
-            site_xy=look["site_xy_m"])
-        self.x[sel], self.P[sel], self.t_last[sel] = upd.x, upd.P, t
-        self.k[sel] = k + 1
-        has_next = k + 1 < self.n_looks[sel]
-        kn = np.minimum(k + 1, self._cap - 1)
-        nxt = {f: d[f][sel, kn] for f in ("t_s", "z_m", "R_m2", "bearing_rad", "radial_velocity_m_s",
-                                           "radial_velocity_noise_std_m_s", "site_xy_m")}
-        nxt["detected"] = d["detected"][sel, kn] & has_next
-        nxt["t_s"] = np.where(has_next, nxt["t_s"], t)
-        feats.update(preview_next_plot(upd.x, upd.P, t, nxt))
-        return StepOutput(
-            look_index=k, t_s=t, dt_s=dt, q_m_s2=q.copy(), x_prior=x_prior, P_prior=P_prior, x=upd.x, P=upd.P,
-            nu=upd.nu, S=upd.S, nis=upd.nis, detected=look["detected"], z_m=look["z_m"], R_m2=look["R_m2"],
-            site_xy_m=look["site_xy_m"], range_m=look["range_m"], bearing_rad=look["bearing_rad"],
-            radial_velocity_m_s=look["radial_velocity_m_s"], range_noise_std_m=look["range_noise_std_m"],
-            bearing_noise_std_rad=look["bearing_noise_std_rad"], truth=look["truth"], truth_accel_m_s2=look["truth_accel_m_s2"],
-            maneuvering=look["maneuvering"], features=feats, done=self.k[sel] >= self.n_looks[sel])
+        return _outputs(o, ob, oi)
 
     # ------------------------------------------------------------------------------------------ helpers
     def copy_rows_from(self, src: "Tracker", src_rows, dst_rows):
@@ -307,32 +295,37 @@ class Tracker:
         same configuration. Lets a caller start tracks in one large batch and hand them out row by row."""
         src_rows = np.asarray(src_rows, dtype=np.int64)
         dst_rows = np.asarray(dst_rows, dtype=np.int64)
-        if src._cap > self._cap:
-            like = {f: src._data[f][:1, :1] for f in _LOOK_FIELDS}
-            self._grow(src._cap, like)
-        for f in _LOOK_FIELDS:
-            self._data[f][dst_rows, : src._cap] = src._data[f][src_rows]
-            if self._cap > src._cap:
-                self._data[f][dst_rows, src._cap:] = src._data[f][src_rows, -1:]
-        self._data["detected"][dst_rows, src._cap:] = False
+        self._ensure_capacity(src._cap)
+        c = src._cap
+        self._looks[dst_rows, :c] = src._looks[src_rows]
+        for f in self._flags:
+            self._flags[f][dst_rows, :c] = src._flags[f][src_rows]
+        if self._cap > c:
+            self._looks[dst_rows, c:] = src._looks[src_rows, -1:]
+            self._looks[dst_rows, c:, _k.L_DET] = 0.0
+            self._flags["maneuvering"][dst_rows, c:] = src._flags["maneuvering"][src_rows, -1:]
+            self._flags["detected"][dst_rows, c:] = False
         for name in ("n_looks", "k", "t_last", "x", "P"):
             getattr(self, name)[dst_rows] = getattr(src, name)[src_rows]
         for d, s_ in zip(dst_rows, src_rows):
             self.names[d] = src.names[s_]
         self.bank.put_rows(dst_rows, src.bank.take_rows(src_rows))
 
-    def _grow(self, K, like):
-        new = {}
-        for f in _LOOK_FIELDS:
-            a = like[f]
-            arr = np.zeros((self.B, K) + a.shape[2:], dtype=a.dtype)
-            if f in self._data:
-                arr[:, : self._cap] = self._data[f]
-                arr[:, self._cap:] = self._data[f][:, -1:] if self._cap else 0
-            new[f] = arr
-        if self._cap and "detected" in new:
-            new["detected"][:, self._cap:] = False
-        self._data, self._cap = new, K
+    def _grow(self, K):
+        c = self._cap
+        new = np.zeros((self.B, K, _k.W_LOOK))
+        new[:, :c] = self._looks
+        if c:
+            new[:, c:] = self._looks[:, -1:]
+            new[:, c:, _k.L_DET] = 0.0
+        flags = {}
+        for f, a in self._flags.items():
+            b = np.zeros((self.B, K), bool)
+            b[:, :c] = a
+            if c and f != "detected":
+                b[:, c:] = a[:, -1:]
+            flags[f] = b
+        self._looks, self._flags, self._cap = new, flags, K
 
     def remaining_looks(self):
         """(B,) looks left to process per row."""
@@ -340,7 +333,12 @@ class Tracker:
 
     def look_data(self, name):
         """The stored (B, K_cap, ...) array of one look field (read-only view), e.g. ``"truth"``."""
-        v = self._data[name].view()
+        if name in self._flags:
+            v = self._flags[name].view()
+        else:
+            c, tail = _k.LOOK_COLUMNS[name]
+            w = int(np.prod(tail)) if tail else 1
+            v = self._looks[:, :, c:c + w].reshape((self.B, self._cap) + tail)
         v.flags.writeable = False
         return v
 

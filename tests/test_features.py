@@ -584,7 +584,8 @@ def test_feature_bank_row_state_is_fully_listed():
     """take_rows/put_rows (used to step row subsets) must cover every per-row array of the bank."""
     from radar_env.features import FeatureBank
     bank = FeatureBank(7)
-    per_row = {k for k, v in vars(bank).items() if isinstance(v, np.ndarray) and v.shape[:1] == (7,) and k != "_rows"}
+    per_row = {k for k, v in vars(bank).items() if isinstance(v, np.ndarray) and v.shape[:1] == (7,)
+               and k not in ("_rows", "_par")}  # _par: the parameter vector, not row state
     dicts = {k for k, v in vars(bank).items() if isinstance(v, dict) and v
              and all(isinstance(a, np.ndarray) and a.shape[:1] == (7,) for a in v.values())}
     assert per_row == set(FeatureBank._ROW_ARRAYS) and dicts == set(FeatureBank._ROW_DICTS)

@@ -1,0 +1,834 @@
+r"""Compiled kernels of the tracking chain: the one copy of the filter, feature and preview math.
+
+Everything here is numba ``@njit(cache=True)`` (nopython, no fastmath, so results agree with plain float64
+arithmetic to rounding) and works on float64 / int64 / bool arrays with the batch axis first. Per-row scalar code
+(functions starting ``_``) is written once and called by the batched kernels (``k_*``), which loop over rows.
+The equations are in :mod:`radar_env.filters` (Kalman / IMM), :mod:`radar_env.features` (features) and
+:mod:`radar_env.tracking` (the chain and the preview); those modules are the public numpy-array API and call
+these kernels.
+
+Layouts (module constants, compile-time constants inside the kernels):
+
+* a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1);
+* the feature-bank state of one track: ``bf`` (float: ring buffers, FMA, held values), ``bi`` (int: ring-buffer
+  indices and counts), ``bb`` (bool: validity flags), offsets from :func:`bank_offsets`;
+* one step's output row ``O_*`` (float), ``OB_*`` (bool) and the feature columns ``FB_*`` (bank) / ``FP_*``
+  (preview).
+
+Kernels that can fail return an int status (0 = ok) and change nothing when they fail, so that the Python layer
+can raise a ``ValueError`` naming the value.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TWO_PI = 2.0 * math.pi
+LOG_2PI = math.log(2.0 * math.pi)
+MIN_SPEED_M_S = 1e-6
+MIN_DT_S = 1e-3
+
+# ---------------------------------------------------------------------------------------------- look row layout
+L_T, L_SITE, L_RANGE, L_RSTD, L_BSTD, L_RDSTD = 0, 1, 3, 4, 5, 6
+L_TRUTH, L_TACC, L_TTURN, L_MAN, L_DET, L_BEAR, L_RDOT, L_Z, L_R = 7, 11, 13, 14, 15, 16, 17, 18, 20
+W_LOOK = 24
+LOOK_COLUMNS = {  # episode field -> (first column, trailing shape)
+    "t_s": (L_T, ()), "site_xy_m": (L_SITE, (2,)), "range_m": (L_RANGE, ()), "range_noise_std_m": (L_RSTD, ()),
+    "bearing_noise_std_rad": (L_BSTD, ()), "radial_velocity_noise_std_m_s": (L_RDSTD, ()),
+    "truth": (L_TRUTH, (4,)), "truth_accel_m_s2": (L_TACC, (2,)), "truth_turn_rate_rad_s": (L_TTURN, ()),
+    "maneuvering": (L_MAN, ()), "detected": (L_DET, ()), "bearing_rad": (L_BEAR, ()),
+    "radial_velocity_m_s": (L_RDOT, ()), "z_m": (L_Z, (2,)), "R_m2": (L_R, (2, 2)),
+}
+
+# --------------------------------------------------------------------------------------------- step output layout
+O_T, O_DT, O_Q, O_XPR, O_PPR, O_X, O_P, O_NU, O_S, O_NIS = 0, 1, 2, 3, 7, 23, 27, 43, 45, 49
+O_Z, O_R, O_SITE, O_RANGE, O_BEAR, O_RDOT, O_RSTD, O_BSTD, O_TRUTH, O_TACC = 50, 52, 56, 58, 59, 60, 61, 62, 63, 67
+W_OUT = 69
+OB_DET, OB_MAN, OB_DONE = 0, 1, 2
+W_OUTB = 3
+
+# feature columns: bank floats, then preview floats; bank flags
+BANK_HELD = ("nu_along", "nu_cross", "nis", "c_min_m_s2", "turn_rate_alg1_rad_s", "fma_innovation_m",
+             "kim_lee_phi_m2_s4", "nu_along_fm", "nu_cross_fm", "nis_fm", "kim_lee_q2_m2_s4")
+H_NUA, H_NUC, H_NIS, H_CMIN, H_A1, H_FMA, H_PHI, H_NUAFM, H_NUCFM, H_NISFM, H_Q2 = range(11)
+N_HELD = 11
+BANK_FLOAT_KEYS = ("turn_rate_alg2_rad_s",) + BANK_HELD + ("speed_m_s", "heading_rad", "range_m")
+FB_A2, FB_HELD, FB_SPEED, FB_HEAD, FB_RANGE = 0, 1, 12, 13, 14
+W_BANK_OUT = 15
+BANK_FLAG_KEYS = ("nu_valid", "fma_valid", "turn_rate_alg1_valid", "turn_rate_alg2_valid", "kim_lee_valid")
+FBB_NU, FBB_FMA, FBB_A1, FBB_A2, FBB_KL = 0, 1, 2, 3, 4
+W_BANK_OUTB = 5
+PREVIEW_KEYS = ("next_nu_along", "next_nu_cross", "next_nis", "next_q_fit_m_s2", "next_c_min_m_s2",
+                "next_los_accel_m_s2", "next_rdot_nu", "next_dt_s", "next_meas_std_m", "next_detected")
+FP_NUA, FP_NUC, FP_NIS, FP_QFIT, FP_CMIN, FP_LOSA, FP_RDNU, FP_DT, FP_STD, FP_DET = range(10)
+W_PREVIEW = 10
+W_FEAT = W_BANK_OUT + W_PREVIEW
+
+# bank int / bool state columns
+BI_PIDX, BI_PCNT, BI_HIDX, BI_HCNT, BI_OIDX, BI_OCNT, BI_NDET = range(7)
+W_BANK_I = 7
+BB_NU, BB_A1, BB_KL = 0, 1, 2
+W_BANK_B = 3
+
+# bank parameters (float64 vector)
+PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
+W_PAR = 7
+
+
+def c_array(a, dtype=None):
+    """``a`` as a C-contiguous, writeable array (of ``dtype``): the one array type the kernels are compiled for
+    (a read-only or strided argument would compile another specialisation). Copies only when needed."""
+    a = np.asarray(a, dtype=dtype)
+    if a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=dtype, order="C")
+
+
+def bank_offsets(n, N):
+    """Column offsets of the float bank state: ``(plot_xy, plot_t, head, head_t, outer, fma, last, width)``."""
+    L1, L2 = n + 2, n + 1
+    pxy = 0
+    pt = pxy + 2 * L1
+    hd = pt + L1
+    ht = hd + L2
+    ou = ht + L2
+    fma = ou + 4 * N
+    last = fma + 1
+    return pxy, pt, hd, ht, ou, fma, last, last + N_HELD
+
+
+_bank_offsets = njit(cache=True)(bank_offsets)
+
+
+# =================================================================================================== scalar math
+@njit(cache=True)
+def _sinc(x):
+    # numpy's sinc(x) = sin(pi x)/(pi x), 1 at 0
+    if x == 0.0:
+        return 1.0
+    y = math.pi * x
+    return math.sin(y) / y
+
+
+@njit(cache=True)
+def _transition(dt, w, ct, F):
+    """F_cv(dt) (``ct`` False) or F_ct(dt, w) into F (4,4)."""
+    for i in range(4):
+        for j in range(4):
+            F[i, j] = 0.0
+    F[0, 0] = F[1, 1] = F[2, 2] = F[3, 3] = 1.0
+    if not ct:
+        F[0, 2] = F[1, 3] = dt
+        return
+    theta = w * dt
+    s, c = math.sin(theta), math.cos(theta)
+    a = dt * _sinc(theta / math.pi)
+    sc = _sinc(theta / (2.0 * math.pi))
+    b = dt * (theta / 2.0) * (sc * sc)
+    F[0, 2], F[0, 3] = a, b
+    F[1, 2], F[1, 3] = -b, a
+    F[2, 2], F[2, 3] = c, s
+    F[3, 2], F[3, 3] = -s, c
+
+
+@njit(cache=True)
+def _process_noise(dt, q, Q):
+    q2 = q * q
+    dt2 = dt * dt
+    pp, pv, vv = q2 * (dt2 * dt2) / 4.0, q2 * (dt2 * dt) / 2.0, q2 * dt2
+    for i in range(4):
+        for j in range(4):
+            Q[i, j] = 0.0
+    Q[0, 0] = Q[1, 1] = pp
+    Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = pv
+    Q[2, 2] = Q[3, 3] = vv
+
+
+@njit(cache=True)
+def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
+    """x- = F x (+ u), P- = sym(F P F^T + Q); FP (4,4) scratch. xo/Po may not alias x/P."""
+    for i in range(4):
+        acc = 0.0
+        for j in range(4):
+            acc += F[i, j] * x[j]
+        xo[i] = acc + u[i] if has_u else acc
+    for i in range(4):
+        for j in range(4):
+            acc = 0.0
+            for m in range(4):
+                acc += F[i, m] * P[m, j]
+            FP[i, j] = acc
+    for i in range(4):
+        for j in range(4):
+            acc = 0.0
+            for m in range(4):
+                acc += FP[i, m] * F[j, m]
+            Po[i, j] = acc + Q[i, j]
+    for i in range(4):
+        for j in range(i + 1, 4):
+            v = 0.5 * (Po[i, j] + Po[j, i])
+            Po[i, j] = v
+            Po[j, i] = v
+
+
+@njit(cache=True)
+def _update(x, P, z, R, det, xo, Po, nu, S):
+    """Joseph-form update with a converted position plot (H = [I 0]). Writes the posterior into xo, Po, the
+    innovation and its covariance into nu, S; returns (nis, loglik). A missed look (``det`` False) leaves the prior
+    unchanged (S from R = I, nu = 0, NIS 0, loglik 0). xo/Po must not alias x/P."""
+    if det:
+        r00, r01, r10, r11 = R[0, 0], R[0, 1], R[1, 0], R[1, 1]
+        nu0, nu1 = z[0] - x[0], z[1] - x[1]
+    else:
+        r00, r01, r10, r11 = 1.0, 0.0, 0.0, 1.0
+        nu0, nu1 = 0.0, 0.0
+    s00 = P[0, 0] + r00
+    s11 = P[1, 1] + r11
+    s01 = 0.5 * ((P[0, 1] + r01) + (P[1, 0] + r10))
+    S[0, 0], S[0, 1], S[1, 0], S[1, 1] = s00, s01, s01, s11
+    nu[0], nu[1] = nu0, nu1
+    if not det:
+        for i in range(4):
+            xo[i] = x[i]
+            for j in range(4):
+                Po[i, j] = P[i, j]
+        return 0.0, 0.0
+    det_s = s00 * s11 - s01 * s01
+    i00, i01, i11 = s11 / det_s, -s01 / det_s, s00 / det_s
+    # gain K = P H^T S^-1 (4,2), columns k0, k1
+    k0 = (P[0, 0] * i00 + P[0, 1] * i01, P[1, 0] * i00 + P[1, 1] * i01,
+          P[2, 0] * i00 + P[2, 1] * i01, P[3, 0] * i00 + P[3, 1] * i01)
+    k1 = (P[0, 0] * i01 + P[0, 1] * i11, P[1, 0] * i01 + P[1, 1] * i11,
+          P[2, 0] * i01 + P[2, 1] * i11, P[3, 0] * i01 + P[3, 1] * i11)
+    # Joseph form with H = [I 0]: M = P - K P[:2,:], MHt = P[:, :2] - K P[:2,:2], P+ = sym(M + (K R - MHt) K^T)
+    for i in range(4):
+        g0 = (k0[i] * r00 + k1[i] * r10) - (P[i, 0] - (k0[i] * P[0, 0] + k1[i] * P[1, 0]))
+        g1 = (k0[i] * r01 + k1[i] * r11) - (P[i, 1] - (k0[i] * P[0, 1] + k1[i] * P[1, 1]))
+        for j in range(4):
+            Po[i, j] = (P[i, j] - (k0[i] * P[0, j] + k1[i] * P[1, j])) + (g0 * k0[j] + g1 * k1[j])
+    for i in range(4):
+        xo[i] = x[i] + (k0[i] * nu0 + k1[i] * nu1)
+    for i in range(4):
+        for j in range(i + 1, 4):
+            v = 0.5 * (Po[i, j] + Po[j, i])
+            Po[i, j] = v
+            Po[j, i] = v
+    nis = nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11
+    return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
+
+
+@njit(cache=True)
+def _two_point_init(z1, R1, t1, z2, R2, t2, xo, Po):
+    dt = t2 - t1
+    dt2 = dt * dt
+    xo[0], xo[1] = z2[0], z2[1]
+    xo[2], xo[3] = (z2[0] - z1[0]) / dt, (z2[1] - z1[1]) / dt
+    for i in range(2):
+        for j in range(2):
+            Po[i, j] = R2[i, j]
+            Po[i, 2 + j] = R2[i, j] / dt
+            Po[2 + i, j] = R2[i, j] / dt
+            Po[2 + i, 2 + j] = (R1[i, j] + R2[i, j]) / dt2
+
+
+# ------------------------------------------------------------------------------------------------ feature scalars
+@njit(cache=True)
+def _wrap(a):
+    """Wrap to (-pi, pi] (same rule as features.wrap_angle)."""
+    if a > -math.pi and a <= math.pi:
+        return a
+    m = math.pi - a
+    m = m - TWO_PI * math.floor(m / TWO_PI)  # numpy mod for a positive divisor
+    if m >= TWO_PI:
+        m -= TWO_PI
+    r = math.pi - m
+    if r <= -math.pi:
+        r += TWO_PI
+    return r
+
+
+@njit(cache=True)
+def _mod2pi(a):
+    m = a - TWO_PI * math.floor(a / TWO_PI)
+    if m >= TWO_PI:
+        m -= TWO_PI
+    return m
+
+
+@njit(cache=True)
+def _nis(n0, n1, a, b, c, d):
+    det = a * d - b * c
+    if det > 0.0:
+        return (d * n0 * n0 - (b + c) * n0 * n1 + a * n1 * n1) / det
+    return 0.0
+
+
+@njit(cache=True)
+def _along_cross(n0, n1, a, b, c, d, vx, vy):
+    """(nu_along, nu_cross) normalised; axes north/east below MIN_SPEED_M_S, 0 where a variance is <= 0."""
+    s = math.hypot(vx, vy)
+    if s > MIN_SPEED_M_S:
+        inv = 1.0 / s
+        ax, ay = vx * inv, vy * inv
+    else:
+        ax, ay = 0.0, 1.0
+    cx, cy = ay, -ax
+    pa = ax * n0 + ay * n1
+    pc = cx * n0 + cy * n1
+    va = a * ax * ax + (b + c) * ax * ay + d * ay * ay
+    vc = a * cx * cx + (b + c) * cx * cy + d * cy * cy
+    na = pa / math.sqrt(va) if va > 0.0 else 0.0
+    nc = pc / math.sqrt(vc) if vc > 0.0 else 0.0
+    return na, nc
+
+
+@njit(cache=True)
+def _c_min(vx, vy, bearing, rdot, dt, min_dt):
+    s = math.hypot(vx, vy)
+    if not s > MIN_SPEED_M_S:
+        return 0.0
+    h_prev = math.atan2(vx, vy)
+    r = rdot / s
+    r = min(max(r, -1.0), 1.0)
+    gamma = math.acos(r)
+    d0 = _mod2pi(bearing + gamma - h_prev)
+    d1 = _mod2pi(bearing - gamma - h_prev)
+    dmin = min(min(d0, TWO_PI - d0), min(d1, TWO_PI - d1))
+    return s * dmin / max(dt, min_dt)
+
+
+# ==================================================================================================== feature bank
+@njit(cache=True)
+def _bank_push_plot(bf, bi, n, zx, zy, t):
+    L = n + 2
+    i = bi[BI_PIDX]
+    bf[2 * i] = zx
+    bf[2 * i + 1] = zy
+    bf[2 * L + i] = t
+    bi[BI_PIDX] = (i + 1) % L
+    bi[BI_PCNT] = min(bi[BI_PCNT] + 1, L)
+
+
+@njit(cache=True)
+def _bank_push_heading(bf, bi, n, hd, h, t):
+    L = n + 1
+    i = bi[BI_HIDX]
+    bf[hd + i] = h
+    bf[hd + L + i] = t
+    bi[BI_HIDX] = (i + 1) % L
+    bi[BI_HCNT] = min(bi[BI_HCNT] + 1, L)
+
+
+@njit(cache=True)
+def _bank_reset(bf, bi, bb, n, seed_xy, seed_t, n_seed, x, t, seed_heading):
+    """Zero one row's bank state, then push ``n_seed`` seed plots (oldest first) and, if ``seed_heading``, the
+    heading of ``x`` at ``t``."""
+    for j in range(bf.shape[0]):
+        bf[j] = 0.0
+    for j in range(bi.shape[0]):
+        bi[j] = 0
+    for j in range(bb.shape[0]):
+        bb[j] = False
+    for j in range(n_seed):
+        _bank_push_plot(bf, bi, n, seed_xy[j, 0], seed_xy[j, 1], seed_t[j])
+    if seed_heading:
+        hd = 3 * (n + 2)
+        _bank_push_heading(bf, bi, n, hd, math.atan2(x[2], x[3]), t)
+
+
+@njit(cache=True)
+def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, z, t, dt, bearing, rdot, det,
+                 site, of, ob):
+    """One scan of one row's feature bank (see features.FeatureBank.update); writes the float outputs into
+    ``of`` (W_BANK_OUT, columns FB_*) and the flags into ``ob`` (W_BANK_OUTB)."""
+    n, N, klmin = int(par[PAR_N]), int(par[PAR_NKL]), int(par[PAR_KLMIN])
+    fma_w, fm_w, sD2, min_dt = par[PAR_FMA_W], par[PAR_FM_W], par[PAR_SD2], par[PAR_MIN_DT]
+    pxy, pt, hd, ht, ou, fma, last, _ = _bank_offsets(n, N)
+    # --- innovation features (held on misses)
+    if det:
+        na, nc = _along_cross(nu[0], nu[1], S[0, 0], S[0, 1], S[1, 0], S[1, 1], x_prior[2], x_prior[3])
+        bf[last + H_NUA] = na
+        bf[last + H_NUC] = nc
+        bf[last + H_NIS] = _nis(nu[0], nu[1], S[0, 0], S[0, 1], S[1, 0], S[1, 1])
+        bf[last + H_NUAFM] = (1.0 - fm_w) * bf[last + H_NUAFM] + fm_w * na
+        bf[last + H_NUCFM] = (1.0 - fm_w) * bf[last + H_NUCFM] + fm_w * nc
+        bf[last + H_NISFM] = (1.0 - fm_w) * bf[last + H_NISFM] + fm_w * bf[last + H_NIS]
+        bf[last + H_CMIN] = _c_min(x_prev[2], x_prev[3], bearing, rdot, dt, min_dt)
+        bi[BI_NDET] += 1
+        # --- FMA of |nu|
+        bf[fma] = (1.0 - fma_w) * bf[fma] + fma_w * math.hypot(nu[0], nu[1])
+    bf[last + H_FMA] = bf[fma]
+    # --- Adrian algorithm 1 (plots)
+    if det:
+        _bank_push_plot(bf, bi, n, z[0], z[1], t)
+        L = n + 2
+        if bi[BI_PCNT] >= L:
+            i = bi[BI_PIDX]  # oldest slot = plot k-1-n
+            ik, ikm1, ikmn, ikm1mn = (i - 1 + L) % L, (i - 2 + L) % L, (i + 1) % L, i
+            h_k = math.atan2(bf[2 * ik] - bf[2 * ikmn], bf[2 * ik + 1] - bf[2 * ikmn + 1])
+            h_km1 = math.atan2(bf[2 * ikm1] - bf[2 * ikm1mn], bf[2 * ikm1 + 1] - bf[2 * ikm1mn + 1])
+            dmid = 0.5 * (bf[pt + ik] + bf[pt + ikmn]) - 0.5 * (bf[pt + ikm1] + bf[pt + ikm1mn])
+            bf[last + H_A1] = _wrap(h_k - h_km1) / max(dmid, min_dt)
+            bb[BB_A1] = True
+    # --- Adrian algorithm 2 (filtered headings, every update)
+    h_post = math.atan2(x_post[2], x_post[3])
+    _bank_push_heading(bf, bi, n, hd, h_post, t)
+    j = bi[BI_HIDX]  # oldest slot = heading k-n
+    a2_ok = bi[BI_HCNT] >= n + 1
+    of[FB_A2] = _wrap(h_post - bf[hd + j]) / max(t - bf[ht + j], min_dt) if a2_ok else 0.0
+    # --- Kim & Lee (window of detected innovations)
+    if det:
+        k = bi[BI_OIDX]
+        o = ou + 4 * k
+        bf[o], bf[o + 1], bf[o + 2], bf[o + 3] = nu[0] * nu[0], nu[0] * nu[1], nu[1] * nu[0], nu[1] * nu[1]
+        bi[BI_OIDX] = (k + 1) % N
+        bi[BI_OCNT] = min(bi[BI_OCNT] + 1, N)
+        cnt = bi[BI_OCNT]
+        if cnt >= klmin:
+            s00 = 0.0
+            s11 = 0.0
+            for m in range(N):
+                s00 += bf[ou + 4 * m]
+                s11 += bf[ou + 4 * m + 3]
+            c = float(max(cnt, 1))
+            # trace of S0 = H F P+ F^T H^T + R (rows 0, 1 of F)
+            tr0 = 0.0
+            for r in range(2):
+                acc = 0.0
+                for a in range(4):
+                    fpa = 0.0
+                    for b in range(4):
+                        fpa += F[r, b] * P_prev[b, a]
+                    acc += fpa * F[r, a]
+                tr0 += acc + R[r, r]
+            dtf = max(dt, min_dt)
+            dt2 = dtf * dtf
+            phi = ((s00 / c + s11 / c) - tr0) / (0.5 * (dt2 * dt2))
+            bf[last + H_PHI] = phi
+            bf[last + H_Q2] = phi if phi >= 0.0 else sD2
+            bb[BB_KL] = True
+    for m in range(N_HELD):
+        of[FB_HELD + m] = bf[last + m]
+    of[FB_SPEED] = math.hypot(x_post[2], x_post[3])
+    of[FB_HEAD] = h_post
+    of[FB_RANGE] = math.hypot(x_post[0] - site[0], x_post[1] - site[1])
+    nu_valid = bi[BI_NDET] > 0
+    ob[FBB_NU] = nu_valid
+    ob[FBB_FMA] = nu_valid
+    ob[FBB_A1] = bb[BB_A1]
+    ob[FBB_A2] = a2_ok
+    ob[FBB_KL] = bb[BB_KL]
+
+
+# ========================================================================================================= preview
+@njit(cache=True)
+def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, F, FP, FPF, xh, of):
+    """Features of the next plot against the q-free prediction (see tracking.preview_next_plot) into ``of``
+    (W_PREVIEW). ``det`` False (missed or no next look) gives 0 for every plot feature. F, FP, FPF (4,4) and
+    xh (4,) are scratch."""
+    dt = t_next - t
+    for m in range(W_PREVIEW):
+        of[m] = 0.0
+    of[FP_DT] = dt
+    if not det:
+        return
+    _transition(dt, 0.0, False, F)
+    for i in range(4):
+        acc = 0.0
+        for j in range(4):
+            acc += F[i, j] * x[j]
+        xh[i] = acc
+    for i in range(4):
+        for j in range(4):
+            acc = 0.0
+            for m in range(4):
+                acc += F[i, m] * P[m, j]
+            FP[i, j] = acc
+    for i in range(4):
+        for j in range(4):
+            acc = 0.0
+            for m in range(4):
+                acc += FP[i, m] * F[j, m]
+            FPF[i, j] = acc
+    s00 = FPF[0, 0] + R[0, 0]
+    s01 = FPF[0, 1] + R[0, 1]
+    s10 = FPF[1, 0] + R[1, 0]
+    s11 = FPF[1, 1] + R[1, 1]
+    n0, n1 = z[0] - xh[0], z[1] - xh[1]
+    na, nc = _along_cross(n0, n1, s00, s01, s10, s11, xh[2], xh[3])
+    of[FP_NUA], of[FP_NUC] = na, nc
+    of[FP_NIS] = _nis(n0, n1, s00, s01, s10, s11)
+    dtf = max(dt, min_dt)
+    dt2 = dtf * dtf
+    phi = ((n0 * n0 + n1 * n1) - (s00 + s11)) / (0.5 * (dt2 * dt2))
+    of[FP_QFIT] = math.sqrt(max(phi, 0.0))
+    of[FP_CMIN] = _c_min(x[2], x[3], bearing, rdot, dt, min_dt)
+    l0, l1 = xh[0] - site[0], xh[1] - site[1]
+    rng = max(math.hypot(l0, l1), 1.0)
+    rdot_hat = (l0 * xh[2] + l1 * xh[3]) / rng
+    of[FP_LOSA] = (rdot - rdot_hat) / max(dt, MIN_DT_S)
+    u0, u1 = l0 / rng, l1 / rng
+    hv = ((xh[2] - rdot_hat * u0) / rng, (xh[3] - rdot_hat * u1) / rng, u0, u1)
+    s_r = 0.0
+    for i in range(4):
+        acc = 0.0
+        for j in range(4):
+            acc += FPF[i, j] * hv[j]
+        s_r += hv[i] * acc
+    s_r += rdot_std * rdot_std
+    of[FP_RDNU] = (rdot - rdot_hat) / math.sqrt(s_r)
+    of[FP_STD] = math.sqrt(0.5 * (R[0, 0] + R[1, 1]))
+    of[FP_DET] = 1.0
+
+
+# =================================================================================================== tracker step
+@njit(cache=True)
+def _step_row(r, q, w, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb, par, o, ob, of, ofb,
+              F, Q, FP, u, R, zz, xp, Pp):
+    """One look of tracker row ``r``: predict, update, features, preview; state updated in place, outputs into
+    ``o`` (W_OUT), ``ob`` (W_OUTB), ``of`` (W_FEAT), ``ofb`` (W_BANK_OUTB). F..Pp: scratch."""
+    kk = k[r]
+    lk = looks[r, kk]
+    t = lk[L_T]
+    dt = t - t_last[r]
+    det = lk[L_DET] != 0.0
+    _transition(dt, w, ct, F)
+    _process_noise(dt, q, Q)
+    if known_input:
+        tp = looks[r, kk - 1]
+        for i in range(4):
+            acc = 0.0
+            for j in range(4):
+                acc += F[i, j] * tp[L_TRUTH + j]
+            u[i] = lk[L_TRUTH + i] - acc
+    xr, Pr = x[r], P[r]
+    _predict(xr, Pr, F, Q, u, known_input, xp, Pp, FP)
+    for i in range(2):
+        zz[i] = lk[L_Z + i]
+        for j in range(2):
+            R[i, j] = lk[L_R + 2 * i + j]
+    xo = o[O_X:O_X + 4]
+    Po = o[O_P:O_P + 16].reshape((4, 4))
+    nu = o[O_NU:O_NU + 2]
+    S = o[O_S:O_S + 4].reshape((2, 2))
+    nis, _ = _update(xp, Pp, zz, R, det, xo, Po, nu, S)
+    # feature bank: plot inputs zeroed where missed (held features ignore them)
+    if not det:
+        zz[0] = zz[1] = 0.0
+        for i in range(2):
+            for j in range(2):
+                R[i, j] = 0.0
+    bear = lk[L_BEAR] if det else 0.0
+    rd = lk[L_RDOT] if det else 0.0
+    _bank_update(bf[r], bi[r], bb[r], par, xr, xp, Pr, F, R, nu, S, xo, zz, t, dt, bear, rd, det,
+                 lk[L_SITE:L_SITE + 2], of[:W_BANK_OUT], ofb)
+    # outputs
+    o[O_T], o[O_DT], o[O_Q], o[O_NIS] = t, dt, q, nis
+    for i in range(4):
+        o[O_XPR + i] = xp[i]
+        for j in range(4):
+            o[O_PPR + 4 * i + j] = Pp[i, j]
+    for i in range(2):
+        o[O_Z + i] = lk[L_Z + i]
+        o[O_SITE + i] = lk[L_SITE + i]
+        o[O_TACC + i] = lk[L_TACC + i]
+    for i in range(4):
+        o[O_R + i] = lk[L_R + i]
+        o[O_TRUTH + i] = lk[L_TRUTH + i]
+    o[O_RANGE], o[O_BEAR], o[O_RDOT] = lk[L_RANGE], lk[L_BEAR], lk[L_RDOT]
+    o[O_RSTD], o[O_BSTD] = lk[L_RSTD], lk[L_BSTD]
+    ob[OB_DET] = det
+    ob[OB_MAN] = lk[L_MAN] != 0.0
+    # state
+    for i in range(4):
+        xr[i] = xo[i]
+        for j in range(4):
+            Pr[i, j] = Po[i, j]
+    t_last[r] = t
+    k[r] = kk + 1
+    has_next = kk + 1 < n_looks[r]
+    ob[OB_DONE] = not has_next
+    ln = looks[r, min(kk + 1, looks.shape[1] - 1)]
+    det_n = has_next and ln[L_DET] != 0.0
+    t_n = ln[L_T] if has_next else t
+    for i in range(2):
+        for j in range(2):
+            R[i, j] = ln[L_R + 2 * i + j]
+    _preview(xr, Pr, t, det_n, t_n, ln[L_Z:L_Z + 2], R, ln[L_BEAR], ln[L_RDOT], ln[L_RDSTD],
+             ln[L_SITE:L_SITE + 2], MIN_DT_S, F, FP, Q, xp, of[W_BANK_OUT:])
+
+
+@njit(cache=True)
+def _check_q(q, max_q):
+    for i in range(q.shape[0]):
+        v = q[i]
+        if not (v >= 0.0 and v <= max_q):  # NaN fails too
+            return i
+    return -1
+
+
+@njit(cache=True)
+def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, n_rep, x, P, k, t_last, n_looks, looks, bf, bi, bb,
+                   par, o, ob, oi):
+    """Tracker.step for ``rows`` (or every row if ``all_rows``), ``n_rep`` looks in a row at the same q (1 for a
+    step, ``warmup_scans`` for the warm-up of a track start); the outputs are those of the last look:
+    ``o (n, W_OUT + W_FEAT)`` float, ``ob (n, W_OUTB + W_BANK_OUTB)`` bool, ``oi (n,)`` look index. Returns
+    (status, index): status 1 = q[index] out of range, 2 = row of index i has not n_rep looks left; nothing is
+    changed then."""
+    n = q.shape[0]
+    bad = _check_q(q, max_q)
+    if bad >= 0:
+        return 1, bad
+    for i in range(n):
+        r = i if all_rows else rows[i]
+        if k[r] + n_rep > n_looks[r]:
+            return 2, i
+    F = np.empty((4, 4))
+    Q = np.empty((4, 4))
+    FP = np.empty((4, 4))
+    u = np.zeros(4)
+    R = np.empty((2, 2))
+    zz = np.empty(2)
+    xp = np.empty(4)
+    Pp = np.empty((4, 4))
+    for i in range(n):
+        r = i if all_rows else rows[i]
+        for _ in range(n_rep):
+            oi[i] = k[r]
+            _step_row(r, q[i], w[i] if ct else 0.0, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb,
+                      par, o[i, :W_OUT], ob[i, :W_OUTB], o[i, W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xp, Pp)
+    return 0, 0
+
+
+@njit(cache=True)
+def k_track_start(rows, i1s, i2s, x, P, k, t_last, looks, bf, bi, bb, par):
+    """Two-hit start of ``rows`` from looks ``i1s``, ``i2s`` (tracking.init_looks; episode data already in
+    ``looks``): two-point initialisation, the next look to process, and the feature bank reset and seeded with the
+    two plots and the start heading. The warm-up is then ``k_tracker_step`` with ``n_rep = warmup_scans``."""
+    seed_xy = np.empty((2, 2))
+    seed_t = np.empty(2)
+    R1 = np.empty((2, 2))
+    R2 = np.empty((2, 2))
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        l1, l2 = looks[r, i1s[i]], looks[r, i2s[i]]
+        for a in range(2):
+            seed_xy[0, a], seed_xy[1, a] = l1[L_Z + a], l2[L_Z + a]
+            for b in range(2):
+                R1[a, b], R2[a, b] = l1[L_R + 2 * a + b], l2[L_R + 2 * a + b]
+        seed_t[0], seed_t[1] = l1[L_T], l2[L_T]
+        _two_point_init(seed_xy[0], R1, l1[L_T], seed_xy[1], R2, l2[L_T], x[r], P[r])
+        k[r] = i2s[i] + 1
+        t_last[r] = l2[L_T]
+        _bank_reset(bf[r], bi[r], bb[r], int(par[PAR_N]), seed_xy, seed_t, 2, x[r], l2[L_T], True)
+
+
+# ================================================================================================ batched filters
+@njit(cache=True)
+def k_transition(dt, w, ct, F):
+    for b in range(dt.shape[0]):
+        _transition(dt[b], w[b], ct, F[b])
+
+
+@njit(cache=True)
+def k_process_noise(dt, q, Q):
+    for b in range(dt.shape[0]):
+        _process_noise(dt[b], q[b], Q[b])
+
+
+@njit(cache=True)
+def k_predict(x, P, F, Q, u, has_u, xo, Po):
+    FP = np.empty((4, 4))
+    for b in range(x.shape[0]):
+        _predict(x[b], P[b], F[b], Q[b], u[b] if has_u else u[0], has_u, xo[b], Po[b], FP)
+
+
+@njit(cache=True)
+def k_update(x, P, z, R, det, xo, Po, nu, S, nis, loglik):
+    for b in range(x.shape[0]):
+        nis[b], loglik[b] = _update(x[b], P[b], z[b], R[b], det[b], xo[b], Po[b], nu[b], S[b])
+
+
+@njit(cache=True)
+def k_two_point_init(z1, R1, t1, z2, R2, t2, xo, Po):
+    for b in range(z1.shape[0]):
+        _two_point_init(z1[b], R1[b], t1[b], z2[b], R2[b], t2[b], xo[b], Po[b])
+
+
+# =================================================================================================== feature bank
+@njit(cache=True)
+def k_bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, z, t, dt, bearing, rdot, det,
+                  site, of, ob):
+    for b in range(x_prev.shape[0]):
+        _bank_update(bf[b], bi[b], bb[b], par, x_prev[b], x_prior[b], P_prev[b], F[b], R[b], nu[b], S[b],
+                     x_post[b], z[b], t[b], dt[b], bearing[b], rdot[b], det[b], site[b], of[b], ob[b])
+
+
+@njit(cache=True)
+def k_bank_reset(rows, bf, bi, bb, n, seed_xy, seed_t, n_seed, x, t, seed_heading):
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        _bank_reset(bf[r], bi[r], bb[r], n, seed_xy[i], seed_t[i], n_seed, x[i], t[i], seed_heading)
+
+
+@njit(cache=True)
+def k_preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, of):
+    F = np.empty((4, 4))
+    FP = np.empty((4, 4))
+    FPF = np.empty((4, 4))
+    xh = np.empty(4)
+    for b in range(x.shape[0]):
+        _preview(x[b], P[b], t[b], det[b], t_next[b], z[b], R[b], bearing[b], rdot[b], rdot_std[b], site[b],
+                 min_dt, F, FP, FPF, xh, of[b])
+
+
+# ============================================================================================================ IMM
+@njit(cache=True)
+def _logsumexp(a, n):
+    m = -np.inf
+    for i in range(n):
+        if a[i] > m:
+            m = a[i]
+    if not math.isfinite(m):
+        m = 0.0
+    s = 0.0
+    for i in range(n):
+        s += math.exp(a[i] - m)
+    return m + math.log(s)
+
+
+@njit(cache=True)
+def _imm_mix(log_mu, log_Pi, x, P, x0, P0, log_c, a, col):
+    """Mixing of one row: log_mu (M,), log_Pi (M,M), x (M,4), P (M,4,4) -> x0, P0, log_c. a (M,M), col (M,)
+    scratch."""
+    M = log_mu.shape[0]
+    for i in range(M):
+        for j in range(M):
+            a[i, j] = log_Pi[i, j] + log_mu[i]
+    for j in range(M):
+        for i in range(M):
+            col[i] = a[i, j]
+        log_c[j] = _logsumexp(col, M)
+    for i in range(M):
+        for j in range(M):
+            a[i, j] = math.exp(a[i, j] - log_c[j])  # mixing weights mu_{i|j}
+    for j in range(M):
+        for d in range(4):
+            acc = 0.0
+            for i in range(M):
+                acc += a[i, j] * x[i, d]
+            x0[j, d] = acc
+        for d in range(4):
+            for e in range(4):
+                acc = 0.0
+                for i in range(M):
+                    acc += a[i, j] * (P[i, d, e] + (x[i, d] - x0[j, d]) * (x[i, e] - x0[j, e]))
+                P0[j, d, e] = acc
+        for d in range(4):
+            for e in range(d + 1, 4):
+                v = 0.5 * (P0[j, d, e] + P0[j, e, d])
+                P0[j, d, e] = v
+                P0[j, e, d] = v
+
+
+@njit(cache=True)
+def _imm_combine(log_mu, x, P, xc, Pc):
+    M = log_mu.shape[0]
+    for d in range(4):
+        acc = 0.0
+        for m in range(M):
+            acc += math.exp(log_mu[m]) * x[m, d]
+        xc[d] = acc
+    for d in range(4):
+        for e in range(4):
+            acc = 0.0
+            for m in range(M):
+                acc += math.exp(log_mu[m]) * (P[m, d, e] + (x[m, d] - xc[d]) * (x[m, e] - xc[e]))
+            Pc[d, e] = acc
+    for d in range(4):
+        for e in range(d + 1, 4):
+            v = 0.5 * (Pc[d, e] + Pc[e, d])
+            Pc[d, e] = v
+            Pc[e, d] = v
+
+
+@njit(cache=True)
+def k_imm_mix(log_mu, log_Pi, x, P, x0, P0, log_c):
+    B, M = log_mu.shape
+    a = np.empty((M, M))
+    col = np.empty(M)
+    for b in range(B):
+        _imm_mix(log_mu[b], log_Pi[b], x[b], P[b], x0[b], P0[b], log_c[b], a, col)
+
+
+@njit(cache=True)
+def k_imm_mode_probabilities(log_c, loglik, out):
+    B, M = log_c.shape
+    for b in range(B):
+        for m in range(M):
+            out[b, m] = log_c[b, m] + loglik[b, m]
+        s = _logsumexp(out[b], M)
+        for m in range(M):
+            out[b, m] -= s
+
+
+@njit(cache=True)
+def k_imm_combine(log_mu, x, P, xc, Pc):
+    for b in range(log_mu.shape[0]):
+        _imm_combine(log_mu[b], x[b], P[b], xc[b], Pc[b])
+
+
+@njit(cache=True)
+def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x, o_P, o_xc, o_Pc, o_loglik, o_nis,
+               o_nu, o_S):
+    """One IMM cycle per row (see filters.imm_step): mix, mode-matched predict and update, mode probabilities,
+    combination, and the innovation of the combined prediction."""
+    B, M = log_mu.shape
+    a = np.empty((M, M))
+    col = np.empty(M)
+    x0 = np.empty((M, 4))
+    P0 = np.empty((M, 4, 4))
+    log_c = np.empty(M)
+    xp = np.empty((M, 4))
+    Pp = np.empty((M, 4, 4))
+    FP = np.empty((4, 4))
+    u = np.zeros(4)
+    nu = np.empty(2)
+    S = np.empty((2, 2))
+    lc = np.empty(M)
+    xpc = np.empty(4)
+    Ppc = np.empty((4, 4))
+    for b in range(B):
+        _imm_mix(log_mu[b], log_Pi[b], x_modes[b], P_modes[b], x0, P0, log_c, a, col)
+        for m in range(M):
+            _predict(x0[m], P0[m], F[b, m], Q[b, m], u, False, xp[m], Pp[m], FP)
+            _, o_loglik[b, m] = _update(xp[m], Pp[m], z[b], R[b], det[b], o_x[b, m], o_P[b, m], nu, S)
+        for m in range(M):
+            o_log_mu[b, m] = log_c[m] + o_loglik[b, m]
+        s = _logsumexp(o_log_mu[b], M)
+        for m in range(M):
+            o_log_mu[b, m] -= s
+        _imm_combine(o_log_mu[b], o_x[b], o_P[b], o_xc[b], o_Pc[b])
+        # innovation of the combined prediction (normalised predicted mode probabilities)
+        s = _logsumexp(log_c, M)
+        for m in range(M):
+            lc[m] = log_c[m] - s
+        _imm_combine(lc, xp, Pp, xpc, Ppc)
+        if det[b]:
+            r00, r01, r10, r11 = R[b, 0, 0], R[b, 0, 1], R[b, 1, 0], R[b, 1, 1]
+            n0, n1 = z[b, 0] - xpc[0], z[b, 1] - xpc[1]
+        else:
+            r00, r01, r10, r11 = 1.0, 0.0, 0.0, 1.0
+            n0, n1 = 0.0, 0.0
+        s00, s11 = Ppc[0, 0] + r00, Ppc[1, 1] + r11
+        s01 = 0.5 * ((Ppc[0, 1] + r01) + (Ppc[1, 0] + r10))
+        o_S[b, 0, 0], o_S[b, 0, 1], o_S[b, 1, 0], o_S[b, 1, 1] = s00, s01, s01, s11
+        o_nu[b, 0], o_nu[b, 1] = n0, n1
+        if det[b]:
+            d = s00 * s11 - s01 * s01
+            o_nis[b] = (n0 * n0 * s11 - 2.0 * n0 * n1 * s01 + n1 * n1 * s00) / d
+        else:
+            o_nis[b] = 0.0
