@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from functools import lru_cache
 
 import numba
 import numpy as np
@@ -104,6 +105,13 @@ def _normal_pair(key, c):
     return r * math.cos(_TWO_PI * u2), r * math.sin(_TWO_PI * u2)
 
 
+@numba.njit(cache=True)
+def _normal(key, c):
+    """The first normal of :func:`_normal_pair` alone (its sine is not needed)."""
+    u1 = 1.0 - _u01(key, c)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(_TWO_PI * _u01(key, c + 1))
+
+
 def uniforms(key, start, n):
     """``n`` uniforms of the stream ``key`` from counter ``start`` (for tests and documentation)."""
     return _uniforms(np.uint64(key), int(start), int(n))
@@ -141,7 +149,8 @@ def _propagate(x0, w, a, tau, out):
     theta = w * tau
     sn, cs = math.sin(theta), math.cos(theta)
     fa = tau * _sinc(theta / math.pi)
-    fb = tau * (theta / 2.0) * _sinc(theta / (2.0 * math.pi)) ** 2
+    sh = _sinc(theta / (2.0 * math.pi))
+    fb = tau * (theta / 2.0) * sh * sh
     vx, vy = x0[2], x0[3]
     out[0] = x0[0] + fa * vx + fb * vy
     out[1] = x0[1] - fb * vx + fa * vy
@@ -375,7 +384,7 @@ def _measure_row(b, key, c, K, Kmax, sites, t_s, site_index, site_xy, truth, acc
         rd = (dx * truth[b, k, 2] + dy * truth[b, k, 3]) / (r if r > 0 else 1.0)
         d = _u01(key, c + k) < sites[s, _PD]
         e0, e1 = _normal_pair(key, c + K + 4 * k)
-        e2, _ = _normal_pair(key, c + K + 4 * k + 2)
+        e2 = _normal(key, c + K + 4 * k + 2)
         valid[b, k] = True
         det[b, k] = d
         if not d:
@@ -389,7 +398,8 @@ def _measure_row(b, key, c, K, Kmax, sites, t_s, site_index, site_xy, truth, acc
         rng_m[b, k], brg[b, k], rdot_m[b, k] = rm, bm, rd + sv * e2
         sn, cs = math.sin(bm), math.cos(bm)
         z[b, k, 0], z[b, k, 1] = sx + rm * sn, sy + rm * cs
-        sr2, cb2 = sr * sr, (rm * sb) ** 2
+        rsb = rm * sb
+        sr2, cb2 = sr * sr, rsb * rsb
         R[b, k, 0, 0] = sr2 * sn * sn + cb2 * cs * cs
         R[b, k, 1, 1] = sr2 * cs * cs + cb2 * sn * sn
         R[b, k, 0, 1] = R[b, k, 1, 0] = (sr2 - cb2) * sn * cs
@@ -555,12 +565,15 @@ def _keys(rngs):
     return np.array([r.bit_generator.random_raw() for r in rngs], dtype=np.uint64)
 
 
+@lru_cache(maxsize=256)
 def _site_table(radar: Radar):
+    """(n_sites, 10) float table of a radar's sites (cached: radars are frozen; read-only for the kernels)."""
     return np.array([[s.position_m[0], s.position_m[1], s.scan_period_s, s.range_noise_std_m,
                       s.bearing_noise_std_rad, s.radial_velocity_noise_std_m_s, s.detection_probability,
                       s.range_bias_m, s.bearing_bias_rad, s.first_scan_s] for s in radar.sites], dtype=np.float64)
 
 
+@lru_cache(maxsize=64)
 def _config_vector(cfg: RandomScenarioConfig, random_radars_p):
     v = [cfg.speed_kt[0] * KNOT_M_S, cfg.speed_kt[1] * KNOT_M_S, cfg.n_legs[0], cfg.n_legs[1],
          cfg.leg_duration_s[0], cfg.leg_duration_s[1], cfg.first_leg_min_s, cfg.turn_accel_g[0], cfg.turn_accel_g[1],
@@ -571,6 +584,7 @@ def _config_vector(cfg: RandomScenarioConfig, random_radars_p):
     return np.array(v, dtype=np.float64)
 
 
+@lru_cache(maxsize=1)
 def _radar_ranges():
     R = RANDOM_RADAR_RANGES
     return np.array([*R["scan_period_s"], *R["range_noise_std_m"], *R["bearing_noise_std_deg"],
@@ -597,6 +611,10 @@ def _batch(names, out, n_looks):
                         radial_velocity_noise_std_m_s=sv_o)
 
 
+_ATC = atc_radar()
+_DEFAULT_CONFIG = RandomScenarioConfig()   # built (validated) once, not at every reset
+
+
 def _too_few_draws(name, warmup_scans, max_draws):
     return EpisodeDrawError(
         f"RadarTrack-v0: none of {max_draws} episode draws of scenario {name!r} had "
@@ -609,7 +627,7 @@ def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws):
     if radar is not None:
         mode, user = 2, _site_table(radar)
     else:
-        mode, user = (1 if name == "random_radars" else 0), _site_table(atc_radar())
+        mode, user = (1 if name == "random_radars" else 0), _site_table(_ATC)
     p = cfg.random_radar_probability if name == "random_radars" else 0.0
     smax = 3 * int(cfg.n_legs[1])
     return _random_rows(keys, _config_vector(cfg, p), _radar_ranges(), mode, user, int(warmup_scans),
@@ -633,7 +651,7 @@ def _draw_random(name, keys, cfg, radar, warmup_scans, max_draws):
 def random_scenarios(name, rngs, random_config=None, radar=None, warmup_scans=12, max_draws=MAX_EPISODE_DRAWS):
     """The flights (as :class:`SegmentScenario`) and radars :func:`draw_episodes` draws for these generators
     (each generator advanced as :func:`draw_episodes` would). For tests and inspection."""
-    cfg = random_config or RandomScenarioConfig()
+    cfg = random_config or _DEFAULT_CONFIG
     keys = _keys(rngs)
     x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(name, keys, cfg, radar, warmup_scans,
                                                                         max_draws)
@@ -732,7 +750,7 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
     if not rngs:
         raise ValueError("draw_episodes needs at least one generator (rngs)")
     if isinstance(scenario, str) and scenario in ("random", "random_radars"):
-        cfg = random_config or RandomScenarioConfig()
+        cfg = random_config or _DEFAULT_CONFIG
         return _draw_random(scenario, _keys(rngs), cfg, radar, warmup_scans, max_draws)
     if isinstance(scenario, str):
         scenario = make_setup(scenario)
@@ -742,7 +760,7 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
         sc, rd, place = scenario.scenario, (scenario.radar if radar is None else radar), False
     elif isinstance(scenario, (SegmentScenario, TrajectoryScenario)):
         sc, rd, place = scenario, radar, radar is None
-        rd = atc_radar() if place else rd
+        rd = _ATC if place else rd
     else:
         raise ValueError(f"scenario must be a name, a Setup, a SegmentScenario / TrajectoryScenario or a pool with "
                          f"draw_setup, got {type(scenario).__name__}")
