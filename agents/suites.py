@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from radar_env.catalog import SCENARIO_NAMES
+from radar_env.draws import draw_episodes
 from radar_env.env import draw_setup_and_episode, resolve_scenario
 from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
@@ -118,8 +119,10 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
     if hasattr(resolved, "setup"):   # a pool (adsb_calibration): run i flies member i mod n, every member once
         return [draw_setup_and_episode(resolved.setup(i), radar, None, suite_rng(key, seed + i))
                 for i in range(int(runs))]
-    return [draw_setup_and_episode(resolved, radar, random_config, suite_rng(key, seed + i), radar_range_m=rr)
-            for i in range(int(runs))]
+    # all runs in one batched draw; run i's episode comes from its own generator only, as a draw alone would
+    batch = draw_episodes(resolved, radar, random_config, [suite_rng(key, seed + i) for i in range(int(runs))],
+                          radar_range_m=rr)
+    return [batch.episode(i) for i in range(int(runs))]
 
 
 def _check_range_m(r):

@@ -11,72 +11,30 @@ import math
 
 import numpy as np
 
-from .catalog import Setup, make_setup
 from .config import REWARD_SCALE_M, EnvConfig, resolve_scenario
-from .episode import draw_episode
+from .draws import MAX_EPISODE_DRAWS, draw_episodes
 from .observation import ObservationLayout, measurement_sigma_m
-from .radar import atc_radar
-from .scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario, place_radar_site
-from .tracking import looks_for_track_start
+from .scenario import RADAR_PLACEMENT_RANGE_M
 from .units import G0_M_S2
 
 __all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
 
 
-def _draw_once(sc, radar, random_config, rng, radar_range_m=RADAR_PLACEMENT_RANGE_M):
-    if isinstance(sc, str):
-        setup = make_setup(sc, rng, random_config, radar)
-    elif hasattr(sc, "draw_setup"):        # a pool of scenarios (e.g. the ADS-B flights): one per episode
-        setup = sc.draw_setup(rng)
-        setup = setup if radar is None else Setup(setup.scenario, radar)
-    elif isinstance(sc, Setup):
-        setup = sc if radar is None else Setup(sc.scenario, radar)
-    else:
-        if radar is None:
-            site, _ = place_radar_site(rng, sc, range_m=radar_range_m)
-            setup = Setup(sc, atc_radar(position_m=tuple(site)))
-        else:
-            setup = Setup(sc, radar)
-    return draw_episode(setup.scenario, setup.radar, rng)
-
-
-MAX_EPISODE_DRAWS = 200
-"""Draws tried per reset for an episode long enough for the track start (:func:`draw_setup_and_episode`)."""
-
-
 def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
                            radar_range_m=RADAR_PLACEMENT_RANGE_M):
-    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only.
+    """The episode of one reset: the truth (if random) and all plots, from ``rng`` only (a batch of one of
+    :func:`radar_env.draws.draw_episodes`, whose docstring gives the random stream).
 
-    A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed by
-    :func:`radar_env.scenario.place_radar_site` with ``range_m=radar_range_m`` (m).
+    A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed as
+    :func:`radar_env.scenario.place_radar_site` does with ``range_m=radar_range_m`` (m).
 
     An episode too short for the track start (two hits, ``warmup_scans`` warm-up looks, then at least one look
-    for the policy; e.g. a short random flight seen by a slow radar, or missed plots) is redrawn from ``rng``, at
-    most ``MAX_EPISODE_DRAWS`` times. Only draws that could not be run are replaced, so every episode that runs
-    is the one it was before the redraw existed. A fixed scenario whose looks are all detected and still too few
-    raises ``ValueError`` at once (the env checks this when it is built)."""
-    sc = resolve_scenario(scenario)
-    fixed = isinstance(sc, (Setup, SegmentScenario, TrajectoryScenario)) or (
-        isinstance(sc, str) and sc not in ("random", "random_radars"))
-    for _ in range(MAX_EPISODE_DRAWS):
-        ep = _draw_once(sc, radar, random_config, rng, radar_range_m)
-        need = looks_for_track_start(ep.detected, ep.t_s, warmup_scans)
-        if need is not None and ep.n_looks >= need:
-            return ep
-        if fixed and ep.detected.all():
-            if need is None:
-                raise ValueError(f"RadarTrack-v0: scenario {ep.name!r} has no two looks at different times for "
-                                 "the two-hit track start")
-            raise ValueError(
-                f"RadarTrack-v0: scenario {ep.name!r} has {ep.n_looks} looks but warmup_scans={warmup_scans} needs "
-                f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); lower warmup_scans (valid "
-                f"here: <= {ep.n_looks - (need - warmup_scans)}) or use a longer scenario or faster radar")
-    raise ValueError(
-        f"RadarTrack-v0: none of {MAX_EPISODE_DRAWS} episode draws of scenario {getattr(sc, 'name', sc)!r} had "
-        f"enough looks for the track start with warmup_scans={warmup_scans} (two hits, the warm-up, one look to "
-        "act on); lower warmup_scans, or make the flights longer (random_config min_duration_s, leg_duration_s, "
-        "range_km) or the radar faster / more reliable (scan_period_s, detection_probability)")
+    for the policy; e.g. a short random flight seen by a slow radar, or missed plots) is redrawn from the same
+    stream, at most ``MAX_EPISODE_DRAWS`` times. Only draws that could not be run are replaced. A fixed scenario
+    whose looks, all detected, are still too few raises ``ValueError`` at once (the env checks this when it is
+    built)."""
+    return draw_episodes(resolve_scenario(scenario), radar, random_config, [rng], warmup_scans,
+                         radar_range_m).episode(0)
 
 
 def actions_to_q_m_s2(actions, action_type, levels_m_s2):
@@ -141,9 +99,11 @@ class _Core:
 
     # ---- episodes
     def _draw(self, rows, scenario=None):
+        # all rows in one batched draw; row r's episode comes from its own generator only (radar_env.draws)
         sc = self.scenario if scenario is None else resolve_scenario(scenario)
-        return [draw_setup_and_episode(sc, self.cfg.radar, self.random_config, self.rngs[r], self.cfg.warmup_scans)
-                for r in rows]
+        batch = draw_episodes(sc, self.cfg.radar, self.random_config, [self.rngs[r] for r in rows],
+                              self.cfg.warmup_scans)
+        return [batch.episode(i) for i in range(batch.batch_size)]
 
     def enable_prefetch(self):
         """Start the next episode of rows in batches (vector env autoreset). A row's next episode is drawn from its

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from .config import (DEFAULT_Q_LEVELS_G, RENDER_MODES, REWARD_SCALE_M, REWARD_TYPES, EnvConfig,  # noqa: F401
                      resolve_scenario)
-from .core import (MAX_EPISODE_DRAWS, _Core, _draw_once, _row, actions_to_q_m_s2,  # noqa: F401
+from .core import (MAX_EPISODE_DRAWS, _Core, _row, actions_to_q_m_s2,  # noqa: F401
                    draw_setup_and_episode)
 from .single_env import RadarTrackEnv
 from .vector_env import RadarTrackVectorEnv, _merge_rows, _with_masks  # noqa: F401

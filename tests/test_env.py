@@ -211,17 +211,16 @@ def test_observation_does_not_depend_on_truth(monkeypatch):
         return out
 
     ref = run()
-    orig = renv.draw_setup_and_episode
+    orig = rcore.draw_episodes   # the core draws its episodes through this (radar_env.draws)
 
     def perturbed(*args, **kwargs):
-        ep = orig(*args, **kwargs)
-        K = ep.n_looks
-        return dataclasses.replace(ep, truth=ep.truth + np.array([300.0, -200.0, 5.0, -3.0]),
-                                   truth_accel_m_s2=ep.truth_accel_m_s2 + 20.0,
-                                   truth_turn_rate_rad_s=ep.truth_turn_rate_rad_s + 0.1,
-                                   maneuvering=np.ones(K, dtype=bool) ^ ep.maneuvering)
+        b = orig(*args, **kwargs)
+        return dataclasses.replace(b, truth=b.truth + np.array([300.0, -200.0, 5.0, -3.0]),
+                                   truth_accel_m_s2=b.truth_accel_m_s2 + 20.0,
+                                   truth_turn_rate_rad_s=b.truth_turn_rate_rad_s + 0.1,
+                                   maneuvering=~b.maneuvering)
 
-    monkeypatch.setattr(rcore, "draw_setup_and_episode", perturbed)   # the core draws the episodes
+    monkeypatch.setattr(rcore, "draw_episodes", perturbed)   # the core draws the episodes
     alt = run()
     assert len(ref) == len(alt)
     for a, b in zip(ref, alt):

@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import radar_env  # noqa: F401
-from radar_env.env import (DEFAULT_Q_LEVELS_G, EnvConfig, RadarTrackEnv, RadarTrackVectorEnv, _draw_once,
-                           draw_setup_and_episode)
+from radar_env.draws import draw_episodes
+from radar_env.env import DEFAULT_Q_LEVELS_G, EnvConfig, RadarTrackEnv, RadarTrackVectorEnv, draw_setup_and_episode
 from radar_env.observation import DEFAULT_FEATURES, PAST_FEATURES
 from radar_env.radar import Radar, RadarSite, atc_radar
 from radar_env.scenario import RandomScenarioConfig
@@ -74,6 +74,12 @@ def test_impossible_random_config_is_refused_at_build():
     """Flights of at most 6 legs of 60 s (and their turns) never give the 1003 looks a warm-up of 1000 needs."""
     with pytest.raises(ValueError, match="warmup_scans=1000"):
         gym.make(ENV_ID, warmup_scans=1000, random_config={"leg_duration_s": (30, 60)})
+
+
+def _draw_once(scenario, radar, random_config, rng):
+    """The first attempt of a draw (warmup_scans=0 accepts every attempt with two hits, and the warm-up does not
+    change what an attempt draws)."""
+    return draw_episodes(scenario, radar, random_config, [rng], warmup_scans=0).episode(0)
 
 
 def test_redraw_only_replaces_draws_that_could_not_run():
