@@ -15,7 +15,7 @@ Run by hand from the repository root: ``python benchmarks/bench_env.py [--second
     directory imports ``radar_env``, makes the single and the vector env and takes a first reset and step (and a
     first ``imm_step``); then the same again with that cache filled (warm);
 (f) resident memory of the vector env at ``--memory-envs`` (default 1024) envs after 200 steps, in a fresh
-    interpreter: VmRSS before and after making it and the peak (``resource.getrusage``).
+    interpreter: VmRSS before making it and after the steps, and the peak (VmHWM), from ``/proc/self/status``.
 
 Every rate is also given as seconds per 1M steps (as gymnax publishes) and as a ratio to CartPole of the same kind
 (single env to single env, vector env to the CartPole vector env at the same N). A rate window lasts ``--seconds``
@@ -215,13 +215,14 @@ def import_times():
 
 
 _MEMORY_CODE = r"""
-import json, resource
+import json
 import numpy as np
-def rss_mb():
-    for line in open("/proc/self/status"):
-        if line.startswith("VmRSS:"):
+def status_mb(key):   # VmRSS: resident now; VmHWM: this process's peak (getrusage's ru_maxrss would include the
+    for line in open("/proc/self/status"):  # parent's peak at fork time on Linux)
+        if line.startswith(key + ":"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
+rss_mb = lambda: status_mb("VmRSS")
 from radar_env.env import RadarTrackVectorEnv
 base = rss_mb()
 venv = RadarTrackVectorEnv(num_envs=%d)
@@ -230,7 +231,7 @@ rng = np.random.default_rng(0)
 for _ in range(200):
     venv.step(rng.integers(0, venv.single_action_space.n, venv.num_envs))
 print(json.dumps({"rss_before_mb": base, "rss_after_mb": rss_mb(),
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}))
+                  "peak_rss_mb": status_mb("VmHWM")}))
 """
 
 
@@ -367,6 +368,19 @@ def print_markdown(results):
     _print_extras(results, markdown=True)
 
 
+def _shown_argv(argv):
+    """The command line for the table's caption, without ``--json FILE`` (where the numbers were saved)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--json":
+            skip = True
+        elif not a.startswith("--json="):
+            out.append(a)
+    return " ".join(out)
+
+
 def _num_envs(text):
     try:
         vals = [int(v) for v in str(text).split(",") if v.strip()]
@@ -410,7 +424,7 @@ def main(argv=None):
 
     results = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
                "commit": _git_commit(), "cpus": os.cpu_count(), "versions": _versions(), "seconds": T,
-               "min_resets_per_env": mr, "argv": " ".join(sys.argv[1:] if argv is None else argv)}
+               "min_resets_per_env": mr, "argv": _shown_argv(sys.argv[1:] if argv is None else argv)}
     log("single envs ...")
     results["cartpole_single"] = bench_single("CartPole-v1", T, min_resets=int(np.ceil(mr)))
     results["single"] = bench_single("RadarTrack-v0", T, min_resets=int(np.ceil(mr)))
