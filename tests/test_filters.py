@@ -400,6 +400,12 @@ def test_run_imm_on_recorded_episodes_matches_kalman_filter_bank(spec_name):
         assert np.all(np.isnan(run.x[b, e.n_looks:]))
         used = slice(s, e.n_looks)
         assert not e.detected[used].all() and np.diff(e.t_s[used]).min() < 0.5 * np.diff(e.t_s[used]).max()
+        # the batch (rows of different lengths, finishing at different looks) equals the episode run alone
+        alone = run_imm([e], spec)
+        K = e.n_looks
+        np.testing.assert_allclose(alone.x[0, :K], run.x[b, :K], rtol=1e-13, atol=0)
+        np.testing.assert_allclose(alone.P[0, :K], run.P[b, :K], rtol=1e-13, atol=0)
+    assert eps[0].n_looks != eps[1].n_looks
 
 
 @settings(max_examples=40, deadline=None)
