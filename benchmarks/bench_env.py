@@ -1,76 +1,139 @@
-"""Throughput of RadarTrack-v0 relative to CartPole-v1, measured in the same process.
+"""Speed of RadarTrack-v0 beside CartPole-v1, measured in one run (issue 16's targets; the README's "Speed" table).
 
-Run by hand: ``python benchmarks/bench_env.py [--seconds 2] [--profile]``. Prints steps per second of
+Run by hand from the repository root: ``python benchmarks/bench_env.py [--seconds 2] [--markdown]``. Measures
 
-(a) gymnasium CartPole-v1, single env, random actions (the reference),
-(b) RadarTrack-v0, single env (gym.make, with its wrappers), random actions, resets included,
-(c) the native vector env (RadarTrackVectorEnv) at num_envs in {1, 16, 256, 1024}: row-steps per second
-    (num_envs * vector steps / s), same-step autoresets included,
-(d) Tracker.step alone at B = 1024 (row-steps per second; rows reloaded when they run out, load time excluded),
+(a) CartPole-v1 through ``gym.make`` and RadarTrack-v0 through ``gym.make`` (with its wrappers): steps/s, resets
+    included, random actions drawn beforehand (so both pay the same per-step cost outside the env);
+(b) at each ``--num-envs`` N (default 1, 16, 256, 1024, 4096): Gymnasium's CartPole vector env
+    (``gym.make_vec("CartPole-v1", num_envs=N, vectorization_mode="vector_entry_point")``, i.e. its numpy
+    ``CartPoleVectorEnv``) and RadarTrack's native vector env (``RadarTrackVectorEnv``): row-steps/s
+    (N x vector steps / s), autoresets included;
+(c) ``Tracker.step`` alone at B = 1024 (row-steps/s; reloads excluded), the tracking chain without the Gym layer;
+(d) the README's main job, ``python -m agents.cli evaluate --no-plots --quiet`` (the default evaluation), in a
+    subprocess: wall time and CPU time (user + sys of the child);
+(e) first import with compilation: a fresh interpreter with ``NUMBA_CACHE_DIR`` pointed at an empty temporary
+    directory imports ``radar_env``, makes the single and the vector env and takes a first reset and step (and a
+    first ``imm_step``); then the same again with that cache filled (warm);
+(f) resident memory of the vector env at ``--memory-envs`` (default 1024) envs after 200 steps, in a fresh
+    interpreter: VmRSS before making it and after the steps, and the peak (VmHWM), from ``/proc/self/status``.
 
-each also as a ratio to (a). ``--profile`` adds a cProfile of the vector env at num_envs = 256 (top 10 by
-cumulative and by internal time).
+Every rate is also given as seconds per 1M steps (as gymnax publishes) and as a ratio to CartPole of the same kind
+(single env to single env, vector env to the CartPole vector env at the same N). A rate window lasts ``--seconds``
+and, for the envs, at least until the resets in it reach ``--min-resets-per-env`` per env: RadarTrack's vector
+env draws the next episodes of finished rows in batches, so a window shorter than about one episode per row would
+miss most of that cost (or be dominated by one batch). ``--profile`` prints a cProfile of the single env and of
+the vector env at 256 envs; ``--markdown`` prints the results as the README's table.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import datetime
 import io
+import json
+import os
+import platform
 import pstats
+import resource
+import subprocess
+import sys
+import tempfile
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
-import gymnasium as gym
-import numpy as np
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:          # run as a script: import this checkout's radar_env, not an installed one
+    sys.path.insert(0, str(REPO))
 
-import radar_env  # noqa: F401  (registers RadarTrack-v0)
-from radar_env.catalog import make_setup
-from radar_env.env import RadarTrackVectorEnv
-from radar_env.episode import draw_episode
-from radar_env.tracking import Tracker
-from radar_env.units import G0_M_S2
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+
+import radar_env  # noqa: E402,F401  (registers RadarTrack-v0)
+from radar_env.catalog import make_setup  # noqa: E402
+from radar_env.env import RadarTrackVectorEnv  # noqa: E402
+from radar_env.episode import draw_episode  # noqa: E402
+from radar_env.tracking import Tracker  # noqa: E402
+from radar_env.units import G0_M_S2  # noqa: E402
+
+DEFAULT_NUM_ENVS = (1, 16, 256, 1024, 4096)
+_ACTION_POOL = 64     # random actions drawn beforehand and cycled through
 
 
-def _timed(step, seconds):
-    """Call ``step()`` (returns the number of row-steps it did) until ``seconds`` pass; return row-steps/s."""
-    step()  # warm up
-    n, t0 = 0, time.perf_counter()
+@dataclass
+class Rate:
+    steps_per_s: float
+    steps: int
+    seconds: float
+    resets: int
+
+
+def _timed(step, seconds, min_resets=0):
+    """Call ``step()`` (returns (row-steps, resets) it did) until ``seconds`` have passed and ``min_resets`` resets
+    were seen; the first call (warm-up, first compilation) is not counted."""
+    step()
+    n = r = 0
+    t0 = time.perf_counter()
     while True:
-        n += step()
+        dn, dr = step()
+        n, r = n + dn, r + dr
         dt = time.perf_counter() - t0
-        if dt >= seconds:
-            return n / dt
+        if dt >= seconds and r >= min_resets:
+            return Rate(n / dt, n, dt, r)
 
 
-def bench_single(env_id, seconds, **kwargs):
-    env = gym.make(env_id, **kwargs)
+def bench_single(env_id, seconds, min_resets=1):
+    """Steps/s of ``gym.make(env_id)`` with random actions, resets included."""
+    env = gym.make(env_id)
     env.reset(seed=0)
     env.action_space.seed(0)
-    sample = env.action_space.sample
+    acts = [env.action_space.sample() for _ in range(_ACTION_POOL)]
+    i = [0]
 
     def step():
-        _, _, te, tr, _ = env.step(sample())
+        i[0] = (i[0] + 1) % _ACTION_POOL
+        _, _, te, tr, _ = env.step(acts[i[0]])
         if te or tr:
             env.reset()
-        return 1
+            return 1, 1
+        return 1, 0
 
-    return _timed(step, seconds)
+    out = _timed(step, seconds, min_resets)
+    env.close()
+    return out
 
 
-def bench_vector(num_envs, seconds):
-    venv = RadarTrackVectorEnv(num_envs=num_envs)
+def _bench_vec(venv, num_envs, seconds, min_resets):
     venv.reset(seed=0)
-    rng = np.random.default_rng(0)
-    n_act = venv.single_action_space.n
+    venv.action_space.seed(0)
+    acts = [venv.action_space.sample() for _ in range(_ACTION_POOL)]
+    i = [0]
 
     def step():
-        venv.step(rng.integers(0, n_act, num_envs))
-        return num_envs
+        i[0] = (i[0] + 1) % _ACTION_POOL
+        _, _, te, tr, _ = venv.step(acts[i[0]])
+        return num_envs, int(np.count_nonzero(te | tr))
 
-    return _timed(step, seconds)
+    out = _timed(step, seconds, min_resets)
+    venv.close()
+    return out
+
+
+def bench_cartpole_vector(num_envs, seconds, min_resets_per_env=1.0):
+    """Gymnasium's numpy CartPole vector env (next-step autoreset, its default)."""
+    venv = gym.make_vec("CartPole-v1", num_envs=num_envs, vectorization_mode="vector_entry_point")
+    return _bench_vec(venv, num_envs, seconds, int(np.ceil(min_resets_per_env * num_envs)))
+
+
+def bench_vector(num_envs, seconds, min_resets_per_env=1.0):
+    """RadarTrack's native vector env (same-step autoreset)."""
+    return _bench_vec(RadarTrackVectorEnv(num_envs=num_envs), num_envs, seconds,
+                      int(np.ceil(min_resets_per_env * num_envs)))
 
 
 def bench_tracker(B, seconds):
+    """``Tracker.step`` over B rows at a fixed q; rows that run out are reloaded, reload time excluded."""
     rng = np.random.default_rng(0)
     pool = []
     for _ in range(32):
@@ -88,54 +151,308 @@ def bench_tracker(B, seconds):
             tr.load(rows, [pool[i % len(pool)] for i in rows])
             load_time[0] += time.perf_counter() - t0
         tr.step(q)
-        return B
+        return B, 0
 
-    # exclude reload time: measure it and add it back to the denominator-free count
-    step()
-    n, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        n += step()
-    return n / (time.perf_counter() - t0 - load_time[0])
+    r = _timed(step, seconds)
+    dt = r.seconds - load_time[0]
+    return Rate(r.steps / dt, r.steps, dt, 0)
 
 
-def profile_vector(num_envs=256, steps=300):
+# ------------------------------------------------------------------------------------------ fresh interpreters
+def _child_env(**extra):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in [env.get("PYTHONPATH")] if p])
+    env.update(extra)
+    return env
+
+
+def _run_child(code, **env):
+    """Run ``code`` in a fresh interpreter (repository root first on sys.path); return its last stdout line as
+    JSON, the wall time and the child's CPU time."""
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=_child_env(**env), capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if p.returncode != 0:
+        raise RuntimeError(f"benchmark child failed ({p.returncode}):\n{p.stderr[-3000:]}")
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    return json.loads(p.stdout.strip().splitlines()[-1]), wall, cpu
+
+
+_IMPORT_CODE = r"""
+import json, time
+t0 = time.perf_counter()
+import gymnasium as gym
+import numpy as np
+import radar_env
+from radar_env.env import RadarTrackVectorEnv
+from radar_env import filters as kf
+t1 = time.perf_counter()
+env = gym.make("RadarTrack-v0")
+env.reset(seed=0)
+env.step(env.action_space.sample())
+venv = RadarTrackVectorEnv(num_envs=4)
+venv.reset(seed=0)
+venv.step(venv.action_space.sample())
+M = 2
+kf.imm_step(np.log(np.full((1, M), 0.5)), np.zeros((1, M, 4)), np.tile(np.eye(4), (1, M, 1, 1)),
+            np.log(np.full((M, M), 0.5)), np.tile(kf.transition_cv(1.0), (1, M, 1, 1)),
+            np.tile(kf.process_noise(1.0, 1.0), (1, M, 1, 1)), np.zeros((1, 2)), np.eye(2)[None])
+t2 = time.perf_counter()
+print(json.dumps({"import_s": t1 - t0, "first_use_s": t2 - t1}))
+"""
+
+
+def import_times():
+    """Cold (empty numba cache) and warm (cache filled by the cold run) import + first use, fresh interpreters."""
+    with tempfile.TemporaryDirectory(prefix="bench_numba_cache_") as cache:
+        out = {}
+        for kind in ("cold", "warm"):
+            res, wall, cpu = _run_child(_IMPORT_CODE, NUMBA_CACHE_DIR=cache)
+            out[kind] = dict(res, wall_s=wall, cpu_s=cpu)
+        return out
+
+
+_MEMORY_CODE = r"""
+import json
+import numpy as np
+def status_mb(key):   # VmRSS: resident now; VmHWM: this process's peak (getrusage's ru_maxrss would include the
+    for line in open("/proc/self/status"):  # parent's peak at fork time on Linux)
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+rss_mb = lambda: status_mb("VmRSS")
+from radar_env.env import RadarTrackVectorEnv
+base = rss_mb()
+venv = RadarTrackVectorEnv(num_envs=%d)
+venv.reset(seed=0)
+rng = np.random.default_rng(0)
+for _ in range(200):
+    venv.step(rng.integers(0, venv.single_action_space.n, venv.num_envs))
+print(json.dumps({"rss_before_mb": base, "rss_after_mb": rss_mb(),
+                  "peak_rss_mb": status_mb("VmHWM")}))
+"""
+
+
+def vector_memory(num_envs):
+    res, wall, _ = _run_child(_MEMORY_CODE % int(num_envs))
+    return dict(res, wall_s=wall)
+
+
+def main_job():
+    """The README's main job without plots, in a fresh interpreter from the repository root."""
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "agents.cli", "evaluate", "--no-plots", "--quiet"], cwd=REPO,
+                       env=_child_env(), capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if p.returncode != 0:
+        raise RuntimeError(f"main job failed ({p.returncode}):\n{p.stderr[-3000:]}")
+    return {"wall_s": wall, "cpu_s": (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)}
+
+
+# ------------------------------------------------------------------------------------------ profile
+def _print_profile(pr, title):
+    for key in ("cumulative", "tottime"):
+        s = io.StringIO()
+        pstats.Stats(pr, stream=s).sort_stats(key).print_stats(12)
+        print(f"\n--- cProfile, {title}, top 12 by {key} ---")
+        print(s.getvalue())
+
+
+def profile(num_envs=256, vector_steps=300, single_steps=3000):
+    env = gym.make("RadarTrack-v0")
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    acts = [env.action_space.sample() for _ in range(single_steps)]
+    pr = cProfile.Profile()
+    pr.enable()
+    for a in acts:
+        _, _, te, tr, _ = env.step(a)
+        if te or tr:
+            env.reset()
+    pr.disable()
+    _print_profile(pr, f"RadarTrack-v0 single env, {single_steps} steps")
     venv = RadarTrackVectorEnv(num_envs=num_envs)
     venv.reset(seed=0)
     rng = np.random.default_rng(0)
-    acts = rng.integers(0, venv.single_action_space.n, (steps, num_envs))
+    acts = rng.integers(0, venv.single_action_space.n, (vector_steps, num_envs))
     pr = cProfile.Profile()
     pr.enable()
     for a in acts:
         venv.step(a)
     pr.disable()
-    for key in ("cumulative", "tottime"):
-        s = io.StringIO()
-        pstats.Stats(pr, stream=s).sort_stats(key).print_stats(10)
-        print(f"\n--- cProfile, RadarTrackVectorEnv num_envs={num_envs}, {steps} steps, top 10 by {key} ---")
-        print(s.getvalue())
+    _print_profile(pr, f"RadarTrackVectorEnv num_envs={num_envs}, {vector_steps} steps")
 
 
-def main():
+# ------------------------------------------------------------------------------------------ report
+def _git_commit():
+    try:
+        p = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True)
+        return p.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def _versions():
+    out = {"python": platform.python_version(), "numpy": np.__version__, "gymnasium": gym.__version__}
+    try:
+        import numba
+        out["numba"] = numba.__version__
+    except ImportError:
+        out["numba"] = "not installed"
+    return out
+
+
+def _per_1m(sps):
+    return 1e6 / sps if sps > 0 else float("inf")
+
+
+def _rate_rows(results):
+    """(case, N, RadarTrack rate, CartPole rate or None, resets per env) in table order."""
+    rows = [("single env (gym.make)", 1, results["single"], results["cartpole_single"])]
+    for n, (ours, cart) in results["vector"].items():
+        rows.append(("native vector env", n, ours, cart))
+    rows.append(("Tracker.step alone", 1024, results["tracker"], None))
+    return rows
+
+
+def print_text(results):
+    print(f"RadarTrack-v0 speed, {results['date']}, commit {results['commit']}, {results['cpus']} CPUs, "
+          + ", ".join(f"{k} {v}" for k, v in results["versions"].items()))
+    hdr = f"{'case':<24} {'envs':>5} {'steps/s':>12} {'CartPole':>12} {'ratio':>8} {'s / 1M':>9} {'resets/env':>10}"
+    print(hdr)
+    for case, n, ours, cart in _rate_rows(results):
+        ratio = f"{ours.steps_per_s / cart.steps_per_s:8.3f}" if cart else f"{'':>8}"
+        cp = f"{cart.steps_per_s:12,.0f}" if cart else f"{'':>12}"
+        print(f"{case:<24} {n:>5} {ours.steps_per_s:12,.0f} {cp} {ratio} {_per_1m(ours.steps_per_s):9.1f} "
+              f"{ours.resets / n:10.2f}")
+    _print_extras(results, markdown=False)
+
+
+def _print_extras(results, markdown):
+    lines = []
+    if results.get("main_job"):
+        m = results["main_job"]
+        lines.append(f"main job (`python -m agents.cli evaluate --no-plots --quiet`): {m['wall_s']:.1f} s wall, "
+                     f"{m['cpu_s']:.1f} s CPU")
+    if results.get("import"):
+        c, w = results["import"]["cold"], results["import"]["warm"]
+        lines.append(f"first import + first use, empty numba cache: {c['import_s']:.2f} s + {c['first_use_s']:.2f} s "
+                     f"({c['wall_s']:.1f} s for the interpreter); cached: {w['import_s']:.2f} s + "
+                     f"{w['first_use_s']:.2f} s ({w['wall_s']:.1f} s)")
+    if results.get("memory"):
+        m = results["memory"]
+        lines.append(f"vector env at {m['num_envs']} envs after 200 steps: {m['rss_after_mb']:.0f} MB resident "
+                     f"({m['rss_before_mb']:.0f} MB before making it; peak {m['peak_rss_mb']:.0f} MB)")
+    for ln in lines:
+        print(("- " if markdown else "") + ln)
+
+
+def print_markdown(results):
+    v = results["versions"]
+    print(f"Measured {results['date']} (commit {results['commit']}, {results['cpus']} CPUs, Python {v['python']}, "
+          f"numpy {v['numpy']}, gymnasium {v['gymnasium']}, numba {v['numba']}) with "
+          f"`python benchmarks/bench_env.py {results['argv']}`; windows of at least {results['seconds']:g} s and "
+          f"{results['min_resets_per_env']:g} reset(s) per env.\n")
+    print("| case | envs | steps/s | CartPole steps/s | ratio to CartPole | s per 1M steps | resets per env |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for case, n, ours, cart in _rate_rows(results):
+        cp = f"{cart.steps_per_s:,.0f}" if cart else "-"
+        ratio = f"{ours.steps_per_s / cart.steps_per_s:.3f}" if cart else "-"
+        print(f"| {case} | {n:,} | {ours.steps_per_s:,.0f} | {cp} | {ratio} | {_per_1m(ours.steps_per_s):.1f} | "
+              f"{ours.resets / n:.2f} |")
+    print()
+    _print_extras(results, markdown=True)
+
+
+def _shown_argv(argv):
+    """The command line for the table's caption, without ``--json FILE`` (where the numbers were saved)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--json":
+            skip = True
+        elif not a.startswith("--json="):
+            out.append(a)
+    return " ".join(out)
+
+
+def _num_envs(text):
+    try:
+        vals = [int(v) for v in str(text).split(",") if v.strip()]
+    except ValueError:
+        vals = []
+    if not vals or any(v < 1 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 1, got {text!r}")
+    return tuple(vals)
+
+
+def _nonneg(kind):
+    def parse(text):
+        try:
+            v = kind(text)
+        except ValueError:
+            v = None
+        if v is None or not np.isfinite(v) or v < 0:
+            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+        return v
+    return parse
+
+
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=2.0, help="measuring time per case (default 2)")
-    ap.add_argument("--profile", action="store_true", help="also profile the vector env at num_envs=256")
-    args = ap.parse_args()
-    T = args.seconds
+    ap.add_argument("--seconds", type=_nonneg(float), default=2.0,
+                    help="minimum measuring time per rate (default 2)")
+    ap.add_argument("--min-resets-per-env", type=_nonneg(float), default=1.0,
+                    help="each env rate's window also lasts until this many resets per env were seen (default 1)")
+    ap.add_argument("--num-envs", type=_num_envs, default=DEFAULT_NUM_ENVS,
+                    help="comma-separated vector sizes (default 1,16,256,1024,4096)")
+    ap.add_argument("--memory-envs", type=_nonneg(int), default=1024,
+                    help="vector size for the resident-memory check, 0 skips it (default 1024)")
+    ap.add_argument("--skip-main-job", action="store_true", help="do not time the main job (about a minute)")
+    ap.add_argument("--skip-import", action="store_true", help="do not time the first import (fresh interpreters)")
+    ap.add_argument("--profile", action="store_true", help="also print a cProfile of the single and vector env")
+    ap.add_argument("--markdown", action="store_true", help="print the results as the README's table")
+    ap.add_argument("--json", metavar="FILE", help="also write the results to FILE as JSON")
+    args = ap.parse_args(argv)
+    T, mr = args.seconds, args.min_resets_per_env
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
-    rows = []
-    cart = bench_single("CartPole-v1", T)
-    rows.append(("(a) CartPole-v1 single env", cart))
-    rows.append(("(b) RadarTrack-v0 single env", bench_single("RadarTrack-v0", T)))
-    for n in (1, 16, 256, 1024):
-        rows.append((f"(c) RadarTrackVectorEnv num_envs={n} (row-steps)", bench_vector(n, T)))
-    rows.append(("(d) Tracker.step B=1024 (row-steps)", bench_tracker(1024, T)))
+    results = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+               "commit": _git_commit(), "cpus": os.cpu_count(), "versions": _versions(), "seconds": T,
+               "min_resets_per_env": mr, "argv": _shown_argv(sys.argv[1:] if argv is None else argv)}
+    log("single envs ...")
+    results["cartpole_single"] = bench_single("CartPole-v1", T, min_resets=int(np.ceil(mr)))
+    results["single"] = bench_single("RadarTrack-v0", T, min_resets=int(np.ceil(mr)))
+    results["vector"] = {}
+    for n in args.num_envs:
+        log(f"vector envs, num_envs={n} ...")
+        results["vector"][n] = (bench_vector(n, T, mr), bench_cartpole_vector(n, T, mr))
+    log("Tracker.step ...")
+    results["tracker"] = bench_tracker(1024, T)
+    if not args.skip_main_job:
+        log("main job ...")
+        results["main_job"] = main_job()
+    if not args.skip_import:
+        log("first import (fresh interpreters) ...")
+        results["import"] = import_times()
+    if args.memory_envs:
+        log(f"memory at {args.memory_envs} envs ...")
+        results["memory"] = dict(vector_memory(args.memory_envs), num_envs=args.memory_envs)
 
-    w = max(len(r[0]) for r in rows)
-    print(f"{'case':<{w}}  {'steps/s':>12}  {'/ CartPole':>10}")
-    for name, sps in rows:
-        print(f"{name:<{w}}  {sps:12,.0f}  {sps / cart:10.3f}")
+    (print_markdown if args.markdown else print_text)(results)
+    if args.json:
+        def enc(o):
+            return o.__dict__ if isinstance(o, Rate) else str(o)
+        out = dict(results, vector={str(k): v for k, v in results["vector"].items()})
+        Path(args.json).write_text(json.dumps(out, default=enc, indent=1))
     if args.profile:
-        profile_vector()
+        profile()
+    return results
 
 
 if __name__ == "__main__":

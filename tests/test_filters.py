@@ -155,6 +155,296 @@ def test_imm_log_space_survives_vanishing_likelihood():
     assert np.all(np.isfinite(r.x)) and np.all(np.isfinite(r.P))
 
 
+# ------------------------------------------------------------------------------------- IMM oracle, extended
+# CV + CT-left + CT-right at fixed turn rates (linear models, so FilterPy KalmanFilter objects with F = F_ct are
+# exact), an asymmetric transition matrix with unequal rows and zeros, irregular look times and missed looks.
+_IMM_OMEGA = np.array([0.0, -3.0, 3.0]) * np.pi / 180.0     # rad/s, positive = right turn
+_IMM_Q = np.array([0.03, 0.1, 0.1]) * G0_M_S2
+_IMM_PI = np.array([[0.90, 0.06, 0.04], [0.15, 0.85, 0.0], [0.20, 0.0, 0.80]])
+_IMM_MU0 = np.array([0.8, 0.1, 0.1])
+
+
+def _imm_stream(rng, steps, detect_prob, dt_range_s=(1.0, 9.0)):
+    """Truth flying CV, then left and right turns at +-3 deg/s and a hard 6 deg/s turn (so the mode probabilities
+    move), seen at irregular times; plots with a random SPD R per look. Returns dts, zs, Rs, detected, truths."""
+    dts = rng.uniform(*dt_range_s, steps)
+    omega = np.zeros(steps)
+    for k0, k1, w in [(40, 70, -3.0), (120, 150, 3.0), (220, 235, 6.0), (300, 330, -3.0)]:
+        omega[k0:k1] = np.radians(w)
+    truth = np.array([3e4, 4e4, 150.0, 20.0])
+    truths = []
+    for dt, w in zip(dts, omega):
+        truth = kf.transition_ct(dt, w)[0] @ truth
+        truths.append(truth)
+    truths = np.array(truths)
+    Rs = np.stack([_random_spd(rng, 2, 400.0) for _ in range(steps)])
+    zs = truths[:, :2] + np.array([rng.multivariate_normal(np.zeros(2), R) for R in Rs])
+    det = rng.random(steps) < detect_prob
+    det[0] = True
+    return dts, np.where(det[:, None], zs, np.nan), Rs, det, truths
+
+
+def _imm_models(dt, omega_rad_s=_IMM_OMEGA, q_m_s2=_IMM_Q):
+    """Per-mode F (M,4,4) and Q (M,4,4) for one look: the library's closed forms (checked above against an ODE)."""
+    M = len(omega_rad_s)
+    return kf.transition_ct(np.full(M, dt), np.asarray(omega_rad_s)), kf.process_noise(np.full(M, dt), q_m_s2)
+
+
+class _KalmanFilterBankIMM:
+    """The IMM written out from FilterPy KalmanFilter objects and explicit mixing (FilterPy IMMEstimator's
+    equations), with a missed look as the IMM defines it: mixing and mode-matched prediction, no update, mode
+    probabilities = the predicted ones ``c_j``.
+
+    FilterPy's IMMEstimator cannot serve for missed looks: ``update(None)`` weights the modes by ``N(0; S)`` with
+    each filter's S left from the previous update (its docstring says "nothing is changed"), and ``predict()``
+    without ``update()`` leaves the mixing weights and ``cbar`` of the previous look."""
+
+    def __init__(self, x0, P0, mu0, Pi):
+        from filterpy.kalman import KalmanFilter
+
+        self.filters = []
+        for _ in mu0:
+            f = KalmanFilter(dim_x=4, dim_z=2)
+            f.x, f.P, f.H = np.array(x0, float).copy(), np.array(P0, float).copy(), H.copy()
+            self.filters.append(f)
+        self.mu, self.Pi = np.array(mu0, float), np.array(Pi, float)
+        self.loglik = np.zeros(len(mu0))
+
+    def step(self, Fs, Qs, z, R, detected):
+        M = len(self.filters)
+        cbar = self.mu @ self.Pi
+        omega = self.Pi * self.mu[:, None] / cbar[None, :]    # omega[i, j] = mu_{i|j}
+        xs = [sum(omega[i, j] * self.filters[i].x for i in range(M)) for j in range(M)]
+        Ps = [sum(omega[i, j] * (self.filters[i].P + np.outer(self.filters[i].x - xs[j], self.filters[i].x - xs[j]))
+                  for i in range(M)) for j in range(M)]
+        for j, f in enumerate(self.filters):
+            f.x, f.P = xs[j], Ps[j]
+            f.predict(F=Fs[j], Q=Qs[j])
+        if detected:
+            for j, f in enumerate(self.filters):
+                f.update(z, R=R)
+                self.loglik[j] = f.log_likelihood
+            a = np.log(cbar) + self.loglik                       # normalised in log space: no underflow
+            self.mu = np.exp(a - a.max()) / np.exp(a - a.max()).sum()
+        else:
+            self.loglik[:] = 0.0
+            self.mu = cbar
+        x = sum(m * f.x for m, f in zip(self.mu, self.filters))
+        P = sum(m * (f.P + np.outer(f.x - x, f.x - x)) for m, f in zip(self.mu, self.filters))
+        return x, P
+
+
+def _imm_start(rng):
+    x0 = np.array([3e4, 4e4, 150.0, 20.0]) + rng.normal(0, [50, 50, 5, 5])
+    return x0, np.diag([2500.0, 2500.0, 100.0, 100.0])
+
+
+def _assert_imm_equal(r, mu, x, P, where):
+    np.testing.assert_allclose(np.exp(r.log_mu[0]), mu, rtol=1e-7, atol=1e-12, err_msg=where)
+    np.testing.assert_allclose(r.x[0], x, rtol=1e-8, atol=1e-8, err_msg=where)
+    np.testing.assert_allclose(r.P[0], P, rtol=1e-8, atol=1e-10 * np.abs(P).max(), err_msg=where)
+
+
+def test_imm_ct_modes_asymmetric_pi_irregular_dt_match_filterpy_imm_estimator():
+    """Every look detected: FilterPy's own IMMEstimator is the oracle (CV + CT-left + CT-right, asymmetric Pi,
+    irregular dt set per look through each filter's F and Q). A transposed Pi gives a different answer."""
+    from filterpy.kalman import IMMEstimator, KalmanFilter
+
+    rng = np.random.default_rng(21)
+    steps = 300
+    dts, zs, Rs, _, _ = _imm_stream(rng, steps, detect_prob=1.0)
+    x0, P0 = _imm_start(rng)
+    fps = []
+    for _ in _IMM_MU0:
+        f = KalmanFilter(dim_x=4, dim_z=2)
+        f.x, f.P, f.H = x0.copy(), P0.copy(), H.copy()
+        fps.append(f)
+    imm = IMMEstimator(fps, _IMM_MU0.copy(), _IMM_PI)
+    state = (np.log(_IMM_MU0)[None], np.stack([x0] * 3)[None], np.stack([P0] * 3)[None])
+    state_T = state
+    with np.errstate(divide="ignore"):
+        log_Pi, log_PiT = np.log(_IMM_PI), np.log(_IMM_PI.T)
+    mu_hist, mu_T_hist = [], []
+    for k in range(steps):
+        Fm, Qm = _imm_models(dts[k])
+        for f, F, Q in zip(fps, Fm, Qm):
+            f.F, f.Q, f.R = F, Q, Rs[k]
+        imm.predict()
+        imm.update(zs[k])
+        r = kf.imm_step(*state, log_Pi, Fm[None], Qm[None], zs[k][None], Rs[k][None])
+        _assert_imm_equal(r, imm.mu, imm.x, imm.P, f"look {k}")
+        state = (r.log_mu, r.x_modes, r.P_modes)
+        rT = kf.imm_step(*state_T, log_PiT, Fm[None], Qm[None], zs[k][None], Rs[k][None])
+        state_T = (rT.log_mu, rT.x_modes, rT.P_modes)
+        mu_hist.append(imm.mu.copy())
+        mu_T_hist.append(np.exp(rT.log_mu[0]))
+    mu_hist = np.array(mu_hist)
+    # the turns were seen: each CT mode dominates at some look
+    assert mu_hist[:, 1].max() > 0.5 and mu_hist[:, 2].max() > 0.5
+    # the test can fail: with Pi transposed the mode probabilities are far outside the tolerance used above
+    assert np.abs(np.array(mu_T_hist) - mu_hist).max() > 0.1
+
+
+def test_imm_missed_looks_long_run_matches_kalman_filter_bank():
+    """400 irregular looks, 25 % missed (including runs of misses), CV + CT-left + CT-right: every look against
+    the FilterPy-KalmanFilter IMM written out above (see its docstring for why not IMMEstimator). The product of
+    the mode-matched likelihoods over the run underflows float64 (checked), so an implementation that does not
+    renormalise the mode probabilities every look would show."""
+    rng = np.random.default_rng(22)
+    steps = 400
+    dts, zs, Rs, det, _ = _imm_stream(rng, steps, detect_prob=0.75)
+    det[200:206] = False                                   # a run of misses through the start of a hard turn
+    zs[200:206] = np.nan
+    x0, P0 = _imm_start(rng)
+    ref = _KalmanFilterBankIMM(x0, P0, _IMM_MU0, _IMM_PI)
+    state = (np.log(_IMM_MU0)[None], np.stack([x0] * 3)[None], np.stack([P0] * 3)[None])
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(_IMM_PI)
+    loglik_sum = np.zeros(3)
+    for k in range(steps):
+        Fm, Qm = _imm_models(dts[k])
+        x, P = ref.step(Fm, Qm, zs[k], Rs[k], det[k])
+        r = kf.imm_step(*state, log_Pi, Fm[None], Qm[None], zs[k][None], Rs[k][None], np.array([det[k]]))
+        _assert_imm_equal(r, ref.mu, x, P, f"look {k} ({'detected' if det[k] else 'missed'})")
+        np.testing.assert_allclose(r.loglik[0], ref.loglik, rtol=1e-9, err_msg=f"look {k}")
+        if not det[k]:
+            assert np.all(r.loglik[0] == 0.0)
+        assert np.all(np.isfinite(r.log_mu)) and np.all(np.isfinite(r.x_modes)) and np.all(np.isfinite(r.P_modes))
+        np.testing.assert_allclose(np.exp(r.log_mu[0]).sum(), 1.0, rtol=1e-9)
+        state = (r.log_mu, r.x_modes, r.P_modes)
+        loglik_sum += r.loglik[0]
+    assert (~det).sum() > 50
+    assert np.all(loglik_sum < np.log(np.finfo(np.float64).tiny))   # linear-space product underflows
+
+
+def test_imm_step_batched_equals_per_track_loop():
+    """Rows with their own dt, F, Q, plots and misses, stepped as one batch and one at a time: the same numbers."""
+    rng = np.random.default_rng(23)
+    B, steps, M = 5, 60, 3
+    streams = [_imm_stream(rng, steps, detect_prob=0.7, dt_range_s=(0.0, 12.0)) for _ in range(B)]
+    starts = [_imm_start(rng) for _ in range(B)]
+    log_mu = np.log(np.tile(_IMM_MU0, (B, 1)))
+    xm = np.stack([np.stack([x0] * M) for x0, _ in starts])
+    Pm = np.stack([np.stack([P0] * M) for _, P0 in starts])
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(_IMM_PI)
+    for k in range(steps):
+        FQ = [_imm_models(s[0][k]) for s in streams]
+        F, Q = np.stack([a for a, _ in FQ]), np.stack([b for _, b in FQ])
+        z = np.stack([s[1][k] for s in streams])
+        R = np.stack([s[2][k] for s in streams])
+        d = np.array([s[3][k] for s in streams])
+        r = kf.imm_step(log_mu, xm, Pm, log_Pi, F, Q, z, R, d)
+        for b in range(B):
+            s = slice(b, b + 1)
+            rb = kf.imm_step(log_mu[s], xm[s], Pm[s], log_Pi, F[s], Q[s], z[s], R[s], d[s])
+            for name in ("log_mu", "x_modes", "P_modes", "x", "P", "loglik"):
+                np.testing.assert_allclose(getattr(rb, name)[0], getattr(r, name)[b], rtol=1e-13, atol=0,
+                                           err_msg=f"{name}, row {b}, look {k}")
+        log_mu, xm, Pm = r.log_mu, r.x_modes, r.P_modes
+
+
+@pytest.mark.parametrize("spec_name", ["IMM3_CT", "asymmetric"])
+def test_run_imm_on_recorded_episodes_matches_kalman_filter_bank(spec_name):
+    """baselines.trackers.run_imm on recorded episodes (two sites: irregular looks down to milliseconds; Pd 0.8)
+    against an oracle built from the Episode arrays alone: the two-hit start written out, the warm-up as a FilterPy
+    KalmanFilter at 0.03 g (Bizup's track start, the documented default), then the KalmanFilter-bank IMM above
+    from the warm-up estimate with every mode at it."""
+    from filterpy.kalman import KalmanFilter
+
+    from baselines.trackers import IMM3_CT, IMMSpec, run_imm
+    from radar_env.catalog import make_setup
+    from radar_env.episode import draw_episode
+    from radar_env.radar import Radar, RadarSite
+
+    spec = IMM3_CT if spec_name == "IMM3_CT" else IMMSpec(
+        q_m_s2=tuple(_IMM_Q), turn_rate_rad_s=tuple(_IMM_OMEGA), Pi=tuple(map(tuple, _IMM_PI)),
+        mu0=tuple(_IMM_MU0), maneuver_modes=(1, 2))
+    radar = Radar((RadarSite(scan_period_s=5.0, detection_probability=0.8, name="a"),
+                   RadarSite(position_m=(40e3, 0.0), scan_period_s=4.0, detection_probability=0.8, name="b")))
+    eps = []
+    for seed in (31, 32):
+        rng = np.random.default_rng(seed)
+        setup = make_setup("random", rng, radar=radar)
+        eps.append(draw_episode(setup.scenario, setup.radar, rng))
+    run = run_imm(eps, spec)
+    q_warm = 0.03 * G0_M_S2
+    man = list(spec.maneuver_modes)
+    for b, e in enumerate(eps):
+        s = int(run.start_index[b])
+        det = np.flatnonzero(e.detected)
+        i1 = det[0]
+        i2 = det[e.t_s[det] > e.t_s[i1]][0]
+        assert 1 <= s - i2 - 1 < e.n_looks - s            # a warm-up, then IMM looks
+        T = e.t_s[i2] - e.t_s[i1]
+        f = KalmanFilter(dim_x=4, dim_z=2)
+        f.H = H.copy()
+        f.x = np.concatenate([e.z_m[i2], (e.z_m[i2] - e.z_m[i1]) / T])
+        f.P = np.block([[e.R_m2[i2], e.R_m2[i2] / T], [e.R_m2[i2] / T, (e.R_m2[i1] + e.R_m2[i2]) / T**2]])
+        for k in range(i2 + 1, s):
+            dt = e.t_s[k] - e.t_s[k - 1]
+            f.predict(F=kf.transition_cv(dt)[0], Q=kf.process_noise(dt, q_warm)[0])
+            if e.detected[k]:
+                f.update(e.z_m[k], R=e.R_m2[k])
+        np.testing.assert_allclose(run.x[b, s - 1], f.x, rtol=1e-8, atol=1e-8)
+        np.testing.assert_allclose(run.P[b, s - 1], f.P, rtol=1e-8, atol=1e-10 * np.abs(f.P).max())
+        ref = _KalmanFilterBankIMM(f.x, f.P, spec.mu0, spec.Pi)
+        for k in range(s, e.n_looks):
+            Fm, Qm = _imm_models(e.t_s[k] - e.t_s[k - 1], spec.turn_rate_rad_s, np.asarray(spec.q_m_s2))
+            x, P = ref.step(Fm, Qm, e.z_m[k], e.R_m2[k], e.detected[k])
+            where = f"episode {b}, look {k}"
+            np.testing.assert_allclose(run.x[b, k], x, rtol=1e-8, atol=1e-7, err_msg=where)
+            np.testing.assert_allclose(run.P[b, k], P, rtol=1e-8, atol=1e-10 * np.abs(P).max(), err_msg=where)
+            np.testing.assert_allclose(run.extra["maneuver_probability"][b, k], ref.mu[man].sum(), rtol=1e-7,
+                                       atol=1e-12, err_msg=where)
+        assert np.all(np.isnan(run.x[b, e.n_looks:]))
+        used = slice(s, e.n_looks)
+        assert not e.detected[used].all() and np.diff(e.t_s[used]).min() < 0.5 * np.diff(e.t_s[used]).max()
+        # the batch (rows of different lengths, finishing at different looks) equals the episode run alone
+        alone = run_imm([e], spec)
+        K = e.n_looks
+        np.testing.assert_allclose(alone.x[0, :K], run.x[b, :K], rtol=1e-13, atol=0)
+        np.testing.assert_allclose(alone.P[0, :K], run.P[b, :K], rtol=1e-13, atol=0)
+    assert eps[0].n_looks != eps[1].n_looks
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    q_g=st.lists(st.floats(0.0, 100.0), min_size=3, max_size=3),
+    dts=st.lists(st.one_of(st.just(0.0), st.floats(0.0, 60.0)), min_size=20, max_size=20),
+    det=st.lists(st.booleans(), min_size=20, max_size=20),
+    range_m=st.floats(500.0, 4e5),
+    sr=st.floats(0.5, 2000.0),
+    sb_deg=st.floats(0.001, 5.0),
+    omega_deg_s=st.floats(0.0, 20.0),
+)
+def test_imm_step_any_q_dt_and_R_keeps_modes_spd_and_finite(q_g, dts, det, range_m, sr, sb_deg, omega_deg_s):
+    """Mode q in [0, 100 g], dt = 0 allowed, missed looks, R from near-singular (1 m x 5 deg at 400 km) to huge."""
+    J = np.array([[0.0, range_m], [1.0, 0.0]])             # site due south, target north: bearing 0
+    R = J @ np.diag([sr**2, np.radians(sb_deg) ** 2]) @ J.T
+    w = np.radians([0.0, -omega_deg_s, omega_deg_s])
+    q = np.array(q_g) * G0_M_S2
+    x0 = np.array([0.0, range_m, 200.0, 0.0])
+    P0 = np.diag([R[0, 0], R[1, 1], 1e4, 1e4])
+    log_mu = np.log(_IMM_MU0)[None]
+    xm, Pm = np.stack([x0] * 3)[None], np.stack([P0] * 3)[None]
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(_IMM_PI)
+    for dt, d in zip(dts, det):
+        F, Q = kf.transition_ct(np.full(3, dt), w)[None], kf.process_noise(np.full(3, dt), q)[None]
+        z = xm[:, 0, :2] + np.array([[3 * sr, -2 * sr]])
+        r = kf.imm_step(log_mu, xm, Pm, log_Pi, F, Q, np.where(d, z, np.nan), R[None], np.array([d]))
+        log_mu, xm, Pm = r.log_mu, r.x_modes, r.P_modes
+        for a in (r.log_mu, r.x_modes, r.P_modes, r.x, r.P, r.loglik):
+            assert np.all(np.isfinite(a))
+        # log mu = a - logsumexp(a) with |a| ~ |loglik|: rounding of order eps * |loglik| (1e7 at a 4000-sigma plot)
+        tol = 1e-12 + 16 * np.finfo(np.float64).eps * np.abs(r.loglik).max()
+        assert abs(np.exp(log_mu).sum() - 1.0) <= tol
+        for Pj in list(Pm[0]) + [r.P[0]]:
+            assert np.array_equal(Pj, Pj.T)
+            assert np.linalg.eigvalsh(Pj).min() > 0.0
+
+
 # ------------------------------------------------------------------------------------------------ consistency
 def test_nees_and_nis_inside_chi_square_bounds():
     """CV truth driven by white acceleration of known q, filtered with that q: ANEES/ANIS in their 95% bounds."""

@@ -1,0 +1,49 @@
+"""The benchmark script runs (tiny settings; its numbers are not checked: timing is never asserted in tests) and
+rejects bad options with a message naming them."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_env.py"
+
+
+def _bench_module():
+    spec = importlib.util.spec_from_file_location("bench_env", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod           # dataclasses look their module up there
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_runs_with_tiny_settings(tmp_path, capsys):
+    bench = _bench_module()
+    out = tmp_path / "bench.json"
+    res = bench.main(["--seconds", "0.05", "--num-envs", "1,2", "--min-resets-per-env", "0", "--skip-main-job",
+                      "--skip-import", "--memory-envs", "2", "--markdown", "--json", str(out)])
+    text = capsys.readouterr().out
+    rates = [res["single"], res["cartpole_single"], res["tracker"]] + [r for pair in res["vector"].values()
+                                                                       for r in pair]
+    assert all(np.isfinite(r.steps_per_s) and r.steps_per_s > 0 and r.steps > 0 for r in rates)
+    assert set(res["vector"]) == {1, 2}
+    assert res["memory"]["rss_after_mb"] > 0 and res["memory"]["num_envs"] == 2
+    assert "main_job" not in res and "import" not in res
+    assert "| single env (gym.make) | 1 |" in text and text.count("| native vector env |") == 2
+    assert "s per 1M steps" in text and "2 envs after 200 steps" in text
+    saved = json.loads(out.read_text())
+    assert saved["vector"]["2"][0]["steps"] == res["vector"][2][0].steps
+
+
+@pytest.mark.parametrize("argv, option", [(["--num-envs", "0"], "--num-envs"), (["--seconds", "-1"], "--seconds"),
+                                          (["--memory-envs", "x"], "--memory-envs")])
+def test_bench_bad_options_name_the_option(argv, option, capsys):
+    bench = _bench_module()
+    with pytest.raises(SystemExit) as e:
+        bench.main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert option in err and argv[1] in err
