@@ -229,7 +229,7 @@ def _ct_episode(noise_scale, rate_deg_s=3.0, seed=0, turn_deg=270.0, period_s=4.
 
 
 def test_noise_free_constant_turn_converges_and_straight_leg_is_cv():
-    # two full circles at 3 deg/s, plots every 2 s with ~1e-4 m noise
+    # two full circles at 3 deg/s, plots every 2 s with 4e-5 m range noise (noise-free for the filter)
     ep = _ct_episode(1e-6, turn_deg=720.0, period_s=2.0)
     spec = I.DEFAULT_IMM_CV_CT
     run = I.run_imm_cv_ct([ep], spec)
