@@ -14,6 +14,7 @@ from __future__ import annotations
 from radar_env.units import G0_M_S2
 
 from . import trackers as T
+from .imm_cv_ct import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
 from .tuned_params import TUNED_PATH, tuned_parameters
 
@@ -41,6 +42,7 @@ _RUNNERS = {
     "imm2": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec(), "imm2", cfg),
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
+    "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
     "kf_tuned": _policy_run("kf_tuned"),
     "kf_low": _policy_run("kf_low"),
     "kf_high": _policy_run("kf_high"),
