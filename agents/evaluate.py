@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, run_tracker
+from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, run_tracker, tracker_names
+from baselines.user_trackers import import_tracker_module
 from baselines.trackers import TrackRun, run_q_policy
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import EnvConfig, actions_to_q_m_s2
@@ -393,8 +394,14 @@ def build_parser(prog="radar-track evaluate"):
                                              "adsb:<flight>, 50 otherwise)")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
                     help=f"base seed of the runs, >= 0 (default {EVAL_SEED_BASE}: held out from training and tuning)")
-    ap.add_argument("--trackers", help=f"comma-separated tracker names from {list(TRACKER_NAMES)} "
-                                       f"(default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if a policy exists)")
+    ap.add_argument("--trackers", help=f"comma-separated tracker names from {list(TRACKER_NAMES)} or registered by "
+                                       f"a --tracker-module (default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if "
+                                       "a policy exists)")
+    ap.add_argument("--tracker-module", action="append", metavar="MODULE",
+                    help="import a user tracker module before the trackers are resolved: a dotted module name "
+                         "(importable from the current directory) or a .py file; it registers its trackers with "
+                         "baselines.registry.register_tracker (repeatable; see 'Your own tracker in the "
+                         "comparison' in the README)")
     ap.add_argument("--policy", help="saved stable-baselines3 model (.zip) for the 'policy' tracker "
                                      f"(default: {BUNDLED_POLICY.relative_to(Path(__file__).parents[1])} if present)")
     ap.add_argument("--out", default="results", help="directory for the plots (default ./results)")
@@ -464,14 +471,24 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --policy: file {policy!r} does not exist (or is not a file)")
     if policy is None and BUNDLED_POLICY.is_file():
         policy = str(BUNDLED_POLICY)
+    for spec in args.tracker_module or []:
+        try:
+            import_tracker_module(spec)
+        except ValueError as e:
+            raise SystemExit(f"error: --tracker-module: {e}") from None
+    if args.tracker_module and (args.workers > 1 or args.address):
+        raise SystemExit("error: --tracker-module: user trackers are registered in this process only and cannot run "
+                         f"on Ray workers; use --workers 1 without --address (got --workers {args.workers})")
+    known = tracker_names()
     if args.trackers is not None:
         trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
         if not trackers:
             raise SystemExit(f"error: --trackers: no tracker named in {args.trackers!r}; give comma-separated names "
-                             f"from {list(TRACKER_NAMES)}")
-        bad = [t for t in trackers if t not in TRACKER_NAMES]
+                             f"from {list(known)}")
+        bad = [t for t in trackers if t not in known]
         if bad:
-            raise SystemExit(f"error: --trackers: unknown tracker(s) {bad}; valid: {list(TRACKER_NAMES)}")
+            raise SystemExit(f"error: --trackers: unknown tracker(s) {bad}; valid: {list(known)}"
+                             + ("" if args.tracker_module else " (user trackers need --tracker-module)"))
         if "policy" in trackers and policy is None:
             raise SystemExit("error: tracker 'policy' needs --policy PATH (no bundled policy found)")
         if len(set(trackers)) != len(trackers):
@@ -532,7 +549,8 @@ def main(argv=None, prog="radar-track evaluate"):
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
-        meta = {"seed": args.seed, "trackers": trackers, "policy": policy, "suites": [s for s, _ in suites],
+        meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
+                "policy": policy, "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},
                 "radar_site_km": None if radar is None else [x_km, y_km],

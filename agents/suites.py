@@ -21,11 +21,11 @@ two files with the same stem, or a stem that is a built-in suite's name, are ref
 from __future__ import annotations
 
 import hashlib
-import zlib
 from pathlib import Path
 
 import numpy as np
 
+from baselines.seeds import EVAL_SEED_BASE, TRAIN_SEEDS, TUNING_SEEDS, suite_rng
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.draws import draw_episodes
 from radar_env.env import draw_setup_and_episode, resolve_scenario
@@ -34,9 +34,8 @@ from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, Traject
 __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
            "suite_rng", "suite_key", "trajectory_suite_names"]
 
-TRAIN_SEEDS = range(0, 1_000_000)
-TUNING_SEEDS = range(1_000_000, 2_000_000)
-EVAL_SEED_BASE = 10_000_000
+# TRAIN_SEEDS, TUNING_SEEDS, EVAL_SEED_BASE and suite_rng live in baselines.seeds (the tuning draws from them and
+# baselines never import agents); re-exported here, where the seed plan is documented.
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
 EXTRA_SUITES = ("encounters", "adsb_calibration")
@@ -59,17 +58,6 @@ def suite_key(scenario):
             raise ValueError(f"trajectory file {str(path)!r} does not exist")
         return "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
     return scenario if isinstance(scenario, str) else getattr(scenario, "name", "custom")
-
-
-def suite_rng(suite_name, seed):
-    """The generator of run ``seed`` of the suite keyed ``suite_name`` (a name or a :func:`suite_key`)."""
-    key = str(suite_name)
-    if key.startswith("sha256:"):
-        digest = bytes.fromhex(key[len("sha256:"):])
-        words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, len(digest), 4)]
-    else:
-        words = [zlib.crc32(key.encode())]
-    return np.random.default_rng([int(seed), *words])
 
 
 def trajectory_suite_names(paths, taken=()):

@@ -2,8 +2,10 @@
 
 Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_bizup``, ``imm3_ct``, ``kf_tuned``,
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
-``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``. ``policy`` (a learned
-policy) is resolved by the evaluation, which owns the model loading.
+``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
+as tuned by the earlier grid search). ``policy`` (a learned policy) is resolved by the evaluation, which owns the
+model loading. User trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`);
+:func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
 ``baselines/tuned.json``, written by ``python -m baselines.tuning`` on training seeds only.
@@ -11,22 +13,22 @@ Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilit
 
 from __future__ import annotations
 
-from radar_env.units import G0_M_S2
+import re
+
 
 from . import trackers as T
 from .imm_cv_ct import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
-from .tuned_params import TUNED_PATH, tuned_parameters
+from .tuned_params import TUNED_PATH, imm2_spec_from_params, tuned_parameters
+from .user_trackers import batch_runner, per_episode_runner
 
-__all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH"]
+__all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",
+           "register_tracker", "tracker_names"]
 
 
-def tuned_imm2_spec():
-    p = tuned_parameters()["imm2"]
-    stay_low, stay_high = p["p_stay_low"], p["p_stay_high"]
-    return T.IMMSpec(q_m_s2=(p["q_low_g"] * G0_M_S2, p["q_high_g"] * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
-                     Pi=((stay_low, 1 - stay_low), (1 - stay_high, stay_high)), mu0=(0.9, 0.1),
-                     maneuver_modes=(1,))
+def tuned_imm2_spec(key="imm2"):
+    """The tuned 2-mode IMM (``key`` ``"imm2"``, or ``"imm2_grid"``: the earlier grid search's) from tuned.json."""
+    return imm2_spec_from_params(tuned_parameters()[key])
 
 
 def _policy_run(name):
@@ -40,6 +42,7 @@ def _policy_run(name):
 
 _RUNNERS = {
     "imm2": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec(), "imm2", cfg),
+    "imm2_grid": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec("imm2_grid"), "imm2_grid", cfg),
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
     "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
@@ -61,6 +64,40 @@ _RUNNERS = {
 }
 
 TRACKER_NAMES = ("policy",) + tuple(_RUNNERS)
+"""The built-in tracker names (user trackers: :func:`tracker_names`)."""
+
+_USER = set()
+_NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_\-]{0,63}")
+
+
+def register_tracker(name, fn, overwrite=False, batch=False):
+    """Put a user tracker into the comparison under ``name`` (see :mod:`baselines.user_trackers`).
+
+    Args:
+        name: 1-64 characters, a letter then letters, digits, ``_`` or ``-`` (no commas: ``--trackers`` splits on
+            them); not a built-in tracker's name.
+        fn: a per-episode :class:`baselines.user_trackers.UserTracker` ``fn(looks, start) -> (x, P)``, or with
+            ``batch=True`` a batch tracker ``fn(episodes, cfg) -> TrackRun``.
+        overwrite: replace a user tracker registered earlier under ``name`` (a built-in is never replaced).
+    Raises ``ValueError`` for a bad name, a name taken (built-in, or user without ``overwrite``), a non-callable."""
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise ValueError(f"register_tracker: name must be 1-64 characters, a letter then letters, digits, '_' or "
+                         f"'-', got {name!r}")
+    if name in TRACKER_NAMES:
+        raise ValueError(f"register_tracker: {name!r} is a built-in tracker's name; choose another "
+                         f"(built-ins: {list(TRACKER_NAMES)})")
+    if name in _USER and not overwrite:
+        raise ValueError(f"register_tracker: a user tracker named {name!r} is already registered; pass "
+                         "overwrite=True to replace it")
+    if not callable(fn):
+        raise ValueError(f"register_tracker: fn must be callable, got {type(fn).__name__}")
+    _RUNNERS[name] = batch_runner(name, fn) if batch else per_episode_runner(name, fn)
+    _USER.add(name)
+
+
+def tracker_names():
+    """Every tracker name :func:`run_tracker` and ``--trackers`` accept: the built-ins, then user trackers."""
+    return ("policy",) + tuple(_RUNNERS)
 
 DESIGN_ENVELOPES = {
     "alpha_beta": "Kalata gains assume a constant scan period; with irregular or two-site looks each gap gets the "
@@ -79,5 +116,5 @@ def run_tracker(name, episodes, cfg=None):
     track start and observation (an env config or a :class:`radar_env.tracking.TrackStart`; default the env's
     defaults), see :mod:`baselines.trackers`."""
     if name not in _RUNNERS:
-        raise ValueError(f"unknown tracker {name!r}; valid: {list(TRACKER_NAMES)}")
+        raise ValueError(f"unknown tracker {name!r}; valid: {list(tracker_names())}")
     return _RUNNERS[name](list(episodes), cfg)
