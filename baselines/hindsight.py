@@ -107,7 +107,11 @@ def _torch():
 
 
 def _check_args(q_range_g, turn_rate_max_deg_s, iterations):
-    lo, hi = (float(v) for v in q_range_g)
+    iterations = DEFAULT_ITERATIONS if iterations is None else iterations
+    try:
+        lo, hi = (float(v) for v in q_range_g)
+    except (TypeError, ValueError):
+        raise ValueError(f"q_range_g must be (lo, hi) in g, got {q_range_g!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo < hi <= 100.0):
         raise ValueError(f"q_range_g must be (lo, hi) with 0 < lo < hi <= 100 g, got {q_range_g!r}")
     w = float(turn_rate_max_deg_s)
@@ -115,7 +119,7 @@ def _check_args(q_range_g, turn_rate_max_deg_s, iterations):
         raise ValueError(f"turn_rate_max_deg_s must be in (0, 180] deg/s, got {turn_rate_max_deg_s!r}")
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 100000:
         raise ValueError(f"iterations must be an integer in [0, 100000], got {iterations!r}")
-    return lo, hi, w
+    return lo, hi, w, int(iterations)
 
 
 # ------------------------------------------------------------------------------------------------ problem data
@@ -213,13 +217,14 @@ def _torch_data(torch, prob, reps):
 def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg: EnvConfig | None = None):
     """Per-episode position MSE (m^2) after the track start of the torch KF for given schedules.
 
-    ``q_m_s2`` (B, J) (and ``turn_rate_rad_s``), column j = look ``start_b + j``; for tests against
-    :func:`chain_forward`."""
+    ``q_m_s2`` (B, >= J) (and ``turn_rate_rad_s``), column j = look ``start_b + j`` (J = the most looks after a
+    start; further columns are ignored); the tests' oracle for :func:`kernel_forward` and :func:`chain_forward`."""
     torch = _torch()
     prob = _Problem(list(episodes), cfg or EnvConfig())
     data = _torch_data(torch, prob, 1)
-    lq = torch.as_tensor(np.log(np.asarray(q_m_s2, dtype=np.float64)))
-    om = None if turn_rate_rad_s is None else torch.as_tensor(np.asarray(turn_rate_rad_s, dtype=np.float64))
+    lq = torch.as_tensor(np.log(np.asarray(q_m_s2, dtype=np.float64)[:, :prob.J]))
+    om = (None if turn_rate_rad_s is None
+          else torch.as_tensor(np.asarray(turn_rate_rad_s, dtype=np.float64)[:, :prob.J]))
     with torch.no_grad():
         return _torch_mse(torch, data, lq, om).numpy()
 
@@ -413,9 +418,9 @@ def kernel_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg: EnvConfig | None
     """Per-episode position MSE (m^2) and its gradients ``(mse, d mse / d log q, d mse / d omega)`` from the
     compiled kernel the optimisation uses, for given schedules (B, J) (column j = look ``start_b + j``)."""
     prob = _Problem(list(episodes), cfg or EnvConfig())
-    lq = np.log(np.asarray(q_m_s2, dtype=np.float64))
+    lq = np.log(np.asarray(q_m_s2, dtype=np.float64)[:, :prob.J])
     turn = turn_rate_rad_s is not None
-    w = np.asarray(turn_rate_rad_s, dtype=np.float64) if turn else np.zeros_like(lq)
+    w = np.asarray(turn_rate_rad_s, dtype=np.float64)[:, :prob.J] if turn else np.zeros_like(lq)
     return _mse_grad_rows(prob.x0, prob.P0, prob.dt, prob.det, prob.z, prob.R, prob.pos, prob.n, lq, w, turn, True)
 
 
@@ -578,7 +583,7 @@ def _q_starts(prob, cfg, lo, hi):
 
 
 def _hindsight_q(episodes, cfg, q_range_g, iterations):
-    lo, hi, _ = _check_args(_q_range_g(cfg, q_range_g), DEFAULT_TURN_RATE_MAX_DEG_S, iterations)
+    lo, hi, _, iterations = _check_args(_q_range_g(cfg, q_range_g), DEFAULT_TURN_RATE_MAX_DEG_S, iterations)
     t0 = time.perf_counter()
     prob = _Problem(episodes, cfg)
     starts = _q_starts(prob, cfg, lo, hi)
@@ -589,14 +594,14 @@ def _hindsight_q(episodes, cfg, q_range_g, iterations):
 
 
 def run_hindsight_q(episodes, name="hindsight_q", cfg: EnvConfig | None = None, q_range_g=None,
-                    iterations=DEFAULT_ITERATIONS, return_info=False):
+                    iterations=None, return_info=False):
     """``hindsight_q``: the best per-episode q schedule for the CV KF, chosen knowing the truth (module docstring).
 
     Args:
         episodes: list of :class:`radar_env.episode.Episode`.
         cfg: the env config (track start, warm-up, q levels); default ``EnvConfig()``.
         q_range_g: ``(lo, hi)`` in g, the range q may take; default the action range of ``cfg.q_levels_g``.
-        iterations: L-BFGS iteration limit per start.
+        iterations: L-BFGS iteration limit per start (default :data:`DEFAULT_ITERATIONS`).
         return_info: also return the :class:`HindsightInfo`.
     Returns:
         :class:`TrackRun` of the chain run with the chosen schedule (``q_m_s2`` = the schedule), or
@@ -610,15 +615,14 @@ def run_hindsight_q(episodes, name="hindsight_q", cfg: EnvConfig | None = None, 
 
 
 def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg: EnvConfig | None = None, q_range_g=None,
-                         turn_rate_max_deg_s=DEFAULT_TURN_RATE_MAX_DEG_S, iterations=DEFAULT_ITERATIONS,
-                         return_info=False):
+                         turn_rate_max_deg_s=DEFAULT_TURN_RATE_MAX_DEG_S, iterations=None, return_info=False):
     """``hindsight_q_turn``: per-episode q and turn-rate schedules for a CT-prediction KF, chosen knowing the truth,
     ``|omega| <= turn_rate_max_deg_s`` (module docstring). Starts from ``hindsight_q``'s answer (computed here)
     with omega = 0, so it is never worse than it. Arguments as :func:`run_hindsight_q`; ``info`` (if returned) is
     ``(info_turn, info_q)``; ``info_turn.seconds`` includes the ``hindsight_q`` stage."""
     cfg = cfg or EnvConfig()
     episodes = list(episodes)
-    lo, hi, w_deg = _check_args(_q_range_g(cfg, q_range_g), turn_rate_max_deg_s, iterations)
+    lo, hi, w_deg, iterations = _check_args(_q_range_g(cfg, q_range_g), turn_rate_max_deg_s, iterations)
     t0 = time.perf_counter()
     prob, q, info_q = _hindsight_q(episodes, cfg, q_range_g, iterations)
     w_max = w_deg * DEG
