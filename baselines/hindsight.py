@@ -84,7 +84,7 @@ class HindsightInfo:
         grad_norm: (B,) projected gradient norm of ``log MSE`` w.r.t. the schedule at the last iterate of the best
             start (dimensionless: relative MSE change per unit of log q; omega in units of its bound; zero where a
             bound holds the schedule).
-        last_improvement: (B,) relative decrease of the best MSE over the last 10 % of the iterations.
+        last_improvement: (B,) relative decrease of the MSE over the last 10 % of the iteration limit.
         seconds: wall time of the optimisation.
     """
 
@@ -102,7 +102,7 @@ def _torch():
     try:
         import torch
     except ImportError:   # pragma: no cover - depends on the install
-        raise ValueError("the hindsight bounds need torch (pip install -e '.[train]')") from None
+        raise ValueError("torch_forward needs torch (pip install -e '.[train]')") from None
     return torch
 
 
@@ -114,7 +114,10 @@ def _check_args(q_range_g, turn_rate_max_deg_s, iterations):
         raise ValueError(f"q_range_g must be (lo, hi) in g, got {q_range_g!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo < hi <= 100.0):
         raise ValueError(f"q_range_g must be (lo, hi) with 0 < lo < hi <= 100 g, got {q_range_g!r}")
-    w = float(turn_rate_max_deg_s)
+    try:
+        w = float(turn_rate_max_deg_s)
+    except (TypeError, ValueError):
+        w = np.nan
     if not (np.isfinite(w) and 0.0 < w <= 180.0):
         raise ValueError(f"turn_rate_max_deg_s must be in (0, 180] deg/s, got {turn_rate_max_deg_s!r}")
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or not 0 <= iterations <= 100000:
@@ -135,7 +138,7 @@ class _Problem:
         B, J = tr.B, int(self.n.max())
         cols = self.start[:, None] + np.arange(J)[None, :]
         self.mask = np.arange(J)[None, :] < self.n[:, None]
-        cols = np.minimum(cols, tr._cap - 1)
+        cols = np.minimum(cols, tr.look_data("t_s").shape[1] - 1)
         rows = np.arange(B)[:, None]
         get = lambda f: tr.look_data(f)[rows, cols]   # noqa: E731
         t = get("t_s")
