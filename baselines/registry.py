@@ -3,9 +3,10 @@
 Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_bizup``, ``imm3_ct``, ``kf_tuned``,
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
-as tuned by the earlier grid search). ``policy`` (a learned policy) is resolved by the evaluation, which owns the
-model loading. User trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`);
-:func:`tracker_names` lists all.
+as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
+``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
+in no default list). ``policy`` (a learned policy) is resolved by the evaluation, which owns the model loading. User
+trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
 ``baselines/tuned.json``, written by ``python -m baselines.tuning`` on training seeds only.
@@ -40,6 +41,11 @@ def _policy_run(name):
     return run
 
 
+def _hindsight():
+    from . import hindsight   # imports numba; only when a hindsight bound is asked for
+    return hindsight
+
+
 _RUNNERS = {
     "imm2": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec(), "imm2", cfg),
     "imm2_grid": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec("imm2_grid"), "imm2_grid", cfg),
@@ -61,6 +67,8 @@ _RUNNERS = {
     "konle": lambda eps, cfg: T.run_konle_tracker(eps, cfg=cfg),
     "clairvoyant": lambda eps, cfg: T.run_clairvoyant(eps, cfg=cfg),
     "oracle_q": lambda eps, cfg: T.run_oracle_q(eps, cfg=cfg),
+    "hindsight_q": lambda eps, cfg: _hindsight().run_hindsight_q(eps, cfg=cfg),
+    "hindsight_q_turn": lambda eps, cfg: _hindsight().run_hindsight_q_turn(eps, cfg=cfg),
 }
 
 TRACKER_NAMES = ("policy",) + tuple(_RUNNERS)
