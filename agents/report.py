@@ -20,9 +20,9 @@ from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
 
 __all__ = ["main", "markdown_tables"]
 
-REPORT_TRACKERS = ("imm2", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
+REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
-                   "oracle_q", "clairvoyant")
+                   "oracle_q", "hindsight_q", "hindsight_q_turn", "clairvoyant")
 FIGURE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 
 
@@ -74,15 +74,31 @@ def markdown_tables(results, reference="imm2"):
     return "\n".join(out)
 
 
-HEADLINE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "oracle_q", "clairvoyant")
+HEADLINE_TRACKERS = ("policy", "imm2", "imm2_grid", "imm_cv_ct", "kf_tuned", "cmin", "hindsight_q",
+                     "hindsight_q_turn", "clairvoyant")
+
+
+def headroom_share(res, tracker="policy", low="imm2", ceiling="hindsight_q"):
+    """Share of the headroom between ``low`` and the ``ceiling`` bound that ``tracker`` captures, on pooled RMSE:
+    ``(rmse_low - rmse_tracker) / (rmse_low - rmse_ceiling)`` (1 = at the ceiling, 0 = no better than ``low``,
+    negative = worse). ``None`` where a tracker is missing, non-finite, or the headroom is not positive."""
+    ms = [res["trackers"].get(t) for t in (tracker, low, ceiling)]
+    if any(m is None or m.get("pos_rmse_m") is None or not np.isfinite(m["pos_rmse_m"]) for m in ms):
+        return None
+    a, b, c = (m["pos_rmse_m"] for m in ms)
+    return None if b - c <= 0 else (b - a) / (b - c)
 
 
 def headline(results, has_policy):
     """Compact table for the README: position RMSE (m) pooled over the runs each tracker did not fail, and its ratio
     to imm2 paired over the runs neither failed, with 95% CIs, per suite; ``(n<20)`` beside an interval from fewer
     than 20 runs, ``lost x%`` where the tracker lost (or failed) runs."""
-    names = [t for t in HEADLINE_TRACKERS if t != "policy" or has_policy]
-    lines = ["| suite | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    present = {t for res in results.values() for t in res["trackers"]}
+    names = [t for t in HEADLINE_TRACKERS if t in present and (t != "policy" or has_policy)]
+    share = has_policy and "hindsight_q" in names
+    lines = ["| suite | " + " | ".join(names) + (" | policy's share of the imm2 -> hindsight_q headroom |" if share
+                                                 else " |"),
+             "|---" * (len(names) + 1 + share) + "|"]
     for suite, res in results.items():
         cells = []
         for t in names:
@@ -97,6 +113,9 @@ def headline(results, has_policy):
             if m["track_loss_rate"]:
                 cell += f", lost {100 * m['track_loss_rate']:.0f}%"
             cells.append(cell)
+        if share:
+            h = headroom_share(res)
+            cells.append("-" if h is None else f"{100 * h:.0f}%")
         lines.append(f"| {suite} ({res['runs']} runs) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
