@@ -22,7 +22,7 @@ __all__ = ["main", "markdown_tables"]
 
 REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
-                   "oracle_q", "hindsight_q", "hindsight_q_turn", "clairvoyant")
+                   "oracle_q", "clairvoyant")
 FIGURE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 
 
@@ -76,6 +76,14 @@ def markdown_tables(results, reference="imm2"):
 
 HEADLINE_TRACKERS = ("policy", "imm2", "imm2_grid", "imm_cv_ct", "kf_tuned", "cmin", "hindsight_q",
                      "hindsight_q_turn", "clairvoyant")
+
+
+BOUNDS_SUITES = ("random", "bizup2002", "kim_lee_accel")
+BOUNDS_RUNS = 30
+BOUNDS_TRACKERS = ("imm2", "imm_cv_ct", "kf_tuned", "cmin", "hindsight_q", "hindsight_q_turn", "clairvoyant")
+"""The hindsight bounds cost about a CPU-second per episode each (baselines/hindsight.py), so they are computed on the
+first ``BOUNDS_RUNS`` runs of these suites only (the same episodes as runs 0..29 of the full tables, seeds
+``seed + i``), beside the trackers they bound; written to ``docs/bounds.json`` and the README's ``bounds`` block."""
 
 
 def headroom_share(res, tracker="policy", low="imm2", ceiling="hindsight_q"):
@@ -273,6 +281,13 @@ def main(argv=None):
         replace_block("downstream", down)
         replace_block("adsb-flights", flights)
     (docs / "results.json").write_text(json.dumps(_jsonable(results), indent=1, allow_nan=False))
+    t1 = time.time()
+    bsuites = [(n, draw_suite(n, BOUNDS_RUNS, seed=args.seed)) for n in BOUNDS_SUITES]
+    bounds, _ = evaluate(bsuites, (["policy"] if policy else []) + list(BOUNDS_TRACKERS), policy)
+    bounds = {n: {**r, "seconds": time.time() - t1} for n, r in bounds.items()}
+    (docs / "bounds.json").write_text(json.dumps(_jsonable(bounds), indent=1, allow_nan=False))
+    if args.readme:
+        replace_block("bounds", headline(bounds, policy is not None))
     print("\n".join(text))
 
 

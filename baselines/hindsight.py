@@ -61,10 +61,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from radar_env.env import EnvConfig
+from radar_env.observation import DEFAULT_Q_LEVELS_G
 from radar_env.units import DEG, G0_M_S2
 
-from .trackers import TrackRun, _loop, _Recorder, _tracker
+from .trackers import _loop, _Recorder, _start, _tracker
 from .tuned_params import tuned_parameters
 
 __all__ = ["run_hindsight_q", "run_hindsight_q_turn", "HindsightInfo", "torch_forward", "chain_forward", "kernel_forward",
@@ -223,13 +223,13 @@ def _torch_data(torch, prob, reps):
             "G": rep(G)}
 
 
-def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg: EnvConfig | None = None):
+def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg=None):
     """Per-episode position MSE (m^2) after the track start of the torch KF for given schedules.
 
     ``q_m_s2`` (B, >= J) (and ``turn_rate_rad_s``), column j = look ``start_b + j`` (J = the most looks after a
     start; further columns are ignored); the tests' oracle for :func:`kernel_forward` and :func:`chain_forward`."""
     torch = _torch()
-    prob = _Problem(list(episodes), cfg or EnvConfig())
+    prob = _Problem(list(episodes), cfg)
     data = _torch_data(torch, prob, 1)
     lq = torch.as_tensor(np.log(np.asarray(q_m_s2, dtype=np.float64)[:, :prob.J]))
     om = (None if turn_rate_rad_s is None
@@ -239,11 +239,10 @@ def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg: EnvConfig | None 
 
 
 # ------------------------------------------------------------------------------------------------ the chain
-def chain_forward(episodes, q_m_s2, turn_rate_rad_s=None, name="hindsight_q", cfg: EnvConfig | None = None):
+def chain_forward(episodes, q_m_s2, turn_rate_rad_s=None, name="hindsight_q", cfg=None):
     """Run the library's chain (:class:`radar_env.tracking.Tracker`) with the schedule ``q_m_s2`` (B, J) (column j
     = look ``start_b + j``) and optionally ``turn_rate_rad_s`` (B, J) (CT prediction); returns the
     :class:`TrackRun` (``extra["turn_rate_deg_s"]`` when a turn rate is given)."""
-    cfg = cfg or EnvConfig()
     tr, out = _tracker(list(episodes), cfg)
     B, K = tr.B, int(tr.n_looks.max())
     q_m_s2 = np.asarray(q_m_s2, dtype=np.float64)
@@ -423,10 +422,10 @@ def _mse_grad_rows(x0, P0, dt, det, z, Rm, pos, n, lq, w, turn, want_grad):
     return mse, g_lq, g_w
 
 
-def kernel_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg: EnvConfig | None = None):
+def kernel_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg=None):
     """Per-episode position MSE (m^2) and its gradients ``(mse, d mse / d log q, d mse / d omega)`` from the
     compiled kernel the optimisation uses, for given schedules (B, J) (column j = look ``start_b + j``)."""
-    prob = _Problem(list(episodes), cfg or EnvConfig())
+    prob = _Problem(list(episodes), cfg)
     lq = np.log(np.asarray(q_m_s2, dtype=np.float64)[:, :prob.J])
     turn = turn_rate_rad_s is not None
     w = np.asarray(turn_rate_rad_s, dtype=np.float64)[:, :prob.J] if turn else np.zeros_like(lq)
@@ -578,13 +577,14 @@ def _optimise(prob, starts_lq, starts_w, lq_bounds, w_max, iterations):
 
 
 def _q_range_g(cfg, q_range_g):
-    return (cfg.q_levels_g[0], cfg.q_levels_g[-1]) if q_range_g is None else q_range_g
+    levels = getattr(cfg, "q_levels_g", DEFAULT_Q_LEVELS_G)   # the action range of the env config (or default)
+    return (levels[0], levels[-1]) if q_range_g is None else q_range_g
 
 
 def _q_starts(prob, cfg, lo, hi):
     """Start schedules (m/s^2, clipped into the range): kf_tuned's q, the warm-up level, the oracle-ish q."""
     shape = (prob.B, prob.J)
-    floor = cfg.warmup_q_g * G0_M_S2
+    floor = _start(cfg).warmup_q_m_s2
     starts = {"kf_tuned": np.full(shape, tuned_parameters()["kf"]["q_g"] * G0_M_S2),
               "warmup_level": np.full(shape, floor),
               "true_accel": np.maximum(prob.accel_m_s2, floor)}
@@ -602,13 +602,13 @@ def _hindsight_q(episodes, cfg, q_range_g, iterations):
     return prob, q, info
 
 
-def run_hindsight_q(episodes, name="hindsight_q", cfg: EnvConfig | None = None, q_range_g=None,
+def run_hindsight_q(episodes, name="hindsight_q", cfg=None, q_range_g=None,
                     iterations=None, return_info=False):
     """``hindsight_q``: the best per-episode q schedule for the CV KF, chosen knowing the truth (module docstring).
 
     Args:
         episodes: list of :class:`radar_env.episode.Episode`.
-        cfg: the env config (track start, warm-up, q levels); default ``EnvConfig()``.
+        cfg: the env config (track start, warm-up, q levels); default the env's defaults (:func:`baselines.trackers._start`).
         q_range_g: ``(lo, hi)`` in g, the range q may take; default the action range of ``cfg.q_levels_g``.
         iterations: L-BFGS iteration limit per start (default :data:`DEFAULT_ITERATIONS`).
         return_info: also return the :class:`HindsightInfo`.
@@ -616,20 +616,18 @@ def run_hindsight_q(episodes, name="hindsight_q", cfg: EnvConfig | None = None, 
         :class:`TrackRun` of the chain run with the chosen schedule (``q_m_s2`` = the schedule), or
         ``(run, info)``.
     """
-    cfg = cfg or EnvConfig()
     episodes = list(episodes)
     _, q, info = _hindsight_q(episodes, cfg, q_range_g, iterations)
     run = chain_forward(episodes, q, name=name, cfg=cfg)
     return (run, info) if return_info else run
 
 
-def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg: EnvConfig | None = None, q_range_g=None,
+def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg=None, q_range_g=None,
                          turn_rate_max_deg_s=DEFAULT_TURN_RATE_MAX_DEG_S, iterations=None, return_info=False):
     """``hindsight_q_turn``: per-episode q and turn-rate schedules for a CT-prediction KF, chosen knowing the truth,
     ``|omega| <= turn_rate_max_deg_s`` (module docstring). Starts from ``hindsight_q``'s answer (computed here)
     with omega = 0, so it is never worse than it. Arguments as :func:`run_hindsight_q`; ``info`` (if returned) is
     ``(info_turn, info_q)``; ``info_turn.seconds`` includes the ``hindsight_q`` stage."""
-    cfg = cfg or EnvConfig()
     episodes = list(episodes)
     lo, hi, w_deg, iterations = _check_args(_q_range_g(cfg, q_range_g), turn_rate_max_deg_s, iterations)
     t0 = time.perf_counter()

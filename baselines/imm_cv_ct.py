@@ -103,13 +103,11 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
-from radar_env.tracking import Tracker
 from radar_env.units import DEG, G0_M_S2
 from radar_env.validate import check_known_keys, check_number
 
-from .trackers import TrackRun
+from .trackers import TrackRun, _start
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "imm_cv_ct_spec_from_params",
            "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "run_imm_cv_ct", "ct_motion",
@@ -611,19 +609,17 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
 
 
 # ------------------------------------------------------------------------------------------------ on episodes
-def common_start(episodes, cfg: EnvConfig | None = None):
+def common_start(episodes, cfg=None):
     """The common track start of ``episodes`` (two-hit start + warm-up through :class:`Tracker`):
     ``(batch, look_index (B,), x (B, 4), P (B, 4, 4))`` with ``look_index`` the last warm-up look."""
-    cfg = cfg or EnvConfig()
     episodes = list(episodes)
     B = len(episodes)
-    tr = Tracker(B, warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2, n_adrian=cfg.n_adrian,
-                 window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
+    tr = _start(cfg).tracker(B)
     out = tr.load(np.arange(B), episodes)
     return stack_episodes(episodes), np.asarray(out.look_index, dtype=np.int64), tr.x.copy(), tr.P.copy()
 
 
-def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", cfg: EnvConfig | None = None,
+def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", cfg=None,
                   start=None):
     """``imm_cv_ct`` on recorded episodes, from the common track start (every mode at the warm-up estimate, turn
     rate 0 with variance ``sigma_omega0^2``). Returns a :class:`baselines.trackers.TrackRun` with extra series

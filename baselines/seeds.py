@@ -16,7 +16,8 @@ import zlib
 
 import numpy as np
 
-from radar_env.env import draw_setup_and_episode, resolve_scenario
+from radar_env.config import resolve_scenario
+from radar_env.core import draw_setup_and_episode
 
 __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "suite_rng", "draw_random_episodes"]
 

@@ -39,9 +39,8 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize
 
-from radar_env.env import EnvConfig
+from radar_env.config import EnvConfig
 from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
 
 from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes

@@ -34,11 +34,8 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from radar_env.env import EnvConfig
-from radar_env.tracking import Tracker
-from radar_env.units import G0_M_S2
 
-from .trackers import TrackRun
+from .trackers import TrackRun, _start
 
 __all__ = ["Looks", "TrackStart", "UserTracker", "looks_of", "common_track_start", "per_episode_runner",
            "batch_runner", "import_tracker_module"]
@@ -81,13 +78,11 @@ def looks_of(episode) -> Looks:
     return Looks(**{f: np.array(getattr(episode, f)) for f in Looks._fields})
 
 
-def common_track_start(episodes, cfg: EnvConfig | None = None):
+def common_track_start(episodes, cfg=None):
     """The common track start of each episode (list of :class:`TrackStart`), computed by the tracking chain
     (:meth:`radar_env.tracking.Tracker.load`) exactly as for the built-in trackers."""
-    cfg = cfg or EnvConfig()
     episodes = list(episodes)
-    tr = Tracker(len(episodes), warmup_scans=cfg.warmup_scans, warmup_q_m_s2=cfg.warmup_q_g * G0_M_S2,
-                 n_adrian=cfg.n_adrian, window_kim_lee=cfg.window_kim_lee, fma_weight=cfg.fma_weight)
+    tr = _start(cfg).tracker(len(episodes))
     out = tr.load(np.arange(len(episodes)), episodes)
     return [TrackStart(int(k) + 1, out.x[b].copy(), out.P[b].copy(), float(out.t_s[b]))
             for b, k in enumerate(out.look_index)]

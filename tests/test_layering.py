@@ -24,7 +24,8 @@ sys.meta_path.insert(0, _NoGymnasium())
 GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.scenario", "radar_env.episode",
             "radar_env.radar", "radar_env.features", "radar_env.observation", "radar_env.catalog",
             "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry", "baselines.policies",
-            "baselines.alpha_beta", "baselines.konle")
+            "baselines.alpha_beta", "baselines.konle", "baselines.imm_cv_ct", "baselines.hindsight",
+            "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.draws", "radar_env.kernels")
 
 
 def _run(code):
@@ -81,15 +82,7 @@ def _files(package):
     return sorted((ROOT / package).rglob("*.py"))
 
 
-# engineer U removes tuning.py's import of agents.suites in this round (baselines/tuning.py is theirs)
-_PENDING = {"baselines/tuning.py"}
-
-
-@pytest.mark.parametrize("path", [pytest.param(p, id=str(p.relative_to(ROOT)),
-                                               marks=[pytest.mark.xfail(reason="agents import removed by U",
-                                                                        strict=False)]
-                                               if str(p.relative_to(ROOT)) in _PENDING else [])
-                                  for p in _files("baselines")])
+@pytest.mark.parametrize("path", _files("baselines"), ids=lambda p: str(p.relative_to(ROOT)))
 def test_baselines_never_import_agents(path):
     assert "agents" not in _imported_modules(path)
 

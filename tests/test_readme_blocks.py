@@ -2,6 +2,8 @@
 and the numbers cannot drift apart.
 
 Generators called, by name: ``agents.report.headline(results, has_policy)`` and
+``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` and ``headline`` on
+``docs/bounds.json`` for ``bounds`` (the hindsight bounds, on the first runs of three suites), and
 ``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.report.main``
 passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.paper_checks.readme_block(data)`` on
 ``docs/paper_checks.json``, and ``agents.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
@@ -46,7 +48,12 @@ def _adsb_flights():
     return report.per_flight_table(_results()["adsb_calibration"]["per_flight"])
 
 
-RENDERERS = {"headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks,
+def _bounds():
+    res = json.loads((ROOT / "docs" / "bounds.json").read_text())
+    return report.headline(res, _has_policy(res))
+
+
+RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks,
              "adsb-flights": _adsb_flights}
 
 
