@@ -408,6 +408,14 @@ def test_run_imm_on_recorded_episodes_matches_kalman_filter_bank(spec_name):
     assert eps[0].n_looks != eps[1].n_looks
 
 
+def _assert_pd_to_rounding(P):
+    """Positive definite as far as float64 can tell: eigvalsh is accurate to ~eps x the largest eigenvalue, so a
+    covariance with a condition number near 1/eps (a 1 m plot after a 100 g, 60 s prediction) may show a smallest
+    eigenvalue of either sign at that scale; anything below -1e-12 x the largest is a real loss of definiteness."""
+    ev = np.linalg.eigvalsh(P)
+    assert ev.min() > -1e-12 * ev.max() and ev.max() > 0.0, ev
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     q_g=st.lists(st.floats(0.0, 100.0), min_size=3, max_size=3),
@@ -442,7 +450,7 @@ def test_imm_step_any_q_dt_and_R_keeps_modes_spd_and_finite(q_g, dts, det, range
         assert abs(np.exp(log_mu).sum() - 1.0) <= tol
         for Pj in list(Pm[0]) + [r.P[0]]:
             assert np.array_equal(Pj, Pj.T)
-            assert np.linalg.eigvalsh(Pj).min() > 0.0
+            _assert_pd_to_rounding(Pj)
 
 
 # ------------------------------------------------------------------------------------------------ consistency
