@@ -134,18 +134,19 @@ def intercept_metrics(batch, run, horizon_s=300.0, start_distance_m=40e3, speed_
         t = t[t <= t[0] + horizon_s] if t.size else t
         if t.size < 3 or t[-1] - t[0] < 0.5 * horizon_s or np.any(np.diff(t) <= 0):
             continue
-        groups.setdefault((k0, t.size, t.tobytes()), []).append(b)
-    for (k0, n, _), rows in groups.items():
-        rows = np.array(rows)
-        sl = slice(k0, k0 + n)
-        truth = batch.truth[rows, sl]
-        est = run.x[rows, sl]
-        site = batch.site_xy_m[rows, k0]
+        groups.setdefault(t.size, []).append((b, k0))
+    # rows with as many looks in the horizon are flown together (each on its own scan clock)
+    for n, members in groups.items():
+        rows = np.array([b for b, _ in members])
+        idx = np.array([k0 for _, k0 in members])[:, None] + np.arange(n)   # (rows, n) look indices
+        truth = batch.truth[rows[:, None], idx]
+        est = run.x[rows[:, None], idx]
+        site = batch.site_xy_m[rows, idx[:, 0]]
         u = truth[:, 0, :2] - site
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         start = truth[:, 0, :2] - start_distance_m * u
         speed = speed_factor * np.hypot(truth[:, 0, 2], truth[:, 0, 3])
-        res = simulate_intercept(truth[..., :2], est, batch.t_s[rows[0], sl], start, speed, capture_radius_m)
+        res = simulate_intercept(truth[..., :2], est, batch.t_s[rows[:, None], idx], start, speed, capture_radius_m)
         misses.append(np.asarray(res.miss_distance_m))
         caught.append(np.isfinite(np.asarray(res.capture_time_s)))
     if not misses:

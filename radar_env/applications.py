@@ -279,7 +279,7 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
         True target positions at ``times_s``.
     track_estimates : array_like, shape (K, 4) or (B, K, 4)
         Track states ``[x, y, vx, vy]`` available at each scan (the estimate used to aim at scan k).
-    times_s : array_like, shape (K,), strictly increasing
+    times_s : array_like, shape (K,) or (B, K), strictly increasing (per row; rows may have their own scan times)
     interceptor_start_m : array_like, shape (2,) or (B, 2)
         Interceptor position at ``times_s[0]``.
     interceptor_speed_m_s : float or array_like (B,)
@@ -292,17 +292,20 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
     truth = np.asarray(target_truth_xy, dtype=np.float64)
     est = np.asarray(track_estimates, dtype=np.float64)
     t = np.asarray(times_s, dtype=np.float64)
-    unbatched = truth.ndim == 2 and est.ndim == 2
+    unbatched = truth.ndim == 2 and est.ndim == 2 and t.ndim == 1
     if truth.ndim == 2:
         truth = truth[None]
     if est.ndim == 2:
         est = est[None]
-    B = max(truth.shape[0], est.shape[0])
-    K = t.shape[0]
+    if t.ndim not in (1, 2):
+        raise ValueError(f"times_s must be (K,) or (B, K), got shape {t.shape}")
+    B = max(truth.shape[0], est.shape[0], t.shape[0] if t.ndim == 2 else 1)
+    K = t.shape[-1]
     if truth.shape[-2:] != (K, 2) or est.shape[-2:] != (K, 4):
         raise ValueError("target_truth_xy must be (..., K, 2) and track_estimates (..., K, 4) with K = len(times_s)")
-    if K < 2 or np.any(np.diff(t) <= 0):
+    if K < 2 or np.any(np.diff(t, axis=-1) <= 0):
         raise ValueError("times_s needs K >= 2 strictly increasing entries")
+    t = np.broadcast_to(t, (B, K))   # one scan clock per row (the same clock when times_s is (K,))
     truth = np.broadcast_to(truth, (B, K, 2))
     est = np.broadcast_to(est, (B, K, 4))
     pos = np.broadcast_to(_vec(interceptor_start_m), (B, 2)).copy()
@@ -316,12 +319,12 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
     feas = np.empty((B, K - 1), dtype=bool)
     d0 = truth[:, 0] - pos
     miss = np.hypot(d0[:, 0], d0[:, 1])
-    capture = np.where(miss <= r_cap, t[0], np.inf)
+    capture = np.where(miss <= r_cap, t[:, 0], np.inf)
     for k in range(K - 1):
-        dt = t[k + 1] - t[k]
+        dt = t[:, k + 1] - t[:, k]
         heading, _, feas[:, k] = _intercept(est[:, k, :2] - pos, est[:, k, 2:], s)
         v_i = s[:, None] * np.stack([np.sin(heading), np.cos(heading)], -1)
-        v_t = (truth[:, k + 1] - truth[:, k]) / dt
+        v_t = (truth[:, k + 1] - truth[:, k]) / dt[:, None]
         dp = truth[:, k] - pos
         dv = v_t - v_i
         # minimum distance on [0, dt]
@@ -338,8 +341,8 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
         te = np.where(ok, c / np.where(ok, np.sqrt(np.maximum(disc, 0.0)) - h, 1.0), np.inf)
         te = np.where(c <= 0.0, 0.0, te)
         new = np.isinf(capture) & (te <= dt)
-        capture = np.where(new, t[k] + te, capture)
-        pos = pos + v_i * dt
+        capture = np.where(new, t[:, k] + te, capture)
+        pos = pos + v_i * dt[:, None]
         track[:, k + 1] = pos
     if unbatched:
         return InterceptResult(miss[0][()], capture[0][()], track[0], feas[0])

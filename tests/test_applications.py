@@ -212,6 +212,22 @@ def test_simulate_intercept_perfect_track_captures():
     assert r0.miss_distance_m == r.miss_distance_m[0] and r0.capture_time_s == r.capture_time_s[0]
 
 
+def test_simulate_intercept_per_row_scan_clocks_equal_one_row_at_a_time():
+    """times_s (B, K): every row flown on its own clock gives, bit for bit, what that row gives alone."""
+    rng = np.random.default_rng(7)
+    t, truth, states = _straight_target(6, 40, 5.0, rng)
+    times = t[None] + rng.uniform(0.0, 4.0, (6, 1)) + np.cumsum(rng.uniform(0.0, 0.5, (6, 40)), axis=1)
+    noisy = states + rng.normal(0.0, 30.0, states.shape)
+    start = rng.uniform(-1e3, 1e3, (6, 2))
+    r = ap.simulate_intercept(truth, noisy, times, start, 400.0, 50.0)
+    for b in range(6):
+        rb = ap.simulate_intercept(truth[b], noisy[b], times[b], start[b], 400.0, 50.0)
+        assert rb.miss_distance_m == r.miss_distance_m[b] and rb.capture_time_s == r.capture_time_s[b]
+        assert np.array_equal(rb.interceptor_xy_m, r.interceptor_xy_m[b])
+    with pytest.raises(ValueError, match="times_s"):
+        ap.simulate_intercept(truth, noisy, times[..., None], start, 400.0, 50.0)
+
+
 def test_simulate_intercept_noisy_track_misses_more():
     rng = np.random.default_rng(7)
     t, truth, states = _straight_target(200, 80, 5.0, rng)
