@@ -126,27 +126,29 @@ def warning_metrics(batch, run):
 
 def intercept_metrics(batch, run, horizon_s=300.0, start_distance_m=40e3, speed_factor=2.0, capture_radius_m=100.0):
     """Median miss distance (m) and capture rate of an interceptor aimed with the run's estimates."""
-    misses, caught = [], []
-    groups = {}
+    misses, caught, members = [], [], []
     for b in range(batch.valid.shape[0]):
         k0 = int(run.start_index[b])
         t = batch.t_s[b, k0:int(batch.n_looks[b])]
         t = t[t <= t[0] + horizon_s] if t.size else t
         if t.size < 3 or t[-1] - t[0] < 0.5 * horizon_s or np.any(np.diff(t) <= 0):
             continue
-        groups.setdefault(t.size, []).append((b, k0))
-    # rows with as many looks in the horizon are flown together (each on its own scan clock)
-    for n, members in groups.items():
-        rows = np.array([b for b, _ in members])
-        idx = np.array([k0 for _, k0 in members])[:, None] + np.arange(n)   # (rows, n) look indices
+        members.append((b, k0, t.size))
+    if members:
+        # every run flown in one call, padded to the longest (a padded row stops at its own last look)
+        rows, k0s, ns = (np.array(c) for c in zip(*members))
+        K = int(ns.max())
+        j = np.arange(K)
+        idx = k0s[:, None] + np.minimum(j, ns[:, None] - 1)     # pad by repeating the last look ...
+        times = batch.t_s[rows[:, None], idx] + np.maximum(j - (ns[:, None] - 1), 0)   # ... 1 s apart
         truth = batch.truth[rows[:, None], idx]
         est = run.x[rows[:, None], idx]
-        site = batch.site_xy_m[rows, idx[:, 0]]
+        site = batch.site_xy_m[rows, k0s]
         u = truth[:, 0, :2] - site
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         start = truth[:, 0, :2] - start_distance_m * u
         speed = speed_factor * np.hypot(truth[:, 0, 2], truth[:, 0, 3])
-        res = simulate_intercept(truth[..., :2], est, batch.t_s[rows[:, None], idx], start, speed, capture_radius_m)
+        res = simulate_intercept(truth[..., :2], est, times, start, speed, capture_radius_m, n_looks=ns)
         misses.append(np.asarray(res.miss_distance_m))
         caught.append(np.isfinite(np.asarray(res.capture_time_s)))
     if not misses:

@@ -262,7 +262,7 @@ class InterceptResult(NamedTuple):
 
 
 def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_start_m, interceptor_speed_m_s,
-                       capture_radius_m) -> InterceptResult:
+                       capture_radius_m, n_looks=None) -> InterceptResult:
     r"""Fly an interceptor against a tracked target, re-aiming at every scan.
 
     At scan :math:`k` the course is :func:`intercept_course` from the interceptor's position to the track estimate
@@ -284,6 +284,10 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
         Interceptor position at ``times_s[0]``.
     interceptor_speed_m_s : float or array_like (B,)
     capture_radius_m : float or array_like (B,)
+    n_looks : array_like of int (B,), optional
+        Looks of each row that count (``2 <= n_looks <= K``; default all K): rows of different lengths padded to
+        one K are flown together, each stopping at its own last look (miss, capture and the interceptor frozen
+        there; ``feasible`` False beyond). Padded looks need strictly increasing times too.
 
     Returns
     -------
@@ -313,6 +317,9 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
     r_cap = np.broadcast_to(np.asarray(capture_radius_m, dtype=np.float64), (B,))
     if np.any(s <= 0):
         raise ValueError("interceptor_speed_m_s must be > 0")
+    n_ok = np.full(B, K) if n_looks is None else np.broadcast_to(np.asarray(n_looks), (B,))
+    if n_ok.dtype.kind not in "iu" or np.any(n_ok < 2) or np.any(n_ok > K):
+        raise ValueError(f"n_looks must be integers in [2, {K}] (K = len(times_s)), got {n_looks!r}")
 
     track = np.empty((B, K, 2))
     track[:, 0] = pos
@@ -322,7 +329,9 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
     capture = np.where(miss <= r_cap, t[:, 0], np.inf)
     for k in range(K - 1):
         dt = t[:, k + 1] - t[:, k]
-        heading, _, feas[:, k] = _intercept(est[:, k, :2] - pos, est[:, k, 2:], s)
+        on = k + 1 < n_ok   # rows still flying (a padded row stops at its last look)
+        heading, _, feas_k = _intercept(est[:, k, :2] - pos, est[:, k, 2:], s)
+        feas[:, k] = feas_k & on
         v_i = s[:, None] * np.stack([np.sin(heading), np.cos(heading)], -1)
         v_t = (truth[:, k + 1] - truth[:, k]) / dt[:, None]
         dp = truth[:, k] - pos
@@ -331,7 +340,7 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
         tc, _ = _cpa(dp, dv)
         tc = np.minimum(tc, dt)
         rel = dp + dv * tc[:, None]
-        miss = np.minimum(miss, np.hypot(rel[:, 0], rel[:, 1]))
+        miss = np.where(on, np.minimum(miss, np.hypot(rel[:, 0], rel[:, 1])), miss)
         # first entry into the capture circle on [0, dt]
         a = _dot(dv, dv)
         h = _dot(dp, dv)
@@ -340,9 +349,9 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
         ok = (h < 0.0) & (disc >= 0.0)
         te = np.where(ok, c / np.where(ok, np.sqrt(np.maximum(disc, 0.0)) - h, 1.0), np.inf)
         te = np.where(c <= 0.0, 0.0, te)
-        new = np.isinf(capture) & (te <= dt)
+        new = on & np.isinf(capture) & (te <= dt)
         capture = np.where(new, t[:, k] + te, capture)
-        pos = pos + v_i * dt[:, None]
+        pos = np.where(on[:, None], pos + v_i * dt[:, None], pos)
         track[:, k + 1] = pos
     if unbatched:
         return InterceptResult(miss[0][()], capture[0][()], track[0], feas[0])

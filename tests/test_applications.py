@@ -226,6 +226,16 @@ def test_simulate_intercept_per_row_scan_clocks_equal_one_row_at_a_time():
         assert np.array_equal(rb.interceptor_xy_m, r.interceptor_xy_m[b])
     with pytest.raises(ValueError, match="times_s"):
         ap.simulate_intercept(truth, noisy, times[..., None], start, 400.0, 50.0)
+    # rows of different lengths padded to one K: each equals its unpadded self
+    n = np.array([40, 2, 17, 33, 40, 9])
+    rp = ap.simulate_intercept(truth, noisy, times, start, 400.0, 50.0, n_looks=n)
+    for b in range(6):
+        rb = ap.simulate_intercept(truth[b, :n[b]], noisy[b, :n[b]], times[b, :n[b]], start[b], 400.0, 50.0)
+        assert rb.miss_distance_m == rp.miss_distance_m[b] and rb.capture_time_s == rp.capture_time_s[b]
+        assert np.array_equal(rb.interceptor_xy_m, rp.interceptor_xy_m[b, :n[b]])
+        assert np.array_equal(rb.feasible, rp.feasible[b, :n[b] - 1]) and not rp.feasible[b, n[b] - 1:].any()
+    with pytest.raises(ValueError, match="n_looks"):
+        ap.simulate_intercept(truth, noisy, times, start, 400.0, 50.0, n_looks=np.full(6, 1))
 
 
 def test_simulate_intercept_noisy_track_misses_more():
