@@ -86,8 +86,10 @@ track start on 100 ``random`` episodes drawn from ``agents.suites.TUNING_SEEDS.s
 three digits. Result: 78.4 m against 81.6 m for the tuned ``imm2`` on the same episodes (0.961x); without the third
 mode the best was 79.1 m (0.969x), so the third mode is on by default. The criterion is flat in
 ``sigma_omega_deg_s15`` (0.2 to 0.005 changed it by < 0.4 m) and in ``q_cv_g`` below 1e-3 g; ``q_high_g`` went to
-~30 g (a restart with the bound at 100 g stayed at 31.6 g, same RMSE). ``baselines/tuned.json``'s ``imm_cv_ct``
-entry, when present (the continuous tuner of :mod:`baselines.tuning`), replaces them (:func:`tuned_imm_cv_ct_spec`).
+~30 g (a restart with the bound at 100 g stayed at 31.6 g, same RMSE); those numbers are from the episode stream
+of the previous version. ``baselines/tuned.json``'s ``imm_cv_ct`` entry (the continuous tuner of
+:mod:`baselines.tuning`, 200 tuning episodes of the current stream: 80.22 m against imm2's 82.11 m) replaces them
+(:func:`tuned_imm_cv_ct_spec`); it is what ``imm_cv_ct`` runs with.
 
 Implementation: the whole per-look loop of every row is one numba kernel (``prange`` over rows); the track start
 is the common one (two-hit start and warm-up through :class:`radar_env.tracking.Tracker`), the looks are read from

@@ -183,11 +183,13 @@ def _bundled_policy_ratios(scenario, runs, baselines):
 
 @pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
 def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
-    """A real check of the bundled policy on 40 held-out random runs (evaluation seeds, fixed): its pooled position
-    RMSE is below the tuned constant-q KF's and the tuned IMM's, each with a paired 95 % interval below 1."""
-    (r_kf, ci_kf), (r_imm, ci_imm) = _bundled_policy_ratios("random", 40, ("kf_tuned", "imm2"))
-    assert r_kf < 1.0 and ci_kf[1] < 1.0, (r_kf, ci_kf)
-    assert r_imm < 1.0 and ci_imm[1] < 1.0, (r_imm, ci_imm)
+    """A real check of the bundled policy on 200 held-out random runs (evaluation seeds, fixed): its pooled position
+    RMSE is below the tuned constant-q KF's, the tuned IMM's and the CV / CT-EKF IMM's (the strongest classical
+    tracker on ``random``), each with a paired 95 % interval below 1. (40 runs were too few for the IMM margin
+    after the episode stream changed: 0.977 [0.937, 1.024]; the pooled RMSE over runs is heavy-tailed.)"""
+    res = _bundled_policy_ratios("random", 200, ("kf_tuned", "imm2", "imm_cv_ct"))
+    for name, (r, ci) in zip(("kf_tuned", "imm2", "imm_cv_ct"), res):
+        assert r < 1.0 and ci[1] < 1.0, (name, r, ci)
 
 
 @pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
