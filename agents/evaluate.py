@@ -4,9 +4,10 @@
 seeds, see :mod:`agents.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
 writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.metrics`).
 
-Defaults: the bundled learned policy if one exists (``agents/bundled/``), the tuned 2-mode IMM (``imm2``), Bizup's
-IMM, the tuned constant-q KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios
-and the papers' named scenarios).
+Defaults: the bundled learned policy if one exists (``agents/bundled/``), the tuned 2-mode IMM (``imm2``), the tuned
+CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
+KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
+scenarios).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from .suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_
 
 __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLICY"]
 
-DEFAULT_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "encounters": 100}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
 the ADS-B suite flies each of its 24 flights once); others: 50 (``adsb:<flight>``: 10)."""
