@@ -148,13 +148,13 @@ def _process_noise(dt, q, Q):
 
 
 @njit(cache=True)
-def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
-    """x- = F x (+ u), P- = sym(F P F^T + Q); FP (4,4) scratch. xo/Po may not alias x/P."""
+def _propagate(x, P, F, xo, FPF, FP):
+    """xo = F x, FPF = F P F^T (not symmetrised); FP (4,4) scratch. xo/FPF may not alias x/P."""
     for i in range(4):
         acc = 0.0
         for j in range(4):
             acc += F[i, j] * x[j]
-        xo[i] = acc + u[i] if has_u else acc
+        xo[i] = acc
     for i in range(4):
         for j in range(4):
             acc = 0.0
@@ -166,7 +166,18 @@ def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
             acc = 0.0
             for m in range(4):
                 acc += FP[i, m] * F[j, m]
-            Po[i, j] = acc + Q[i, j]
+            FPF[i, j] = acc
+
+
+@njit(cache=True)
+def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
+    """x- = F x (+ u), P- = sym(F P F^T + Q); FP (4,4) scratch. xo/Po may not alias x/P."""
+    _propagate(x, P, F, xo, Po, FP)
+    for i in range(4):
+        if has_u:
+            xo[i] += u[i]
+        for j in range(4):
+            Po[i, j] += Q[i, j]
     for i in range(4):
         for j in range(i + 1, 4):
             v = 0.5 * (Po[i, j] + Po[j, i])
@@ -436,23 +447,7 @@ def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, 
     if not det:
         return
     _transition(dt, 0.0, False, F)
-    for i in range(4):
-        acc = 0.0
-        for j in range(4):
-            acc += F[i, j] * x[j]
-        xh[i] = acc
-    for i in range(4):
-        for j in range(4):
-            acc = 0.0
-            for m in range(4):
-                acc += F[i, m] * P[m, j]
-            FP[i, j] = acc
-    for i in range(4):
-        for j in range(4):
-            acc = 0.0
-            for m in range(4):
-                acc += FP[i, m] * F[j, m]
-            FPF[i, j] = acc
+    _propagate(x, P, F, xh, FPF, FP)
     s00 = FPF[0, 0] + R[0, 0]
     s01 = FPF[0, 1] + R[0, 1]
     s10 = FPF[1, 0] + R[1, 0]
