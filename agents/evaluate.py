@@ -25,7 +25,7 @@ import numpy as np
 from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, run_tracker, tracker_names
 from baselines.user_trackers import import_tracker_module
 from baselines.trackers import TrackRun, run_q_policy
-from radar_env.catalog import SCENARIO_NAMES
+from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
@@ -39,9 +39,10 @@ from .suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_
 __all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLICY"]
 
 DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "encounters": 100}
+DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "adsb_dev": 12,
+                "adsb_heldout": 12, "encounters": 100, **{f: 200 for f in FAMILIES}}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
-the ADS-B suite flies each of its 24 flights once); others: 50 (``adsb:<flight>``: 10)."""
+the ADS-B suites fly each of their flights once; the held-out families 200); others: 50 (``adsb:<flight>``: 10)."""
 
 
 # ------------------------------------------------------------------------------------------------ policies
@@ -377,7 +378,7 @@ def build_parser(prog="radar-track evaluate"):
                                  "measurement streams (common random numbers).")
     ap.add_argument("--scenario", action="append", metavar="NAME",
                     help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)}, encounters (conflict warnings), "
-                         "adsb_calibration or adsb:<flight> "
+                         "adsb_calibration, adsb_dev, adsb_heldout or adsb:<flight> "
                          f"(default: {', '.join(DEFAULT_SUITES)})")
     ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
                     help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (repeatable); its suite is "
@@ -390,8 +391,9 @@ def build_parser(prog="radar-track evaluate"):
                     help="--trajectory suites: range annulus (km) of the per-run ATC radar placement: the site is "
                          "drawn LO-HI km from the start, keeping the flight in range longest (default "
                          f"{DEFAULT_RADAR_RANGE_M[0] / 1e3:g},{DEFAULT_RADAR_RANGE_M[1] / 1e3:g})")
-    ap.add_argument("--runs", type=int, help="Monte Carlo runs per suite (default: 200 random, 10 adrian_flower, "
-                                             "100 encounter pairs, 24 adsb_calibration (each flight once), 10 "
+    ap.add_argument("--runs", type=int, help="Monte Carlo runs per suite (default: 200 random and each held-out "
+                                             "family, 10 adrian_flower, 100 encounter pairs, 24 adsb_calibration "
+                                             "and 12 adsb_dev / adsb_heldout (each flight once), 10 "
                                              "adsb:<flight>, 50 otherwise)")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
                     help=f"base seed of the runs, >= 0 (default {EVAL_SEED_BASE}: held out from training and tuning)")

@@ -26,20 +26,25 @@ from pathlib import Path
 import numpy as np
 
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_SEEDS, TUNING_SEEDS, suite_rng
-from radar_env.catalog import SCENARIO_NAMES
+from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.draws import draw_episodes
 from radar_env.env import draw_setup_and_episode, resolve_scenario
 from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
-__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
+__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "HELDOUT_FAMILY_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
            "suite_rng", "suite_key", "trajectory_suite_names"]
 
 # TRAIN_SEEDS, TUNING_SEEDS, EVAL_SEED_BASE and suite_rng live in baselines.seeds (the tuning draws from them and
 # baselines never import agents); re-exported here, where the seed plan is documented.
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
-EXTRA_SUITES = ("encounters", "adsb_calibration")
-"""Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights."""
+EXTRA_SUITES = ("encounters", "adsb_calibration", "adsb_dev", "adsb_heldout")
+"""Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights
+(all, and the two halves of :data:`radar_env.adsb_scenarios.ADSB_SPLIT`)."""
+
+HELDOUT_FAMILY_SUITES = tuple(FAMILIES) + ("adsb_heldout",)
+"""The held-out families of issue 20 (:data:`radar_env.catalog.FAMILIES` and the held-out half of the real
+flights): evaluated with held-out seeds only, never used for training, tuning or choosing a policy."""
 
 
 DEFAULT_RADAR_RANGE_M = RADAR_PLACEMENT_RANGE_M
@@ -104,7 +109,7 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
         lo, hi = _check_range_m(radar_range_m)
         radar_range_m = (lo, hi)
     rr = radar_range_m or DEFAULT_RADAR_RANGE_M
-    if hasattr(resolved, "setup"):   # a pool (adsb_calibration): run i flies member i mod n, every member once
+    if hasattr(resolved, "setup"):   # a pool (adsb_*): run i flies member i mod n, every member once
         return [draw_setup_and_episode(resolved.setup(i), radar, None, suite_rng(key, seed + i))
                 for i in range(int(runs))]
     # all runs in one batched draw; run i's episode comes from its own generator only, as a draw alone would

@@ -16,6 +16,20 @@
 ``seed002_two_radars``     seed 002's two-radar case: two sites 60 km apart with scan periods 5 s and 4 s
 =========================  ==========================================================================================
 
+Held-out families (:data:`FAMILIES`): random flights of one kind, seen by the ATC radar of ``random`` and drawn by
+:func:`radar_env.scenario.random_scenario` with the family's :class:`RandomScenarioConfig` (default values
+otherwise). They are evaluation suites: each has its own random stream (suite key = its name), and no training,
+tuning or selection run uses them (training may cover such flights through its own ``random_config``).
+
+=========================  ==========================================================================================
+``start_maneuver``         the first maneuver (a 2-7 g turn of 30-270 deg) begins 5-45 s after the first look, i.e.
+                           during the track start (two hits + 12 warm-up looks = 70 s at T = 5 s); turns only
+``short_tracks``           flights cut at 190 s: 24-39 looks at T = 5 s; first leg 20-120 s, legs 20-90 s
+``sharp_turns``            350-600 kt, every turn 6-9 g (turn rate up to 30 deg/s)
+``slow_orbits``            100-180 kt, turns of 360-720 deg at 0.3-1 g, no speed changes
+``speed_changes``          every maneuver a pure speed change at 0.1-1 g, no turns
+=========================  ==========================================================================================
+
 Choices the papers leave open (start position and heading, turn directions, the seed-002 numbers, which the
 paper does not give) are stated in each factory's docstring.
 """
@@ -31,7 +45,7 @@ from .radar import Radar, RadarSite, atc_radar, bizup_radar
 from .scenario import RandomScenarioConfig, ScenarioBuilder, Segment, SegmentScenario, random_scenario
 from .units import DEG, G0_M_S2, KNOT_M_S, NM_M
 
-__all__ = ["Setup", "SCENARIO_NAMES", "make_setup", "random_radar", "RANDOM_RADAR_RANGES"]
+__all__ = ["Setup", "SCENARIO_NAMES", "FAMILIES", "family_config", "make_setup", "random_radar", "RANDOM_RADAR_RANGES"]
 
 
 @dataclass(frozen=True)
@@ -145,9 +159,32 @@ def random_radar(rng, site_xy_m):
     return Radar(tuple(sites))
 
 
+FAMILIES = {
+    "start_maneuver": dict(first_leg_min_s=0.0, first_leg_s=(5.0, 45.0), turn_accel_g=(2.0, 7.0),
+                           turn_heading_change_deg=(30.0, 270.0), speed_change_probability=0.0),
+    "short_tracks": dict(max_duration_s=190.0, first_leg_min_s=0.0, first_leg_s=(20.0, 120.0),
+                         leg_duration_s=(20.0, 90.0)),
+    "sharp_turns": dict(speed_kt=(350.0, 600.0), turn_accel_g=(6.0, 9.0), max_turn_rate_deg_s=30.0),
+    "slow_orbits": dict(speed_kt=(100.0, 180.0), turn_accel_g=(0.3, 1.0), turn_heading_change_deg=(360.0, 720.0),
+                        n_legs=(2, 4), speed_change_probability=0.0),
+    "speed_changes": dict(speed_change_probability=1.0, turn_probability=0.0, speed_change_accel_g=(0.1, 1.0)),
+}
+"""Held-out family suites: name -> the :class:`RandomScenarioConfig` arguments of its flights (module docstring)."""
+
+
+def family_config(name):
+    """The :class:`RandomScenarioConfig` of family ``name`` (a key of :data:`FAMILIES`)."""
+    return _family_config(name)
+
+
+@lru_cache(maxsize=None)
+def _family_config(name):
+    return RandomScenarioConfig(**FAMILIES[name])
+
+
 _NAMED = {f.__name__: f for f in (bizup2002, adrian_flower, kim_lee_accel, seed002_course_changes,
                                    seed002_two_radars)}
-SCENARIO_NAMES = ("random", "random_radars") + tuple(_NAMED)
+SCENARIO_NAMES = ("random", "random_radars") + tuple(_NAMED) + tuple(FAMILIES)
 
 
 @lru_cache(maxsize=None)
@@ -161,8 +198,9 @@ def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None
 
     Args:
         name: one of ``SCENARIO_NAMES``.
-        rng: numpy Generator, required for ``random`` (named scenarios are deterministic).
-        random_config: :class:`RandomScenarioConfig` for ``random``.
+        rng: numpy Generator, required for ``random``, ``random_radars`` and the families (named scenarios are
+            deterministic).
+        random_config: :class:`RandomScenarioConfig` for ``random`` / ``random_radars`` (a family has its own).
         radar: overrides the radar (for ``random`` its first site is moved to the drawn position).
     """
     if name in ("random", "random_radars"):
@@ -175,6 +213,11 @@ def make_setup(name, rng=None, random_config: RandomScenarioConfig | None = None
             return Setup(sc, atc_radar(position_m=tuple(site)))
         p = (random_config or RandomScenarioConfig()).random_radar_probability
         return Setup(sc, random_radar(rng, site) if rng.uniform() < p else atc_radar(position_m=tuple(site)))
+    if name in FAMILIES:
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"scenario {name!r} needs rng, a numpy.random.Generator")
+        sc, site = random_scenario(rng, family_config(name), name=name)
+        return Setup(sc, (radar.moved_to(site) if radar is not None else atc_radar(position_m=tuple(site))))
     if name not in _NAMED:
         raise ValueError(f"unknown scenario {name!r}; valid names: {list(SCENARIO_NAMES)}")
     s = _named_setup(name)

@@ -106,12 +106,12 @@ def resolve_scenario(scenario):
     if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")):
         return TrajectoryScenario.from_csv(scenario)
     if isinstance(scenario, str):
-        if scenario.startswith("adsb:") or scenario == "adsb_calibration":
+        if scenario.startswith("adsb:") or scenario in ("adsb_calibration", "adsb_dev", "adsb_heldout"):
             from .adsb_scenarios import resolve_adsb
             return resolve_adsb(scenario)
         if scenario not in SCENARIO_NAMES:
             raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, "
-                             "'adsb_calibration', 'adsb:<flight>', a "
+                             "'adsb_calibration', 'adsb_dev', 'adsb_heldout', 'adsb:<flight>', a "
                              "'.csv' trajectory file (columns t_s,x_m,y_m,vx_m_s,vy_m_s), a Setup or a scenario "
                              "object")
         return scenario

@@ -47,7 +47,7 @@ from functools import lru_cache
 import numba
 import numpy as np
 
-from .catalog import RANDOM_RADAR_RANGES, Setup, make_setup
+from .catalog import FAMILIES, RANDOM_RADAR_RANGES, Setup, family_config, make_setup
 from .episode import EpisodeBatch
 from .radar import Radar, atc_radar, scan_schedule
 from .scenario import (RADAR_PLACEMENT_RANGE_M, RandomScenarioConfig, Segment, SegmentScenario,
@@ -208,7 +208,8 @@ def _draw_segments(key, c, cf, x0, seg):
     c += 1
     n = 0
     for i in range(n_legs):
-        leg = cf[4] + (cf[5] - cf[4]) * _u01(key, c)
+        lo, hi = (cf[20], cf[21]) if i == 0 else (cf[4], cf[5])
+        leg = lo + (hi - lo) * _u01(key, c)
         c += 1
         seg[n, 0], seg[n, 1], seg[n, 2] = (max(leg, cf[6]) if i == 0 else leg), 0.0, 0.0
         n += 1
@@ -222,14 +223,19 @@ def _draw_segments(key, c, cf, x0, seg):
         if _u01(key, c + 5) >= 0.5:
             dh = -dh
         c += 6
+        turn = True
+        if cf[22] < 1.0:   # the turn's own draw only when turns can be skipped (the default keeps its stream)
+            turn = _u01(key, c) < cf[22]
+            c += 1
         if change and abs(new_speed - speed) > 1e-6:
             seg[n, 0] = abs(new_speed - speed) / acc
             seg[n, 1], seg[n, 2] = 0.0, math.copysign(acc, new_speed - speed)
             n += 1
             speed = new_speed
-        w = min(g * G0_M_S2 / speed, cf[14])
-        seg[n, 0], seg[n, 1], seg[n, 2] = abs(dh) / w, math.copysign(w, dh), 0.0
-        n += 1
+        if turn:
+            w = min(g * G0_M_S2 / speed, cf[14])
+            seg[n, 0], seg[n, 1], seg[n, 2] = abs(dh) / w, math.copysign(w, dh), 0.0
+            n += 1
     return n, c
 
 
@@ -447,6 +453,7 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
                 dur = _segment_starts(x0[b], segs[b], ns, starts, t0)
                 sx, sy, until, c = _place_on_flight(key, c, int(cf[17]), cf[15], cf[16], segs[b], ns, starts, t0,
                                                     dur, cand)
+                until = min(until, cf[23])   # max_duration_s
                 if until >= cf[18]:
                     if until < dur:   # scenario._truncate: segments starting before the exit, the last one cut
                         m = 0
@@ -580,7 +587,8 @@ def _config_vector(cfg: RandomScenarioConfig, random_radars_p):
          cfg.turn_heading_change_deg[0] * DEG, cfg.turn_heading_change_deg[1] * DEG, cfg.speed_change_probability,
          cfg.speed_change_accel_g[0] * G0_M_S2, cfg.speed_change_accel_g[1] * G0_M_S2,
          cfg.max_turn_rate_deg_s * DEG, cfg.range_km[0] * 1e3, cfg.range_km[1] * 1e3, cfg.site_candidates,
-         cfg.min_duration_s, random_radars_p]
+         cfg.min_duration_s, random_radars_p, cfg.first_leg_range_s[0], cfg.first_leg_range_s[1],
+         cfg.turn_probability, cfg.max_duration_s]
     return np.array(v, dtype=np.float64)
 
 
@@ -645,19 +653,20 @@ def _draw_random(name, keys, cfg, radar, warmup_scans, max_draws):
         raise _too_few_draws(name, warmup_scans, max_draws)
     out = _empty_out(keys.size, int(K.max()))
     _fill_random(keys, x0, segs, nseg, sites, nsites, K, cdet, int(K.max()), out)
-    return _batch(["random"] * keys.size, out, K)
+    return _batch([name if name in FAMILIES else "random"] * keys.size, out, K)
 
 
 def random_scenarios(name, rngs, random_config=None, radar=None, warmup_scans=12, max_draws=MAX_EPISODE_DRAWS):
     """The flights (as :class:`SegmentScenario`) and radars :func:`draw_episodes` draws for these generators
     (each generator advanced as :func:`draw_episodes` would). For tests and inspection."""
-    cfg = random_config or _DEFAULT_CONFIG
+    cfg = random_config or (family_config(name) if name in FAMILIES else _DEFAULT_CONFIG)
     keys = _keys(rngs)
     x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(name, keys, cfg, radar, warmup_scans,
                                                                         max_draws)
     out = []
     for b in range(keys.size):
-        sc = SegmentScenario(x0[b], [Segment(*s) for s in segs[b, :nseg[b]]], name="random")
+        sc = SegmentScenario(x0[b], [Segment(*s) for s in segs[b, :nseg[b]]],
+                             name=name if name in FAMILIES else "random")
         out.append((sc, sites[b, :nsites[b]].copy(), int(K[b]), int(status[b])))
     return out
 
@@ -752,6 +761,11 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
     if isinstance(scenario, str) and scenario in ("random", "random_radars"):
         cfg = random_config or _DEFAULT_CONFIG
         return _draw_random(scenario, _keys(rngs), cfg, radar, warmup_scans, max_draws)
+    if isinstance(scenario, str) and scenario in FAMILIES:   # random flights of one kind, ATC radar
+        if random_config is not None:
+            raise ValueError(f"random_config applies to 'random' and 'random_radars'; scenario {scenario!r} is a "
+                             "held-out family with its own (radar_env.catalog.FAMILIES)")
+        return _draw_random(scenario, _keys(rngs), family_config(scenario), radar, warmup_scans, max_draws)
     if isinstance(scenario, str):
         scenario = make_setup(scenario)
     if hasattr(scenario, "draw_setup"):

@@ -549,7 +549,14 @@ class RandomScenarioConfig:
         n_legs: number of straight legs, integers inclusive. Default (3, 6); legs are joined by maneuvers.
         leg_duration_s: straight-leg length. Default (30, 300).
         first_leg_min_s: the first leg lasts at least this long, so that the track start (two hits and 12 warm-up
-            looks, 70 s at T = 5 s) happens on a straight leg as in Bizup's comparison. Default 90.
+            looks, 70 s at T = 5 s) happens on a straight leg as in Bizup's comparison. Default 90; 0 lets a maneuver
+            begin during the track start.
+        first_leg_s: the first leg's length range (then at least ``first_leg_min_s``), or None (default): drawn
+            from ``leg_duration_s`` like the other legs. E.g. ``(1, 40)`` with ``first_leg_min_s=0``: the first
+            maneuver begins during the track start (the ``start_maneuver`` family).
+        turn_probability: probability that a maneuver includes a turn (after its speed change, if any). Default 1;
+            with ``speed_change_probability=1`` and 0 every maneuver is a pure speed change. A maneuver with
+            neither is no maneuver (its legs join).
         turn_accel_g: lateral acceleration of a turn, g. Default (0.5, 7).
         max_turn_rate_deg_s: turn rate cap (a 7 g turn at 100 kt would be 77 deg/s); turns above it are flown at
             the cap. Default 20.
@@ -560,7 +567,9 @@ class RandomScenarioConfig:
         range_km: allowed range from the radar over the whole flight, km. Default (10, 150).
         site_candidates: number of candidate radar positions tried; the one that keeps the flight in range the
             longest is chosen and the scenario is cut at its first exit. Default 64.
-        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120. (The env also
+        min_duration_s: a draw whose in-range part is shorter than this is redrawn. Default 120.
+        max_duration_s: the flight is cut after this long (s). Default 1e6 (no cut); e.g. 190 s gives tracks of
+            under 40 looks at T = 5 s (the ``short_tracks`` family). (The env also
             redraws an episode with fewer looks than its track start needs, e.g. a short flight seen by a slow
             radar: :func:`radar_env.env.draw_setup_and_episode`.)
 
@@ -575,6 +584,8 @@ class RandomScenarioConfig:
     n_legs: tuple = _range_field(3, 6)
     leg_duration_s: tuple = _range_field(30.0, 300.0)
     first_leg_min_s: float = 90.0
+    first_leg_s: object = None
+    turn_probability: float = 1.0
     turn_accel_g: tuple = _range_field(0.5, 7.0)
     max_turn_rate_deg_s: float = 20.0
     turn_heading_change_deg: tuple = _range_field(10.0, 270.0)
@@ -583,6 +594,7 @@ class RandomScenarioConfig:
     range_km: tuple = _range_field(10.0, 150.0)
     site_candidates: int = 64
     min_duration_s: float = 120.0
+    max_duration_s: float = 1e6
     random_radar_probability: float = 1.0
 
     _PAIRS = {
@@ -594,6 +606,7 @@ class RandomScenarioConfig:
         "max_turn_rate_deg_s": (0.0, 180.0, True, False), "speed_change_probability": (0.0, 1.0, False, False),
         "site_candidates": (1, 100000, False, True), "min_duration_s": (1.0, 1e5, False, False),
         "first_leg_min_s": (0.0, 1e5, False, False), "random_radar_probability": (0.0, 1.0, False, False),
+        "turn_probability": (0.0, 1.0, False, False), "max_duration_s": (1.0, 1e6, False, False),
     }
 
     def __post_init__(self):
@@ -606,6 +619,17 @@ class RandomScenarioConfig:
             v = check_number(f"RandomScenarioConfig.{name}", getattr(self, name), lo, hi, lo_open=lo_open,
                              integer=integer)
             object.__setattr__(self, name, v)
+        if self.first_leg_s is not None:
+            v = check_pair("RandomScenarioConfig.first_leg_s", self.first_leg_s, 1.0, 3600.0)
+            object.__setattr__(self, "first_leg_s", v)
+        if self.max_duration_s < self.min_duration_s:
+            raise ValueError(f"RandomScenarioConfig.max_duration_s must be >= min_duration_s ({self.min_duration_s} "
+                             f"s), got {self.max_duration_s!r}")
+
+    @property
+    def first_leg_range_s(self):
+        """``(low, high)`` of the first leg's draw (``first_leg_s`` or ``leg_duration_s``)."""
+        return self.leg_duration_s if self.first_leg_s is None else self.first_leg_s
 
     @classmethod
     def from_dict(cls, d):
@@ -622,7 +646,7 @@ def _draw_segments(rng, cfg, speed):
     n_legs = int(rng.integers(int(cfg.n_legs[0]), int(cfg.n_legs[1]) + 1))
     lo_v, hi_v = (v * KNOT_M_S for v in cfg.speed_kt)
     for i in range(n_legs):
-        leg = rng.uniform(*cfg.leg_duration_s)
+        leg = rng.uniform(*(cfg.first_leg_range_s if i == 0 else cfg.leg_duration_s))
         segs.append(Segment(max(leg, cfg.first_leg_min_s) if i == 0 else leg))
         if i == n_legs - 1:
             break
@@ -631,11 +655,14 @@ def _draw_segments(rng, cfg, speed):
         accel = rng.uniform(*cfg.speed_change_accel_g) * G0_M_S2
         g = rng.uniform(*cfg.turn_accel_g)
         dh = rng.uniform(*cfg.turn_heading_change_deg) * DEG * (1.0 if rng.uniform() < 0.5 else -1.0)
+        # the turn's own draw only when turns can be skipped: the default configuration keeps its stream
+        turn = cfg.turn_probability >= 1.0 or rng.uniform() < cfg.turn_probability
         if change and abs(new_speed - speed) > 1e-6:
             segs.append(Segment(abs(new_speed - speed) / accel, accel_m_s2=math.copysign(accel, new_speed - speed)))
             speed = new_speed
-        w = min(g * G0_M_S2 / speed, cfg.max_turn_rate_deg_s * DEG)
-        segs.append(Segment(abs(dh) / w, turn_rate_rad_s=math.copysign(w, dh)))
+        if turn:
+            w = min(g * G0_M_S2 / speed, cfg.max_turn_rate_deg_s * DEG)
+            segs.append(Segment(abs(dh) / w, turn_rate_rad_s=math.copysign(w, dh)))
     return segs
 
 
@@ -684,7 +711,7 @@ def place_radar_site(rng, scenario, range_m=RADAR_PLACEMENT_RANGE_M, n_candidate
     return sites[best], until
 
 
-def random_scenario(rng, config=None, max_tries=50):
+def random_scenario(rng, config=None, max_tries=50, name="random"):
     """Draw a random scenario and a radar site for it.
 
     Fixed draw order: initial speed, heading, segments (see :class:`RandomScenarioConfig`), then the radar site.
@@ -701,8 +728,9 @@ def random_scenario(rng, config=None, max_tries=50):
         heading = rng.uniform(0.0, 2 * np.pi)
         segs = _draw_segments(rng, cfg, speed)
         x0 = np.array([0.0, 0.0, speed * math.sin(heading), speed * math.cos(heading)])
-        sc = SegmentScenario(x0, segs, name="random")
+        sc = SegmentScenario(x0, segs, name=name)
         site, until = place_radar_site(rng, sc, tuple(v * 1e3 for v in cfg.range_km), int(cfg.site_candidates))
+        until = min(until, cfg.max_duration_s)
         if until >= cfg.min_duration_s:
             if until < sc.duration_s:
                 sc = _truncate(sc, until)

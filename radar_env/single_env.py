@@ -116,7 +116,9 @@ class RadarTrackEnv(gym.Env):
     * ``scenario``: ``"random"`` (default), ``"random_radars"`` (the same flights seen by a random radar: 1-12 s
       scan period, noise, detection probability, sometimes a second site), a name from
       ``radar_env.catalog.SCENARIO_NAMES`` (``bizup2002``,
-      ``adrian_flower``, ``kim_lee_accel``, ``seed002_course_changes``, ``seed002_two_radars``), a path to a
+      ``adrian_flower``, ``kim_lee_accel``, ``seed002_course_changes``, ``seed002_two_radars``; the held-out
+      families ``start_maneuver``, ``short_tracks``, ``sharp_turns``, ``slow_orbits``, ``speed_changes``, which take
+      no ``random_config``), ``adsb_calibration`` / ``adsb_dev`` / ``adsb_heldout`` / ``adsb:<flight>``, a path to a
       ``.csv`` trajectory (``t_s,x_m,y_m,vx_m_s,vy_m_s``), a ``Setup`` or a scenario object. ``reset(options=
       {"scenario": ...})`` overrides it for that reset only.
     * ``radar``: a ``radar_env.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
