@@ -80,11 +80,11 @@ def load_policy(path):
         raise ValueError(f"{cfg_file}: {e}") from None
     where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"
     n_obs = int(np.prod(model.observation_space.shape))
-    if n_obs != len(cfg.features):
+    if n_obs != len(cfg.features) * cfg.frame_stack:
         raise ValueError(f"{path}: the model takes {n_obs} observation entries but the env config from {where} has "
-                         f"{len(cfg.features)} features; it was trained with other env kwargs: it needs 'features' "
-                         f"(a list of the {n_obs} feature names it was trained with, e.g. from its run's "
-                         f"env_config.json) in {cfg_file}")
+                         f"{len(cfg.features)} features x frame_stack {cfg.frame_stack}; it was trained with other "
+                         f"env kwargs: it needs 'features' (the feature names it was trained with) and "
+                         f"'frame_stack', e.g. from its run's env_config.json, in {cfg_file}")
     if discrete != (cfg.action_type == "discrete"):
         raise ValueError(f"{path}: the model has {model.action_space} actions but the env config from {where} has "
                          f"action_type={cfg.action_type!r}; it needs action_type="

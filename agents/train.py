@@ -188,6 +188,34 @@ def _check_hp(algo, cls, hp):
     return {k: v for k, v in hp.items() if k not in _SPECIAL}
 
 
+def _stack_factor(src_space, new_space):
+    """k if ``new_space`` is ``src_space`` stacked k times (``frame_stack``: newest frame first), else None."""
+    lo, hi = np.asarray(src_space.low).ravel(), np.asarray(src_space.high).ravel()
+    nlo, nhi = np.asarray(new_space.low).ravel(), np.asarray(new_space.high).ravel()
+    if lo.size == 0 or nlo.size % lo.size:
+        return None
+    k = nlo.size // lo.size
+    same = np.array_equal(np.tile(lo, k), nlo) and np.array_equal(np.tile(hi, k), nhi)
+    return k if same else None
+
+
+def _expanded_state(src, new, k):
+    """``src``'s weights for a network whose input is ``k`` stacked frames of ``src``'s input: every first-layer
+    weight (the tensors whose last axis is the observation) gets zeros for the older frames, so the fine-tuned
+    network starts as exactly the source policy and learns from there what the history adds."""
+    if k == 1:
+        return src
+    out = {}
+    for name, w in src.items():
+        if name in new and new[name].shape != w.shape and w.ndim == 2 and new[name].shape[1] == k * w.shape[1]:
+            e = new[name].clone().zero_()
+            e[:, :w.shape[1]] = w
+            out[name] = e
+        else:
+            out[name] = w
+    return out
+
+
 def _load_init_from(cls, algo, path):
     """The saved model to fine-tune from; ``ValueError`` naming ``--hp init_from`` if it is missing, not a model,
     or a model of another algorithm."""
@@ -288,12 +316,14 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     except (TypeError, ValueError, AssertionError, KeyError) as e:
         raise ValueError(f"--hp: {cls.__name__} rejects the hyperparameters ({type(e).__name__}: {e})") from None
     if src is not None:    # fine-tuning: start from a saved model's weights (same network and spaces)
-        if src.observation_space != model.observation_space or src.action_space != model.action_space:
+        k = _stack_factor(src.observation_space, model.observation_space)
+        if k is None or src.action_space != model.action_space:
             raise ValueError(f"--hp init_from {hp['init_from']!r}: its spaces {src.observation_space}, "
                              f"{src.action_space} differ from this env's {model.observation_space}, "
-                             f"{model.action_space}")
+                             f"{model.action_space} (the observation may only differ by frame_stack: the "
+                             "source's observation stacked k times)")
         try:
-            model.policy.load_state_dict(src.policy.state_dict())
+            model.policy.load_state_dict(_expanded_state(src.policy.state_dict(), model.policy.state_dict(), k))
         except RuntimeError as e:
             raise ValueError(f"--hp init_from {hp['init_from']!r}: network does not match policy_kwargs "
                              f"({str(e).splitlines()[0]})") from None

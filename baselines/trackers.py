@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
-from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, ObservationLayout
+from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
 from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
 from radar_env.validate import check_number, check_probabilities
@@ -111,8 +111,9 @@ def observation_layout(cfg=None):
 def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
     """Run the tracking chain with ``q = choose_q(obs_rows)`` (m/s^2) each look.
 
-    ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does; the
-    defaults without ``cfg``), so a learned policy sees here what it saw in training. ``declare(obs_rows) -> bool``
+    ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does, and
+    ``cfg.frame_stack`` of them stacked newest first, (n, k F); the defaults without ``cfg``), so a learned policy
+    sees here what it saw in training. ``declare(obs_rows) -> bool``
     records maneuver declarations (optional). ``cfg`` also gives the track start (:func:`_start`)."""
     tr, out = _tracker(episodes, cfg)
     layout, _ = observation_layout(cfg)
@@ -122,6 +123,10 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
     q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
     obs = layout.encode(out, q_prev)
     rows0 = np.arange(B)
+    k = int(getattr(cfg, "frame_stack", 1))
+    frames = FrameStack(B, k, obs.shape[1]) if k > 1 else None   # as the env stacks them (frame_stack)
+    if frames is not None:
+        obs = frames.reset(rows0, obs)
     rec.put(rows0, out.look_index, out.x, out.P, out.q_m_s2, **_feature_extra(out))
     rec.run.start_index[:] = out.look_index + 1
 
@@ -131,7 +136,8 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
         o = tr.step(q, rows=None if rows.size == B else rows)
-        obs[rows] = layout.encode(o, q)
+        enc = layout.encode(o, q)
+        obs[rows] = enc if frames is None else frames.push(rows, enc)
         rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
         return o
 

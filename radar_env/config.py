@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .catalog import SCENARIO_NAMES, Setup
-from .observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, ObservationLayout
+from .observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
 from .radar import Radar
 from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario
 from .tracking import TrackStart
@@ -40,6 +40,7 @@ class EnvConfig:
     action_type: str = "discrete"
     q_levels_g: tuple = DEFAULT_Q_LEVELS_G
     features: tuple = DEFAULT_FEATURES
+    frame_stack: int = 1
     warmup_scans: int = 12
     warmup_q_g: float = 0.03
     reward_type: str = "squared"
@@ -73,6 +74,7 @@ class EnvConfig:
             ObservationLayout(self.features)
         except ValueError as e:   # unknown / repeated names: say which argument they came from
             raise ValueError(f"{p}features: {e}") from None
+        check_number(p + "frame_stack", self.frame_stack, 1, 64, integer=True)
         self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
         check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
@@ -91,6 +93,10 @@ class EnvConfig:
         """The track-start and feature parameters (:class:`radar_env.tracking.TrackStart`) the env and every tracker
         share."""
         return TrackStart(self.warmup_scans, self.warmup_q_g, self.n_adrian, self.window_kim_lee, self.fma_weight)
+
+    def observation_bounds(self, layout):
+        """``(low, high)`` of the observation Box: ``layout``'s bounds, tiled ``frame_stack`` times."""
+        return FrameStack.bounds(layout, self.frame_stack)
 
     @property
     def random_scenario_config(self):

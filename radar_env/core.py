@@ -13,7 +13,7 @@ import numpy as np
 
 from .config import REWARD_SCALE_M, EnvConfig, resolve_scenario
 from .draws import MAX_EPISODE_DRAWS, draw_episodes
-from .observation import ObservationLayout, measurement_sigma_m
+from .observation import FrameStack, ObservationLayout, measurement_sigma_m
 from .scenario import RADAR_PLACEMENT_RANGE_M
 from .units import G0_M_S2
 
@@ -58,6 +58,7 @@ class _Core:
         self.levels_m_s2 = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         self.q_min, self.q_max = self.levels_m_s2[0], self.levels_m_s2[-1]
         self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
+        self.frames = FrameStack(n, cfg.frame_stack, len(cfg.features)) if cfg.frame_stack > 1 else None
         self.tracker = cfg.track_start.tracker(n)
         self.q_prev = np.full(n, cfg.warmup_q_g * G0_M_S2)
         self.rngs = [None] * n
@@ -137,6 +138,8 @@ class _Core:
             out = self.tracker.load(rows, self._draw(rows, scenario))
         self.q_prev[rows] = self.cfg.warmup_q_g * G0_M_S2
         obs = self.layout.encode(out, self.q_prev[rows])
+        if self.frames is not None:
+            obs = self.frames.reset(rows, obs)
         info = self._info(out, self._reward_terms(out, np.zeros(len(rows), dtype=bool), np.zeros(len(rows))))
         return obs, info, out
 
@@ -152,6 +155,8 @@ class _Core:
         terminated = lost
         truncated = out.done & ~lost
         obs = self.layout.encode(out, q)
+        if self.frames is not None:
+            obs = self.frames.push(slice(None), obs)
         info = self._info(out, terms)
         info["track_lost"] = lost
         return obs, reward, terminated, truncated, info

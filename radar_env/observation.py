@@ -54,7 +54,7 @@ import numpy as np
 from .units import G0_M_S2
 from .validate import check_known_keys
 
-__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout",
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout", "FrameStack",
            "measurement_sigma_m"]
 
 DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
@@ -243,4 +243,37 @@ class ObservationLayout:
         if s.kind == "log10p":
             return 10.0 ** (v * s.scale) - 1.0
         return 10.0 ** (self._lq0 + (v + 1.0) * 0.5 * (self._lq1 - self._lq0))
+
+
+class FrameStack:
+    """The last ``k`` observations of every row, newest first, as one ``(n, k * F)`` float32 vector (the env's
+    ``frame_stack`` argument). At a row's first look the older frames repeat it (a zero frame would read as "every
+    feature zero", a real observation). The newest frame comes first, so ``ObservationLayout.decode`` reads the
+    current look's features from a stacked observation unchanged.
+
+    Args:
+        n_rows: rows (tracks); k: frames kept (>= 1); n_features: F, entries of one frame.
+    """
+
+    def __init__(self, n_rows, k, n_features):
+        self.k, self.F = int(k), int(n_features)
+        self.buf = np.zeros((int(n_rows), self.k, self.F), dtype=np.float32)
+
+    def reset(self, rows, obs):
+        """Rows ``rows`` start a new episode with observation ``obs`` (len(rows), F); returns their stacks."""
+        self.buf[rows] = np.asarray(obs, dtype=np.float32)[:, None, :]
+        return self.buf[rows].reshape(-1, self.k * self.F).copy()
+
+    def push(self, rows, obs):
+        """Rows ``rows`` move one look on with observation ``obs``; returns their stacks (len(rows), k F)."""
+        b = self.buf[rows]          # a copy for an index array, a view for a slice
+        b[:, 1:] = b[:, :-1].copy()
+        b[:, 0] = obs
+        self.buf[rows] = b
+        return b.reshape(b.shape[0], self.k * self.F).copy()   # the caller's array never changes under it
+
+    @staticmethod
+    def bounds(layout, k):
+        """The Box bounds of ``k`` stacked frames of ``layout``."""
+        return np.tile(layout.low, int(k)), np.tile(layout.high, int(k))
 

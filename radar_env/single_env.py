@@ -126,6 +126,9 @@ class RadarTrackEnv(gym.Env):
     * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios (unknown keys raise).
     * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
     * ``features``: tuple of observation names (table above).
+    * ``frame_stack`` (1, in [1, 64]): the observation is the last ``frame_stack`` feature vectors, newest first
+      (``(frame_stack * F,)``; at an episode's first look the older frames repeat it); the evaluation stacks them
+      the same way for a policy trained so (its ``env_config.json``).
     * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03). A random episode with fewer looks than the track
       start needs (two hits, the warm-up, one look to act on) is redrawn from the same generator; a fixed scenario
       too short for ``warmup_scans`` is refused when the env is built.
@@ -168,7 +171,7 @@ class RadarTrackEnv(gym.Env):
         self.action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
                              else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
         lay = self._core.layout
-        self.observation_space = spaces.Box(lay.low, lay.high, dtype=np.float32)
+        self.observation_space = spaces.Box(*self.config.observation_bounds(lay), dtype=np.float32)
         self.q_levels_m_s2 = self._core.levels_m_s2.copy()
         self._needs_reset = True
 

@@ -64,7 +64,7 @@ class RadarTrackVectorEnv(VectorEnv):
         self.single_action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
                                     else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
         lay = self._core.layout
-        self.single_observation_space = spaces.Box(lay.low, lay.high, dtype=np.float32)
+        self.single_observation_space = spaces.Box(*self.config.observation_bounds(lay), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._all = np.arange(self.num_envs)
