@@ -26,7 +26,7 @@ import gymnasium as gym
 import radar_env  # noqa: F401 - registers RadarTrack-v0
 from radar_env.env import RadarTrackVectorEnv
 
-__all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env"]
+__all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env", "ship_policy"]
 
 BUNDLED_POLICY = Path(__file__).resolve().parent / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
@@ -67,3 +67,23 @@ def make_policy_env(policy_path=None, num_envs=None, **overrides):
     if num_envs is None:
         return gym.make("RadarTrack-v0", **kw)
     return RadarTrackVectorEnv(num_envs=num_envs, **kw)
+
+
+def ship_policy(policy_path, dest_dir):
+    """Copy a trained policy (its zip and the ``env_config.json`` beside it) into ``dest_dir`` for shipping, without
+    the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip acts exactly as
+    the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts the moments, as
+    it does for any saved model. Returns the new zip's path."""
+    import shutil
+
+    from stable_baselines3 import PPO
+    src = Path(policy_path)
+    dest = Path(dest_dir)
+    dest.mkdir(parents=True, exist_ok=True)
+    model = PPO.load(str(src), device="cpu")
+    opt = model.policy.optimizer
+    model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)
+    model.save(str(dest / "policy.zip"))
+    shutil.copy(src.with_name("env_config.json"), dest / "env_config.json")
+    return dest / "policy.zip"
+

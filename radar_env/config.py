@@ -27,6 +27,9 @@ RENDER_MODES = ("rgb_array", "human")
 REWARD_TYPES = ("squared", "absolute", "squared_m")
 REWARD_SCALE_M = 100.0
 """Error scale of ``reward_type="squared_m"``: the reward is ``-min((error / 100 m)^2, reward_clip)``."""
+NEES_99_2DOF = -2.0 * math.log(0.01)
+"""chi2_2(0.99) = -2 ln(0.01) = 9.21 (the 2-dof chi-square quantile in closed form): the position NEES above which
+``reward_nees_weight`` penalises a look."""
 
 
 # ---------------------------------------------------------------------------------------------------- config
@@ -45,6 +48,7 @@ class EnvConfig:
     warmup_q_g: float = 0.03
     reward_type: str = "squared"
     reward_clip: float = 100.0
+    reward_nees_weight: float = 0.0
     track_loss_gate_sigma: float = 30.0
     n_adrian: int = 4
     window_kim_lee: int = 12
@@ -78,6 +82,7 @@ class EnvConfig:
         self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
         check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
+        check_number(p + "reward_nees_weight", self.reward_nees_weight, 0.0, 1e3)
         check_number(p + "track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
         check_choice(p + "render_mode", self.render_mode, (None, *RENDER_MODES))
         if self.radar is not None and not isinstance(self.radar, Radar):

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .config import REWARD_SCALE_M, EnvConfig, resolve_scenario
+from .config import NEES_99_2DOF, REWARD_SCALE_M, EnvConfig, resolve_scenario
 from .draws import MAX_EPISODE_DRAWS, draw_episodes
 from .observation import FrameStack, ObservationLayout, measurement_sigma_m
 from .scenario import RADAR_PLACEMENT_RANGE_M
@@ -173,7 +173,14 @@ class _Core:
         if kind == "squared_m":   # metres, not sigmas: weighs looks as the pooled position RMSE does
             e = np.hypot(out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]) / REWARD_SCALE_M
         pos = -np.minimum(e if kind == "absolute" else e * e, clip)
-        return {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
+        terms = {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
+        w = self.cfg.reward_nees_weight
+        if w > 0:   # overconfidence: the position NEES beyond its 99 % bound, in units of the bound
+            d = out.x[:, :2] - out.truth[:, :2]
+            # a pivoted solve: the position block can be nearly singular (range vs cross-range at long range)
+            nees = np.einsum("ni,ni->n", d, np.linalg.solve(out.P[:, :2, :2], d[:, :, None])[:, :, 0])
+            terms["inconsistency"] = -w * np.minimum(np.maximum(nees / NEES_99_2DOF - 1.0, 0.0), clip)
+        return terms
 
     # ---- info
     def _info(self, out, terms):

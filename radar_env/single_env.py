@@ -95,7 +95,10 @@ class RadarTrackEnv(gym.Env):
     ``-min(e, reward_clip)`` (``"absolute"``), or ``-min((error / 100 m)^2, reward_clip)`` (``"squared_m"``: in
     metres, so looks weigh as in the pooled position RMSE whatever the radar's noise). When the track is lost (below), the step also gets
     ``-reward_clip * (looks remaining)``, the worst case of finishing the episode. The terms are in
-    ``info["reward_terms"]`` (``position_error``, ``track_lost``). Evaluation metrics do not use the reward.
+    ``info["reward_terms"]`` (``position_error``, ``track_lost``). With ``reward_nees_weight`` w > 0 a third term
+    ``inconsistency`` = ``-w * min(max(NEES / 9.21 - 1, 0), reward_clip)`` penalises a covariance that is too small
+    for the error (NEES of the position against its 2-dof 99 % bound 9.21). Evaluation metrics do not use the
+    reward.
 
     ## Starting State
 
@@ -132,7 +135,8 @@ class RadarTrackEnv(gym.Env):
     * ``warmup_scans`` (12, in [1, 1000]), ``warmup_q_g`` (0.03). A random episode with fewer looks than the track
       start needs (two hits, the warm-up, one look to act on) is redrawn from the same generator; a fixed scenario
       too short for ``warmup_scans`` is refused when the env is built.
-    * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``track_loss_gate_sigma`` (30).
+    * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``reward_nees_weight`` (0, in [0, 1000]),
+      ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
     * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
       ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a

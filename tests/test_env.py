@@ -554,3 +554,30 @@ def test_documented_observation_tables_match_the_feature_specs():
             assert scaling.strip() == ("x" if s.scale == 1 else f"x/{s.scale:g}"), name
     listed = re.findall(r"^``(\w+)``\s{2,}", obs_mod.__doc__, re.M)  # table rows: name, then aligned columns
     assert listed == names
+
+
+def test_inconsistency_reward_term_is_the_position_nees_beyond_its_bound():
+    """reward_nees_weight w: the term is -w * min(max(NEES / chi2_2(0.99) - 1, 0), reward_clip) of the position error against the
+    position block of P (computed here with numpy's solve); the other terms and the episode are unchanged."""
+    from scipy.stats import chi2
+    w = 0.1
+    plain, nees_env = gym.make("RadarTrack-v0"), gym.make("RadarTrack-v0", reward_nees_weight=w)
+    plain.reset(seed=8)
+    nees_env.reset(seed=8)
+    seen_positive = False
+    for a in [0] * 40 + [12] * 10:
+        _, r0, t0, tr0, i0 = plain.step(a)
+        _, r1, t1, tr1, i1 = nees_env.step(a)
+        assert (t0, tr0) == (t1, tr1)
+        d = i1["estimate"][:2] - i1["truth"][:2]
+        nees = d @ np.linalg.solve(i1["covariance"][:2, :2], d)
+        want = -w * min(max(nees / chi2.ppf(0.99, 2) - 1.0, 0.0), 100.0)   # reward_clip 100
+        assert i1["reward_terms"]["inconsistency"] == pytest.approx(want, rel=1e-9, abs=1e-12)
+        assert i1["reward_terms"]["position_error"] == i0["reward_terms"]["position_error"]
+        assert r1 == pytest.approx(r0 + want, rel=0, abs=1e-12)
+        seen_positive |= want < 0
+        if t0 or tr0:   # the track was lost (or the flight ended): the episode is over
+            break
+    assert seen_positive   # q = 0.00045 g on a maneuvering flight: the covariance is too small somewhere
+    with pytest.raises(ValueError, match="reward_nees_weight"):
+        gym.make("RadarTrack-v0", reward_nees_weight=-1.0)

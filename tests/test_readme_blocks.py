@@ -7,7 +7,9 @@ Generators called, by name: ``agents.report.headline(results, has_policy)`` and
 ``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.report.main``
 passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.paper_checks.readme_block(data)`` on
 ``docs/paper_checks.json``, and ``agents.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
-for ``adsb-flights``.
+for ``adsb-flights``, and ``agents.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
+``track_start_table`` on ``docs/generalisation.json`` for ``families``, ``seed-spread``, ``targets`` and
+``track-start``.
 """
 
 import json
@@ -53,8 +55,17 @@ def _bounds():
     return report.headline(res, _has_policy(res))
 
 
+def _generalisation(render):
+    def f():
+        from agents import generalisation
+        return getattr(generalisation, render)(json.loads((ROOT / "docs" / "generalisation.json").read_text()))
+    return f
+
+
 RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks,
-             "adsb-flights": _adsb_flights}
+             "adsb-flights": _adsb_flights, "families": _generalisation("families_table"),
+             "seed-spread": _generalisation("spread_table"), "targets": _generalisation("targets_table"),
+             "track-start": _generalisation("track_start_table")}
 
 
 def test_every_readme_block_has_a_generator():
