@@ -83,8 +83,9 @@ def load_policy(path):
     if n_obs != len(cfg.features) * cfg.frame_stack:
         raise ValueError(f"{path}: the model takes {n_obs} observation entries but the env config from {where} has "
                          f"{len(cfg.features)} features x frame_stack {cfg.frame_stack}; it was trained with other "
-                         f"env kwargs: it needs 'features' (the feature names it was trained with) and "
-                         f"'frame_stack', e.g. from its run's env_config.json, in {cfg_file}")
+                         f"env kwargs: it needs 'features' (a list of the {n_obs} feature names it was trained "
+                         f"with, or {n_obs} / k names with 'frame_stack' k), e.g. from its run's env_config.json, "
+                         f"in {cfg_file}")
     if discrete != (cfg.action_type == "discrete"):
         raise ValueError(f"{path}: the model has {model.action_space} actions but the env config from {where} has "
                          f"action_type={cfg.action_type!r}; it needs action_type="

@@ -301,8 +301,13 @@ def test_bundled_policy_chooses_the_same_q_as_with_the_numpy_chain():
     outs = [t.load(range(B), eps) for t in trs]
     q_prev = [np.full(B, cfg.warmup_q_g * G0_M_S2)] * 2
     n_looks, chosen = 0, set()
+    from radar_env.observation import FrameStack
+    stacks = [FrameStack(B, cfg.frame_stack, len(cfg.features)) for _ in trs]   # as the env stacks them
+    first = True
     while trs[0].remaining_looks().min() > 0:
         obs = [layout.encode(o, qp) for o, qp in zip(outs, q_prev)]
+        obs = [(fs.reset if first else fs.push)(np.arange(B), ob) for fs, ob in zip(stacks, obs)]
+        first = False
         np.testing.assert_allclose(obs[0], obs[1], rtol=0, atol=1e-6)
         acts = [model.predict(ob, deterministic=True)[0] for ob in obs]
         q = [levels[np.asarray(a).astype(np.int64)] for a in acts]

@@ -192,6 +192,58 @@ def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
         assert r < 1.0 and ci[1] < 1.0, (name, r, ci)
 
 
+def _bundled_policy_family_check(scenario, runs):
+    """The issue's per-suite bound on further held-out runs (seeds EVAL_SEED_BASE + 5000 + i, not the README's):
+    ratio to imm2 and its 95 % interval, ratio to the strongest classical tracker of agents.generalisation.CLASSICAL
+    on these runs, and the track-loss rates of the policy and imm2."""
+    from agents.generalisation import CLASSICAL
+    from agents.metrics import evaluate_run, ratio_ci
+    from agents.suites import EVAL_SEED_BASE, draw_suite
+    from baselines.registry import run_tracker
+    from baselines.trackers import run_q_policy
+    from radar_env.episode import stack_episodes
+    choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
+    eps = draw_suite(scenario, runs, seed=EVAL_SEED_BASE + 5000)
+    batch = stack_episodes(eps)
+    pol = run_q_policy(eps, choose_q, "policy", cfg)
+    runs_c = {t: run_tracker(t, eps) for t in CLASSICAL}
+    rmse = {t: evaluate_run(batch, r)["pos_rmse_m"] for t, r in runs_c.items()}
+    strongest = min((t for t in rmse if np.isfinite(rmse[t])), key=rmse.get)
+    loss = {t: evaluate_run(batch, r)["track_loss_rate"] for t, r in (("policy", pol), ("imm2", runs_c["imm2"]))}
+    return ratio_ci(batch, pol, runs_c["imm2"]), (strongest, ratio_ci(batch, pol, runs_c[strongest])), loss
+
+
+# The suites where the bundled policy does NOT meet issue 20's bound on these further runs: strict xfails (reported
+# as not reached in the README's targets table); one that starts passing fails the suite (XPASS) until it is taken
+# off this list, so the list cannot go stale.
+FAMILY_BOUND_NOT_MET = {
+    "start_maneuver": "not reached: above imm2 where the maneuver begins during the track start",
+    "short_tracks": "not reached: above imm2 on tracks under 40 looks",
+    "speed_changes": "not reached on these 40 runs: above imm2 (within the bound on the README's 200 runs)",
+    "slow_orbits": "not reached: worse than imm_cv_ct (the CT model) beyond the interval",
+    "adsb_heldout": "not reached: worse than imm3_ct beyond the interval on the real flights",
+    "bizup2002": "not reached: above imm2 (and worse than imm_cv_ct)",
+    "adrian_flower": "not reached: worse than imm_cv_ct beyond the interval",
+}
+
+
+@pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
+@pytest.mark.parametrize("scenario,runs", [(f, 40) for f in ("start_maneuver", "short_tracks", "sharp_turns",
+                                                             "slow_orbits", "speed_changes")]
+                         + [("adsb_heldout", 12), ("bizup2002", 20), ("kim_lee_accel", 20), ("adrian_flower", 4),
+                            ("seed002_course_changes", 20), ("seed002_two_radars", 20)])
+def test_bundled_policy_within_issue_bound_on_families_and_named_scenarios(scenario, runs, request):
+    """Issue 20's bound on every held-out family and named scenario (further held-out runs): at most 1.0 x imm2
+    with the interval's upper end at most 1.05, not worse than the strongest classical tracker beyond its interval,
+    and a track-loss rate no higher than imm2's."""
+    if scenario in FAMILY_BOUND_NOT_MET:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=FAMILY_BOUND_NOT_MET[scenario]))
+    (r, ci), (strongest, (rs, cis)), loss = _bundled_policy_family_check(scenario, runs)
+    assert r <= 1.0 and ci[1] <= 1.05, (scenario, "imm2", r, ci)
+    assert cis[0] <= 1.0, (scenario, strongest, rs, cis)
+    assert loss["policy"] <= loss["imm2"], (scenario, loss)
+
+
 @pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
 @pytest.mark.parametrize("scenario,runs", [("bizup2002", 20), ("kim_lee_accel", 20), ("adrian_flower", 4),
                                            ("seed002_course_changes", 20), ("seed002_two_radars", 20)])
