@@ -157,7 +157,7 @@ def test_loading_the_policy_in_a_worker_leaves_no_temp_dir(monkeypatch, tmp_path
     monkeypatch.setattr(agents.parallel, "_POLICY_CACHE", {})
     choose_q, cfg = _policy_in_worker(_policy_blob(BUNDLED_POLICY))
     assert list(tmp_path.glob("radar_track_policy_*")) == []          # (torch may leave its own cache dirs)
-    obs = np.zeros((3, len(cfg.features)))
+    obs = np.zeros((3, len(cfg.features) * cfg.frame_stack))
     assert choose_q(obs).shape == (3,)                    # the model works with its files gone
 
 
