@@ -155,7 +155,8 @@ def test_cli_train_branch_and_errors(tmp_path, capsys):
 @pytest.mark.skipif(not ev.BUNDLED_POLICY.is_file(), reason="no bundled policy")
 def test_bundled_policy_loads_and_is_deterministic():
     choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
-    env = RadarTrackEnv(**{f: getattr(cfg, f) for f in ("action_type", "q_levels_g", "features", "reward_type")})
+    env = RadarTrackEnv(**{f: getattr(cfg, f) for f in ("action_type", "q_levels_g", "features", "frame_stack",
+                                                   "reward_type")})
     obs = [env.reset(seed=5)[0]]
     for _ in range(40):
         obs.append(env.step(env.action_space.sample() if env.config.action_type == "discrete"
