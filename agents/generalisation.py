@@ -155,7 +155,8 @@ def families_table(data):
         h = res.get("headroom_share")
         lines.append(
             f"| {suite} ({res['runs']}) | {p['pos_rmse_m']:.0f} ({_fmt_ratio(p['ratio_vs_imm2'], few)}) | "
-            f"{tr['imm2']['pos_rmse_m']:.0f} | {s} {tr[s]['pos_rmse_m']:.0f} ({_fmt_ratio(p['ratio_vs_strongest'], few)})"
+            f"{tr['imm2']['pos_rmse_m']:.0f} | {s} {tr[s]['pos_rmse_m']:.0f} "
+            f"({_fmt_ratio(p['ratio_vs_strongest'], few)})"
             f" | {tr['hindsight_q']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['hindsight_q'], few)}) | "
             f"{tr['clairvoyant']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['clairvoyant'], few)}) | "
             f"{100 * p['track_loss_rate']:.1f} % / {100 * tr['imm2']['track_loss_rate']:.1f} % | "
@@ -172,7 +173,8 @@ def spread_table(data):
     classical tracker; the bundle's own ratio beside them."""
     recipes = list(data["recipes"])
     head = "| suite (runs) | bundle / imm2 | " + " | ".join(
-        f"{r}: mean / worst over {len(_seeds(data, r))} seeds, / imm2 | {r}: mean / worst, / strongest" for r in recipes)
+        f"{r}: mean / worst over {len(_seeds(data, r))} seeds, / imm2 | {r}: mean / worst, / strongest"
+        for r in recipes)
     lines = [head + " |", "|---" * (2 + 2 * len(recipes)) + "|"]
     for suite, res in data["spread"].items():
         cells = [f"{suite} ({res['runs']})", _fmt_ratio(res["policies"]["policy"]["ratio_vs_imm2"], res["few_runs"])]

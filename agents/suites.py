@@ -31,8 +31,8 @@ from radar_env.draws import draw_episodes
 from radar_env.env import draw_setup_and_episode, resolve_scenario
 from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
-__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "HELDOUT_FAMILY_SUITES", "DEFAULT_RADAR_RANGE_M", "draw_suite",
-           "suite_rng", "suite_key", "trajectory_suite_names"]
+__all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "HELDOUT_FAMILY_SUITES",
+           "DEFAULT_RADAR_RANGE_M", "draw_suite", "suite_rng", "suite_key", "trajectory_suite_names"]
 
 # TRAIN_SEEDS, TUNING_SEEDS, EVAL_SEED_BASE and suite_rng live in baselines.seeds (the tuning draws from them and
 # baselines never import agents); re-exported here, where the seed plan is documented.

@@ -557,8 +557,9 @@ def test_documented_observation_tables_match_the_feature_specs():
 
 
 def test_inconsistency_reward_term_is_the_position_nees_beyond_its_bound():
-    """reward_nees_weight w: the term is -w * min(max(NEES / chi2_2(0.99) - 1, 0), reward_clip) of the position error against the
-    position block of P (computed here with numpy's solve); the other terms and the episode are unchanged."""
+    """reward_nees_weight w: the term is -w * min(max(NEES / chi2_2(0.99) - 1, 0), reward_clip) of the position
+    error against the position block of P (computed here with numpy's solve); the other terms and the episode are
+    unchanged."""
     from scipy.stats import chi2
     w = 0.1
     plain, nees_env = gym.make("RadarTrack-v0"), gym.make("RadarTrack-v0", reward_nees_weight=w)
