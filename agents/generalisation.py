@@ -165,7 +165,7 @@ def families_table(data):
 
 
 def _seeds(data, recipe):
-    return [n for n in data["recipes"][recipe]["seeds"]]
+    return data["recipes"][recipe]["seeds"]
 
 
 def spread_table(data):
@@ -217,14 +217,13 @@ def targets(data):
                                         f"{100 * sp[s]['trackers']['imm2']['track_loss_rate']:.1f} %)" for s in worse)
                 if worse else f"all {len(sp)} suites"))
     rec = data.get("bundle_recipe")
-    for r in data["recipes"]:   # the bundle's recipe first
+    for r in sorted(data["recipes"], key=lambda r: r != rec):   # the bundle's recipe first (a target), then others
         seeds = _seeds(data, r)
         named_ok = [s for s in seeds if all(sp[n]["policies"][s]["ratio_vs_imm2"][0] <= 1.0
                                             and sp[n]["policies"][s]["ratio_vs_imm2"][1][1] <= 1.05
                                             for n in NAMED_SUITES if n in sp)]
         what = "the bundle's recipe" if r == rec else "another recipe"
-        out.insert(len(out) if r != rec else 4,
-                   (f"at least 2 of 3 seeds of {what} ({r}) meet the named-scenario bound (<= 1.0 x imm2, upper "
+        out.append((f"at least 2 of 3 seeds of {what} ({r}) meet the named-scenario bound (<= 1.0 x imm2, upper "
                     "end <= 1.05, on each named scenario)", len(named_ok) >= 2 if r == rec else None,
                     f"{len(named_ok)} of {len(seeds)} ({', '.join(named_ok) or 'none'})"))
     shares = {s: r.get("headroom_share") for s, r in data["families"].items()}

@@ -172,13 +172,9 @@ FAMILIES = {
 """Held-out family suites: name -> the :class:`RandomScenarioConfig` arguments of its flights (module docstring)."""
 
 
-def family_config(name):
-    """The :class:`RandomScenarioConfig` of family ``name`` (a key of :data:`FAMILIES`)."""
-    return _family_config(name)
-
-
 @lru_cache(maxsize=None)
-def _family_config(name):
+def family_config(name):
+    """The :class:`RandomScenarioConfig` of family ``name`` (a key of :data:`FAMILIES`; built once)."""
     return RandomScenarioConfig(**FAMILIES[name])
 
 

@@ -170,6 +170,16 @@ def _propagate(x, P, F, xo, FPF, FP):
 
 
 @njit(cache=True)
+def _symmetrize(A):
+    """A = (A + A^T) / 2 in place (4 x 4): rounding must not make a covariance asymmetric."""
+    for i in range(4):
+        for j in range(i + 1, 4):
+            v = 0.5 * (A[i, j] + A[j, i])
+            A[i, j] = v
+            A[j, i] = v
+
+
+@njit(cache=True)
 def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
     """x- = F x (+ u), P- = sym(F P F^T + Q); FP (4,4) scratch. xo/Po may not alias x/P."""
     _propagate(x, P, F, xo, Po, FP)
@@ -178,11 +188,7 @@ def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
             xo[i] += u[i]
         for j in range(4):
             Po[i, j] += Q[i, j]
-    for i in range(4):
-        for j in range(i + 1, 4):
-            v = 0.5 * (Po[i, j] + Po[j, i])
-            Po[i, j] = v
-            Po[j, i] = v
+    _symmetrize(Po)
 
 
 @njit(cache=True)
@@ -222,11 +228,7 @@ def _update(x, P, z, R, det, xo, Po, nu, S):
             Po[i, j] = (P[i, j] - (k0[i] * P[0, j] + k1[i] * P[1, j])) + (g0 * k0[j] + g1 * k1[j])
     for i in range(4):
         xo[i] = x[i] + (k0[i] * nu0 + k1[i] * nu1)
-    for i in range(4):
-        for j in range(i + 1, 4):
-            v = 0.5 * (Po[i, j] + Po[j, i])
-            Po[i, j] = v
-            Po[j, i] = v
+    _symmetrize(Po)
     nis = nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11
     return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
 
@@ -722,11 +724,7 @@ def _imm_mix(log_mu, log_Pi, x, P, x0, P0, log_c, a, col):
                 for i in range(M):
                     acc += a[i, j] * (P[i, d, e] + (x[i, d] - x0[j, d]) * (x[i, e] - x0[j, e]))
                 P0[j, d, e] = acc
-        for d in range(4):
-            for e in range(d + 1, 4):
-                v = 0.5 * (P0[j, d, e] + P0[j, e, d])
-                P0[j, d, e] = v
-                P0[j, e, d] = v
+        _symmetrize(P0[j])
 
 
 @njit(cache=True)
@@ -743,11 +741,7 @@ def _imm_combine(log_mu, x, P, xc, Pc):
             for m in range(M):
                 acc += math.exp(log_mu[m]) * (P[m, d, e] + (x[m, d] - xc[d]) * (x[m, e] - xc[e]))
             Pc[d, e] = acc
-    for d in range(4):
-        for e in range(d + 1, 4):
-            v = 0.5 * (Pc[d, e] + Pc[e, d])
-            Pc[d, e] = v
-            Pc[e, d] = v
+    _symmetrize(Pc)
 
 
 @njit(cache=True)

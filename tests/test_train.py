@@ -208,9 +208,10 @@ def _bundled_policy_family_check(scenario, runs):
     batch = stack_episodes(eps)
     pol = run_q_policy(eps, choose_q, "policy", cfg)
     runs_c = {t: run_tracker(t, eps) for t in CLASSICAL}
-    rmse = {t: evaluate_run(batch, r)["pos_rmse_m"] for t, r in runs_c.items()}
+    m = {t: evaluate_run(batch, r) for t, r in (("policy", pol), *runs_c.items())}
+    rmse = {t: m[t]["pos_rmse_m"] for t in runs_c}
     strongest = min((t for t in rmse if np.isfinite(rmse[t])), key=rmse.get)
-    loss = {t: evaluate_run(batch, r)["track_loss_rate"] for t, r in (("policy", pol), ("imm2", runs_c["imm2"]))}
+    loss = {t: m[t]["track_loss_rate"] for t in ("policy", "imm2")}
     return ratio_ci(batch, pol, runs_c["imm2"]), (strongest, ratio_ci(batch, pol, runs_c[strongest])), loss
 
 
