@@ -22,7 +22,7 @@ def main(argv=None):
         return 0
     cmd, rest = argv[0], argv[1:]
     if cmd == "evaluate":
-        from .evaluate import main as evaluate_main
+        from agents.evaluation.evaluate import main as evaluate_main
         evaluate_main(rest)
         return 0
     if cmd == "tune":
@@ -30,11 +30,11 @@ def main(argv=None):
         tune_main(rest)
         return 0
     if cmd == "train":
-        from .train import main as train_main
+        from agents.training.train import main as train_main
         train_main(rest)
         return 0
     if cmd == "sweep":
-        from .sweep import main as sweep_main
+        from agents.training.sweep import main as sweep_main
         sweep_main(rest)
         return 0
     print(f"radar-track: unknown command {cmd!r}\n\n{USAGE}", file=sys.stderr)

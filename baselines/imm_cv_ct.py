@@ -82,7 +82,7 @@ mode probabilities (``mu0_cv`` = 0.9 on CV, the rest split equally), the turn-ra
 
 The defaults (:data:`DEFAULT_IMM_CV_CT`) were chosen on tuning seeds only: scipy Nelder-Mead (log scale for the
 noises, logit for the probabilities, 3 restarts of 250 evaluations) minimising the pooled position RMSE after the
-track start on 100 ``random`` episodes drawn from ``agents.suites.TUNING_SEEDS.start`` on; values rounded to two or
+track start on 100 ``random`` episodes drawn from ``agents.evaluation.suites.TUNING_SEEDS.start`` on; values rounded to two or
 three digits. Result: 78.4 m against 81.6 m for the tuned ``imm2`` on the same episodes (0.961x); without the third
 mode the best was 79.1 m (0.969x), so the third mode is on by default. The criterion is flat in
 ``sigma_omega_deg_s15`` (0.2 to 0.005 changed it by < 0.4 m) and in ``q_cv_g`` below 1e-3 g; ``q_high_g`` went to

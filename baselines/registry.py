@@ -20,7 +20,8 @@ import re
 from . import trackers as T
 from .imm_cv_ct import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
-from .tuned_params import TUNED_PATH, imm2_spec_from_params, tuned_parameters
+from .trackers import imm2_spec_from_params
+from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
 __all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",

@@ -1,7 +1,7 @@
 """The seed plan that keeps training, tuning and evaluation apart, and the per-suite random streams.
 
 Defined here, in the lowest layer that needs it (the baselines' tuning draws its episodes from
-:data:`TUNING_SEEDS`), and re-exported by :mod:`agents.suites`, which documents the plan:
+:data:`TUNING_SEEDS`), and re-exported by :mod:`agents.evaluation.suites`, which documents the plan:
 
 * training (RL): ``[0, 1_000_000)`` (:data:`TRAIN_SEEDS`);
 * tuning of the classical baselines: ``[1_000_000, 2_000_000)`` (:data:`TUNING_SEEDS`);
@@ -28,7 +28,7 @@ EVAL_SEED_BASE = 10_000_000
 
 def suite_rng(suite_name, seed):
     """The generator of run ``seed`` of the suite keyed ``suite_name`` (a name or ``"sha256:<hex>"``, see
-    :func:`agents.suites.suite_key`)."""
+    :func:`agents.evaluation.suites.suite_key`)."""
     key = str(suite_name)
     if key.startswith("sha256:"):
         digest = bytes.fromhex(key[len("sha256:"):])
@@ -40,7 +40,7 @@ def suite_rng(suite_name, seed):
 
 def draw_random_episodes(runs, seed=TUNING_SEEDS.start):
     """``runs`` episodes of the ``random`` scenario, run ``i`` from ``suite_rng("random", seed + i)``: the same
-    episodes, bit for bit, as ``agents.suites.draw_suite("random", runs, seed=seed)`` (a test checks it).
+    episodes, bit for bit, as ``agents.evaluation.suites.draw_suite("random", runs, seed=seed)`` (a test checks it).
 
     Args:
         runs: number of episodes, an integer >= 1.

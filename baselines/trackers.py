@@ -33,8 +33,10 @@ from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
 from radar_env.validate import check_number, check_probabilities
 
+from .tuned_params import param, tuned_parameters
+
 __all__ = ["TrackRun", "run_q_policy", "run_imm", "run_turn_rate_kf", "run_reinit", "run_clairvoyant",
-           "run_oracle_q", "IMMSpec", "IMM2_BIZUP", "IMM3_CT"]
+           "run_oracle_q", "IMMSpec", "IMM2_BIZUP", "IMM3_CT", "imm2_spec_from_params"]
 
 
 @dataclass
@@ -177,6 +179,15 @@ class IMMSpec:
         check_probabilities("IMMSpec.mu0", self.mu0, (M,))
         for j in self.maneuver_modes:
             check_number("IMMSpec.maneuver_modes entry", j, 0, M - 1, integer=True)
+
+
+def imm2_spec_from_params(params):
+    """The 2-mode CV IMM (:class:`IMMSpec`) from ``{"q_low_g", "q_high_g", "p_stay_low",
+    "p_stay_high"}``: mode noises in g, per-look stay probabilities; starts at mode probabilities (0.9, 0.1)."""
+    ql, qh = param(params, "q_low_g", "imm2"), param(params, "q_high_g", "imm2")
+    sl, sh = param(params, "p_stay_low", "imm2"), param(params, "p_stay_high", "imm2")
+    return IMMSpec(q_m_s2=(ql * G0_M_S2, qh * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
+                   Pi=((sl, 1 - sl), (1 - sh, sh)), mu0=(0.9, 0.1), maneuver_modes=(1,))
 
 
 IMM2_BIZUP = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 2.0 * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
@@ -379,7 +390,6 @@ def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg
     from radar_env.episode import stack_episodes
 
     from .alpha_beta import run_alpha_beta
-    from .tuned_params import tuned_parameters
 
     batch = stack_episodes(episodes)
     q = tuned_parameters()["kf"]["q_g"] * G0_M_S2 if q_m_s2 is None else q_m_s2
@@ -403,7 +413,6 @@ def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg=None
     from radar_env.episode import stack_episodes
 
     from .konle import blend_speed_heading, run_konle
-    from .tuned_params import tuned_parameters
 
     batch = stack_episodes(episodes)
     sr = np.where(batch.detected, batch.range_noise_std_m, 1.0)

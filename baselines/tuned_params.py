@@ -1,5 +1,4 @@
-"""Where the tuned baseline parameters live (``baselines/tuned.json``, written by ``python -m baselines.tuning``),
-and the tracker factories that turn a parameter dict into a tracker's specification.
+"""Where the tuned baseline parameters live (``baselines/tuned.json``, written by ``python -m baselines.tuning``).
 
 A parameter dict is what ``tuned.json`` stores per tracker (e.g. ``{"q_low_g": ..., "q_high_g": ...,
 "p_stay_low": ..., "p_stay_high": ...}`` for ``imm2``); the tuner builds trackers from candidate dicts through the
@@ -13,9 +12,7 @@ from pathlib import Path
 
 from radar_env.units import G0_M_S2
 
-from . import trackers as T
-
-__all__ = ["TUNED_PATH", "tuned_parameters", "imm2_spec_from_params", "kf_q_m_s2_from_params"]
+__all__ = ["TUNED_PATH", "tuned_parameters", "param", "kf_q_m_s2_from_params"]
 
 TUNED_PATH = Path(__file__).with_name("tuned.json")
 
@@ -27,7 +24,8 @@ def tuned_parameters():
     return json.loads(TUNED_PATH.read_text())
 
 
-def _get(params, key, who):
+def param(params, key, who):
+    """``float(params[key])``; a ``ValueError`` naming the tracker ``who`` and the keys present if it is missing."""
     try:
         return float(params[key])
     except KeyError:
@@ -36,13 +34,4 @@ def _get(params, key, who):
 
 def kf_q_m_s2_from_params(params):
     """The constant-q KF's q (m/s^2) from ``{"q_g": ...}``."""
-    return _get(params, "q_g", "kf") * G0_M_S2
-
-
-def imm2_spec_from_params(params):
-    """The 2-mode CV IMM (:class:`baselines.trackers.IMMSpec`) from ``{"q_low_g", "q_high_g", "p_stay_low",
-    "p_stay_high"}``: mode noises in g, per-look stay probabilities; starts at mode probabilities (0.9, 0.1)."""
-    ql, qh = _get(params, "q_low_g", "imm2"), _get(params, "q_high_g", "imm2")
-    sl, sh = _get(params, "p_stay_low", "imm2"), _get(params, "p_stay_high", "imm2")
-    return T.IMMSpec(q_m_s2=(ql * G0_M_S2, qh * G0_M_S2), turn_rate_rad_s=(0.0, 0.0),
-                     Pi=((sl, 1 - sl), (1 - sh, sh)), mu0=(0.9, 0.1), maneuver_modes=(1,))
+    return param(params, "q_g", "kf") * G0_M_S2

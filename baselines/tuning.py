@@ -44,7 +44,8 @@ from radar_env.episode import stack_episodes
 
 from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes
-from .tuned_params import TUNED_PATH, imm2_spec_from_params, kf_q_m_s2_from_params
+from .trackers import imm2_spec_from_params
+from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params
 
 __all__ = ["Param", "TunedTracker", "TUNED_TRACKERS", "IMM2_GRID_PARAMS", "minimize_with_restarts", "tune",
            "pooled_rmse", "main"]

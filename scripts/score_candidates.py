@@ -18,10 +18,10 @@ import sys
 
 import numpy as np
 
-from agents.callbacks import SELECTION_SEED_BASE
-from agents.evaluate import load_policy
-from agents.metrics import ratio_ci
-from agents.suites import draw_suite
+from agents.training.callbacks import SELECTION_SEED_BASE
+from agents.policies.loading import load_policy
+from agents.evaluation.metrics import ratio_ci
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
 from radar_env.episode import stack_episodes

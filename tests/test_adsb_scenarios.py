@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import radar_env  # noqa: F401
-from agents.suites import draw_suite
+from agents.evaluation.suites import draw_suite
 from radar_env.adsb import list_flights
 from radar_env.adsb_scenarios import AdsbPool, resolve_adsb
 from radar_env.radar import polar_from_cartesian

@@ -6,7 +6,7 @@ import pytest
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
 import radar_env  # noqa: F401
-from agents.suites import draw_suite
+from agents.evaluation.suites import draw_suite
 from baselines import trackers as T
 from baselines.policies import CKFPolicy, CminPolicy, POLICY_NAMES, make_policy
 from baselines.registry import TRACKER_NAMES, run_tracker

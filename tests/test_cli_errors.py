@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents import evaluate as ev
-from agents.suites import draw_suite
-from agents.train import _tb_scalars, load_hyperparams
-from agents.train import main as train_main
+from agents.evaluation import evaluate as ev
+from agents.evaluation.suites import draw_suite
+from agents.training.train import _tb_scalars, load_hyperparams
+from agents.training.train import main as train_main
 from radar_env.radar import atc_radar
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,7 +116,7 @@ def test_same_csv_by_different_paths_gives_identical_metrics(tmp_path, monkeypat
     copy.parent.mkdir()
     shutil.copy(f, copy)
     monkeypatch.chdir(tmp_path)
-    from agents.suites import suite_key
+    from agents.evaluation.suites import suite_key
     keys = {suite_key(p) for p in ("a.csv", "./a.csv", str(f), copy)}
     assert len(keys) == 1
     got = []
@@ -256,7 +256,7 @@ def test_tensorboard_gets_the_final_evaluation_of_a_short_run(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ packaging
 def test_hyperparameter_files_are_package_data(tmp_path):
-    """The wheel holds agents/hyperparams/*.toml (``radar-track train`` reads them from an installed package)."""
+    """The wheel holds agents/training/hyperparams/*.toml (``radar-track train`` reads them from an installed package)."""
     src = tmp_path / "src"
     src.mkdir()
     for name in ("pyproject.toml", "README.md"):
@@ -270,12 +270,12 @@ def test_hyperparameter_files_are_package_data(tmp_path):
                                                                                    "PIP_NO_INPUT": "1"})
     (whl,) = out.glob("*.whl")
     names = set(zipfile.ZipFile(whl).namelist())
-    tomls = {f"agents/hyperparams/{p.name}" for p in (ROOT / "agents" / "hyperparams").glob("*.toml")}
+    tomls = {f"agents/training/hyperparams/{p.name}" for p in (ROOT / "agents" / "training" / "hyperparams").glob("*.toml")}
     assert tomls and tomls <= names, sorted(n for n in names if n.startswith("agents/"))
     # load_hyperparams reads them from the installed layout (the unpacked wheel, imported first)
     site = tmp_path / "site"
     zipfile.ZipFile(whl).extractall(site)
-    code = ("import agents.train as t, pathlib; assert pathlib.Path(t.__file__).parent.parent == pathlib.Path.cwd(); "
+    code = ("import agents.training.train as t, pathlib; assert pathlib.Path(t.__file__).parents[2] == pathlib.Path.cwd(); "
             "print(sorted(t.load_hyperparams(a)['n_timesteps'] > 0 for a in t.ALGOS))")
     res = subprocess.run([sys.executable, "-c", code], cwd=site, capture_output=True, text=True, check=True)
     assert res.stdout.strip() == "[True, True, True]"
@@ -286,7 +286,7 @@ def test_csv_given_to_scenario_is_a_trajectory_suite_and_json_comes_first(tmp_pa
     and its JSON is written; before, the raw path became a plot file name and the run died after the table."""
     import json
 
-    from agents import evaluate as ev
+    from agents.evaluation import evaluate as ev
     sub = tmp_path / "sub"
     sub.mkdir()
     t = np.arange(0.0, 601.0, 1.0)

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 
 import radar_env  # noqa: F401
-from agents.evaluate import main as evaluate_main
+from agents.evaluation.evaluate import main as evaluate_main
 from radar_env.env import draw_setup_and_episode
 from radar_env.scenario import (TRAJECTORY_COLUMNS, TRAJECTORY_MAX_ACCEL_G, ScenarioBuilder, TrajectoryScenario)
 from radar_env.units import G0_M_S2
@@ -221,13 +221,14 @@ def test_fuzz_csv_refused_naming_the_file_or_finite(lines, encoding, newline):
     assert np.all(np.isfinite(ep.truth)) and np.all(np.isfinite(ep.truth_accel_m_s2))
     # and the evaluation's table and JSON of it hold no NaN or Inf, whatever the tracker did (too short for the
     # track start: the whole episode is refused by name, as above)
-    from agents.evaluate import _jsonable, evaluate, format_table
+    from agents.evaluation.evaluate import evaluate, format_table
+    from agents.evaluation.metrics import jsonable
     try:
         results, _ = evaluate([("fuzz_flight", [ep])], ["kf_tuned", "imm2"], progress=False)
     except ValueError as e:
         assert "fuzz_flight" in str(e), str(e)
         return
-    json.dumps(_jsonable(results), allow_nan=False)
+    json.dumps(jsonable(results), allow_nan=False)
     low = format_table(results).lower()
     assert "nan" not in low and " inf" not in low
 

@@ -3,8 +3,8 @@ intercepts driven by track estimates."""
 
 import numpy as np
 
-from agents.downstream import LEAD_AFTER_TURN_S, T_CPA_S, intercept_metrics, true_encounter, warning_metrics
-from agents.suites import draw_suite
+from agents.evaluation.downstream import LEAD_AFTER_TURN_S, T_CPA_S, intercept_metrics, true_encounter, warning_metrics
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import TrackRun
 from radar_env.episode import stack_episodes

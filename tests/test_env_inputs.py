@@ -321,7 +321,7 @@ def test_bundled_policy_runs_in_make_policy_env():
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from agents.bundle import BUNDLED_POLICY, make_policy_env, policy_env_kwargs
+    from agents.policies.bundle import BUNDLED_POLICY, make_policy_env, policy_env_kwargs
     model = PPO.load(BUNDLED_POLICY, device="cpu")
     env = make_policy_env()
     assert env.observation_space == model.observation_space and env.action_space == model.action_space

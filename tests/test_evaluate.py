@@ -8,9 +8,9 @@ import pytest
 from gymnasium.utils import seeding
 
 import radar_env  # noqa: F401
-from agents.evaluate import main as evaluate_main
-from agents.metrics import NEES_95_4DOF, evaluate_run, ratio_ci, region_masks
-from agents.suites import draw_suite
+from agents.evaluation.evaluate import main as evaluate_main
+from agents.evaluation.metrics import NEES_95_4DOF, evaluate_run, ratio_ci, region_masks
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import TrackRun, run_q_policy
 from radar_env.env import draw_setup_and_episode

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import ks_2samp
 
-from agents.suites import HELDOUT_FAMILY_SUITES, draw_suite
+from agents.evaluation.suites import HELDOUT_FAMILY_SUITES, draw_suite
 from radar_env.adsb import list_flights
 from radar_env.adsb_scenarios import split_flights
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES, family_config, make_setup
@@ -163,7 +163,7 @@ def test_adsb_split_is_a_partition_and_each_suite_flies_its_flights_once():
 
 
 def test_cli_runs_a_family_by_name(capsys):
-    from agents.evaluate import main
+    from agents.evaluation.evaluate import main
     main(["--scenario", "speed_changes", "--runs", "3", "--trackers", "imm2,kf_tuned", "--no-plots"])
     out = capsys.readouterr().out
     assert "speed_changes: 3 runs" in out

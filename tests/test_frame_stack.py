@@ -103,8 +103,8 @@ def test_fine_tune_into_a_stacked_observation_starts_as_the_source_policy(tmp_pa
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from agents.sb3_vec import make_sb3_vec_env
-    from agents.train import _expanded_state, _stack_factor
+    from agents.training.sb3_vec import make_sb3_vec_env
+    from agents.training.train import _expanded_state, _stack_factor
 
     def model(k):
         env, _ = make_sb3_vec_env(2, {"frame_stack": k}, seed=0)

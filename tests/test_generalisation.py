@@ -1,12 +1,12 @@
-"""agents.generalisation: the per-suite scoring (strongest classical tracker, ratios) and the target verdicts,
+"""agents.reports.generalisation: the per-suite scoring (strongest classical tracker, ratios) and the target verdicts,
 on small real suites and on hand-made results whose verdicts are known."""
 
 import numpy as np
 import pytest
 
-from agents import generalisation as g
-from agents.metrics import evaluate_run
-from agents.suites import draw_suite
+from agents.reports import generalisation as g
+from agents.evaluation.metrics import evaluate_run
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from radar_env.episode import stack_episodes
 

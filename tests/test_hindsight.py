@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from agents.suites import draw_suite
+from agents.evaluation.suites import draw_suite
 from baselines import hindsight as H
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
@@ -87,8 +87,8 @@ def test_kernel_gradient_equals_torch_autograd():
 
 
 def _bundled_policy_mse(eps):
-    from agents.bundle import BUNDLED_POLICY
-    from agents.evaluate import load_policy
+    from agents.policies.bundle import BUNDLED_POLICY
+    from agents.policies.loading import load_policy
 
     if not BUNDLED_POLICY.is_file():
         pytest.skip("no bundled policy")

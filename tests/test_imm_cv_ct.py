@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 from scipy.special import logsumexp
 
-from agents.suites import TUNING_SEEDS, draw_suite
+from agents.evaluation.suites import TUNING_SEEDS, draw_suite
 from baselines import imm_cv_ct as I
 from radar_env.episode import draw_episode
 from radar_env.filters import process_noise, transition_ct

@@ -283,7 +283,7 @@ def test_bundled_policy_chooses_the_same_q_as_with_the_numpy_chain():
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
 
-    from agents.bundle import BUNDLED_POLICY, policy_env_kwargs
+    from agents.policies.bundle import BUNDLED_POLICY, policy_env_kwargs
     from radar_env.env import EnvConfig
     from radar_env.observation import ObservationLayout
 

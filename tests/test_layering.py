@@ -94,5 +94,102 @@ def test_radar_env_imports_neither_baselines_nor_agents(path):
 
 def test_scan_sees_function_level_imports(tmp_path):
     f = tmp_path / "m.py"
-    f.write_text("def g():\n    from agents.suites import draw_suite\n    import baselines.trackers\n")
+    f.write_text("def g():\n    from agents.evaluation.suites import draw_suite\n    import baselines.trackers\n")
     assert {"agents", "baselines"} <= _imported_modules(f)
+
+
+# ------------------------------------------------------------------------------------------------ module graph
+PACKAGES = ("radar_env", "baselines", "agents")
+AGENTS_LAYERS = ("agents.policies", "agents.evaluation", "agents.training", "agents.reports", "agents.cli")
+"""The agents sub-packages, lowest first: each may import only the ones before it (and radar_env, baselines)."""
+
+
+def _module_name(path):
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _module_graph():
+    """``{module: {modules it imports}}`` over the three packages: every import at any depth (function-level ones
+    too), resolved to the most specific module of the project that exists as a file."""
+    files = {_module_name(p): p for pkg in PACKAGES for p in _files(pkg)}
+
+    def resolve(name):
+        while name and name not in files:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {}
+    for mod, path in files.items():
+        pkg = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                deps |= {resolve(a.name) for a in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    anchor = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                    base = ".".join(anchor + ([base] if base else []))
+                for a in node.names:      # `from pkg import submodule` imports the submodule
+                    deps.add(resolve(f"{base}.{a.name}") if f"{base}.{a.name}" in files else resolve(base))
+        graph[mod] = {d for d in deps if d and d != mod}
+    return graph
+
+
+def _cycles(graph):
+    """Strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_two_modules_import_each_other():
+    """No import cycle among the project's modules (packages' __init__ re-exports excluded: a package importing
+    its own submodules is how it exposes them)."""
+    graph = {m: {d for d in deps if not m.startswith(d + ".")} for m, deps in _module_graph().items()}
+    assert _cycles(graph) == []
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_agents_sub_packages_look_down_only():
+    graph = _module_graph()
+    layer = {name: i for i, name in enumerate(AGENTS_LAYERS)}
+
+    def layer_of(mod):
+        return next((layer[p] for p in layer if mod == p or mod.startswith(p + ".")), None)
+
+    bad = [(m, d) for m, deps in graph.items() if layer_of(m) is not None for d in deps
+           if layer_of(d) is not None and layer_of(d) > layer_of(m)]
+    assert bad == []
+    top = {p.name for p in (ROOT / "agents").iterdir() if p.suffix == ".py" or (p / "__init__.py").is_file()}
+    assert top == {"__init__.py", "cli.py", "policies", "training", "evaluation", "reports"}

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from agents import paper_checks
-from agents.paper_adrian import (OMEGA_RAD_S, T_S, V0_M_S, adrian_alg1, adrian_geometry, adrian_kf, adrian_plots,
+from agents.reports import paper_checks
+from agents.reports.paper_adrian import (OMEGA_RAD_S, T_S, V0_M_S, adrian_alg1, adrian_geometry, adrian_kf, adrian_plots,
                                  adrian_quantities, adrian_reference_turn_rate, adrian_truth, adrian_worksheet)
-from agents.paper_bizup import bizup_errors, ckf_fma, fma_threshold, phase_masks
-from agents.paper_kim_lee import kim_lee_1d_check, kim_lee_truth
-from agents.suites import draw_suite
+from agents.reports.paper_bizup import bizup_errors, ckf_fma, fma_threshold, phase_masks
+from agents.reports.paper_kim_lee import kim_lee_1d_check, kim_lee_truth
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from radar_env.units import NM_M
 
@@ -33,7 +33,7 @@ def test_adrian_truth_has_his_position_random_walk():
     assert x.shape == (4, 6241, 4)                   # N = 130 x 48 = 6240, looks 0..N
     assert np.allclose(np.hypot(x[..., 2], x[..., 3]), V0_M_S)   # the walk is on positions only
     # residual of the kinematic step: the same draw on x and y, sd sqrt(sigma_v), sigma_v = 0.1 * 9.81 * 25 / 2
-    from agents.paper_adrian import _ccw
+    from agents.reports.paper_adrian import _ccw
     pred = np.einsum("kij,bkj->bki", _ccw(w[1:]), x[:, :-1])
     res = x[:, 1:, :2] - pred[..., :2]
     assert np.allclose(res[..., 0], res[..., 1])
@@ -296,7 +296,7 @@ def test_bizup_turn_2_speed_convergence_is_judged_under_both_readings():
 
 
 def test_bizup_variance_across_runs_excludes_the_mean_curve_and_decides_the_claim():
-    from agents.paper_bizup import _var_over_runs
+    from agents.reports.paper_bizup import _var_over_runs
     rng = np.random.default_rng(0)
     e = np.linspace(0.0, 100.0, 40)[None, :] + rng.standard_normal((50, 40))   # mean curve moves, spread 1
     mk = np.ones_like(e, dtype=bool)
@@ -315,7 +315,7 @@ def test_bizup_variance_across_runs_excludes_the_mean_curve_and_decides_the_clai
 
 
 def test_ckf_tuned_threshold_is_chosen_on_a_disjoint_seed_block():
-    from agents.paper_bizup import TUNING_SEED_OFFSET, bizup_figures_check
+    from agents.reports.paper_bizup import TUNING_SEED_OFFSET, bizup_figures_check
     from radar_env.episode import stack_episodes
     seed = 10_000_000
     r = bizup_figures_check(runs=3, seed=seed)["ckf"]

@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from agents import plots  # noqa: E402
-from agents.suites import draw_suite  # noqa: E402
+from agents.evaluation import plots  # noqa: E402
+from agents.evaluation.suites import draw_suite  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
 from radar_env.episode import stack_episodes  # noqa: E402
 
@@ -220,7 +220,7 @@ def test_scope_frame_ticks_readable_and_labelled_in_km():
 
 
 def test_warning_chart_labels_not_cut(tmp_path, monkeypatch):
-    from agents.report import warning_figure
+    from agents.reports.report import warning_figure
     names = ["imm2", "alpha_beta_adaptive", "kf_low"]
     enc = {t: {"warning_lead_time_s": 150.0 + 10 * i, "ideal_lead_time_s": 170.0, "false_warning_rate": 0.01 * i,
                "missed_warning_rate": 0.02} for i, t in enumerate(names)}
@@ -236,7 +236,7 @@ def test_warning_chart_labels_not_cut(tmp_path, monkeypatch):
 
 
 def test_training_curve_draws_the_bundled_stages_end_to_end(tmp_path):
-    from agents.train import _bundled_stages, plot_training_curve
+    from agents.training.train import _bundled_stages, plot_training_curve
     cfg = json.loads(BUNDLED_CONFIG.read_text())
     stages = _bundled_stages(cfg)
     chain, c = [], cfg
@@ -260,7 +260,7 @@ def test_training_curve_draws_the_bundled_stages_end_to_end(tmp_path):
 
 
 def test_training_curve_of_a_run_folder_names_the_run_and_its_origin(tmp_path, monkeypatch):
-    from agents.train import plot_training_curve
+    from agents.training.train import plot_training_curve
     run = tmp_path / "ppo_x"
     (run / "best").mkdir(parents=True)
     hist = [{"timesteps": s, "random_ratio_imm2": 1.0 - s * 1e-7} for s in (1000, 2000, 3000)]

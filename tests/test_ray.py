@@ -10,15 +10,17 @@ import sys
 import numpy as np
 import pytest
 
-import agents.parallel
-import agents.train
-from agents.evaluate import BUNDLED_POLICY, _jsonable, evaluate, run_one
-from agents.evaluate import main as evaluate_main
-from agents.parallel import (_policy_blob, _policy_in_worker, chunk_bounds, concat_runs, episodes_digest,
+import agents.evaluation.parallel
+import agents.training.train
+from agents.evaluation.evaluate import BUNDLED_POLICY, evaluate
+from agents.evaluation.metrics import jsonable
+from agents.evaluation.runner import run_one
+from agents.evaluation.evaluate import main as evaluate_main
+from agents.evaluation.parallel import (_policy_blob, _policy_in_worker, chunk_bounds, concat_runs, episodes_digest,
                              merge_chunk_runs, run_suites_ray)
-from agents.suites import draw_suite
-from agents.sweep import _trial, load_sweep_config, run_sweep
-from agents.sweep import main as sweep_main
+from agents.evaluation.suites import draw_suite
+from agents.training.sweep import _trial, load_sweep_config, run_sweep
+from agents.training.sweep import main as sweep_main
 from baselines import registry
 from baselines.registry import run_tracker
 
@@ -143,7 +145,7 @@ def test_a_finished_trial_is_reported_again_not_retrained(monkeypatch, tmp_path)
 
     def no_train(*a, **k):
         raise AssertionError("a finished trial was trained again")
-    monkeypatch.setattr(agents.train, "train", no_train)
+    monkeypatch.setattr(agents.training.train, "train", no_train)
     _trial({"seed": 0}, "ppo", {"n_timesteps": 2048}, str(run.parent))
     assert [r["selection_ratio"] for r in reported] == [h["selection_ratio"] for h in hist]
     assert [r["timesteps"] for r in reported] == [h["timesteps"] for h in hist]
@@ -153,8 +155,8 @@ def test_a_finished_trial_is_reported_again_not_retrained(monkeypatch, tmp_path)
 
 @pytest.mark.skipif(not BUNDLED_POLICY.is_file(), reason="no bundled policy")
 def test_loading_the_policy_in_a_worker_leaves_no_temp_dir(monkeypatch, tmp_path):
-    monkeypatch.setattr(agents.parallel.tempfile, "tempdir", str(tmp_path))
-    monkeypatch.setattr(agents.parallel, "_POLICY_CACHE", {})
+    monkeypatch.setattr(agents.evaluation.parallel.tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(agents.evaluation.parallel, "_POLICY_CACHE", {})
     choose_q, cfg = _policy_in_worker(_policy_blob(BUNDLED_POLICY))
     assert list(tmp_path.glob("radar_track_policy_*")) == []          # (torch may leave its own cache dirs)
     obs = np.zeros((3, len(cfg.features) * cfg.frame_stack))
@@ -219,7 +221,7 @@ def test_evaluation_on_two_workers_equals_the_serial_run(local_ray):
     trackers = ["imm2", "cmin", "policy"]          # cmin: maneuver declarations (bool arrays) are padded too
     res_s, runs_s = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False)
     res_p, runs_p = evaluate(suites, trackers, str(BUNDLED_POLICY), progress=False, workers=2, seed=10_000_000)
-    assert json.dumps(_jsonable(res_p)) == json.dumps(_jsonable(res_s))
+    assert json.dumps(jsonable(res_p)) == json.dumps(jsonable(res_s))
     for suite in runs_s:
         for t in trackers:
             _assert_runs_equal(runs_p[suite][1][t], runs_s[suite][1][t])

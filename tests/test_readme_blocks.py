@@ -1,13 +1,13 @@
 """The README's generated blocks equal what their generators render from the committed JSON alone, so the text
 and the numbers cannot drift apart.
 
-Generators called, by name: ``agents.report.headline(results, has_policy)`` and
-``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` and ``headline`` on
+Generators called, by name: ``agents.reports.report.headline(results, has_policy)`` and
+``agents.reports.report.downstream_tables(results, trackers)`` on ``docs/results.json`` and ``headline`` on
 ``docs/bounds.json`` for ``bounds`` (the hindsight bounds, on the first runs of three suites), and
-``agents.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.report.main``
-passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.paper_checks.readme_block(data)`` on
-``docs/paper_checks.json``, and ``agents.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
-for ``adsb-flights``, and ``agents.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
+``agents.reports.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.reports.report.main``
+passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.reports.paper_checks.readme_block(data)`` on
+``docs/paper_checks.json``, and ``agents.reports.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
+for ``adsb-flights``, and ``agents.reports.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
 ``track_start_table`` on ``docs/generalisation.json`` for ``families``, ``seed-spread``, ``targets`` and
 ``track-start``.
 """
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from agents import paper_checks, report
-from agents.readme_blocks import block_names, read_block, replace_block
+from agents.reports import paper_checks, report
+from agents.reports.readme_blocks import block_names, read_block, replace_block
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -57,7 +57,7 @@ def _bounds():
 
 def _generalisation(render):
     def f():
-        from agents import generalisation
+        from agents.reports import generalisation
         return getattr(generalisation, render)(json.loads((ROOT / "docs" / "generalisation.json").read_text()))
     return f
 

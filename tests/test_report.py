@@ -1,8 +1,8 @@
-"""The README headline's derived numbers (agents.report)."""
+"""The README headline's derived numbers (agents.reports.report)."""
 
 import math
 
-from agents.report import headline, headroom_share
+from agents.reports.report import headline, headroom_share
 
 
 def _res(**rmse):

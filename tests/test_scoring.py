@@ -7,12 +7,14 @@ import json
 import numpy as np
 import pytest
 
-import agents.evaluate as ev
-from agents.callbacks import pooled_rmse
-from agents.evaluate import _jsonable, evaluate, format_table
-from agents.metrics import FEW_RUNS, NEES_95_4DOF, evaluate_run, failed_runs, lost_runs, ratio_ci, region_masks
-from agents.report import headline, markdown_tables
-from agents.suites import draw_suite
+import agents.evaluation.evaluate as ev
+import agents.evaluation.runner as runner
+from agents.training.callbacks import pooled_rmse
+from agents.evaluation.evaluate import evaluate, format_table
+from agents.evaluation.metrics import (FEW_RUNS, NEES_95_4DOF, evaluate_run, failed_runs, jsonable, lost_runs, ratio_ci,
+                                      region_masks)
+from agents.reports.report import headline, markdown_tables
+from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from radar_env.episode import stack_episodes
 
@@ -54,9 +56,9 @@ def _rmse_over(batch, run, rows):
 
 
 def _with(monkeypatch, corrupted):
-    """Make :func:`agents.evaluate.evaluate` run the given (corrupted) TrackRuns instead of the real trackers."""
-    real = ev.run_tracker
-    monkeypatch.setattr(ev, "run_tracker", lambda name, eps: corrupted.get(name) or real(name, eps))
+    """Make :func:`agents.evaluation.evaluate.evaluate` run the given (corrupted) TrackRuns instead of the real trackers."""
+    real = runner.run_tracker
+    monkeypatch.setattr(runner, "run_tracker", lambda name, eps: corrupted.get(name) or real(name, eps))
 
 
 def test_nan_estimate_is_a_failed_run_excluded_not_zero_error(suite, monkeypatch):
@@ -142,7 +144,7 @@ def test_fewer_than_20_runs_are_flagged_beside_every_interval(suite, monkeypatch
     res = results["bizup2002"]
     assert res["few_runs"] and res["few_common_runs"]
     assert all(m["few_runs"] and m["few_common_runs"] for m in res["trackers"].values())
-    d = json.loads(json.dumps(_jsonable(results), allow_nan=False))
+    d = json.loads(json.dumps(jsonable(results), allow_nan=False))
     assert d["bizup2002"]["trackers"]["imm2"]["few_runs"] is True
     for text in (format_table(results), markdown_tables(results)):
         rows = [line for line in text.splitlines() if line.startswith(("imm2", "kf_tuned", "| imm2", "| kf_tuned"))]
@@ -174,8 +176,8 @@ def test_no_nan_or_inf_in_json_or_tables_when_a_tracker_fails_everywhere(suite, 
     strict = evaluate([("bizup2002", eps)], list(TRACKERS), progress=False, common_over=list(TRACKERS))[0]
     assert strict["bizup2002"]["common_runs"] == 0
     assert "no common run" in strict["bizup2002"]["trackers"]["imm2"]["undefined"]["pos_rmse_m_common"]
-    json.dumps(_jsonable(strict), allow_nan=False)
-    text = json.dumps(_jsonable({"meta": {}, "suites": results}), allow_nan=False)      # raises on NaN / Inf
+    json.dumps(jsonable(strict), allow_nan=False)
+    text = json.dumps(jsonable({"meta": {}, "suites": results}), allow_nan=False)      # raises on NaN / Inf
     d = json.loads(text)["suites"]["bizup2002"]
     assert d["trackers"]["cmin"]["pos_rmse_m"] is None and d["trackers"]["cmin"]["pos_rmse_m_ci95"] == [None, None]
     assert set(d["trackers"]["cmin"]["undefined"]) >= {k for k, v in d["trackers"]["cmin"].items() if v is None}
@@ -197,7 +199,7 @@ def test_callback_score_is_inf_for_a_nan_estimate(suite):
 
 
 def test_downstream_metrics_leave_the_failed_runs_out(suite, monkeypatch):
-    from agents.downstream import intercept_metrics
+    from agents.evaluation.downstream import intercept_metrics
     eps, batch, runs = suite
     bad = _corrupt(runs["cmin"], 1, lambda r, b, k: r.x.__setitem__((b, k), np.nan))
     _with(monkeypatch, {"cmin": bad})
@@ -214,8 +216,8 @@ def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(mo
     """One tracker's singular matrix (here: a LinAlgError raised by its runner) must not abort the evaluation."""
     import json
 
-    from agents import evaluate as ev
-    from agents.suites import draw_suite
+    from agents.evaluation import evaluate as ev
+    from agents.evaluation.suites import draw_suite
     from baselines import registry
 
     def boom(episodes, cfg):
@@ -229,13 +231,13 @@ def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(mo
     assert bad["failed_runs"] == 3 and bad["error"].startswith("LinAlgError")
     assert res["trackers"]["imm2"]["failed_runs"] == 0 and np.isfinite(res["trackers"]["imm2"]["pos_rmse_m"])
     assert np.isfinite(res["trackers"]["kf_tuned"]["pos_rmse_m"])
-    json.dumps(ev._jsonable(results), allow_nan=False)
+    json.dumps(jsonable(results), allow_nan=False)
     assert "kf_low" in ev.format_table(results)
 
 
 def test_tracker_failing_everywhere_does_not_empty_the_common_set_and_is_noted(monkeypatch):
-    from agents import evaluate as ev
-    from agents.suites import draw_suite
+    from agents.evaluation import evaluate as ev
+    from agents.evaluation.suites import draw_suite
     from baselines import registry
 
     def boom(episodes, cfg):
@@ -251,7 +253,7 @@ def test_tracker_failing_everywhere_does_not_empty_the_common_set_and_is_noted(m
 
 
 def test_downstream_cells_say_when_they_come_from_fewer_runs():
-    from agents.report import downstream_tables
+    from agents.reports.report import downstream_tables
     res = {"bizup2002": {"runs": 8, "trackers": {"a": {"intercept_miss_m_median": 5.0, "intercept_capture_rate": 1.0,
                                                        "downstream_runs": 6},
                                                  "b": {"intercept_miss_m_median": 4.0, "intercept_capture_rate": 1.0,

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from agents.suites import draw_suite
+from agents.evaluation.suites import draw_suite
 from baselines import trackers as T
 from baselines.registry import run_tracker, tuned_imm2_spec
 from baselines.tuned_params import tuned_parameters

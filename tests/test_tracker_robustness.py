@@ -6,7 +6,7 @@ same episodes (training-range seeds, small run counts)."""
 import numpy as np
 import pytest
 
-from agents.suites import draw_suite
+from agents.evaluation.suites import draw_suite
 from baselines.alpha_beta import run_alpha_beta
 from baselines.konle import run_konle
 from baselines.registry import run_tracker

@@ -12,11 +12,11 @@ pytest.importorskip("stable_baselines3")
 
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
-from agents import evaluate as ev  # noqa: E402
-from agents.callbacks import ImmRatioEvalCallback  # noqa: E402
+from agents.evaluation import evaluate as ev  # noqa: E402
+from agents.training.callbacks import ImmRatioEvalCallback  # noqa: E402
 from agents.cli import main as cli_main  # noqa: E402
-from agents.sb3_vec import make_sb3_vec_env  # noqa: E402
-from agents.train import load_hyperparams, main as train_main, train  # noqa: E402
+from agents.training.sb3_vec import make_sb3_vec_env  # noqa: E402
+from agents.training.train import load_hyperparams, main as train_main, train  # noqa: E402
 from radar_env.env import RadarTrackEnv  # noqa: E402
 from radar_env.observation import DEFAULT_FEATURES  # noqa: E402
 
@@ -170,8 +170,8 @@ def test_bundled_policy_loads_and_is_deterministic():
 def _bundled_policy_ratios(scenario, runs, baselines):
     """Position-RMSE ratios (with paired 95 % intervals) of the bundled policy to each baseline tracker, on
     ``runs`` held-out runs of ``scenario`` with fixed evaluation seeds (not those of the README table)."""
-    from agents.metrics import ratio_ci
-    from agents.suites import EVAL_SEED_BASE, draw_suite
+    from agents.evaluation.metrics import ratio_ci
+    from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
     from baselines.registry import run_tracker
     from baselines.trackers import run_q_policy
     from radar_env.episode import stack_episodes
@@ -195,11 +195,11 @@ def test_bundled_policy_beats_tuned_kf_and_imm_on_held_out_runs():
 
 def _bundled_policy_family_check(scenario, runs):
     """The issue's per-suite bound on further held-out runs (seeds EVAL_SEED_BASE + 5000 + i, not the README's):
-    ratio to imm2 and its 95 % interval, ratio to the strongest classical tracker of agents.generalisation.CLASSICAL
+    ratio to imm2 and its 95 % interval, ratio to the strongest classical tracker of agents.reports.generalisation.CLASSICAL
     on these runs, and the track-loss rates of the policy and imm2."""
-    from agents.generalisation import CLASSICAL
-    from agents.metrics import evaluate_run, ratio_ci
-    from agents.suites import EVAL_SEED_BASE, draw_suite
+    from agents.reports.generalisation import CLASSICAL
+    from agents.evaluation.metrics import evaluate_run, ratio_ci
+    from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
     from baselines.registry import run_tracker
     from baselines.trackers import run_q_policy
     from radar_env.episode import stack_episodes

@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.suites import EVAL_SEED_BASE, TUNING_SEEDS, draw_suite
+from agents.evaluation.suites import EVAL_SEED_BASE, TUNING_SEEDS, draw_suite
 from baselines import registry
 from baselines import tuning as tu
 from baselines.seeds import draw_random_episodes
-from baselines.tuned_params import imm2_spec_from_params, kf_q_m_s2_from_params, tuned_parameters
+from baselines.trackers import imm2_spec_from_params
+from baselines.tuned_params import kf_q_m_s2_from_params, tuned_parameters
 from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 
@@ -141,7 +142,7 @@ def test_tuning_episodes_are_the_random_suite_on_tuning_seeds_bit_for_bit():
 
 @pytest.mark.parametrize("package, forbidden", [("baselines", ("agents",)), ("radar_env", ("agents", "baselines"))])
 def test_layers_only_look_down(package, forbidden):
-    """baselines never import agents; radar_env imports neither (the old tuning imported agents.suites)."""
+    """baselines never import agents; radar_env imports neither (the old tuning imported agents.evaluation.suites)."""
     bad = []
     for path in sorted((ROOT / package).glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):

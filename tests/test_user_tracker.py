@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents import evaluate as ev
-from agents.suites import draw_suite
+from agents.evaluation import evaluate as ev
+from agents.evaluation.suites import draw_suite
 from baselines import registry
 from baselines.registry import register_tracker, run_tracker, tracker_names
 from baselines.trackers import TrackRun

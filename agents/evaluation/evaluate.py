@@ -1,8 +1,8 @@
 """The main job: compare learned policies and classical trackers on identical measurement streams.
 
-``radar-track evaluate`` (or ``python -m agents.evaluate``) draws each suite's episodes once (held-out evaluation
-seeds, see :mod:`agents.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
-writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.metrics`).
+``radar-track evaluate`` (or ``python -m agents.evaluation.evaluate``) draws each suite's episodes once (held-out evaluation
+seeds, see :mod:`agents.evaluation.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
+writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.evaluation.metrics`).
 
 Defaults: the bundled learned policy if one exists (``agents/bundled/``), the tuned 2-mode IMM (``imm2``), the tuned
 CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
@@ -22,92 +22,26 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, run_tracker, tracker_names
+from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, tracker_names
 from baselines.user_trackers import import_tracker_module
-from baselines.trackers import TrackRun, run_q_policy
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES
-from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
 
-from .bundle import BUNDLED_POLICY, policy_env_kwargs
-from .downstream import intercept_metrics, warning_metrics
-from .metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, ratio_ci
-from .suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, suite_key, trajectory_suite_names
+from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.loading import load_policy
+from agents.evaluation.downstream import intercept_metrics, warning_metrics
+from agents.evaluation.metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci
+from agents.evaluation.runner import run_one
+from agents.evaluation.suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, suite_key, trajectory_suite_names
 
-__all__ = ["evaluate", "load_policy", "main", "DEFAULT_TRACKERS", "BUNDLED_POLICY"]
+__all__ = ["evaluate", "main", "format_table", "DEFAULT_TRACKERS", "DEFAULT_RUNS"]
 
 DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "adsb_dev": 12,
                 "adsb_heldout": 12, "encounters": 100, **{f: 200 for f in FAMILIES}}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
 the ADS-B suites fly each of their flights once; the held-out families 200); others: 50 (``adsb:<flight>``: 10)."""
-
-
-# ------------------------------------------------------------------------------------------------ policies
-def load_policy(path):
-    """Load a saved stable-baselines3 model (PPO, DQN, SAC, A2C or TD3 zip) and the env config it was trained
-    with (``env_config.json`` beside it, else the defaults with the model's action type).
-
-    Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2. Raises ``ValueError`` for a file
-    that is not such a model, or a model whose observation or action space does not match its env config (the
-    message says which env kwargs it needs)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
-    try:
-        import stable_baselines3 as sb3
-    except ImportError as e:  # pragma: no cover - depends on the install
-        raise ValueError("loading a policy needs stable-baselines3: pip install -e '.[train]'") from e
-    model, errors = None, []
-    for algo in ("PPO", "DQN", "SAC", "A2C", "TD3"):
-        try:
-            model = getattr(sb3, algo).load(str(path), device="cpu")
-            break
-        except Exception as e:  # noqa: BLE001 - try the next algorithm class
-            errors.append(f"{algo}: {type(e).__name__}")
-    if model is None:
-        raise ValueError(f"{path}: not a stable-baselines3 model this version can load ({'; '.join(errors)})")
-    cfg_file = path.with_name("env_config.json")
-    kw = policy_env_kwargs(path) if cfg_file.is_file() else {}
-    from gymnasium import spaces
-    discrete = isinstance(model.action_space, spaces.Discrete)
-    kw.setdefault("action_type", "discrete" if discrete else "continuous")
-    try:
-        cfg = EnvConfig.from_kwargs(**kw)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{cfg_file}: {e}") from None
-    where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"
-    n_obs = int(np.prod(model.observation_space.shape))
-    if n_obs != len(cfg.features) * cfg.frame_stack:
-        raise ValueError(f"{path}: the model takes {n_obs} observation entries but the env config from {where} has "
-                         f"{len(cfg.features)} features x frame_stack {cfg.frame_stack}; it was trained with other "
-                         f"env kwargs: it needs 'features' (a list of the {n_obs} feature names it was trained "
-                         f"with, or {n_obs} / k names with 'frame_stack' k), e.g. from its run's env_config.json, "
-                         f"in {cfg_file}")
-    if discrete != (cfg.action_type == "discrete"):
-        raise ValueError(f"{path}: the model has {model.action_space} actions but the env config from {where} has "
-                         f"action_type={cfg.action_type!r}; it needs action_type="
-                         f"{'discrete' if discrete else 'continuous'!r}")
-    if discrete and int(model.action_space.n) != len(cfg.q_levels_g):
-        raise ValueError(f"{path}: the model has {model.action_space} actions but the env config from {where} has "
-                         f"{len(cfg.q_levels_g)} q levels; it needs 'q_levels_g' (the {model.action_space.n} levels "
-                         f"it was trained with) in {cfg_file}")
-    choose_q = model_choose_q(model, cfg)
-    return choose_q, cfg
-
-
-def model_choose_q(model, cfg: EnvConfig):
-    """``choose_q(obs (n, F)) -> q (n,)`` in m/s^2 for a stable-baselines3 model (deterministic actions), through
-    the env's action map :func:`radar_env.env.actions_to_q_m_s2`."""
-    levels = np.asarray(cfg.q_levels_g) * G0_M_S2
-
-    def choose_q(obs):
-        act, _ = model.predict(obs.astype(np.float32), deterministic=True)
-        return actions_to_q_m_s2(np.asarray(act).reshape(obs.shape[0], -1), cfg.action_type, levels)
-
-    return choose_q
 
 
 # ------------------------------------------------------------------------------------------------ evaluation
@@ -119,11 +53,11 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         suites: list of ``(name, episodes)``.
         trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``.
         reference: tracker the ratio column is taken against (if present).
-        workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.parallel.run_suites_ray`,
+        workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.evaluation.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
             the named suites themselves).
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
-            (:func:`agents.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
+            (:func:`agents.evaluation.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
         loaded_policy: ``load_policy(policy_path)``'s result if the caller has it already (not loaded again).
     Returns:
@@ -147,7 +81,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     results, runs = {}, {}
     ray_runs = None
     if workers > 1 or address:
-        from .parallel import run_suites_ray
+        from agents.evaluation.parallel import run_suites_ray
         ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, bar)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
@@ -184,28 +118,6 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         runs[suite] = (batch, suite_runs)
     bar(None)
     return results, runs
-
-
-def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
-    """Run one tracker (``policy``: through ``choose_q``) on a suite's episodes. A tracker that raises does not stop
-    the evaluation: it gets a :class:`TrackRun` of NaN (so every run counts as failed) with the exception in
-    ``error``, reported in its metrics and on stderr; the other trackers are scored as usual."""
-    try:
-        if tracker == "policy":
-            return run_q_policy(episodes, choose_q, "policy", policy_cfg)
-        return run_tracker(tracker, episodes)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:
-        return failed_track_run(tracker, episodes, f"{type(e).__name__}: {e}")
-
-
-def failed_track_run(tracker, episodes, msg):
-    """The :class:`TrackRun` of a tracker that raised ``msg`` on a suite: NaN on every run and look (so every run
-    counts as failed), ``error=msg``; the warning goes to stderr. Shared by the serial and the Ray evaluations
-    (:mod:`agents.parallel`: a failure in any chunk fails the whole suite, as serially)."""
-    print(f"warning: tracker {tracker!r} failed on this suite ({msg}); every run counted as failed", file=sys.stderr)
-    B, K = len(episodes), max(len(ep.t_s) for ep in episodes)
-    return TrackRun(tracker, np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.zeros(B, np.int64),
-                    np.full((B, K), np.nan), error=msg)
 
 
 def _downstream(suite, episodes, batch, run):
@@ -346,31 +258,13 @@ def write_plots(runs, out_dir):
     """PNG figures per suite; returns the list of files written."""
     import matplotlib
     matplotlib.use("Agg")
-    from . import plots
+    from agents.evaluation import plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = []
     for suite, (batch, suite_runs) in runs.items():
         files += plots.suite_figures(suite, batch, suite_runs, out_dir)
     return files
-
-
-def _jsonable(o):
-    """``o`` with numpy scalars as Python numbers and every NaN or Inf as None (the metrics dicts say why in
-    ``undefined``), so ``json.dumps(..., allow_nan=False)`` accepts it."""
-    if isinstance(o, dict):
-        return {k: _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    if isinstance(o, np.bool_):
-        return bool(o)
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.ndarray):
-        return _jsonable(o.tolist())
-    return o
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -407,7 +301,7 @@ def build_parser(prog="radar-track evaluate"):
                          "baselines.registry.register_tracker (repeatable; see 'Your own tracker in the "
                          "comparison' in the README)")
     ap.add_argument("--policy", help="saved stable-baselines3 model (.zip) for the 'policy' tracker "
-                                     f"(default: {BUNDLED_POLICY.relative_to(Path(__file__).parents[1])} if present)")
+                                     f"(default: {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", help="directory for the plots (default ./results)")
     ap.add_argument("--json", help="write every metric per tracker per suite to this JSON file (its folder must exist)")
     ap.add_argument("--no-plots", action="store_true", help="skip the plots")
@@ -561,7 +455,7 @@ def main(argv=None, prog="radar-track evaluate"):
                 "radar_range_km": (None if radar is not None or not files else
                                    [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
-        Path(args.json).write_text(json.dumps(_jsonable({"meta": meta, "suites": results}), indent=1,
+        Path(args.json).write_text(json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
                                               allow_nan=False))
         print(f"metrics: {args.json}")
     if not args.no_plots:
@@ -571,4 +465,4 @@ def main(argv=None, prog="radar-track evaluate"):
 
 
 if __name__ == "__main__":
-    main(prog="python -m agents.evaluate")
+    main(prog="python -m agents.evaluation.evaluate")

@@ -3,14 +3,14 @@
 ``radar-track train --algo ppo [--action-type discrete|continuous] [--timesteps N] [--n-envs N] [--seed S]
 [--out runs/] [--env-kwargs JSON] [--hp KEY=VALUE ...]``
 
-Hyperparameters come from ``agents/hyperparams/<algo>.toml`` (table ``"RadarTrack-v0"``, rl-zoo3 style); the
+Hyperparameters come from ``agents/training/hyperparams/<algo>.toml`` (table ``"RadarTrack-v0"``, rl-zoo3 style); the
 command line overrides ``n_timesteps``, ``n_envs``, env arguments (``--env-kwargs``, merged over the file's
 ``env_kwargs``) and any other key (``--hp gamma=0.9``, the value parsed as JSON, else kept as a string).
 Special keys: ``eval_scenarios`` / ``eval_runs`` / ``eval_freq`` / ``select_on`` (selection callback),
 ``init_from`` (path of a saved model of the same algorithm and network to start from: fine-tuning).
 
 Rollouts run on the native batched vector env (:class:`radar_env.env.RadarTrackVectorEnv`) through the SB3
-adapter (:mod:`agents.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
+adapter (:mod:`agents.training.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
 ``[0, 1_000_000)``). Hyperparameters are checked before anything is written (unknown keys, wrong types, a missing
 ``init_from`` or one of another algorithm are one-line errors). The run is written into
 ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only once the final model and ``summary.json`` are saved;
@@ -23,7 +23,7 @@ process was killed) and no final ``policy.zip``; a later run under the same name
 * ``policy.zip`` (final model) and ``env_config.json`` beside it (``radar-track evaluate --policy`` reads both);
 * ``best/policy.zip`` + ``best/env_config.json`` + ``best/selection.json``: the model with the lowest position
   RMSE ratio to the tuned IMM on the selection suite (training-range seeds 900_000 + i, see
-  :mod:`agents.callbacks`);
+  :mod:`agents.training.callbacks`);
 * ``config.json`` (hyperparameters used), ``args.json``, ``command.txt``, ``summary.json`` (wall time, env share of
   wall time, selection history), ``checkpoints/``, ``tb/`` (TensorBoard), ``vecnormalize.pkl`` if rewards were
   normalised (rewards only: the observation is already scaled, so evaluation needs no statistics).
@@ -48,7 +48,7 @@ import numpy as np
 
 from radar_env.observation import DEFAULT_FEATURES
 
-from .suites import TRAIN_SEEDS
+from agents.evaluation.suites import TRAIN_SEEDS
 
 __all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
 
@@ -64,7 +64,7 @@ _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs",
 
 
 def load_hyperparams(algo, path=None):
-    """The ``RadarTrack-v0`` table of ``agents/hyperparams/<algo>.toml`` (package data, read through
+    """The ``RadarTrack-v0`` table of ``agents/training/hyperparams/<algo>.toml`` (package data, read through
     ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``."""
     if path:
         path = Path(path)
@@ -75,7 +75,7 @@ def load_hyperparams(algo, path=None):
         if algo not in ALGOS:
             raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
         res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
-        text, where = res.read_bytes(), f"agents/hyperparams/{algo}.toml"
+        text, where = res.read_bytes(), f"agents/training/hyperparams/{algo}.toml"
     try:
         table = tomllib.loads(text.decode())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
@@ -244,7 +244,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder.
 
     ``on_selection(row)`` (optional) is called after each selection evaluation (``row`` as in ``summary.json``'s
-    ``selection_history``); the sweeps (:mod:`agents.sweep`) report it to Ray Tune.
+    ``selection_history``); the sweeps (:mod:`agents.training.sweep`) report it to Ray Tune.
 
     Everything is checked (``ValueError``) before the run folder is made; the run is written to
     ``<out>/<name>.partial`` and renamed to ``<out>/<name>`` when complete (see the module docstring)."""
@@ -253,8 +253,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from .callbacks import EnvTimeCallback, ImmRatioEvalCallback
-    from .sb3_vec import make_sb3_vec_env
+    from agents.training.callbacks import EnvTimeCallback, ImmRatioEvalCallback
+    from agents.training.sb3_vec import make_sb3_vec_env
 
     torch.set_num_threads(1)
     if algo not in ALGOS:
@@ -366,8 +366,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
             "steps_per_s": model.num_timesteps / wall, "best_selection_ratio_imm2": eval_cb.best_ratio,
             "selection_history": eval_cb.history,
         }
-        from .evaluate import _jsonable    # inf (a failed selection evaluation) -> null, never 'Infinity'
-        (part / "summary.json").write_text(json.dumps(_jsonable(summary), indent=1, allow_nan=False))
+        from agents.evaluation.metrics import jsonable    # inf (a failed selection evaluation) -> null, never 'Infinity'
+        (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         env.close()
     except BaseException:
         (part / "FAILED").write_text(traceback.format_exc())
@@ -435,7 +435,7 @@ def plot_training_curve(run, png=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import training_curve_figure
+    from agents.evaluation.plots import training_curve_figure
     run = Path(run)
     if run.is_file():
         cfg = json.loads(run.read_text())
@@ -471,7 +471,7 @@ def build_parser(prog="radar-track train"):
     ap.add_argument("--name", help="run folder name (default <algo>_<action>_s<seed>_<time>)")
     ap.add_argument("--env-kwargs", default="{}", help="JSON dict of RadarTrack-v0 arguments, merged over the file's")
     ap.add_argument("--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (value as JSON)")
-    ap.add_argument("--hyperparams", help="TOML file to read instead of agents/hyperparams/<algo>.toml")
+    ap.add_argument("--hyperparams", help="TOML file to read instead of agents/training/hyperparams/<algo>.toml")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--quiet", action="store_true")
     return ap
@@ -514,4 +514,4 @@ def main(argv=None, prog="radar-track train"):
 
 
 if __name__ == "__main__":
-    main(prog="python -m agents.train")
+    main(prog="python -m agents.training.train")

@@ -1,5 +1,5 @@
 """Does the learned policy generalise? The held-out families and the spread of a recipe over its training seeds:
-``python -m agents.generalisation``.
+``python -m agents.reports.generalisation``.
 
 Writes ``docs/generalisation.json`` and the README blocks ``families`` (per held-out family: the bundled policy,
 ``imm2``, the strongest classical tracker, ``hindsight_q`` and ``clairvoyant``), ``seed-spread`` (every trained
@@ -7,7 +7,7 @@ seed of the recipes in :data:`RECIPES` on every suite, held-out seeds) and ``tar
 reached or not, with the numbers). Every number is computed here; nothing is typed in.
 
 Seeds: every suite is drawn with the evaluation seeds ``EVAL_SEED_BASE + i`` (held out). The families
-(:data:`agents.suites.HELDOUT_FAMILY_SUITES`) were never used for training, tuning or choosing a policy. The
+(:data:`agents.evaluation.suites.HELDOUT_FAMILY_SUITES`) were never used for training, tuning or choosing a policy. The
 *strongest classical tracker* of a suite is the one of :data:`CLASSICAL` with the lowest pooled position RMSE
 there (chosen on the same runs it is compared on, which favours it).
 """
@@ -25,10 +25,13 @@ from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
 from radar_env.episode import stack_episodes
 
-from .evaluate import BUNDLED_POLICY, DEFAULT_RUNS, _jsonable, load_policy
-from .metrics import FEW_RUNS, evaluate_run, ratio_ci
-from .report import headroom_share
-from .suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
+from agents.evaluation.evaluate import DEFAULT_RUNS
+from agents.evaluation.metrics import jsonable
+from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.loading import load_policy
+from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
+from agents.reports.report import headroom_share
+from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 
 __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spread_table", "targets_table",
            "track_start_table", "NAMED_SUITES"]
@@ -41,7 +44,7 @@ FAMILY_RUNS = 60
 """Runs per family for the family table (``hindsight_q`` costs about a CPU-second per episode); ``adsb_heldout``
 flies each of its 12 flights once."""
 NAMED_SUITES = ("bizup2002", "adrian_flower", "kim_lee_accel", "seed002_course_changes", "seed002_two_radars")
-RECIPE_DIR = Path(__file__).resolve().parent / "bundled" / "recipe"
+RECIPE_DIR = Path(__file__).resolve().parents[1] / "bundled" / "recipe"
 """Every trained seed of this round's recipes: ``<recipe>_s<seed>/policy.zip`` with its ``env_config.json``."""
 RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observations; zero weights for the older "
                         "three at the start)",
@@ -241,7 +244,7 @@ def targets_table(data):
 
 # ------------------------------------------------------------------------------------------------ main
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m agents.generalisation", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m agents.reports.generalisation", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
     ap.add_argument("--family-runs", type=int, default=FAMILY_RUNS)
@@ -269,11 +272,11 @@ def main(argv=None):
     data["track_start"] = track_start_study(args.seed, 200)
     data["seconds"] = time.time() - t0
     docs = Path(args.docs)
-    (docs / "generalisation.json").write_text(json.dumps(_jsonable(data), indent=1, allow_nan=False))
+    (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"families": families_table(data), "seed-spread": spread_table(data), "targets": targets_table(data),
               "track-start": track_start_table(data)}
     if args.readme:
-        from .readme_blocks import replace_block
+        from agents.reports.readme_blocks import replace_block
         for name, text in blocks.items():
             replace_block(name, text)
     print("\n\n".join(blocks.values()))

@@ -1,4 +1,4 @@
-"""Check our implementation against the papers' own numbers and definitions (``python -m agents.paper_checks``).
+"""Check our implementation against the papers' own numbers and definitions (``python -m agents.reports.paper_checks``).
 
 Writes ``docs/paper_checks.json`` (every number), ``docs/paper_checks.md`` (rendered from that JSON alone by
 :func:`render_markdown`), the figures ``docs/figures/paper_*.png`` and the README block ``paper-checks``
@@ -8,11 +8,11 @@ verdict``; the papers' values are quoted from the seeds, every other number is c
 is a rule on the computed numbers (stated beside the table).
 
 * Bizup (seed 000): c_min > 0.5 g as a detector (section 3.2, 20 runs); his figures 7 and 8 and the claims drawn
-  from them, 100 runs of ``bizup2002`` (:mod:`agents.paper_bizup`); the CKF's fading-memory average.
-* Adrian (seed 003): his Mathcad sheet computed exactly (:mod:`agents.paper_adrian`: truth random walk,
+  from them, 100 runs of ``bizup2002`` (:mod:`agents.reports.paper_bizup`); the CKF's fading-memory average.
+* Adrian (seed 003): his Mathcad sheet computed exactly (:mod:`agents.reports.paper_adrian`: truth random walk,
   48 leaves, his KF start, absolute turn-rate errors against the backward-difference reference, ``Stdev`` of the
   distance error), over his process noise 0.10-0.25 g; beside it our ``adrian_flower`` with our trackers.
-* Kim & Lee (seed 004): their 1-D scenario as printed (:mod:`agents.paper_kim_lee`), RMSE and NPE curves; beside
+* Kim & Lee (seed 004): their 1-D scenario as printed (:mod:`agents.reports.paper_kim_lee`), RMSE and NPE curves; beside
   it our 2-D ``kim_lee_accel``.
 """
 
@@ -30,13 +30,13 @@ from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
-from .metrics import evaluate_run, region_masks
-from .suites import EVAL_SEED_BASE, draw_suite
+from agents.evaluation.metrics import evaluate_run, region_masks
+from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
 
 __all__ = ["bizup_cmin_check", "adrian_check", "kim_lee_check", "compute", "stale_entries", "render_markdown",
            "readme_block", "main"]
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
 def bizup_cmin_check(runs=20, seed=EVAL_SEED_BASE, threshold_g=0.5):
@@ -153,15 +153,15 @@ def _stats(a):
 
 def compute(fig_dir=None, adrian_runs=10, bizup_runs=100, kim_lee_runs=500, seed=EVAL_SEED_BASE):
     """Run every check; returns the JSON-ready dict :func:`render_markdown` renders. Figures go to ``fig_dir``."""
-    from .paper_adrian import adrian_worksheet
-    from .paper_bizup import bizup_figures_check
-    from .paper_kim_lee import kim_lee_1d_check
+    from agents.reports.paper_adrian import adrian_worksheet
+    from agents.reports.paper_bizup import bizup_figures_check
+    from agents.reports.paper_kim_lee import kim_lee_1d_check
 
     t0 = time.time()
     ws = adrian_worksheet(runs=adrian_runs, seed=seed, sigma_a_g=ADRIAN_SIGMAS_G)
     kl = kim_lee_1d_check(runs=kim_lee_runs, seed=seed)
     if fig_dir is not None:
-        from .paper_figures import kim_lee_figure
+        from agents.reports.paper_figures import kim_lee_figure
         Path(fig_dir).mkdir(parents=True, exist_ok=True)
         kim_lee_figure(Path(fig_dir) / "paper_kim_lee_rmse_npe.png", kl["t_s"], kl["curves"], KIM_LEE_SPANS_S,
                        f"Kim & Lee figs. 3-5, 1-D scenario as printed ({kl['runs']} runs, sigma = 150 m, T = 1 s, "
@@ -204,7 +204,7 @@ def stale_entries(data):
     """Recompute the cheap sections of ``data`` (the JSON of :func:`compute`) with its own seed and run counts:
     ``kim_lee_paper_def`` (1-D, ~1 s), ``kim_lee_ours`` and ``bizup_cmin`` (< 1 s each); returns the paths whose
     committed value differs from today's code (exactly: the checks are deterministic). Empty = not stale."""
-    from .paper_kim_lee import kim_lee_1d_check
+    from agents.reports.paper_kim_lee import kim_lee_1d_check
 
     seed = int(data["seed"])
     now = {
@@ -294,7 +294,7 @@ def _adrian_md(d):
         "## Adrian: turn-rate estimation and position noise on his flower (seed 003)",
         "",
         f"*Ours under his definition*: his Mathcad sheet computed exactly ({pdef['runs']} realisations, "
-        "`agents/paper_adrian.py`): 48 leaves, N = 6240 looks of 5 s; his truth `x_i = F x_{i-1} + v_i` with the "
+        "`agents/reports/paper_adrian.py`): 48 leaves, N = 6240 looks of 5 s; his truth `x_i = F x_{i-1} + v_i` with the "
         "position random walk `v_i = (nvx_i, 0, nvx_i, 0)`, sd sqrt(12.263) m; polar noise 0.04 NM / 0.07 deg at "
         "the mean truth position; reference turn rate the backward difference of truth headings over "
         "(t_{i-1}, t_i]; errors absolute, `stdev` and `max` over i = 5..N; position noise the sample `Stdev` of "
@@ -363,7 +363,7 @@ def _adrian_md(d):
 
 
 def _bizup_md(d, fig_prefix):
-    from .paper_bizup import CONVERGED as CONV
+    from agents.reports.paper_bizup import CONVERGED as CONV
 
     b, bz = d["bizup_cmin"], d["bizup"]
     d1 = np.array(b["delay_turn1_scans"], dtype=float)
@@ -531,7 +531,7 @@ def _bizup_md(d, fig_prefix):
         "",
         "At 0.1 deg the FMA never comes near 5 NM (9.26 km), so his CKF never switches here. The variant "
         "`ckf_tuned` (dashed in the figures) switches at the midpoint between the first leg's largest FMA and the "
-        f"smallest per-run turn peak (`agents.paper_bizup.fma_threshold`), chosen on {ck['threshold_tuned_runs']} "
+        f"smallest per-run turn peak (`agents.reports.paper_bizup.fma_threshold`), chosen on {ck['threshold_tuned_runs']} "
         f"other runs of bizup2002 (seeds from {ck['threshold_tuned_seed']}, disjoint from the scored runs: there the "
         f"first-leg FMA max is {ck['threshold_tuned_first_leg_max_m'] / 1e3:.3f} km and the smallest turn peak "
         f"{ck['threshold_tuned_turn_peak_min_m'] / 1e3:.3f} km). Because the FMA decays slowly and the 2 g noise keeps the innovations near the switch "
@@ -550,7 +550,7 @@ def _kim_lee_md(d, fig_prefix):
         "## Kim & Lee (seed 004)",
         "",
         f"*Ours under their definition*: their scenario as printed, in 1-D ({kl['runs']} runs, "
-        "`agents/paper_kim_lee.py`): 120 m/s, +5 g over 26-35 s, -5 g over 66-75 s, sigma = 150 m, T = 1 s, "
+        "`agents/reports/paper_kim_lee.py`): 120 m/s, +5 g over 26-35 s, -5 g over 66-75 s, sigma = 150 m, T = 1 s, "
         "window N = 12; RMSE and NPE (RMSE of the estimate / RMS plot error) per time step over the runs. The "
         f"paper gives no process noise for its conventional tracker; we take {kl['low_q_m_s2']:g} m/s^2 (low) and "
         f"our tuned KF q ({kl['tuned_q_m_s2'] / G0_M_S2:.2f} g). Every tracker first sees {kl['lead_in_s']} s of "
@@ -611,7 +611,7 @@ def _kim_lee_md(d, fig_prefix):
 def render_markdown(data, fig_prefix="figures/"):
     """``docs/paper_checks.md`` from the JSON of :func:`compute` alone (``fig_prefix``: path to the figures)."""
     lines = [
-        "# Paper checks (generated by `python -m agents.paper_checks`)",
+        "# Paper checks (generated by `python -m agents.reports.paper_checks`)",
         "",
         f"Computed in {data['seconds']} s (seed {data['seed']}; numbers in docs/paper_checks.json). Papers' "
         "numbers quoted from the seeds; verdicts are rules on the computed numbers, stated with each table.",
@@ -631,7 +631,7 @@ def readme_block(data):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m agents.paper_checks", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m agents.reports.paper_checks", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default=str(DOCS), help="where paper_checks.json/.md and figures/ go")
     ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update README.md")
     args = ap.parse_args(argv)
@@ -642,7 +642,7 @@ def main(argv=None):
     text = render_markdown(data)
     (docs / "paper_checks.md").write_text(text)
     if args.readme:
-        from .readme_blocks import replace_block
+        from agents.reports.readme_blocks import replace_block
         replace_block("paper-checks", readme_block(data))
     print(text)
 

@@ -24,9 +24,10 @@ from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
-from .evaluate import _jsonable, model_choose_q
-from .metrics import errors, failed_runs, region_masks
-from .suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
+from agents.evaluation.metrics import jsonable
+from agents.policies.loading import model_choose_q
+from agents.evaluation.metrics import errors, failed_runs, region_masks
+from agents.evaluation.suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
 
 __all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
 
@@ -34,8 +35,8 @@ SELECTION_SEED_BASE = 900_000
 
 
 def pooled_rmse(batch, run):
-    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.metrics.evaluate_run`);
-    ``inf`` if the run's estimate or covariance is non-finite at any of those looks (:func:`agents.metrics.failed_runs`),
+    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.evaluation.metrics.evaluate_run`);
+    ``inf`` if the run's estimate or covariance is non-finite at any of those looks (:func:`agents.evaluation.metrics.failed_runs`),
     so a policy whose estimate went NaN never scores better than one that tracked."""
     used = region_masks(batch, run.start_index)["used"]
     if failed_runs(batch, run, used).any():
@@ -56,7 +57,7 @@ class ImmRatioEvalCallback(BaseCallback):
         select_on: suite names whose ratios' geometric mean selects the best model (default: ``"random"`` if
             scored, else the first suite).
         on_row: called with each evaluation's row (as kept in ``history``) right after it is made (e.g. a sweep
-            reporting ``selection_ratio`` to Ray Tune, :mod:`agents.sweep`).
+            reporting ``selection_ratio`` to Ray Tune, :mod:`agents.training.sweep`).
     """
 
     def __init__(self, env_kwargs, eval_freq=50_000, scenarios=None, seed=SELECTION_SEED_BASE, best_dir=None,
@@ -130,7 +131,7 @@ class ImmRatioEvalCallback(BaseCallback):
                 self.best_dir.mkdir(parents=True, exist_ok=True)
                 self.model.save(self.best_dir / "policy.zip")
                 (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
-                (self.best_dir / "selection.json").write_text(json.dumps(_jsonable(row), indent=1))
+                (self.best_dir / "selection.json").write_text(json.dumps(jsonable(row), indent=1))
         row["best"] = bool(improved)
         self.history.append(row)
         if self.on_row is not None:

@@ -6,7 +6,7 @@ and one observation, so ``PPO.load(...).predict`` on the default env fails on th
 wrong levels). Use::
 
     from stable_baselines3 import PPO
-    from agents.bundle import BUNDLED_POLICY, make_policy_env
+    from agents.policies.bundle import BUNDLED_POLICY, make_policy_env
 
     model = PPO.load(BUNDLED_POLICY, device="cpu")
     env = make_policy_env()                       # gym.make("RadarTrack-v0", **env_config.json)
@@ -29,7 +29,7 @@ from radar_env.env import RadarTrackVectorEnv
 
 __all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env", "ship_policy"]
 
-BUNDLED_POLICY = Path(__file__).resolve().parent / "bundled" / "policy.zip"
+BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
 
 

@@ -1,19 +1,19 @@
 """Seed and hyperparameter sweeps on Ray Tune: ``radar-track sweep CONFIG.toml [--out DIR] [--address ADDR]``.
 
-Each trial is one ``radar-track train`` run (:func:`agents.train.train`) with its own run folder
+Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`) with its own run folder
 ``<out>/<name>/runs/<trial>/``; the selection metric (``selection_ratio``: the geometric mean of the policy/imm2
-RMSE ratios on the selection suites, training-range seeds, :class:`agents.callbacks.ImmRatioEvalCallback`) is
+RMSE ratios on the selection suites, training-range seeds, :class:`agents.training.callbacks.ImmRatioEvalCallback`) is
 reported to Tune after every selection evaluation, so an ASHA scheduler can stop weak trials early. At the end a
 table (best selection ratio per trial, lower is better) is printed and written as ``results.csv`` and
 ``results.json`` in ``<out>/<name>/``. Running the same command again after an interruption resumes the sweep
 (finished trials are kept, unfinished ones start again from scratch: training has no mid-run checkpoint resume).
 
-The config (example: ``agents/sweeps/example.toml``)::
+The config (example: ``agents/training/sweeps/example.toml``)::
 
     [sweep]
     name = "ppo_lr_seeds"        # experiment folder under --out (default: the config file's stem)
     algo = "ppo"                 # ppo | dqn | sac
-    hyperparams = "ppo.toml"     # base file (a path, or a name in agents/hyperparams/; default <algo>.toml)
+    hyperparams = "ppo.toml"     # base file (a path, or a name in agents/training/hyperparams/; default <algo>.toml)
     search = "grid"              # grid | random | optuna
     num_samples = 1              # grid: repeats of the whole grid; random / optuna: number of trials
     search_seed = 0              # seed of the random / optuna sampler (reproducible trial configs)
@@ -43,8 +43,8 @@ import sys
 import tomllib
 from pathlib import Path
 
-from .parallel import ray_session, require_ray
-from .train import ALGOS, HP_DIR, load_hyperparams
+from agents.evaluation.parallel import ray_session, require_ray
+from agents.training.train import ALGOS, HP_DIR, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
 
@@ -181,7 +181,7 @@ def _param_space(cfg):
 def _trial(config, algo, hp, runs_dir):
     """The Tune trainable: one training run, ``selection_ratio`` reported after every selection evaluation."""
     from ray import tune
-    from .train import train
+    from agents.training.train import train
     config, hp = dict(config), dict(hp)
     seed = int(config.pop("seed", hp.pop("seed", 0)))
     trial_hp = _merge(hp, _nest(config))
@@ -255,7 +255,7 @@ def results_table(result_grid, space_keys, n_timesteps):
                          else "stopped early" if state == "TERMINATED" else "unfinished")
         row["error"] = None if r.error is None else str(r.error).strip().splitlines()[-1][:200]
         row["best_policy"] = None
-        if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.train)
+        if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.training.train)
             d = Path(m["run_dir"])
             d = d if d.is_dir() or not d.with_name(d.name + ".partial").is_dir() else d.with_name(d.name + ".partial")
             row["best_policy"] = str(d / "best" / "policy.zip")
@@ -322,7 +322,7 @@ def build_parser(prog="radar-track sweep"):
                                  "Ray Tune (grid, random or Optuna search; optional ASHA early stopping); run the "
                                  "same command again to resume.")
     ap.add_argument("config", nargs="?", default=str(EXAMPLE_CONFIG),
-                    help=f"sweep config TOML (default: the example, {EXAMPLE_CONFIG.relative_to(Path(__file__).parents[1])})")
+                    help=f"sweep config TOML (default: the example, {EXAMPLE_CONFIG.relative_to(Path(__file__).parents[2])})")
     ap.add_argument("--out", default="sweeps", help="parent folder of the experiment folder (default ./sweeps)")
     ap.add_argument("--address", help="Ray cluster, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else an "
                                       "embedded local Ray)")
@@ -351,4 +351,4 @@ def main(argv=None, prog="radar-track sweep"):
 
 
 if __name__ == "__main__":
-    main(prog="python -m agents.sweep")
+    main(prog="python -m agents.training.sweep")

@@ -98,8 +98,8 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     key = suite_key(scenario)
-    if scenario == "encounters":     # pairs of aircraft for the conflict-warning test (agents.downstream)
-        from .downstream import draw_encounters
+    if scenario == "encounters":     # pairs of aircraft for the conflict-warning test (agents.evaluation.downstream)
+        from agents.evaluation.downstream import draw_encounters
         return draw_encounters(runs, lambda i: suite_rng(key, seed + i))
     resolved = resolve_scenario(scenario)
     trajectory = isinstance(resolved, (TrajectoryScenario, SegmentScenario))   # radar placed per run

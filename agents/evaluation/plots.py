@@ -1,4 +1,4 @@
-"""Evaluation figures (matplotlib, PNG). Called by :func:`agents.evaluate.write_plots` with the Agg backend.
+"""Evaluation figures (matplotlib, PNG). Called by :func:`agents.evaluation.evaluate.write_plots` with the Agg backend.
 
 Per suite:
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from radar_env.units import G0_M_S2
 
-from .metrics import failed_runs
+from agents.evaluation.metrics import failed_runs
 
 __all__ = ["suite_figures", "error_figure", "trajectory_figure", "q_figure", "features_figure",
            "training_curve_figure", "shared_look_times", "binned_error_stats"]
@@ -110,7 +110,7 @@ def _spans(t, mask):
 def error_figure(suite, batch, runs):
     """Position and speed error against time (see the module docstring for the time axis). Returns the figure.
 
-    A tracker's failed runs (:func:`agents.metrics.failed_runs`: a non-finite estimate or covariance after its
+    A tracker's failed runs (:func:`agents.evaluation.metrics.failed_runs`: a non-finite estimate or covariance after its
     track start) are left out of its curves and counted in its legend entry."""
     B = batch.batch_size
     shared = shared_look_times(batch)
@@ -122,7 +122,7 @@ def error_figure(suite, batch, runs):
         used = _used(batch, run)
         ep = np.where(used, np.hypot(*(run.x[..., :2] - batch.truth[..., :2]).transpose(2, 0, 1)), np.nan)
         es = np.where(used, np.abs(np.hypot(run.x[..., 2], run.x[..., 3]) - speed_true), np.nan)
-        # a failed run (non-finite estimate, as agents.metrics scores it) must not vanish from the mean as a NaN
+        # a failed run (non-finite estimate, as agents.evaluation.metrics scores it) must not vanish from the mean as a NaN
         # would: it is left out whole, and the legend says how many were
         failed = failed_runs(batch, run, used)
         ep[failed], es[failed] = np.nan, np.nan

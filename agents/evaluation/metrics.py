@@ -255,3 +255,21 @@ def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_wind
     ok = den > 0
     r = np.sqrt(sa[idx].sum(axis=1)[ok] / den[ok])
     return float(est), (float(np.percentile(r, 2.5)), float(np.percentile(r, 97.5)))
+
+
+def jsonable(o):
+    """``o`` with numpy scalars as Python numbers and every NaN or Inf as None (the metrics dicts say why in
+    ``undefined``), so ``json.dumps(..., allow_nan=False)`` accepts it."""
+    if isinstance(o, dict):
+        return {k: jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [jsonable(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.ndarray):
+        return jsonable(o.tolist())
+    return o

@@ -10,7 +10,7 @@ Errors per look: position ``|p_est - p|``; speed as he plots it, the error of th
 ``abs(|v_est| - |v|)``; and the velocity-vector error ``|v_est - v|``. Figures: mean over runs against time with
 the 95 % confidence interval of the mean (1.96 standard errors over runs). Phases (:func:`phase_masks`): ``first_leg``
 (before the first turn), ``maneuver`` (the truth turns), ``after`` (within 60 s after a turn), ``straight`` (the
-rest: the first leg and the legs more than 60 s after a turn), as :func:`agents.metrics.region_masks`.
+rest: the first leg and the legs more than 60 s after a turn), as :func:`agents.evaluation.metrics.region_masks`.
 
 The CKF at 5 NM never switches here (its FMA stays far below 5 NM at 0.1 deg), so it equals ``kf_low``.
 :func:`ckf_fma` records the FMA the CKF's rule reads and :func:`fma_threshold` derives a threshold from it (rule
@@ -35,8 +35,8 @@ from radar_env.episode import stack_episodes
 from radar_env.observation import ObservationLayout
 from radar_env.units import G0_M_S2, NM_M
 
-from .metrics import region_masks
-from .suites import EVAL_SEED_BASE, draw_suite
+from agents.evaluation.metrics import region_masks
+from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
 
 __all__ = ["BIZUP_TRACKERS", "bizup_errors", "ckf_fma", "fma_threshold", "bizup_figures_check"]
 
@@ -94,7 +94,7 @@ def fma_threshold(fma, masks):
 
 
 def phase_masks(batch, start_index, turns=2):
-    """:func:`agents.metrics.region_masks` plus ``first_leg`` (used looks before the first maneuver) and, per
+    """:func:`agents.evaluation.metrics.region_masks` plus ``first_leg`` (used looks before the first maneuver) and, per
     maneuver j = 1..``turns``, ``turn{j}`` (its looks) and ``after{j}`` (the 60 s after it)."""
     masks = region_masks(batch, start_index)
     man = batch.maneuvering
@@ -206,7 +206,7 @@ def bizup_figures_check(runs=100, seed=EVAL_SEED_BASE, fig_dir=None):
                 for q in ("pos_m", "speed_m_s")} for n in names}
 
     if fig_dir is not None:
-        from .paper_figures import bizup_figures, maneuver_spans
+        from agents.reports.paper_figures import bizup_figures, maneuver_spans
         bizup_figures(fig_dir, t, curves, maneuver_spans(t, man0), thr, int(runs))
     fin = np.isfinite(fma) & used
     return {

@@ -11,7 +11,7 @@ travels; every task returns a digest of the episodes it drew, checked against th
 error and never a silently different number. Other suites (encounter pairs, ADS-B flights, trajectory files) are
 sent as episodes through the object store.
 
-Ray is an optional extra (``pip install -e '.[scale]'``); it is imported only here and in :mod:`agents.sweep`.
+Ray is an optional extra (``pip install -e '.[scale]'``); it is imported only here and in :mod:`agents.training.sweep`.
 Without ``address`` (and without ``RAY_ADDRESS``) an embedded local Ray with ``N`` CPUs is started and stopped;
 with one, the tasks run on that cluster (every node needs this package installed at the same version).
 """
@@ -27,6 +27,10 @@ import numpy as np
 
 from baselines.trackers import TrackRun
 from radar_env.catalog import SCENARIO_NAMES
+
+from agents.evaluation.runner import failed_track_run, run_one
+from agents.evaluation.suites import draw_suite
+from agents.policies.loading import load_policy
 
 __all__ = ["require_ray", "ray_session", "chunk_bounds", "concat_runs", "merge_chunk_runs", "episodes_digest",
            "run_suites_ray", "SCALE_EXTRA_HINT"]
@@ -119,11 +123,10 @@ def concat_runs(parts, K):
 def merge_chunk_runs(tracker, parts, episodes):
     """The suite's :class:`TrackRun` from its per-chunk runs (in run order) on ``episodes`` (the whole suite): the
     concatenation, or, if any chunk failed, what the serial run gives a tracker that raises on the suite
-    (:func:`agents.evaluate.failed_track_run`: NaN on every run, the first failed chunk's error, the warning on
+    (:func:`agents.evaluation.runner.failed_track_run`: NaN on every run, the first failed chunk's error, the warning on
     the driver's stderr; a worker's stderr is not forwarded)."""
     err = next((p.error for p in parts if p.error is not None), None)
     if err is not None:
-        from .evaluate import failed_track_run
         return failed_track_run(tracker, episodes, err)
     return concat_runs(parts, max(e.n_looks for e in episodes))
 
@@ -137,7 +140,6 @@ def _policy_in_worker(blob):
     zip_bytes, env_cfg = blob
     key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
     if key not in _POLICY_CACHE:
-        from .evaluate import load_policy
         with tempfile.TemporaryDirectory(prefix="radar_track_policy_") as tmp:   # the model is in memory after
             d = Path(tmp)
             (d / "policy.zip").write_bytes(zip_bytes)
@@ -148,13 +150,11 @@ def _policy_in_worker(blob):
 
 
 def _run_chunk(tracker, episodes, policy_blob):
-    from .evaluate import run_one
     choose_q, cfg = _policy_in_worker(policy_blob) if tracker == "policy" else (None, None)
     return run_one(tracker, episodes, choose_q, cfg)
 
 
 def _task_draw(suite, seed, start, stop, tracker, policy_blob):
-    from .suites import draw_suite
     eps = draw_suite(suite, stop - start, seed=seed + start)
     return episodes_digest(eps), _run_chunk(tracker, eps, policy_blob)
 
@@ -175,7 +175,6 @@ def _policy_blob(policy_path):
 def _first_run_redraws(suite, episodes, seed):
     """Whether the suite's first run is what ``draw_suite(suite, 1, seed)`` draws (a trajectory file named like a
     catalog scenario is not: its episodes are sent instead)."""
-    from .suites import draw_suite
     return episodes_digest(draw_suite(suite, 1, seed=seed)) == episodes_digest(episodes[:1])
 
 
@@ -183,7 +182,7 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
     """Run every tracker on every suite on Ray; returns ``{suite: {tracker: TrackRun}}`` equal to the serial runs.
 
     Args:
-        suites: list of ``(name, episodes)`` as drawn by the driver (:func:`agents.suites.draw_suite`).
+        suites: list of ``(name, episodes)`` as drawn by the driver (:func:`agents.evaluation.suites.draw_suite`).
         trackers: tracker names; ``policy`` needs ``policy_path``.
         workers: chunks per suite (and local CPUs when Ray is started here).
         address: Ray cluster address (default ``RAY_ADDRESS``, else an embedded local Ray).
