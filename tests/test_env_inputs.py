@@ -242,9 +242,9 @@ def test_info_q_carries_its_unit_and_keeps_the_deprecated_alias():
     assert vinfo["_q_m_s2"].all()
 
 
-def test_readme_names_info_q_with_its_unit():
+def test_environment_page_names_info_q_with_its_unit():
     from pathlib import Path
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = (Path(__file__).resolve().parents[1] / "docs" / "environment.md").read_text()
     assert 'info["q_m_s2"]' in text
     for m in re.finditer(re.escape('info["q"]'), text):   # only as the documented deprecated alias
         assert "deprecated" in text[m.start(): m.start() + 80], text[m.start() - 80: m.start() + 80]

@@ -1,4 +1,4 @@
-"""The README's generated blocks equal what their generators render from the committed JSON alone, so the text
+"""The generated blocks of README.md and docs/*.md equal what their generators render from the committed JSON alone, so the text
 and the numbers cannot drift apart.
 
 Generators called, by name: ``agents.reports.report.headline(results, has_policy)`` and
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from agents.reports import paper_checks, report
-from agents.reports.readme_blocks import block_names, read_block, replace_block
+from agents.reports import report
+from agents.reports.readme_blocks import block_file, block_names, read_block, replace_block
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -42,10 +42,6 @@ def _downstream():
     return report.downstream_tables(res, (["policy"] if _has_policy(res) else []) + list(report.REPORT_TRACKERS))
 
 
-def _paper_checks():
-    return paper_checks.readme_block(json.loads((ROOT / "docs" / "paper_checks.json").read_text()))
-
-
 def _adsb_flights():
     return report.per_flight_table(_results()["adsb_calibration"]["per_flight"])
 
@@ -62,22 +58,22 @@ def _generalisation(render):
     return f
 
 
-RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream, "paper-checks": _paper_checks,
+RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream,
              "adsb-flights": _adsb_flights, "families": _generalisation("families_table"),
              "seed-spread": _generalisation("spread_table"), "targets": _generalisation("targets_table"),
              "track-start": _generalisation("track_start_table")}
 
 
-def test_every_readme_block_has_a_generator():
-    names = block_names(README)
+def test_every_generated_block_has_a_generator():
+    names = block_names()      # README.md and every docs/*.md
     assert len(names) == len(set(names)), f"duplicate blocks: {names}"
     assert set(names) == set(RENDERERS)
 
 
 @pytest.mark.parametrize("name", sorted(RENDERERS))
-def test_readme_block_equals_generator_output(name):
-    assert read_block(name, README) == RENDERERS[name]().strip(), (
-        f"README block {name!r} differs from its generator's output on the committed JSON; regenerate it")
+def test_generated_block_equals_generator_output(name):
+    assert read_block(name) == RENDERERS[name]().strip(), (
+        f"block {name!r} ({block_file(name).name}) differs from its generator's output on the committed JSON; regenerate it")
 
 
 def test_read_and_replace_block_round_trip(tmp_path):

@@ -248,7 +248,7 @@ def main(argv=None):
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
     ap.add_argument("--family-runs", type=int, default=FAMILY_RUNS)
-    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update README.md")
+    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update the generated blocks of docs/*.md")
     args = ap.parse_args(argv)
     t0 = time.time()
     bundle = {"policy": load_policy(BUNDLED_POLICY)}

@@ -34,7 +34,7 @@ from agents.evaluation.metrics import evaluate_run, region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
 
 __all__ = ["bizup_cmin_check", "adrian_check", "kim_lee_check", "compute", "stale_entries", "render_markdown",
-           "readme_block", "main"]
+           "main"]
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -291,7 +291,7 @@ def _adrian_md(d):
         return f"{s['mean'] * sc:.{dec}f}{u} [{s['min'] * sc:.{dec}f}, {s['max'] * sc:.{dec}f}]"
 
     lines = [
-        "## Adrian: turn-rate estimation and position noise on his flower (seed 003)",
+        "## Adrian, Turnrate Estimation in the Adrian Multi Radar Tracker in PHOENIX: turn-rate estimation and position noise on his flower",
         "",
         f"*Ours under his definition*: his Mathcad sheet computed exactly ({pdef['runs']} realisations, "
         "`agents/reports/paper_adrian.py`): 48 leaves, N = 6240 looks of 5 s; his truth `x_i = F x_{i-1} + v_i` with the "
@@ -404,7 +404,7 @@ def _bizup_md(d, fig_prefix):
     faster = all(a < c for a, c in zip(conv["cmin"]["pos_m"], conv["kf_low"]["pos_m"]))
     (s1, s2), (k1, k2) = conv["cmin"]["speed_m_s"], conv["kf_low"]["speed_m_s"]
     lines = [
-        "## Bizup (seed 000)",
+        "## Bizup, A Centripetal Acceleration Statistic for Tracking Maneuvering Targets with Radar (2002)",
         "",
         "### c_min > 0.5 g as a maneuver detector (section 3.2; bizup2002, bearing noise 0.1 deg)",
         "",
@@ -458,7 +458,7 @@ def _bizup_md(d, fig_prefix):
     lines += [
         "",
         "His claims. *Paper's definition*: ratios of mean errors (his figures plot means), with a paired 95 % "
-        "bootstrap interval over runs; *our definition*: ratios of pooled RMSE (docs/results.md's metric). "
+        "bootstrap interval over runs; *our definition*: ratios of pooled RMSE (docs/results_tables.md's metric). "
         "Verdict rules: 'about the same' = ratio within [0.9, 1.1]; 'better' = interval below 1; the variance claims "
         "are judged on the across-runs variance (his bands), the pooled ratio is shown beside it.",
         "",
@@ -547,7 +547,7 @@ def _kim_lee_md(d, fig_prefix):
     names = list(tr)
     conv_low, conv_tuned, ad, ad_n = names
     lines = [
-        "## Kim & Lee (seed 004)",
+        "## Kim & Lee, Adaptive alpha-beta Tracker for TWS Radar System",
         "",
         f"*Ours under their definition*: their scenario as printed, in 1-D ({kl['runs']} runs, "
         "`agents/reports/paper_kim_lee.py`): 120 m/s, +5 g over 26-35 s, -5 g over 66-75 s, sigma = 150 m, T = 1 s, "
@@ -623,17 +623,9 @@ def render_markdown(data, fig_prefix="figures/"):
     return "\n".join(lines).rstrip() + "\n"
 
 
-def readme_block(data):
-    """The README's ``paper-checks`` block, from the JSON alone: the markdown without its title, headings two
-    levels down, figure paths from the repository root."""
-    text = render_markdown(data, fig_prefix="docs/figures/").split("\n", 2)[2]
-    return "\n".join(("##" + ln) if ln.startswith("#") else ln for ln in text.split("\n")).strip()
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m agents.reports.paper_checks", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default=str(DOCS), help="where paper_checks.json/.md and figures/ go")
-    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update README.md")
     args = ap.parse_args(argv)
     docs = Path(args.docs)
     data = compute(fig_dir=docs / "figures")
@@ -641,9 +633,6 @@ def main(argv=None):
     data = json.loads((docs / "paper_checks.json").read_text())   # render exactly what was committed
     text = render_markdown(data)
     (docs / "paper_checks.md").write_text(text)
-    if args.readme:
-        from agents.reports.readme_blocks import replace_block
-        replace_block("paper-checks", readme_block(data))
     print(text)
 
 

@@ -1,25 +1,45 @@
-"""Replace generated blocks in README.md between ``<!-- name:start -->`` and ``<!-- name:end -->`` markers."""
+"""Generated blocks in the Markdown pages (README.md and docs/*.md), between ``<!-- name:start -->`` and
+``<!-- name:end -->`` markers. A block name is unique across the pages, so a generator names only the block and the
+block may move between pages."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+
+
+def pages():
+    """The Markdown pages that may hold generated blocks: README.md and every docs/*.md."""
+    return [README] + sorted((ROOT / "docs").glob("*.md"))
 
 
 def _markers(name):
     return f"<!-- {name}:start -->", f"<!-- {name}:end -->"
 
 
-def block_names(path=README):
-    """Names of every generated block in ``path``, in order."""
-    return re.findall(r"<!-- ([\w-]+):start -->", Path(path).read_text())
+def block_names(path=None):
+    """Names of every generated block in ``path`` (default: all :func:`pages`), in order."""
+    return [n for p in ([path] if path is not None else pages())
+            for n in re.findall(r"<!-- ([\w-]+):start -->", Path(p).read_text())]
 
 
-def read_block(name, path=README):
-    """The text between the markers of block ``name`` (stripped); ``ValueError`` if the markers are missing."""
-    path = Path(path)
+def block_file(name):
+    """The page holding block ``name``; ``ValueError`` if no page or more than one holds it."""
+    start, end = _markers(name)
+    hits = [p for p in pages() if start in (s := p.read_text()) and end in s]
+    if len(hits) != 1:
+        raise ValueError(f"block {name!r}: expected in exactly one of README.md, docs/*.md; found in "
+                         f"{[str(p.relative_to(ROOT)) for p in hits] or 'none'} ({start} ... {end})")
+    return hits[0]
+
+
+def read_block(name, path=None):
+    """The text between the markers of block ``name`` (stripped), in ``path`` (default: the page holding it);
+    ``ValueError`` if the markers are missing."""
+    path = block_file(name) if path is None else Path(path)
     s = path.read_text()
     start, end = _markers(name)
     if start not in s or end not in s:
@@ -27,9 +47,10 @@ def read_block(name, path=README):
     return s[s.index(start) + len(start):s.index(end)].strip()
 
 
-def replace_block(name, text, path=README):
-    """Put ``text`` between the markers of block ``name``; ``ValueError`` if the markers are missing."""
-    path = Path(path)
+def replace_block(name, text, path=None):
+    """Put ``text`` between the markers of block ``name`` in ``path`` (default: the page holding it); ``ValueError``
+    if the markers are missing."""
+    path = block_file(name) if path is None else Path(path)
     s = path.read_text()
     start, end = _markers(name)
     if start not in s or end not in s:

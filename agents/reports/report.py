@@ -1,7 +1,7 @@
 """Generate the results the README shows: ``python -m agents.reports.report``.
 
 Runs the evaluation (:func:`agents.evaluation.evaluate.evaluate`) on the default suites with every comparison tracker (and
-the bundled policy if present), then writes ``docs/results.md`` (tables), ``docs/results.json`` (every metric) and
+the bundled policy if present), then writes ``docs/results_tables.md`` (tables), ``docs/results.json`` (every metric) and
 ``docs/figures/*.png``. Nothing in those files is typed by hand.
 """
 
@@ -233,7 +233,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m agents.reports.report", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default="docs")
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
-    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update README.md")
+    ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update the generated blocks of docs/*.md")
     args = ap.parse_args(argv)
     docs = Path(args.docs)
     t0 = time.time()
@@ -276,7 +276,7 @@ def main(argv=None):
         "",
         flights,
     ]
-    (docs / "results.md").write_text("\n".join(text))
+    (docs / "results_tables.md").write_text("\n".join(text))
     if args.readme:
         from agents.reports.readme_blocks import replace_block
         replace_block("headline", headline(results, policy is not None))
