@@ -19,8 +19,9 @@ The chain after the track start is written a second time as a compiled kernel (n
 :func:`_mse_grad_rows`) that returns each episode's MSE :math:`J_b = \frac{1}{n_b}\sum_k |\hat p_k - p_k|^2` over
 its ``n_b`` scored looks *and* its exact gradient by a hand-written reverse (adjoint) pass through the same steps
 (the formulas of :mod:`radar_env.filters`: ``F x``, ``F P F^T + q^2 G`` symmetrised, Joseph update). The tests check
-the forward pass against the chain and against a torch autograd KF (:func:`torch_forward`), and the gradient
-against torch's and finite differences. Each episode and start is then minimised by its own L-BFGS
+the forward pass against the chain and against the project's differentiable chain (:func:`torch_forward`,
+:mod:`radar_env.torch_chain`), and the gradient against torch's autograd through it (itself checked against finite
+differences in tests/test_torch_chain.py). Each episode and start is then minimised by its own L-BFGS
 (:func:`_lbfgs_rows`, batched but row-independent: a two-loop recursion and an Armijo backtracking line search per
 row) over ``s`` with :math:`\log q_k = c + h \sin s_k` (so ``q`` stays in ``[q_min, q_max]`` and reaches the bounds
 exactly) and, for the turn bound, :math:`\omega_k = \omega_{max} \sin s'_k`. The objective of a row is its MSE
@@ -85,7 +86,7 @@ class HindsightInfo:
         iterations: (B,) L-BFGS iterations of the best start.
         starts: names of the starts.
         best_start: (B,) index into ``starts`` of the start whose descent gave the answer.
-        mse_m2: (B,) per-episode position MSE of the answer (torch forward).
+        mse_m2: (B,) per-episode position MSE of the answer (the kernel's forward).
         start_mse_m2: (B, S) MSE of each start (iterate 0).
         grad_norm: (B,) projected gradient norm of ``log MSE`` w.r.t. the schedule at the last iterate of the best
             start (dimensionless: relative MSE change per unit of log q; omega in units of its bound; zero where a
@@ -104,12 +105,12 @@ class HindsightInfo:
     seconds: float
 
 
-def _torch():
+def _torch_chain():
     try:
-        import torch
+        from radar_env import torch_chain
     except ImportError:   # pragma: no cover - depends on the install
         raise ValueError("torch_forward needs torch (pip install -e '.[train]')") from None
-    return torch
+    return torch_chain
 
 
 def _check_args(q_range_g, turn_rate_max_deg_s, iterations):
@@ -162,80 +163,29 @@ class _Problem:
 
 
 # ------------------------------------------------------------------------------------------------ torch forward
-def _torch_mse(torch, data, log_q, omega=None):
-    """Per-row position MSE of the KF after the track start, differentiable in ``log_q`` (R, J) and ``omega``.
-
-    ``data`` holds torch tensors x0 (R,4), P0 (R,4,4), dt, det, z, R, pos, mask (R, J, ...); the formulas are
-    those of radar_env.filters (predict, Joseph update with H = [I 0], symmetrised), step for step."""
-    x, P = data["x0"], data["P0"]
-    R_rows = x.shape[0]
-    sse = torch.zeros(R_rows, dtype=torch.float64)
-    for j in range(log_q.shape[1]):
-        dt = data["dt"][:, j]
-        F = torch.zeros(R_rows, 4, 4, dtype=torch.float64)
-        F[:, 0, 0] = F[:, 1, 1] = 1.0
-        if omega is None:
-            F[:, 2, 2] = F[:, 3, 3] = 1.0
-            F[:, 0, 2] = F[:, 1, 3] = dt
-        else:
-            th = omega[:, j] * dt
-            a = dt * torch.sinc(th / np.pi)
-            b = dt * (th / 2.0) * torch.sinc(th / (2.0 * np.pi)) ** 2
-            s, c = torch.sin(th), torch.cos(th)
-            F = torch.stack([torch.stack([torch.ones_like(dt), torch.zeros_like(dt), a, b], -1),
-                             torch.stack([torch.zeros_like(dt), torch.ones_like(dt), -b, a], -1),
-                             torch.stack([torch.zeros_like(dt), torch.zeros_like(dt), c, s], -1),
-                             torch.stack([torch.zeros_like(dt), torch.zeros_like(dt), -s, c], -1)], -2)
-        q = torch.exp(log_q[:, j])
-        Q = (q * q)[:, None, None] * data["G"][:, j]
-        x = torch.einsum("bij,bj->bi", F, x)
-        P = F @ P @ F.transpose(1, 2) + Q
-        P = 0.5 * (P + P.transpose(1, 2))
-        det = data["det"][:, j]
-        Rk = data["R"][:, j]
-        nu = torch.where(det[:, None], data["z"][:, j] - x[:, :2], 0.0)
-        S = P[:, :2, :2] + Rk
-        S = 0.5 * (S + S.transpose(1, 2))
-        sa, sb, sc, sd = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
-        dS = sa * sd - sb * sc
-        S_inv = torch.stack([torch.stack([sd / dS, -sb / dS], -1), torch.stack([-sc / dS, sa / dS], -1)], -2)
-        K = torch.where(det[:, None, None], P[:, :, :2] @ S_inv, 0.0)
-        x = x + torch.einsum("bij,bj->bi", K, nu)
-        M = P - K @ P[:, :2, :]
-        MHt = P[:, :, :2] - K @ P[:, :2, :2]
-        P = M + (K @ Rk - MHt) @ K.transpose(1, 2)
-        P = 0.5 * (P + P.transpose(1, 2))
-        e = x[:, :2] - data["pos"][:, j]
-        sse = sse + torch.where(data["mask"][:, j], (e * e).sum(-1), 0.0)
-    return sse / data["n"]
-
-
-def _torch_data(torch, prob, reps):
-    """The problem's arrays as torch tensors, each row repeated ``reps`` times (one copy per start)."""
-    rep = lambda a: torch.as_tensor(np.repeat(a, reps, axis=0))   # noqa: E731
-    dt = prob.dt
-    G = np.zeros(dt.shape + (4, 4))    # Gamma Gamma^T per axis: Q = q^2 G (radar_env.filters.process_noise)
-    G[..., 0, 0] = G[..., 1, 1] = dt ** 4 / 4.0
-    G[..., 0, 2] = G[..., 2, 0] = G[..., 1, 3] = G[..., 3, 1] = dt ** 3 / 2.0
-    G[..., 2, 2] = G[..., 3, 3] = dt ** 2
-    return {"x0": rep(prob.x0), "P0": rep(prob.P0), "dt": rep(dt), "det": rep(prob.det), "z": rep(prob.z),
-            "R": rep(prob.R), "pos": rep(prob.pos), "mask": rep(prob.mask), "n": rep(prob.n.astype(np.float64)),
-            "G": rep(G)}
+def _torch_mse(prob, log_q, omega=None):
+    """Per-row position MSE after the track start, differentiable in ``log_q`` (B, J) and ``omega`` (B, J) torch
+    tensors: the project's differentiable chain (:mod:`radar_env.torch_chain`) from the problem's track start."""
+    tc = _torch_chain()
+    state, looks = tc.handover(prob.tr)
+    out = tc.run(state, looks, log_q.exp(), omega)
+    return tc.position_sq_error(out.x, looks).sum(1) / looks.n_scored
 
 
 def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg=None):
-    """Per-episode position MSE (m^2) after the track start of the torch KF for given schedules.
+    """Per-episode position MSE (m^2) after the track start of the torch chain for given schedules.
 
     ``q_m_s2`` (B, >= J) (and ``turn_rate_rad_s``), column j = look ``start_b + j`` (J = the most looks after a
     start; further columns are ignored); the tests' oracle for :func:`kernel_forward` and :func:`chain_forward`."""
-    torch = _torch()
+    _torch_chain()
+    import torch
+
     prob = _Problem(list(episodes), cfg)
-    data = _torch_data(torch, prob, 1)
     lq = torch.as_tensor(np.log(np.asarray(q_m_s2, dtype=np.float64)[:, :prob.J]))
     om = (None if turn_rate_rad_s is None
           else torch.as_tensor(np.asarray(turn_rate_rad_s, dtype=np.float64)[:, :prob.J]))
     with torch.no_grad():
-        return _torch_mse(torch, data, lq, om).numpy()
+        return _torch_mse(prob, lq, om).numpy()
 
 
 # ------------------------------------------------------------------------------------------------ the chain

@@ -77,10 +77,9 @@ def test_kernel_gradient_equals_torch_autograd():
     prob = H._Problem(eps, CFG)
     q, w = _schedules(eps, 1, prob.J)
     _, gq, gw = H.kernel_forward(eps, q, w)
-    data = H._torch_data(torch, prob, 1)
     lq = torch.tensor(np.log(q), requires_grad=True)
     om = torch.tensor(w, requires_grad=True)
-    H._torch_mse(torch, data, lq, om).sum().backward()
+    H._torch_mse(prob, lq, om).sum().backward()
     m = prob.mask
     np.testing.assert_allclose(gq[m], lq.grad.numpy()[m], rtol=1e-6, atol=1e-9 * np.abs(gq).max())
     np.testing.assert_allclose(gw[m], om.grad.numpy()[m], rtol=1e-6, atol=1e-9 * np.abs(gw).max())

@@ -1,5 +1,6 @@
 """Layers only look down: radar_env (simulation, filters, env) knows nothing of baselines or agents, baselines
-never imports agents, and the simulation and filter modules import without gymnasium."""
+never imports agents, the simulation and filter modules import without gymnasium, and only radar_env.torch_chain
+(the differentiable chain) needs torch: radar_env and baselines import without it."""
 
 import ast
 import subprocess
@@ -10,16 +11,18 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Runs in a fresh interpreter where any import of gymnasium fails, as on a machine without it installed.
-_NO_GYM = """
+# Runs in a fresh interpreter where any import of a package fails, as on a machine without it installed.
+_BLOCK = """
 import importlib.abc, sys
-class _NoGymnasium(importlib.abc.MetaPathFinder):
+class _Blocked(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name == "gymnasium" or name.startswith("gymnasium."):
-            raise ImportError(f"No module named {name!r} (blocked by the test)")
+        if name == {pkg!r} or name.startswith({pkg!r} + "."):
+            raise ImportError(f"No module named {{name!r}} (blocked by the test)")
         return None
-sys.meta_path.insert(0, _NoGymnasium())
+sys.meta_path.insert(0, _Blocked())
 """
+_NO_GYM = _BLOCK.format(pkg="gymnasium")
+_NO_TORCH = _BLOCK.format(pkg="torch")
 
 GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.scenario", "radar_env.episode",
             "radar_env.radar", "radar_env.features", "radar_env.observation", "radar_env.catalog",
@@ -28,8 +31,8 @@ GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.s
             "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.draws", "radar_env.kernels")
 
 
-def _run(code):
-    return subprocess.run([sys.executable, "-c", _NO_GYM + code], capture_output=True, text=True, timeout=120,
+def _run(code, block=_NO_GYM):
+    return subprocess.run([sys.executable, "-c", block + code], capture_output=True, text=True, timeout=120,
                           cwd=ROOT)
 
 
@@ -60,9 +63,35 @@ def test_the_gym_layer_says_it_needs_gymnasium():
 
 
 def test_block_is_effective():
-    # the finder really blocks gymnasium (else the tests above prove nothing)
-    res = _run("import gymnasium\n")
-    assert res.returncode != 0 and "blocked by the test" in res.stderr
+    # the finder really blocks gymnasium and torch (else the tests above and below prove nothing)
+    for block, pkg in ((_NO_GYM, "gymnasium"), (_NO_TORCH, "torch")):
+        res = _run(f"import {pkg}\n", block)
+        assert res.returncode != 0 and "blocked by the test" in res.stderr
+
+
+def test_torch_chain_imports_without_gymnasium():
+    pytest.importorskip("torch")
+    res = _run("import radar_env.torch_chain\n"
+               "assert not any(m == 'gymnasium' or m.startswith('gymnasium.') for m in sys.modules)\nprint('ok')\n")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ok"
+
+
+def test_radar_env_and_baselines_import_without_torch():
+    code = ("import importlib\n"
+            f"for m in {GYM_FREE + ('radar_env.env',)!r}:\n"
+            "    importlib.import_module(m)\n"
+            "assert not any(m == 'torch' or m.startswith('torch.') for m in sys.modules)\nprint('ok')\n")
+    res = _run(code, _NO_TORCH)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ok"
+    res = _run("import radar_env.torch_chain\n", _NO_TORCH)
+    assert res.returncode != 0 and "torch" in res.stderr
+
+
+def test_only_torch_chain_imports_torch_in_radar_env():
+    users = {p.name for p in _files("radar_env") if "torch" in _imported_modules(p)}
+    assert users == {"torch_chain.py"}
 
 
 def _imported_modules(path):
