@@ -3,7 +3,8 @@ r"""The tracking chain in torch: the one differentiable copy of the filter Radar
 The same chain as :class:`radar_env.tracking.Tracker` (the formulas of :mod:`radar_env.filters`, compiled in
 :mod:`radar_env.kernels`), written with torch operations so that a loss on the estimates can be differentiated with
 respect to every process-noise level ``q`` (and turn rate ``omega``) that produced them. float64 throughout; equal to
-the numba chain to about 1e-12 relative on drawn episodes (tests/test_torch_chain.py). Per look ``j`` of a row::
+the numba chain to 1e-11 relative or better on drawn episodes (the tests' bound is 1e-9: tests/test_torch_chain.py).
+Per look ``j`` of a row::
 
     dt      = t[j] - t[j-1]                      (s; 0 for two sites looking at one time)
     F       = F_cv(dt)  or  F_ct(dt, omega_j)    (omega given: coordinated turn, positive = clockwise)
@@ -29,8 +30,8 @@ memory. On the 2-core machine this runs a look about 2x faster than the batch-fi
 products are strided) and far faster than ``bmm``, which loops over 4 x 4 products; per-look slices of tensors that
 need a gradient are taken with ``unbind`` (one backward node for the chunk, where indexing would add a full-size
 zero tensor per look). The building blocks (:func:`transition`, :func:`process_noise`, :func:`predict`,
-:func:`update`, :func:`two_point_init`) take that layout with any trailing batch shape, e.g. ``(4, M, B)`` for M
-filters per row.
+:func:`predict_cv`, :func:`update`, :func:`nis`, :func:`log_likelihood`, :func:`two_point_init`) take that layout
+with any trailing batch shape, e.g. ``(4, M, B)`` for M filters per row.
 
 What it is not: it does not compute the env's features or observation (the numba chain does; a trainer steps a
 Tracker for them) and it has no known-input (clairvoyant) term. Only this module imports torch; ``radar_env``
@@ -40,6 +41,7 @@ imports without it.
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -48,10 +50,11 @@ import torch
 from .tracking import MAX_Q_M_S2, TrackStart
 
 __all__ = ["ChainState", "ChainLooks", "StepRecord", "ChainRun", "handover", "start_tracks", "looks_from_arrays",
-           "run", "step", "collect", "transition", "process_noise", "gamma_gamma_t", "predict", "update",
-           "two_point_init", "position_sq_error", "pooled_position_mse", "SERIES_THETA"]
+           "run", "step", "collect", "transition", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "update",
+           "nis", "log_likelihood", "two_point_init", "position_sq_error", "pooled_position_mse", "SERIES_THETA"]
 
 DTYPE = torch.float64
+LOG_2PI = math.log(2.0 * math.pi)
 
 SERIES_THETA = 1e-2
 """Below this ``|omega dt|`` the CT entries ``sin(th)/omega`` and ``(1 - cos th)/omega`` are their Taylor series (to
@@ -266,6 +269,8 @@ def transition(dt_s, omega_rad_s=None) -> torch.Tensor:
     """``F (4, 4, *batch)`` for ``dt_s (*batch)``: ``F_cv(dt)``, or ``F_ct(dt, omega)`` if ``omega_rad_s`` is given
     (radar_env.filters; ``omega = 0`` gives ``F_cv`` exactly). Differentiable in ``omega`` everywhere: below
     ``|omega dt| <`` :data:`SERIES_THETA` the entries are their Taylor series."""
+    if omega_rad_s is not None:
+        dt_s, omega_rad_s = torch.broadcast_tensors(dt_s, omega_rad_s)
     one, zero = torch.ones_like(dt_s), torch.zeros_like(dt_s)
     if omega_rad_s is None:
         a, b, c, s = dt_s, zero, one, zero
@@ -340,6 +345,18 @@ def update(x, P, z, R, mask):
     return xo, 0.5 * (Po + Po.transpose(0, 1)), nu, S, S_inv
 
 
+def nis(nu, S_inv) -> torch.Tensor:
+    """Normalised innovation squared ``nu^T S^-1 nu`` (*b) of ``nu (2, *b)``, ``S_inv (2, 2, *b)``."""
+    return (nu[:, None] * S_inv * nu[None]).sum((0, 1))
+
+
+def log_likelihood(nu, S, S_inv, mask) -> torch.Tensor:
+    """Gaussian log-likelihood of the innovation ``-(NIS + log det(2 pi S)) / 2`` (*b), 0 where ``mask`` is 0 (a
+    missed look), as kernels._update returns it (the IMM's mode weights)."""
+    log_det = torch.log(S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
+    return -0.5 * (nis(nu, S_inv) + 2.0 * LOG_2PI + log_det) * mask
+
+
 def two_point_init(z1, R1, t1_s, z2, R2, t2_s):
     """Two-hit start ``x = [z2, (z2 - z1)/dt]``, ``P = [[R2, R2/dt], [R2/dt, (R1 + R2)/dt^2]]``; ``z (2, *b)``,
     ``R (2, 2, *b)``, ``t (*b)`` -> ``(x (4, *b), P (4, 4, *b))`` (radar_env.filters.two_point_init)."""
@@ -390,9 +407,8 @@ class ChainRun:
 
     @functools.cached_property
     def nis(self):
-        nu = torch.stack([r.nu for r in self.records])               # (J, 2, B)
-        S_inv = torch.stack([r.S_inv for r in self.records])         # (J, 2, 2, B)
-        return (nu[:, :, None] * S_inv * nu[:, None]).sum((1, 2)).T
+        nu = torch.stack([r.nu for r in self.records], -2)            # (2, J, B)
+        return nis(nu, torch.stack([r.S_inv for r in self.records], -2)).T   # the module's nis()
 
 
 def _checked(name, v, shape, lo, hi):

@@ -332,8 +332,9 @@ def test_blocks_equal_radar_env_filters():
     assert np.array_equal(bf(xo, 1)[~det], xp[~det]) and np.array_equal(bf(Po, 2)[~det], Pp[~det])
     np.testing.assert_allclose(bf(nu, 1), ref.nu, rtol=1e-13, atol=1e-9)
     np.testing.assert_allclose(bf(S, 2), ref.S, rtol=1e-14)
-    nis = (nu[:, None] * S_inv * nu[None]).sum((0, 1)).numpy()
-    np.testing.assert_allclose(nis, ref.nis, rtol=1e-11, atol=1e-14)
+    np.testing.assert_allclose(tc.nis(nu, S_inv).numpy(), ref.nis, rtol=1e-11, atol=1e-14)
+    np.testing.assert_allclose(tc.log_likelihood(nu, S, S_inv, cf(det.astype(float), 0)).numpy(), ref.loglik,
+                               rtol=1e-12, atol=1e-14)
     z1 = z + 300.0
     x2, P2 = filters.two_point_init(z, R, np.zeros(n), z1, R, np.full(n, 4.5))
     t2 = tc.two_point_init(cf(z, 1), cf(R, 2), torch.zeros(n, dtype=torch.float64), cf(z1, 1), cf(R, 2),
