@@ -311,9 +311,9 @@ def predict(x, P, F, Q):
 
 
 def predict_cv(x, P, dt_s, Q):
-    """:func:`predict` with ``F = F_cv(dt_s)`` written out by blocks (a fifth of the arithmetic of the generic
-    product; equal to it to rounding). ``P`` must be exactly symmetric (every state of the chain is): then
-    ``P-`` is exactly symmetric without a symmetrisation."""
+    """:func:`predict` with ``F = F_cv(dt_s)`` written out by 2 x 2 blocks (no 4 x 4 x 4 products; equal to the
+    generic form to rounding). ``P`` must be exactly symmetric (every state of the chain is): then ``P-`` is
+    exactly symmetric without a symmetrisation."""
     xp = torch.cat((x[:2] + dt_s * x[2:], x[2:]))
     P11, P12, P21, P22 = P[:2, :2], P[:2, 2:], P[2:, :2], P[2:, 2:]
     A = P11 + dt_s * (P12 + P21) + (dt_s * dt_s) * P22      # position block; P12 + P21 is exactly symmetric
@@ -411,7 +411,8 @@ class ChainRun:
         return nis(nu, torch.stack([r.S_inv for r in self.records], -2)).T   # the module's nis()
 
 
-def _checked(name, v, shape, lo, hi):
+def _checked(name, v, shape, hi=None):
+    """``v`` as float64 of ``shape`` (broadcast); ``ValueError`` naming it unless finite (and in ``[0, hi]``)."""
     v = torch.as_tensor(v, dtype=DTYPE)
     if v.shape != shape:
         try:
@@ -419,9 +420,9 @@ def _checked(name, v, shape, lo, hi):
         except RuntimeError:
             raise ValueError(f"{name} must broadcast to {tuple(shape)}, got shape {tuple(v.shape)}") from None
     with torch.no_grad():
-        ok = bool(((v >= lo) & (v <= hi)).all())   # NaN fails too
+        ok = bool(torch.isfinite(v).all() if hi is None else ((v >= 0.0) & (v <= hi)).all())   # NaN fails too
     if not ok:
-        raise ValueError(f"{name} must be finite and in [{lo}, {hi}]")
+        raise ValueError(f"{name} must be finite" + ("" if hi is None else f" and in [0, {hi}]"))
     return v
 
 
@@ -430,12 +431,12 @@ def step(state: ChainState, looks: ChainLooks, j: int, q_m_s2, omega_rad_s=None)
     given), update. Returns ``(new_state, StepRecord)``; :func:`collect` turns the records into a :class:`ChainRun`.
     ``q`` is checked (finite, in ``[0, MAX_Q_M_S2]``) as ``Tracker.step`` does."""
     B = looks.B
-    q = _checked("q_m_s2", q_m_s2, (B,), 0.0, MAX_Q_M_S2)
+    q = _checked("q_m_s2", q_m_s2, (B,), MAX_Q_M_S2)
     Q = (q * q) * looks.G[j]
     if omega_rad_s is None:
         xp, Pp = predict_cv(state.x_c, state.P_c, looks.dt_s[j], Q)
     else:
-        F = transition(looks.dt_s[j], _checked("omega_rad_s", omega_rad_s, (B,), -np.inf, np.inf))
+        F = transition(looks.dt_s[j], _checked("omega_rad_s", omega_rad_s, (B,)))
         xp, Pp = predict(state.x_c, state.P_c, F, Q)
     x, P, nu, S, S_inv = update(xp, Pp, looks.z_m[j], looks.R_m2[j], looks.mask[j])
     return ChainState(x, P), StepRecord(xp, Pp, x, P, nu, S, S_inv)
@@ -456,17 +457,18 @@ def run(state: ChainState, looks: ChainLooks, q_m_s2, omega_rad_s=None) -> Chain
         looks: the looks (or a chunk of them).
         q_m_s2: (B, J) process-noise level per look (m/s^2; anything that broadcasts, e.g. a float), finite and in
             ``[0, MAX_Q_M_S2]``; values on padding columns do not matter (dt = 0 there).
-        omega_rad_s: optional (B, J) turn rate per look: predict with ``F_ct(dt, omega)``.
+        omega_rad_s: optional (B, J) finite turn rate per look (rad/s, positive = clockwise): predict with
+            ``F_ct(dt, omega)``.
     Returns:
         :class:`ChainRun`; its ``state`` is the state after the last column.
     """
     B, J = looks.B, looks.J
     if J == 0:
         raise ValueError("run: looks has no columns")
-    q = _checked("q_m_s2", q_m_s2, (B, J), 0.0, MAX_Q_M_S2).T
+    q = _checked("q_m_s2", q_m_s2, (B, J), MAX_Q_M_S2).T
     Qs = ((q * q)[:, None, None] * looks.G).unbind(0)
     if omega_rad_s is not None:
-        w = _checked("omega_rad_s", omega_rad_s, (B, J), -np.inf, np.inf).T
+        w = _checked("omega_rad_s", omega_rad_s, (B, J)).T
         Fs = transition(looks.dt_s, w).unbind(2)          # (4, 4, J, B) -> J x (4, 4, B)
     x, P = state.x_c, state.P_c
     records = []

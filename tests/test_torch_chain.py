@@ -385,10 +385,13 @@ def test_bad_q_is_refused(bad):
         tc.run(state, looks, q)
     with pytest.raises(ValueError, match="q_m_s2"):
         tc.step(state, looks, 0, q[1])
-    w = torch.zeros_like(q)
-    w[0, 0] = float("nan")
-    with pytest.raises(ValueError, match="omega_rad_s"):
-        tc.run(state, looks, 1.0, w)
+    for v in (float("nan"), float("inf")):
+        w = torch.zeros_like(q)
+        w[0, 0] = v
+        with pytest.raises(ValueError, match="omega_rad_s must be finite"):
+            tc.run(state, looks, 1.0, w)
+        with pytest.raises(ValueError, match="omega_rad_s must be finite"):
+            tc.step(state, looks, 0, 1.0, w[:, 0])
     with pytest.raises(ValueError, match="q_m_s2 must broadcast"):
         tc.run(state, looks, torch.ones(looks.B + 1, looks.J))
 
