@@ -111,9 +111,10 @@ from radar_env.validate import check_known_keys, check_number
 
 from .trackers import TrackRun, _start
 
-__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "imm_cv_ct_spec_from_params",
-           "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "run_imm_cv_ct", "ct_motion",
-           "ct_jacobian"]
+__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
+           "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "IMMCVCTStepper", "IMMCVCTStep",
+           "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
+           "run_imm_cv_ct", "ct_motion", "ct_jacobian"]
 
 SERIES_THETA = 0.1
 """Below this |omega dt| (rad) the CT coefficients are evaluated by their Taylor series."""
@@ -138,6 +139,11 @@ IMM_CV_CT_PARAMS = (
 )
 """The tunable parameters: ``(name, unit, low, high, log_scale)``; the bounds are the physical/valid ranges
 :class:`IMMCVCTSpec` accepts. ``q_high_g`` and ``p_stay_high`` apply only with the third mode."""
+
+LOOK_PARAMS = ("q_cv_g", "q_ct_g", "sigma_omega_deg_s15", "p_stay_cv", "p_stay_ct", "q_high_g", "p_stay_high")
+"""The parameters that may be given per row and look (``params`` of :func:`imm_cv_ct_filter`,
+:class:`IMMCVCTStepper`), in the order of a parameter vector: every tunable one but ``sigma_omega0_deg_s`` (the
+turn-rate prior of the CV augmentation, a constant of the mixing). Two modes: the first five."""
 
 _RANGES = {name: (lo, hi) for name, _, lo, hi, _ in IMM_CV_CT_PARAMS}
 _RANGES.update(omega_max_deg_s=(0.1, 180.0), turn_accel_max_g=(0.1, 100.0), mu0_cv=(0.01, 0.99))
@@ -429,99 +435,122 @@ def _set_cv_augmentation(x, P, sig_w0_2):
 
 
 @numba.njit(cache=True)
-def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
-         accel_max, out_x, out_P, out_mu, out_omega, out_nis, keep_modes, out_xm, out_Pm):
-    """One track: looks ``k_start .. n_looks - 1`` (the previous one, ``k_start - 1``, is the start)."""
-    M = q.shape[0]
-    xm = np.empty((M, 5))
-    Pm = np.empty((M, 5, 5))
-    x0 = np.empty((M, 5))
-    P0 = np.empty((M, 5, 5))
-    xp = np.empty((M, 5))
-    Pp = np.empty((M, 5, 5))
-    log_mu = log_mu0.copy()
-    log_c = np.empty(M)
-    a = np.empty((M, M))
-    w = np.empty(M)
-    ll = np.empty(M)
-    J = np.empty((5, 5))
-    K = np.empty((5, 2))
-    A = np.empty((5, 5))
-    tmp = np.empty((5, 5))
-    xc = np.empty(5)
-    Pc = np.empty((5, 5))
-    for m in range(M):
+def _work(M):
+    """Scratch arrays of one row's looks: ``(x0, P0, xp, Pp, log_c, a, w, ll, J, K, A, tmp, xc, Pc)``."""
+    return (np.empty((M, 5)), np.empty((M, 5, 5)), np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M),
+            np.empty((M, M)), np.empty(M), np.empty(M), np.empty((5, 5)), np.empty((5, 2)), np.empty((5, 5)),
+            np.empty((5, 5)), np.empty(5), np.empty((5, 5)))
+
+
+@numba.njit(cache=True)
+def _init_modes(x_init, P_init, is_ct, sig_w0_2, log_mu0, xm, Pm, log_mu):
+    """Every mode at the start state; a CV mode with its turn-rate augmentation."""
+    for m in range(is_ct.shape[0]):
         xm[m] = x_init
         Pm[m] = P_init
         if not is_ct[m]:
             _set_cv_augmentation(xm[m], Pm[m], sig_w0_2)
+    log_mu[:] = log_mu0
+
+
+@numba.njit(cache=True)
+def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work, x_out,
+          P_out, mu_out):
+    """One look of one row with this look's parameters ``q (M,)``, ``sig_w2``, ``log_Pi (M, M)``: mixing,
+    mode-matched prediction and update, mode probabilities. Updates ``xm, Pm, log_mu`` in place, writes the
+    combination of the modes' 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``;
+    returns ``(NIS of the combined prediction, combined turn rate, its variance)``."""
+    x0, P0, xp, Pp, log_c, a, w, ll, J, K, A, tmp, xc, Pc = work
+    M = q.shape[0]
+    # ---- mixing (log space): a[i, j] = log Pi_ij + log mu_i, log c_j = logsumexp_i a[i, j], in 5 states
+    for i in range(M):
+        for j in range(M):
+            a[i, j] = log_Pi[i, j] + log_mu[i]
+    for j in range(M):
+        log_c[j] = _logsumexp(a[:, j])
+        for i in range(M):
+            w[i] = math.exp(a[i, j] - log_c[j])
+        _moments(w, xm, Pm, 5, x0[j], P0[j])
+        if is_ct[j]:
+            _clip_omega(x0[j], omega_max, accel_max)
+        else:   # a CV mode keeps its 4-state marginal and its turn-rate augmentation (0, sigma_omega0^2)
+            _set_cv_augmentation(x0[j], P0[j], sig_w0_2)
+    # ---- mode-matched prediction
+    for j in range(M):
+        if is_ct[j]:
+            _ct_predict_mean(x0[j], dt, xp[j])
+            _ct_jacobian(x0[j], dt, J)
+        else:
+            J[:, :] = 0.0
+            for r in range(5):
+                J[r, r] = 1.0
+            J[0, 2] = J[1, 3] = dt
+            xp[j] = x0[j]
+            xp[j, 0] += dt * x0[j, 2]
+            xp[j, 1] += dt * x0[j, 3]
+        _abat(J, P0[j], tmp, Pp[j])
+        _add_cv_noise(Pp[j], dt, q[j])
+        if is_ct[j]:
+            Pp[j, 4, 4] += sig_w2 * dt
+        _sym(Pp[j])
+    # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
+    for j in range(M):
+        if det:
+            ll[j] = _joseph_update(xp[j], Pp[j], z, R, xm[j], Pm[j], K, A, tmp)
+            if is_ct[j]:
+                _clip_omega(xm[j], omega_max, accel_max)
+        else:
+            xm[j] = xp[j]
+            Pm[j] = Pp[j]
+            ll[j] = 0.0
+    # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
+    for j in range(M):
+        ll[j] += log_c[j]
+    lse = _logsumexp(ll)
+    for j in range(M):
+        log_mu[j] = ll[j] - lse
+    # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.imm_step
+    lse = _logsumexp(log_c)
+    for j in range(M):
+        w[j] = math.exp(log_c[j] - lse)
+    _moments(w, xp, Pp, 4, xc, Pc)
+    nis = _nis_2d(Pc, R, z[0] - xc[0], z[1] - xc[1])[0] if det else 0.0
+    # ---- combination of the 4-state marginals; combined turn rate (a CV mode's is 0) and its variance
+    om = 0.0
+    for j in range(M):
+        w[j] = math.exp(log_mu[j])
+        mu_out[j] = w[j]
+        if is_ct[j]:
+            om += w[j] * xm[j, 4]
+    om_var = 0.0
+    for j in range(M):
+        d = (xm[j, 4] - om) if is_ct[j] else -om
+        om_var += w[j] * ((Pm[j, 4, 4] if is_ct[j] else 0.0) + d * d)
+    _moments(w, xm, Pm, 4, xc, Pc)
+    x_out[:] = xc[:4]
+    P_out[:, :] = Pc[:4, :4]
+    return nis, om, om_var
+
+
+@numba.njit(cache=True)
+def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
+         accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
+    """One track: looks ``k_start .. n_looks - 1`` (the previous one, ``k_start - 1``, is the start). The
+    parameters ``q (Kp, M)``, ``sig_w2 (Kp,)``, ``log_Pi (Kp, M, M)`` are per look (``Kp`` = K, indexed by the
+    look) or the same for every look (``Kp`` = 1)."""
+    M = is_ct.shape[0]
+    xm = np.empty((M, 5))
+    Pm = np.empty((M, 5, 5))
+    log_mu = np.empty(M)
+    work = _work(M)
+    _init_modes(x_init, P_init, is_ct, sig_w0_2, log_mu0, xm, Pm, log_mu)
+    last = q.shape[0] - 1
     t_last = t[k_start - 1]
     for k in range(k_start, n_looks):
-        dt = t[k] - t_last
-        # ---- mixing (log space): a[i, j] = log Pi_ij + log mu_i, log c_j = logsumexp_i a[i, j], in 5 states
-        for i in range(M):
-            for j in range(M):
-                a[i, j] = log_Pi[i, j] + log_mu[i]
-        for j in range(M):
-            log_c[j] = _logsumexp(a[:, j])
-            for i in range(M):
-                w[i] = math.exp(a[i, j] - log_c[j])
-            _moments(w, xm, Pm, 5, x0[j], P0[j])
-            if is_ct[j]:
-                _clip_omega(x0[j], omega_max, accel_max)
-            else:   # a CV mode keeps its 4-state marginal and its turn-rate augmentation (0, sigma_omega0^2)
-                _set_cv_augmentation(x0[j], P0[j], sig_w0_2)
-        # ---- mode-matched prediction
-        for j in range(M):
-            if is_ct[j]:
-                _ct_predict_mean(x0[j], dt, xp[j])
-                _ct_jacobian(x0[j], dt, J)
-            else:
-                J[:, :] = 0.0
-                for r in range(5):
-                    J[r, r] = 1.0
-                J[0, 2] = J[1, 3] = dt
-                xp[j] = x0[j]
-                xp[j, 0] += dt * x0[j, 2]
-                xp[j, 1] += dt * x0[j, 3]
-            _abat(J, P0[j], tmp, Pp[j])
-            _add_cv_noise(Pp[j], dt, q[j])
-            if is_ct[j]:
-                Pp[j, 4, 4] += sig_w2 * dt
-            _sym(Pp[j])
-        # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
-        for j in range(M):
-            if det[k]:
-                ll[j] = _joseph_update(xp[j], Pp[j], z[k], R[k], xm[j], Pm[j], K, A, tmp)
-                if is_ct[j]:
-                    _clip_omega(xm[j], omega_max, accel_max)
-            else:
-                xm[j] = xp[j]
-                Pm[j] = Pp[j]
-                ll[j] = 0.0
-        # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
-        for j in range(M):
-            ll[j] += log_c[j]
-        lse = _logsumexp(ll)
-        for j in range(M):
-            log_mu[j] = ll[j] - lse
-        # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.imm_step
-        lse = _logsumexp(log_c)
-        for j in range(M):
-            w[j] = math.exp(log_c[j] - lse)
-        _moments(w, xp, Pp, 4, xc, Pc)
-        out_nis[k] = _nis_2d(Pc, R[k], z[k, 0] - xc[0], z[k, 1] - xc[1])[0] if det[k] else 0.0
-        # ---- combination of the 4-state marginals; combined turn rate (a CV mode's is 0)
-        om = 0.0
-        for j in range(M):
-            w[j] = math.exp(log_mu[j])
-            out_mu[k, j] = w[j]
-            if is_ct[j]:
-                om += w[j] * xm[j, 4]
-        out_omega[k] = om
-        _moments(w, xm, Pm, 4, xc, Pc)
-        out_x[k] = xc[:4]
-        out_P[k] = Pc[:4, :4]
+        i = min(k, last)
+        out_nis[k], out_omega[k], out_omega_var[k] = _look(
+            t[k] - t_last, z[k], R[k], det[k], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2, omega_max, accel_max,
+            xm, Pm, log_mu, work, out_x[k], out_P[k], out_mu[k])
         if keep_modes:
             out_xm[k] = xm
             out_Pm[k] = Pm
@@ -530,14 +559,96 @@ def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w
 
 @numba.njit(cache=True, parallel=True)
 def _kernel(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
-            accel_max, out_x, out_P, out_mu, out_omega, out_nis, keep_modes, out_xm, out_Pm):
+            accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
+    last = q.shape[0] - 1           # parameters (Bp, Kp, ...): Bp = B (per row) or 1 (every row)
     for b in numba.prange(t.shape[0]):
+        i = min(np.int64(b), last)  # (the prange index is unsigned: min with an int64 would be a float)
         # without keep_modes the per-mode outputs are (1, 1, ...) placeholders
         xm_b = out_xm[b] if keep_modes else out_xm[0]
         Pm_b = out_Pm[b] if keep_modes else out_Pm[0]
-        _row(t[b], z[b], R[b], det[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, q, sig_w2, sig_w0_2,
-             log_Pi, log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b], out_omega[b], out_nis[b],
-             keep_modes, xm_b, Pm_b)
+        _row(t[b], z[b], R[b], det[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, q[i], sig_w2[i],
+             sig_w0_2, log_Pi[i], log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b], out_omega[b],
+             out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
+
+
+@numba.njit(cache=True, parallel=True)
+def _step_kernel(rows, t, z, R, det, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm, log_mu, k,
+                 t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
+    """The next look ``k[r]`` of each row ``r = rows[i]`` with that row's parameters ``q[i]``, ``sig_w2[i]``,
+    ``log_Pi[i]``; the modes ``xm, Pm, log_mu (B, ...)`` and cursors ``k, t_last (B,)`` are updated in place."""
+    M = is_ct.shape[0]
+    for i in numba.prange(rows.shape[0]):
+        r = rows[i]
+        kk = k[r]
+        out_nis[i], out_omega[i], out_omega_var[i] = _look(
+            t[r, kk] - t_last[r], z[r, kk], R[r, kk], det[r, kk], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2,
+            omega_max, accel_max, xm[r], Pm[r], log_mu[r], _work(M), out_x[i], out_P[i], out_mu[i])
+        t_last[r] = t[r, kk]
+        k[r] = kk + 1
+
+
+# ------------------------------------------------------------------------------------------------ per-look parameters
+def look_parameter_names(spec: IMMCVCTSpec | None = None):
+    """The parameters that may change from look to look, in the order of a parameter vector: those of
+    :data:`LOOK_PARAMS` that ``spec``'s modes have (the last two only with the third mode)."""
+    spec = spec or DEFAULT_IMM_CV_CT
+    return LOOK_PARAMS if spec.n_modes == 3 else LOOK_PARAMS[:5]
+
+
+def look_parameter_vector(spec: IMMCVCTSpec | None = None) -> np.ndarray:
+    """``spec``'s constant values of :func:`look_parameter_names`, (n_par,) (g, deg/s^1.5, probabilities)."""
+    spec = spec or DEFAULT_IMM_CV_CT
+    return np.array([getattr(spec, n) for n in look_parameter_names(spec)], dtype=np.float64)
+
+
+def check_look_parameters(spec, params, B=None, K=None):
+    """``params`` as float64 of shape ``(Bp, Kp, n_par)``, checked: ``n_par = len(look_parameter_names(spec))``;
+    ``(n_par,)``, ``(Bp, n_par)`` and ``(Bp, Kp, n_par)`` are accepted with ``Bp`` in ``{1, B}``, ``Kp`` in ``{1, K}``
+    (a 2-D array is one row of parameters per row, the same for every look). Every value finite and inside its
+    :data:`IMM_CV_CT_PARAMS` range; ``ValueError`` naming the parameter otherwise."""
+    names = look_parameter_names(spec)
+    p = np.asarray(params, dtype=np.float64)
+    if p.ndim == 1:
+        p = p[None, None]
+    elif p.ndim == 2:
+        p = p[:, None]
+    if p.ndim != 3 or p.shape[-1] != len(names) or (B is not None and p.shape[0] not in (1, B)) \
+            or (K is not None and p.shape[1] not in (1, K)):
+        raise ValueError(f"params must be (n_par,), (B, n_par) or (B, K, n_par) with n_par = {len(names)} "
+                         f"({', '.join(names)}), B = {B}, K = {K} (or 1 to broadcast); got shape "
+                         f"{np.shape(params)}")
+    for i, n in enumerate(names):
+        lo, hi = _RANGES[n]
+        v = p[..., i]
+        bad = ~((v >= lo) & (v <= hi))              # NaN is bad too
+        if bad.any():
+            raise ValueError(f"params[..., {i}] ({n}) must be finite and in [{lo}, {hi}], got "
+                             f"{float(v[bad].flat[0])!r}")
+    return np.ascontiguousarray(p)
+
+
+def kernel_parameters(spec=None, params=None):
+    """The kernel's per-look arrays ``(q_m_s2 (Bp, Kp, M), sig_w2 (Bp, Kp), log_Pi (Bp, Kp, M, M))``.
+
+    ``params=None``: ``spec``'s constants (:meth:`IMMCVCTSpec.mode_arrays`), shape ``(1, 1, ...)``; else a checked
+    array of :func:`check_look_parameters`, converted with the same operations as ``mode_arrays`` (so the
+    constant values given per look produce the same numbers, bit for bit: tested)."""
+    spec = spec or DEFAULT_IMM_CV_CT
+    if params is None:
+        _, q, log_Pi, _ = spec.mode_arrays()
+        sig_w = spec.sigma_omega_deg_s15 * DEG
+        return q[None, None], np.full((1, 1), sig_w * sig_w), log_Pi[None, None]
+    M = spec.n_modes
+    names = look_parameter_names(spec)
+    col = {n: params[..., i] for i, n in enumerate(names)}
+    q_g = np.stack([col["q_cv_g"], col["q_ct_g"]] + ([col["q_high_g"]] if M == 3 else []), axis=-1)
+    stay = np.stack([col["p_stay_cv"], col["p_stay_ct"]] + ([col["p_stay_high"]] if M == 3 else []), axis=-1)
+    Pi = np.repeat(((1.0 - stay) / (M - 1))[..., None], M, axis=-1)
+    i = np.arange(M)
+    Pi[..., i, i] = stay
+    sig_w = col["sigma_omega_deg_s15"] * DEG
+    return (np.ascontiguousarray(q_g * G0_M_S2), np.ascontiguousarray(sig_w * sig_w),
+            np.ascontiguousarray(np.log(Pi)))
 
 
 class IMMCVCTResult(NamedTuple):
@@ -550,6 +661,7 @@ class IMMCVCTResult(NamedTuple):
     nis: np.ndarray         # (B, K) NIS of the combined prediction (0 where missed)
     x_modes: np.ndarray | None   # (B, K, M, 5) mode posteriors (keep_modes only)
     P_modes: np.ndarray | None   # (B, K, M, 5, 5)
+    omega_std_rad_s: np.ndarray | None = None   # (B, K) std of the combined turn rate (CV modes' turn rate: 0)
 
 
 def _modes_from_arrays(is_ct, q_m_s2, log_Pi, log_mu0):
@@ -560,22 +672,7 @@ def _modes_from_arrays(is_ct, q_m_s2, log_Pi, log_mu0):
         np.ascontiguousarray(log_mu0, dtype=np.float64).reshape(M)
 
 
-def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None,
-                     keep_modes=False, modes=None):
-    """Run the IMM on B padded look sequences (the compiled kernel; no track start of its own).
-
-    Args:
-        t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K) bool: the looks (NaN allowed where missed).
-        n_looks (B,) int: looks per row; k_start (B,) int, >= 1: first look filtered (``k_start - 1`` is the start,
-            its time the time of ``x0``).
-        x0 (B, 5), P0 (B, 5, 5): start state with a turn rate (a CV mode replaces the turn-rate part by its
-            augmentation).
-        spec: the parameters (default :data:`DEFAULT_IMM_CV_CT`).
-        keep_modes: also return every mode's 5-state posterior per look.
-        modes: ``(is_ct (M,), q_m_s2 (M,), log_Pi (M, M), log_mu0 (M,))`` overriding the spec's modes (e.g. a
-            single CT mode: the CT-EKF alone); the spec still gives the turn-rate noises and bound.
-    """
-    spec = spec or DEFAULT_IMM_CV_CT
+def _looks_arrays(t_s, z_m, R_m2, detected, n_looks, k_start):
     t = np.ascontiguousarray(t_s, dtype=np.float64)
     B, K = t.shape
     z = np.ascontiguousarray(np.nan_to_num(np.asarray(z_m, dtype=np.float64)))
@@ -589,25 +686,126 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
                          f"{t.shape}, {z.shape}, {R.shape}, {det.shape}")
     if np.any(ks < 1) or np.any(n > K) or np.any(ks > n):
         raise ValueError(f"k_start must be in [1, n_looks] and n_looks <= K = {K}; got k_start {ks}, n_looks {n}")
+    return t, z, R, det, n, ks
+
+
+def _bounds(spec):
+    return spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
+
+
+def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None,
+                     keep_modes=False, modes=None, params=None):
+    """Run the IMM on B padded look sequences (the compiled kernel; no track start of its own).
+
+    Args:
+        t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K) bool: the looks (NaN allowed where missed).
+        n_looks (B,) int: looks per row; k_start (B,) int, >= 1: first look filtered (``k_start - 1`` is the start,
+            its time the time of ``x0``).
+        x0 (B, 5), P0 (B, 5, 5): start state with a turn rate (a CV mode replaces the turn-rate part by its
+            augmentation).
+        spec: the parameters (default :data:`DEFAULT_IMM_CV_CT`).
+        keep_modes: also return every mode's 5-state posterior per look.
+        modes: ``(is_ct (M,), q_m_s2 (M,), log_Pi (M, M), log_mu0 (M,))`` overriding the spec's modes (e.g. a
+            single CT mode: the CT-EKF alone); the spec still gives the turn-rate noises and bound.
+        params: per-look values of :func:`look_parameter_names` (``(B, K, n_par)``, or broadcastable as
+            :func:`check_look_parameters` says; look ``k`` of row ``b`` predicts and mixes with
+            ``params[b, k]``), replacing the spec's constants; not with ``modes``.
+    """
+    spec = spec or DEFAULT_IMM_CV_CT
+    t, z, R, det, n, ks = _looks_arrays(t_s, z_m, R_m2, detected, n_looks, k_start)
+    B, K = t.shape
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 5)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 5, 5)
-    is_ct, q, log_Pi, log_mu0 = _modes_from_arrays(*(modes if modes is not None else spec.mode_arrays()))
+    if modes is not None and params is not None:
+        raise ValueError("give modes or params, not both (modes fixes q and the transition matrix)")
+    if modes is not None:
+        is_ct, q, log_Pi, log_mu0 = _modes_from_arrays(*modes)
+        sig_w = spec.sigma_omega_deg_s15 * DEG
+        q, sig_w2, log_Pi = q[None, None], np.full((1, 1), sig_w * sig_w), log_Pi[None, None]
+    else:
+        is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())
+        q, sig_w2, log_Pi = kernel_parameters(
+            spec, None if params is None else check_look_parameters(spec, params, B, K))
     M = is_ct.size
     out_x = np.full((B, K, 4), np.nan)
     out_P = np.full((B, K, 4, 4), np.nan)
     out_mu = np.full((B, K, M), np.nan)
     out_w = np.full((B, K), np.nan)
+    out_wv = np.full((B, K), np.nan)
     out_nis = np.full((B, K), np.nan)
     shape_m = (B, K) if keep_modes else (1, 1)
     out_xm = np.full(shape_m + (M, 5), np.nan)
     out_Pm = np.full(shape_m + (M, 5, 5), np.nan)
-    sig_w = spec.sigma_omega_deg_s15 * DEG
     sig_w0 = spec.sigma_omega0_deg_s * DEG
-    _kernel(t, z, R, det, n, ks, x0, P0, is_ct, q, sig_w * sig_w, sig_w0 * sig_w0, log_Pi, log_mu0,
-            spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2, out_x, out_P, out_mu, out_w, out_nis,
-            bool(keep_modes), out_xm, out_Pm)
+    _kernel(t, z, R, det, n, ks, x0, P0, is_ct, q, sig_w2, sig_w0 * sig_w0, log_Pi, log_mu0, *_bounds(spec), out_x,
+            out_P, out_mu, out_w, out_wv, out_nis, bool(keep_modes), out_xm, out_Pm)
     return IMMCVCTResult(out_x, out_P, out_mu, out_w, out_nis, out_xm if keep_modes else None,
-                         out_Pm if keep_modes else None)
+                         out_Pm if keep_modes else None, np.sqrt(out_wv))
+
+
+class IMMCVCTStep(NamedTuple):
+    """One look of :meth:`IMMCVCTStepper.step` for the stepped rows (leading axis = those rows)."""
+
+    look_index: np.ndarray      # (n,) the look just processed
+    x: np.ndarray               # (n, 4) combined estimate
+    P: np.ndarray               # (n, 4, 4)
+    mu: np.ndarray              # (n, M) mode probabilities
+    omega_rad_s: np.ndarray     # (n,) combined turn rate
+    omega_std_rad_s: np.ndarray  # (n,) its standard deviation
+    nis: np.ndarray             # (n,) NIS of the combined prediction (0 where missed)
+    done: np.ndarray            # (n,) bool: the row's last look was processed
+
+
+class IMMCVCTStepper:
+    """The same IMM one look at a time, for a caller that chooses each look's parameters after seeing the
+    previous look's output (a learned policy): :meth:`step` processes the next look of the given rows with
+    their parameters, in the same compiled per-look function as :func:`imm_cv_ct_filter` (equal to it bit for
+    bit with the same parameters: tested).
+
+    Args: the looks, ``n_looks``, ``k_start``, ``x0``, ``P0`` and ``spec`` as :func:`imm_cv_ct_filter`.
+    Attributes: ``x_modes (B, M, 5)``, ``P_modes (B, M, 5, 5)``, ``log_mu (B, M)``, ``k (B,)`` (next look),
+    ``n_looks (B,)``.
+    """
+
+    def __init__(self, t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None):
+        self.spec = spec = spec or DEFAULT_IMM_CV_CT
+        self._t, self._z, self._R, self._det, self.n_looks, ks = _looks_arrays(t_s, z_m, R_m2, detected, n_looks,
+                                                                               k_start)
+        B = self.B = self._t.shape[0]
+        self.is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())
+        M = self.is_ct.size
+        sig_w0 = spec.sigma_omega0_deg_s * DEG
+        self._sig_w0_2 = sig_w0 * sig_w0
+        self.x_modes, self.P_modes, self.log_mu = np.empty((B, M, 5)), np.empty((B, M, 5, 5)), np.empty((B, M))
+        x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 5)
+        P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 5, 5)
+        for b in range(B):   # once per track start, not per look
+            _init_modes(x0[b], P0[b], self.is_ct, self._sig_w0_2, log_mu0, self.x_modes[b], self.P_modes[b],
+                        self.log_mu[b])
+        self.k = ks.copy()
+        self.t_last = self._t[np.arange(B), ks - 1].copy()
+
+    def step(self, params=None, rows=None) -> IMMCVCTStep:
+        """Process the next look of ``rows`` (index array; default all) with ``params`` ((n, n_par) values of
+        :func:`look_parameter_names`, or (n_par,) for all; default the spec's constants). ``ValueError`` for a row
+        whose episode has ended or a parameter out of its range."""
+        rows = np.arange(self.B) if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
+        n = rows.size
+        if np.any(self.k[rows] >= self.n_looks[rows]):
+            raise ValueError("step() called on a row whose episode has ended")
+        p = None if params is None else check_look_parameters(self.spec, params, n, 1)
+        q, sig_w2, log_Pi = kernel_parameters(self.spec, p)
+        q = np.ascontiguousarray(np.broadcast_to(q[:, 0], (n,) + q.shape[2:]))
+        sig_w2 = np.ascontiguousarray(np.broadcast_to(sig_w2[:, 0], (n,)))
+        log_Pi = np.ascontiguousarray(np.broadcast_to(log_Pi[:, 0], (n,) + log_Pi.shape[2:]))
+        M = self.is_ct.size
+        out = IMMCVCTStep(self.k[rows].copy(), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M)),
+                          np.empty(n), np.empty(n), np.empty(n), None)
+        _step_kernel(rows, self._t, self._z, self._R, self._det, self.is_ct, q, sig_w2, self._sig_w0_2, log_Pi,
+                     *_bounds(self.spec), self.x_modes, self.P_modes, self.log_mu, self.k, self.t_last, out.x,
+                     out.P, out.mu, out.omega_rad_s, out.omega_std_rad_s, out.nis)
+        np.sqrt(out.omega_std_rad_s, out=out.omega_std_rad_s)
+        return out._replace(done=self.k[rows] >= self.n_looks[rows])
 
 
 # ------------------------------------------------------------------------------------------------ on episodes

@@ -30,8 +30,10 @@ memory. On the 2-core machine this runs a look about 2x faster than the batch-fi
 products are strided) and far faster than ``bmm``, which loops over 4 x 4 products; per-look slices of tensors that
 need a gradient are taken with ``unbind`` (one backward node for the chunk, where indexing would add a full-size
 zero tensor per look). The building blocks (:func:`transition`, :func:`process_noise`, :func:`predict`,
-:func:`predict_cv`, :func:`update`, :func:`nis`, :func:`log_likelihood`, :func:`two_point_init`) take that layout
-with any trailing batch shape, e.g. ``(4, M, B)`` for M filters per row.
+:func:`predict_cv`, :func:`propagate`, :func:`ct_omega_partials`, :func:`update`, :func:`nis`,
+:func:`log_likelihood`, :func:`two_point_init`) take that layout with any trailing batch shape, e.g. ``(4, M, B)``
+for M filters per row; :func:`propagate` and :func:`update` any state size (the 5-state CT-EKF of
+:mod:`radar_env.torch_imm`, the IMM built from these blocks).
 
 What it is not: it does not compute the env's features or observation (the numba chain does; a trainer steps a
 Tracker for them) and it has no known-input (clairvoyant) term. Only this module imports torch; ``radar_env``
@@ -50,7 +52,8 @@ import torch
 from .tracking import MAX_Q_M_S2, TrackStart
 
 __all__ = ["ChainState", "ChainLooks", "StepRecord", "ChainRun", "handover", "start_tracks", "looks_from_arrays",
-           "run", "step", "collect", "transition", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "update",
+           "run", "step", "collect", "transition", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "propagate",
+           "ct_omega_partials", "update",
            "nis", "log_likelihood", "two_point_init", "position_sq_error", "pooled_position_mse", "SERIES_THETA"]
 
 DTYPE = torch.float64
@@ -60,6 +63,10 @@ SERIES_THETA = 1e-2
 """Below this ``|omega dt|`` the CT entries ``sin(th)/omega`` and ``(1 - cos th)/omega`` are their Taylor series (to
 ``th^6``; truncation < 1e-21 relative): smooth with finite gradients at ``omega = 0``, equal to the exact forms (and
 to kernels.py's sinc forms) to rounding."""
+
+SERIES_THETA_PARTIALS = 0.1
+"""The same for the CT entries' derivatives in omega (:func:`ct_omega_partials`; series to ``th^9``, truncation
+< 1e-16 relative at 0.1, as baselines/imm_cv_ct.py's kernel evaluates them)."""
 
 
 def _t(a, dtype=DTYPE):
@@ -304,10 +311,34 @@ def process_noise(dt_s, q_m_s2) -> torch.Tensor:
 
 def predict(x, P, F, Q):
     """``x- = F x``, ``P- = sym(F P F^T + Q)`` for any ``F``; ``x (4, *b)``, ``P, F, Q (4, 4, *b)``."""
-    xp = (F * x[None]).sum(1)
+    return (F * x[None]).sum(1), propagate(P, F, Q)
+
+
+def propagate(P, F, Q):
+    """``sym(F P F^T + Q)`` for ``P, F, Q (n, n, *b)`` (any n: an EKF passes its Jacobian as ``F``)."""
     FP = (F[:, :, None] * P[None]).sum(1)            # (F P)[i, j] = sum_k F[i, k] P[k, j]
     Pp = (FP[:, None] * F[None]).sum(2) + Q          # (F P F^T)[i, j] = sum_k FP[i, k] F[j, k]
-    return xp, 0.5 * (Pp + Pp.transpose(0, 1))
+    return 0.5 * (Pp + Pp.transpose(0, 1))
+
+
+def ct_omega_partials(dt_s, omega_rad_s):
+    """``(da/domega, db/domega)`` (*batch) of the CT entries ``a = sin(th)/omega``, ``b = (1 - cos th)/omega``
+    (``th = omega dt``): ``dt^2 (th cos th - sin th) / th^2`` and ``dt^2 (th sin th - 1 + cos th) / th^2``, the
+    turn-rate column of the CT-EKF's Jacobian (radar_env.torch_imm). Below ``|th| <`` :data:`SERIES_THETA_PARTIALS`
+    their Taylor series (to ``th^9``; the closed form of the first loses ``eps / th^2`` to cancellation), so
+    they are smooth with finite gradients at ``omega = 0``."""
+    dt_s, omega_rad_s = torch.broadcast_tensors(dt_s, omega_rad_s)
+    th = omega_rad_s * dt_s
+    small = th.abs() < SERIES_THETA_PARTIALS
+    ths = torch.where(small, torch.ones_like(th), th)      # keeps the unused exact branch (and its gradient) finite
+    t2 = th * th
+    g1 = torch.where(small, th * (-1.0 / 3 + t2 * (1.0 / 30 + t2 * (-1.0 / 840 + t2 * (1.0 / 45360 - t2 / 3991680)))),
+                     (ths * torch.cos(ths) - torch.sin(ths)) / (ths * ths))
+    h = torch.sin(0.5 * ths)
+    g2 = torch.where(small, 0.5 + t2 * (-1.0 / 8 + t2 * (1.0 / 144 + t2 * (-1.0 / 5760 + t2 / 403200))),
+                     (ths * torch.sin(ths) - 2.0 * h * h) / (ths * ths))
+    d2 = dt_s * dt_s
+    return d2 * g1, d2 * g2
 
 
 def predict_cv(x, P, dt_s, Q):
@@ -325,8 +356,10 @@ def update(x, P, z, R, mask):
     """Joseph-form update with a converted position plot (H = [I 0]), as kernels._update.
 
     Args:
-        x (4, *b), P (4, 4, *b): prior. z (2, *b), R (2, 2, *b): the plot, finite everywhere (:class:`ChainLooks`
-            holds ``z = 0``, ``R = I`` where missed). mask (*b): 1.0 detected, 0.0 missed (posterior = prior).
+        x (n, *b), P (n, n, *b): prior, any n >= 2 states, position first. z (2, *b), R (2, 2, *b): the plot,
+            finite everywhere (:class:`ChainLooks` holds ``z = 0``, ``R = I`` where missed). mask (*b): 1.0
+            detected, 0.0 missed (posterior = prior). All must have the same number of batch dimensions (``z``
+            of M filters per row: ``z[:, None]``).
     Returns:
         ``(x+, P+, nu, S, S_inv)``: ``nu = z - H x-`` (0 where missed), ``S = P-[:2, :2] + R`` and its inverse
         (closed form).
@@ -334,7 +367,7 @@ def update(x, P, z, R, mask):
     S = P[:2, :2] + R
     s00, s01, s11 = S[0, 0], S[0, 1], S[1, 1]
     S_inv = torch.stack((s11, -s01, -s01, s00)).view(S.shape) / (s00 * s11 - s01 * s01)
-    C = P[:, :2]                                              # P H^T (4, 2, *b)
+    C = P[:, :2]                                              # P H^T (n, 2, *b)
     K = (C[:, :, None] * S_inv[None]).sum(1) * mask           # gain, 0 where missed
     nu = (z - x[:2]) * mask
     xo = x + (K * nu[None]).sum(1)

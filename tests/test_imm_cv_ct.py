@@ -56,8 +56,9 @@ def _ref_clip(x, spec):
     x[4] = np.clip(x[4], -b, b)
 
 
-def _reference_track(t, z, R, det, k0, n, x_init, P_init, spec):
-    """Slow, independent per-track IMM: numpy matrices, scipy's logsumexp, explicit Joseph form."""
+def _reference_track(t, z, R, det, k0, n, x_init, P_init, spec, params=None):
+    """Slow, independent per-track IMM: numpy matrices, scipy's logsumexp, explicit Joseph form. ``params``
+    (K, n_par): per-look values of I.LOOK_PARAMS (spec.n_modes of them) replacing the spec's constants."""
     is_ct, q, log_Pi, log_mu = spec.mode_arrays()
     M = len(q)
     sw2, sw02 = (spec.sigma_omega_deg_s15 * DEG) ** 2, (spec.sigma_omega0_deg_s * DEG) ** 2
@@ -78,6 +79,12 @@ def _reference_track(t, z, R, det, k0, n, x_init, P_init, spec):
     t_last = t[k0 - 1]
     for k in range(k0, n):
         dt = t[k] - t_last
+        if params is not None:   # q_cv, q_ct, sigma_omega, p_stay_cv, p_stay_ct[, q_high, p_stay_high]
+            p = params[k]
+            q = np.array([p[0], p[1]] + ([p[5]] if M == 3 else [])) * G0_M_S2
+            stay = [p[3], p[4]] + ([p[6]] if M == 3 else [])
+            log_Pi = np.log([[stay[i] if i == j else (1 - stay[i]) / (M - 1) for j in range(M)] for i in range(M)])
+            sw2 = (p[2] * DEG) ** 2
         A = log_Pi + log_mu[:, None]
         log_c = logsumexp(A, axis=0)
         W = np.exp(A - log_c[None, :])
@@ -442,3 +449,119 @@ def test_registered():
     eps = draw_suite("bizup2002", 2, seed=1)
     run = run_tracker("imm_cv_ct", eps)
     np.testing.assert_array_equal(run.x, I.run_imm_cv_ct(eps, I.tuned_imm_cv_ct_spec()).x)
+
+
+# ------------------------------------------------------------------------------------------------ per-look parameters
+def _filter_args(eps, spec):
+    batch, k0, x4, P4 = I.common_start(eps)
+    B = len(eps)
+    x5 = np.c_[x4, np.zeros(B)]
+    P5 = np.zeros((B, 5, 5))
+    P5[:, :4, :4], P5[:, 4, 4] = P4, (spec.sigma_omega0_deg_s * DEG) ** 2
+    return batch, (batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5)
+
+
+def _drawn_params(spec, shape, seed):
+    """Per-look parameters scattered around the spec's constants (noises x/÷ e, stay probabilities -0.05..+0.005),
+    inside their ranges."""
+    rng = np.random.default_rng(seed)
+    names = I.look_parameter_names(spec)
+    p = np.broadcast_to(I.look_parameter_vector(spec), shape + (len(names),)).copy()
+    for i, n in enumerate(names):
+        lo, hi = next((lo, hi) for m, _, lo, hi, _ in I.IMM_CV_CT_PARAMS if m == n)
+        p[..., i] = p[..., i] + rng.uniform(-0.05, 0.005, shape) if n.startswith("p_") else \
+            p[..., i] * np.exp(rng.uniform(-1.0, 1.0, shape))
+        p[..., i] = np.clip(p[..., i], lo, hi)
+    return p
+
+
+PER_LOOK_SUITES = {"random": 6, "random_radars": 4, "bizup2002": 2, "adsb_dev": 2}
+
+
+@pytest.mark.parametrize("suite", list(PER_LOOK_SUITES) + ["two_sites_with_misses"])
+def test_constant_per_look_parameters_equal_the_constant_kernel_bit_for_bit(suite, two_site_episodes):
+    eps = two_site_episodes if suite == "two_sites_with_misses" else \
+        draw_suite(suite, PER_LOOK_SUITES[suite], seed=TUNING_SEEDS.start + 77)
+    for spec in (I.tuned_imm_cv_ct_spec(), I.IMMCVCTSpec(q_high_g=None)):
+        batch, args = _filter_args(eps, spec)
+        B, K = batch.t_s.shape
+        ref = I.imm_cv_ct_filter(*args, spec, keep_modes=True)
+        vec = I.look_parameter_vector(spec)
+        for params in (np.broadcast_to(vec, (B, K, vec.size)), vec, np.broadcast_to(vec, (B, vec.size))):
+            res = I.imm_cv_ct_filter(*args, spec, keep_modes=True, params=params)
+            for f in IMM_FIELDS:
+                np.testing.assert_array_equal(getattr(res, f), getattr(ref, f), err_msg=f)
+        # the one-look-at-a-time stepper with the same constants: the same numbers
+        st = I.IMMCVCTStepper(*args, spec)
+        x, mu = np.full((B, K, 4), np.nan), np.full((B, K, spec.n_modes), np.nan)
+        active = st.k < st.n_looks
+        while active.any():
+            rows = np.flatnonzero(active)
+            o = st.step(None if rows.size % 2 else np.broadcast_to(vec, (rows.size, vec.size)), rows)
+            x[rows, o.look_index], mu[rows, o.look_index] = o.x, o.mu
+            active[rows] = ~o.done
+        np.testing.assert_array_equal(x, ref.x)
+        np.testing.assert_array_equal(mu, ref.mu)
+
+
+IMM_FIELDS = ("x", "P", "mu", "omega_rad_s", "nis", "x_modes", "P_modes", "omega_std_rad_s")
+
+
+@pytest.mark.parametrize("three_modes", [True, False], ids=["three_modes", "two_modes"])
+def test_per_look_parameters_equal_the_independent_loop_and_the_stepper(two_site_episodes, three_modes):
+    spec = I.tuned_imm_cv_ct_spec() if three_modes else I.IMMCVCTSpec(q_high_g=None)
+    eps = two_site_episodes
+    batch, args = _filter_args(eps, spec)
+    B, K = batch.t_s.shape
+    params = _drawn_params(spec, (B, K), seed=3)
+    res = I.imm_cv_ct_filter(*args, spec, keep_modes=True, params=params)
+    const = I.imm_cv_ct_filter(*args, spec)
+    assert np.nanmax(np.abs(res.x - const.x)) > 10.0          # the parameters matter
+    for b, e in enumerate(eps):
+        k0 = args[5][b]
+        ref = _reference_track(e.t_s, e.z_m, e.R_m2, e.detected, k0, e.n_looks, args[6][b], args[7][b], spec,
+                               params[b])
+        ks = slice(k0, e.n_looks)
+        np.testing.assert_allclose(res.x[b, ks], ref["x"], rtol=1e-9, atol=1e-9 * np.abs(ref["x"]).max())
+        np.testing.assert_allclose(res.P[b, ks], ref["P"], rtol=1e-9, atol=1e-9 * np.abs(ref["P"]).max())
+        np.testing.assert_allclose(res.mu[b, ks], ref["mu"], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(res.x_modes[b, ks], ref["xm"], rtol=1e-9, atol=1e-9 * np.abs(ref["xm"]).max())
+        np.testing.assert_allclose(res.P_modes[b, ks], ref["Pm"], rtol=1e-9, atol=1e-9 * np.abs(ref["Pm"]).max())
+        # the turn-rate spread: the mixture of the CT modes' (omega, var) and the CV modes' exact 0
+        w, v, mu = ref["xm"][:, :, 4], ref["Pm"][:, :, 4, 4], ref["mu"]
+        ct = np.asarray(spec.mode_arrays()[0])
+        om = (mu * w * ct).sum(1)
+        var = (mu * np.where(ct, v + (w - om[:, None]) ** 2, om[:, None] ** 2)).sum(1)
+        np.testing.assert_allclose(res.omega_std_rad_s[b, ks], np.sqrt(var), rtol=1e-9, atol=1e-15)
+    st = I.IMMCVCTStepper(*args, spec)
+    out = {f: np.full_like(getattr(res, f), np.nan) for f in ("x", "P", "mu", "omega_rad_s", "omega_std_rad_s",
+                                                             "nis")}
+    active = st.k < st.n_looks
+    while active.any():
+        rows = np.flatnonzero(active)
+        o = st.step(params[rows, st.k[rows]], rows)
+        for f in out:
+            out[f][rows, o.look_index] = getattr(o, f)
+        active[rows] = ~o.done
+    for f in out:
+        np.testing.assert_array_equal(out[f], getattr(res, f), err_msg=f)
+    with pytest.raises(ValueError, match="ended"):
+        st.step(None, [0])
+
+
+def test_per_look_parameters_are_checked(two_site_episodes):
+    spec = I.tuned_imm_cv_ct_spec()
+    batch, args = _filter_args(two_site_episodes, spec)
+    B, K = batch.t_s.shape
+    p = np.broadcast_to(I.look_parameter_vector(spec), (B, K, 7)).copy()
+    for i, bad in ((0, 2.0), (3, 1.0), (6, np.nan), (2, -1.0)):
+        q = p.copy()
+        q[1, 5, i] = bad
+        with pytest.raises(ValueError, match=rf"params\[\.\.\., {i}\] \({I.LOOK_PARAMS[i]}\) must be finite and in"):
+            I.imm_cv_ct_filter(*args, spec, params=q)
+    for shape in ((B, K, 5), (B + 1, K, 7), (B, K + 2, 7), (7, 1, 1, 1)):
+        with pytest.raises(ValueError, match="params must be"):
+            I.imm_cv_ct_filter(*args, spec, params=np.ones(shape))
+    with pytest.raises(ValueError, match="modes or params"):
+        I.imm_cv_ct_filter(*args, spec, params=p, modes=_ct_only(spec, 1.0))
+    assert I.look_parameter_names(I.IMMCVCTSpec(q_high_g=None)) == I.LOOK_PARAMS[:5]
