@@ -204,6 +204,16 @@ class IMMCVCTSpec:
         is_ct = np.array([False, True] + ([False] if M == 3 else []))
         return is_ct, np.asarray(q) * G0_M_S2, np.log(Pi), np.log(mu0)
 
+    def filter_constants(self):
+        """What the filter holds fixed whatever the per-look parameters, as plain numbers (the keyword arguments
+        of ``radar_env.torch_imm.IMMConstants``): ``is_ct``, ``log_mu0``, ``sig_w0_2`` (rad^2/s^2),
+        ``omega_max_rad_s``, ``accel_max_m_s2``, ``min_speed_m_s``."""
+        is_ct, _, _, log_mu0 = self.mode_arrays()
+        sig_w0 = self.sigma_omega0_deg_s * DEG
+        return dict(is_ct=tuple(bool(c) for c in is_ct), log_mu0=tuple(float(v) for v in log_mu0),
+                    sig_w0_2=sig_w0 * sig_w0, omega_max_rad_s=self.omega_max_deg_s * DEG,
+                    accel_max_m_s2=self.turn_accel_max_g * G0_M_S2, min_speed_m_s=MIN_SPEED_FOR_BOUND_M_S)
+
 
 DEFAULT_IMM_CV_CT = IMMCVCTSpec()
 """Defaults (see the module docstring for how they were chosen)."""
