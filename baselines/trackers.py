@@ -9,7 +9,7 @@ Kinds:
 
 * :func:`run_q_policy` -- the tracking chain with q chosen each look by a function of the observation: reference
   policies (:mod:`baselines.policies`) and learned stable-baselines3 policies run through it alike.
-* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_step`).
+* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_filter`).
 * :func:`run_turn_rate_kf` -- Adrian's KF with ``F(omega)`` fed by algorithm 1 or 2.
 * :func:`run_reinit` -- seed 002's re-initialising KF.
 * :func:`run_clairvoyant` -- the known-input KF (the physical limit) and :func:`run_oracle_q` (q = |a_true|).
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
+from radar_env.filters import imm_filter, two_point_init
 from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
 from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
@@ -203,56 +203,24 @@ IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
 0.1 g CT as in Adrian's KF) and the transition matrix are our choices."""
 
 
-class IMMFilter:
-    """The IMM as its own filter on the chain's looks (:func:`radar_env.filters.imm_step`): per row the log mode
-    probabilities and the mode estimates, started with every mode at ``x0, P0`` (B, 4) / (B, 4, 4)."""
-
-    LOOK_FIELDS = ("t_s", "z_m", "R_m2", "detected")
-    """What :meth:`step` reads of a look (:meth:`radar_env.tracking.Tracker.next_look`), besides ``dt_s``."""
-
-    def __init__(self, spec: IMMSpec, x0, P0):
-        M = len(spec.q_m_s2)
-        self.x_m = np.repeat(x0[:, None], M, axis=1)
-        self.P_m = np.repeat(P0[:, None], M, axis=1)
-        self.log_mu = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (x0.shape[0], 1)))
-        with np.errstate(divide="ignore"):
-            self.log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
-        self.q = np.asarray(spec.q_m_s2, dtype=np.float64)
-        self.w = np.asarray(spec.turn_rate_rad_s, dtype=np.float64)
-        self.maneuver_modes = list(spec.maneuver_modes)
-
-    def step(self, rows, look):
-        """One look of ``rows``; returns the combined ``(x, P)`` and the probability of the maneuver modes."""
-        M = self.q.size
-        dt = np.repeat(look["dt_s"][:, None], M, 1)
-        F = transition_ct(dt, np.broadcast_to(self.w, (rows.size, M)))
-        Q = process_noise(dt, np.broadcast_to(self.q, (rows.size, M)))
-        res = imm_step(self.log_mu[rows], self.x_m[rows], self.P_m[rows], self.log_Pi, F, Q, look["z_m"],
-                       look["R_m2"], look["detected"])
-        self.log_mu[rows], self.x_m[rows], self.P_m[rows] = res.log_mu, res.x_modes, res.P_modes
-        return res.x, res.P, np.exp(res.log_mu[:, self.maneuver_modes]).sum(axis=1)
-
-
 def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
     """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate), then
-    runs as a separate filter behind the chain's cursor (``Tracker.next_look`` / ``advance``)."""
+    runs as a separate filter on the chain's looks: every look of every row in one compiled call
+    (:func:`radar_env.filters.imm_filter`, the look-by-look :func:`radar_env.filters.imm_step` bit for bit)."""
     tr, out = _tracker(episodes, cfg)
-    B, K = tr.B, int(tr.n_looks.max())
-    rec = _Recorder(name, B, K, extra=("maneuver_probability",))
-    declared = np.zeros((B, K), dtype=bool)
-    rec.put(np.arange(B), out.look_index, out.x, out.P)
-    rec.run.start_index[:] = out.look_index + 1
-    imm = IMMFilter(spec, tr.x, tr.P)
-    active = ~out.done
-    while active.any():
-        rows = np.flatnonzero(active)
-        look = tr.next_look(rows, IMMFilter.LOOK_FIELDS)
-        x, P, p_man = imm.step(rows, look)
-        rec.put(rows, look["k"], x, P, maneuver_probability=p_man)
-        declared[rows, look["k"]] = p_man > 0.5
-        active[rows] = ~tr.advance(rows, x, P)
-    rec.run.declared = declared
-    return rec.run
+    B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
+    rows = np.arange(B)
+    look = {f: tr.look_data(f)[:, :K] for f in ("t_s", "z_m", "R_m2", "detected")}
+    log_mu0 = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (B, 1)))
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
+    x, P, log_mu = imm_filter(look["t_s"], look["z_m"], look["R_m2"], look["detected"], tr.n_looks, tr.k, tr.t_last,
+                              log_mu0, np.repeat(tr.x[:, None], M, axis=1), np.repeat(tr.P[:, None], M, axis=1),
+                              log_Pi, spec.q_m_s2, spec.turn_rate_rad_s)
+    x[rows, out.look_index], P[rows, out.look_index] = out.x, out.P     # the start look, as every tracker records it
+    p_man = np.exp(log_mu[..., list(spec.maneuver_modes)]).sum(axis=-1)     # NaN where not filtered
+    return TrackRun(name, x, P, out.look_index + 1, np.full((B, K), np.nan), declared=p_man > 0.5,
+                    extra={"maneuver_probability": p_man})
 
 
 # ------------------------------------------------------------------------------------------------ Adrian
