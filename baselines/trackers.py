@@ -86,12 +86,15 @@ class _Recorder:
             self.run.extra[e] = np.full((B, K), np.nan)
 
     def put(self, rows, k, x, P, q=None, **extra):
-        self.run.x[rows, k] = x
-        self.run.P[rows, k] = P
+        run = self.run
+        K = run.q_m_s2.shape[1]
+        at = np.asarray(rows) * K + k          # flat (row, look) positions: one index array for every series
+        run.x.reshape(-1, 4)[at] = x
+        run.P.reshape(-1, 16)[at] = np.reshape(P, (-1, 16))
         if q is not None:
-            self.run.q_m_s2[rows, k] = q
+            run.q_m_s2.reshape(-1)[at] = q
         for name, v in extra.items():
-            self.run.extra[name][rows, k] = v
+            run.extra[name].reshape(-1)[at] = v
 
 
 def _loop(tr, out, step_fn):
@@ -103,29 +106,34 @@ def _loop(tr, out, step_fn):
 
 
 # ------------------------------------------------------------------------------------------------ q policies
-def observation_layout(cfg=None):
+def observation_layout(cfg=None, features=None):
     """The observation a q-policy sees and the q levels (m/s^2): those of ``cfg`` (the env config a policy was
-    trained with: anything with ``features`` and ``q_levels_g``), else the env's defaults."""
+    trained with: anything with ``features`` and ``q_levels_g``), else the env's defaults; ``features``: only
+    these entries (names), each scaled as in the full observation."""
     lv = np.asarray(getattr(cfg, "q_levels_g", DEFAULT_Q_LEVELS_G)) * G0_M_S2
-    return ObservationLayout(getattr(cfg, "features", DEFAULT_FEATURES), lv[0], lv[-1]), lv
+    names = getattr(cfg, "features", DEFAULT_FEATURES) if features is None else features
+    return ObservationLayout(names, lv[0], lv[-1]), lv
 
 
-def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
+def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, features=None):
     """Run the tracking chain with ``q = choose_q(obs_rows)`` (m/s^2) each look.
 
     ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does, and
     ``cfg.frame_stack`` of them stacked newest first, (n, k F); the defaults without ``cfg``), so a learned policy
-    sees here what it saw in training. ``declare(obs_rows) -> bool``
-    records maneuver declarations (optional). ``cfg`` also gives the track start (:func:`_start`)."""
+    sees here what it saw in training. ``features``: if ``choose_q`` reads only some entries of the newest frame
+    (a rule), their names: ``obs_rows`` then holds just those, each with the value it has in the full observation
+    (the scaling is per entry), and ``()`` gives an (n, 0) array (a constant q): the same q, without encoding
+    the rest every look. ``declare(obs_rows) -> bool`` records maneuver declarations (optional). ``cfg`` also
+    gives the track start (:func:`_start`)."""
     tr, out = _tracker(episodes, cfg)
-    layout, _ = observation_layout(cfg)
+    layout = None if features is not None and not len(features) else observation_layout(cfg, features)[0]
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
     declared = np.zeros((B, K), dtype=bool) if declare is not None else None
     q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
-    obs = layout.encode(out, q_prev)
+    obs = layout.encode(out, q_prev) if layout is not None else np.zeros((B, 0), np.float32)
     rows0 = np.arange(B)
-    k = int(getattr(cfg, "frame_stack", 1))
+    k = int(getattr(cfg, "frame_stack", 1)) if features is None else 1
     frames = FrameStack(B, k, obs.shape[1]) if k > 1 else None   # as the env stacks them (frame_stack)
     if frames is not None:
         obs = frames.reset(rows0, obs)
@@ -138,8 +146,9 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
         o = tr.step(q, rows=None if rows.size == B else rows)
-        enc = layout.encode(o, q)
-        obs[rows] = enc if frames is None else frames.push(rows, enc)
+        if layout is not None:
+            enc = layout.encode(o, q)
+            obs[rows] = enc if frames is None else frames.push(rows, enc)
         rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
         return o
 

@@ -228,3 +228,19 @@ def test_trackers_accept_a_track_start_or_an_env_config():
 def test_imm_spec_errors_name_the_field_and_value(kwargs, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(T.IMM2_BIZUP, **kwargs)
+
+
+@pytest.mark.parametrize("rule", ["kf_tuned", "kf_low", "cmin", "ckf", "kim_lee"])
+def test_rules_observing_only_their_features_equal_the_full_observation(suites, rule):
+    # the registry runs a rule on the entries it reads (none for a constant q); per-entry scaling makes that the
+    # same q, estimate and declaration as the full observation gives, bit for bit
+    from baselines.policies import make_policy
+    for suite, eps in suites.items():
+        layout, lv = T.observation_layout()
+        pol = make_policy(rule, layout, "continuous", lv)
+        full = T.run_q_policy(eps, pol.q_m_s2, rule, declare=getattr(pol, "declared", None))
+        lean = run_tracker(rule, eps)
+        for f in ("x", "P", "q_m_s2", "declared"):
+            np.testing.assert_array_equal(getattr(lean, f), getattr(full, f), err_msg=f"{rule} {f} on {suite}")
+        for k, v in full.extra.items():
+            np.testing.assert_array_equal(lean.extra[k], v, err_msg=f"{rule} {k} on {suite}")
