@@ -23,6 +23,7 @@ or None for the defaults; the trackers' own parameters are their arguments.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,10 +73,32 @@ def _start(cfg):
     return cfg if isinstance(cfg, TrackStart) else cfg.track_start
 
 
+_LAST_START = [None]
+"""The last track start (:func:`_tracker`): ``(key, episodes, tracker, out)``."""
+
+
+def _read_only(out):
+    for v in list(out) + list(out.features.values()):
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+    return out
+
+
 def _tracker(episodes, cfg, known_input=False):
-    tr = _start(cfg).tracker(len(episodes))
-    out = tr.load(np.arange(len(episodes)), episodes, known_input=known_input)
-    return tr, out
+    """A :class:`radar_env.tracking.Tracker` whose rows have started ``episodes`` (two-hit start and warm-up) and
+    the last warm-up :class:`radar_env.tracking.StepOutput` (read-only: runners share it).
+
+    An evaluation runs every tracker on the same episodes, so the last start is kept (with the episode objects
+    themselves, whose ids key it) and the next tracker on the same episodes and start gets a deep copy of the
+    started Tracker: bit for bit what starting again gives, without the per-episode start-up."""
+    start, episodes = _start(cfg), list(episodes)
+    key = (tuple(map(id, episodes)), start, bool(known_input))
+    last = _LAST_START[0]
+    if last is None or last[0] != key:
+        src = start.tracker(len(episodes))
+        out = _read_only(src.load(np.arange(len(episodes)), episodes, known_input=known_input))
+        _LAST_START[0] = last = (key, episodes, src, out)
+    return copy.deepcopy(last[2]), last[3]
 
 
 class _Recorder:

@@ -244,3 +244,23 @@ def test_rules_observing_only_their_features_equal_the_full_observation(suites, 
             np.testing.assert_array_equal(getattr(lean, f), getattr(full, f), err_msg=f"{rule} {f} on {suite}")
         for k, v in full.extra.items():
             np.testing.assert_array_equal(lean.extra[k], v, err_msg=f"{rule} {k} on {suite}")
+
+
+def test_the_shared_track_start_is_a_fresh_start_bit_for_bit(suites):
+    # trackers after the first on the same episodes get a copy of the kept start: same Tracker state, same runs
+    eps = suites["random_radars"]
+    T._LAST_START[0] = None
+    fresh = {t: run_tracker(t, eps) for t in ("imm2", "cmin", "reinit")}     # imm2 starts, the others copy
+    assert T._LAST_START[0] is not None and T._LAST_START[0][1] == list(eps)
+    for t, ref in fresh.items():
+        T._LAST_START[0] = None                                                 # each from its own start now
+        run = run_tracker(t, eps)
+        for f in ("x", "P", "q_m_s2", "declared", "start_index"):
+            np.testing.assert_array_equal(getattr(run, f), getattr(ref, f), err_msg=f"{t} {f}")
+    tr1, out1 = T._tracker(eps, None)
+    tr2, out2 = T._tracker(eps, None)
+    assert out1 is out2 and not out1.x.flags.writeable and tr1 is not tr2 and tr1.x is not tr2.x
+    for name in ("x", "P", "k", "t_last", "n_looks"):
+        np.testing.assert_array_equal(getattr(tr1, name), getattr(tr2, name))
+    tr1.step(np.full(tr1.B, 1.0))                                               # stepping one copy leaves the kept one
+    np.testing.assert_array_equal(T._tracker(eps, None)[0].k, tr2.k)
