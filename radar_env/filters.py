@@ -295,9 +295,12 @@ def imm_filter(t_s, z_m, R_m2, detected, n_looks, k_start, t_start_s, log_mu0, x
     B, K = t.shape
     log_mu0 = _k.c_array(log_mu0, np.float64)
     M = log_mu0.shape[1]
+    n, ks = _k.c_array(np.reshape(n_looks, B), np.int64), _k.c_array(np.reshape(k_start, B), np.int64)
+    if np.any(ks < 0) or np.any(ks > n) or np.any(n > K):
+        raise ValueError(f"imm_filter: need 0 <= k_start <= n_looks <= K = {K} per row; got k_start {ks}, n_looks {n}")
     x, P, log_mu = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.full((B, K, M), np.nan)
     _k.k_imm_run(t, _flat(z_m, (B, K), (2,)).reshape(B, K, 2), _flat(R_m2, (B, K), (2, 2)).reshape(B, K, 2, 2),
-                 _k.c_array(detected, np.bool_), _k.c_array(n_looks, np.int64), _k.c_array(k_start, np.int64),
+                 _k.c_array(np.broadcast_to(detected, (B, K)), np.bool_), n, ks,
                  _k.c_array(t_start_s, np.float64), log_mu0, _flat(x0, (B, M), (4,)).reshape(B, M, 4),
                  _flat(P0, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(log_Pi, (M,), (M,)),
                  _flat(q_m_s2, (M,), ()), _flat(turn_rate_rad_s, (M,), ()), x, P, log_mu)
