@@ -87,14 +87,13 @@ def load_model(path):
     from agents.policies import numpy_policy as npp
     try:
         pol = npp.load_export(path)
+        if pol is not None:
+            return pol
+        if npp.export_path(path).is_file():
+            print(f"warning: {npp.export_path(path)} was exported from another file than {path}; ignored (re-export "
+                  f"with python -m agents.policies.numpy_policy {path})", file=sys.stderr)
     except ValueError as e:
         print(f"warning: {e}; loading {path} with stable-baselines3 instead", file=sys.stderr)
-        pol = None
-    if pol is not None:
-        return pol
-    if npp.export_path(path).is_file():
-        print(f"warning: {npp.export_path(path)} was exported from another file than {path}; ignored (re-export "
-              f"with python -m agents.policies.numpy_policy {path})", file=sys.stderr)
     model = load_sb3_model(path)
     arrays = npp.export_model(model)
     if arrays is None:
