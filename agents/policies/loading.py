@@ -17,6 +17,7 @@ from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.units import G0_M_S2
 
 from agents.policies.bundle import policy_env_kwargs
+from agents.policies.numpy_policy import load_sb3_model
 
 __all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q"]
 
@@ -60,22 +61,6 @@ def load_policy(path):
                          f"it was trained with) in {cfg_file}")
     choose_q = model_choose_q(model, cfg)
     return choose_q, cfg
-
-
-def load_sb3_model(path):
-    """The stable-baselines3 model in ``path`` (PPO, DQN, SAC, A2C or TD3 zip, on the CPU); imports SB3 and torch.
-    Raises ``ValueError`` for a file that is not such a model."""
-    try:
-        import stable_baselines3 as sb3
-    except ImportError as e:  # pragma: no cover - depends on the install
-        raise ValueError("loading a policy needs stable-baselines3: pip install -e '.[train]'") from e
-    errors = []
-    for algo in ("PPO", "DQN", "SAC", "A2C", "TD3"):
-        try:
-            return getattr(sb3, algo).load(str(path), device="cpu")
-        except Exception as e:  # noqa: BLE001 - try the next algorithm class
-            errors.append(f"{algo}: {type(e).__name__}")
-    raise ValueError(f"{path}: not a stable-baselines3 model this version can load ({'; '.join(errors)})")
 
 
 def load_model(path):

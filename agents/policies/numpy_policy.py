@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["NumpyPolicy", "export_model", "check_export", "export_path", "zip_sha256", "save_export",
-           "load_export", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
+           "load_export", "load_sb3_model", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
 
 EXPORT_VERSION = 1
 ACTIVATIONS = ("identity", "tanh", "relu", "elu", "leaky_relu", "silu")
@@ -288,6 +288,22 @@ def zip_sha256(policy_path):
     return hashlib.sha256(Path(policy_path).read_bytes()).hexdigest()
 
 
+def load_sb3_model(path):
+    """The stable-baselines3 model in ``path`` (PPO, DQN, SAC, A2C or TD3 zip, on the CPU); imports SB3 and torch.
+    Raises ``ValueError`` for a file that is not such a model."""
+    try:
+        import stable_baselines3 as sb3
+    except ImportError as e:  # pragma: no cover - depends on the install
+        raise ValueError("loading a policy needs stable-baselines3: pip install -e '.[train]'") from e
+    errors = []
+    for algo in ("PPO", "DQN", "SAC", "A2C", "TD3"):
+        try:
+            return getattr(sb3, algo).load(str(path), device="cpu")
+        except Exception as e:  # noqa: BLE001 - try the next algorithm class
+            errors.append(f"{algo}: {type(e).__name__}")
+    raise ValueError(f"{path}: not a stable-baselines3 model this version can load ({'; '.join(errors)})")
+
+
 def load_export(policy_path):
     """The :class:`NumpyPolicy` exported beside ``policy_path``, or None if there is none or it was exported from
     another file (its recorded SHA-256 differs from the zip's). Reads arrays only (``allow_pickle=False``).
@@ -311,7 +327,6 @@ def save_export(policy_path, model=None):
     ``.npz`` path; raises ``ValueError`` if the model cannot be exported or the check fails."""
     policy_path = Path(policy_path)
     if model is None:
-        from agents.policies.loading import load_sb3_model
         model = load_sb3_model(policy_path)
     arrays = export_model(model)
     if arrays is None:
