@@ -203,7 +203,7 @@ def _cfg_levels(cfg):
 
 def _kf_run(params, episodes, cfg):
     q = kf_q_m_s2_from_params(params)
-    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", cfg)
+    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", cfg, features=())
 
 
 def _imm2_run(params, episodes, cfg):

@@ -31,7 +31,8 @@ from radar_env.episode import stack_episodes
 from agents.policies.bundle import BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci
+from agents.evaluation.metrics import (FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci,
+                                       score_run)
 from agents.evaluation.runner import run_one
 from agents.evaluation.suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, suite_key, trajectory_suite_names
 
@@ -90,41 +91,44 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             t0 = time.time()
             suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
             bar(f"{suite}: {t} ({time.time() - t0:.1f} s)")
+        scores = {t: score_run(batch, r) for t, r in suite_runs.items()}     # errors, failed, lost: once per run
         # by default a tracker that failed every run does not empty the common set for all the others
-        dropped = [t for t in common_over if default_common and failed_runs(batch, suite_runs[t]).all()]
+        dropped = [t for t in common_over if default_common and scores[t].failed.all()]
         cover = [t for t in common_over if t not in dropped]
-        common = common_runs(batch, [suite_runs[t] for t in cover])
+        common = common_runs(batch, [suite_runs[t] for t in cover], scores=[scores[t] for t in cover])
         n_common = int(common.sum())
         res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()),
                "few_runs": len(episodes) < FEW_RUNS, "common_runs": n_common, "few_common_runs": n_common < FEW_RUNS,
                "common_trackers": cover, "common_excluded_failed_everywhere": dropped, "trackers": {}}
         for t, r in suite_runs.items():
-            m = evaluate_run(batch, r, common=common)
+            m = evaluate_run(batch, r, common=common, score=scores[t])
             if r.error is not None:
                 m["error"] = r.error
-            m.update(_downstream(suite, episodes, batch, r))
+            m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
             _note_undefined(m)
             res["trackers"][t] = m
         if reference in suite_runs:
             ref = suite_runs[reference]
-            ref_ok = ~failed_runs(batch, ref)
+            ref_ok = ~scores[reference].failed
+            pair = {t: (scores[t], scores[reference]) for t in suite_runs}
             res[f"ratio_vs_{reference}"] = {
-                t: list(_pair(ratio_ci(batch, r, ref))) for t, r in suite_runs.items()}
+                t: list(_pair(ratio_ci(batch, r, ref, scores=pair[t]))) for t, r in suite_runs.items()}
             res[f"ratio_vs_{reference}_runs"] = {
-                t: int((ref_ok & ~failed_runs(batch, r)).sum()) for t, r in suite_runs.items()}
+                t: int((ref_ok & ~scores[t].failed).sum()) for t in suite_runs}
             res[f"ratio_vs_{reference}_common"] = {
-                t: list(_pair(ratio_ci(batch, r, ref, runs=common))) for t, r in suite_runs.items()}
+                t: list(_pair(ratio_ci(batch, r, ref, runs=common, scores=pair[t]))) for t, r in suite_runs.items()}
         results[suite] = res
         runs[suite] = (batch, suite_runs)
     bar(None)
     return results, runs
 
 
-def _downstream(suite, episodes, batch, run):
+def _downstream(suite, episodes, batch, run, failed=None):
     """Conflict warnings (``encounters``) or intercepts (other suites) over the runs the tracker did not fail (an
-    encounter pair goes with either of its runs); ``downstream_runs`` counts them."""
+    encounter pair goes with either of its runs; ``failed``: its failed runs if known); ``downstream_runs`` counts
+    them."""
     fn = warning_metrics if suite == "encounters" else intercept_metrics
-    keep = ~failed_runs(batch, run)
+    keep = ~(failed_runs(batch, run) if failed is None else failed)
     if suite == "encounters":
         keep = np.repeat(keep.reshape(-1, 2).all(axis=1), 2)
     if keep.all() or not keep.any():          # nothing to leave out, or nothing left (the values are then NaN)

@@ -74,7 +74,8 @@ def ship_policy(policy_path, dest_dir):
     """Copy a trained policy (its zip and the ``env_config.json`` beside it) into ``dest_dir`` for shipping, without
     the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip acts exactly as
     the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts the moments, as
-    it does for any saved model. Returns the new zip's path."""
+    it does for any saved model. Its numpy export (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written
+    beside it, so the evaluation runs it without torch. Returns the new zip's path."""
     import shutil
 
     from stable_baselines3 import PPO
@@ -86,5 +87,7 @@ def ship_policy(policy_path, dest_dir):
     model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)
     model.save(str(dest / "policy.zip"))
     shutil.copy(src.with_name("env_config.json"), dest / "env_config.json")
+    from agents.policies.numpy_policy import save_export
+    save_export(dest / "policy.zip", model)
     return dest / "policy.zip"
 
