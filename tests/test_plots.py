@@ -72,7 +72,7 @@ def test_error_curves_strictly_increasing_in_seconds(suites, suite):
     for ax in (fig.axes[0], fig.axes[2]):                     # position and velocity, in metres and m/s
         lines = _tracker_lines(ax)
         drawn = {ln.get_label() for ln in lines}
-        assert plots.BAND_PERCENTILES and "kf_low" in drawn   # the reference (no imm2 here) is always drawn
+        assert "kf_low" in drawn                              # the reference (no imm2 here) is always drawn
         for missing in set(TRACKERS) - drawn:
             assert any(t.startswith(missing) and "not drawn" in t for t in legend), (missing, legend)
         for ln in lines:

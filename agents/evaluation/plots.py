@@ -445,14 +445,13 @@ def error_figure(suite, batch, runs, scenario=None, reference="imm2"):
     return fig
 
 
-def _maneuver_window(t_s, intervals, k_start, xy_km=None, tracks_km=(), max_looks=20):
+def _maneuver_window(t_s, intervals, k_start, max_looks=20):
     """Run 0's first maneuver that begins at or after the track start (look ``k_start``; else the first one).
 
-    Returns ``(sel, (t_start_s, t_end_s), (t_lo_s, t_hi_s), box, elongated)`` or None if the run never maneuvers:
-    ``sel`` the looks from half the maneuver's duration before it to its duration after it (at least 3 and 5 look
-    intervals: where the tracks lag and overshoot; a maneuver longer than ``max_looks`` looks is shown from its
-    start for that many); ``box`` ``(x0, x1, y0, y1)`` km around the truth and ``tracks_km`` there, with a margin;
-    ``elongated`` if the box is too long and thin to draw east and north to one scale."""
+    Returns ``(sel, (t_start_s, t_end_s), (t_lo_s, t_hi_s))`` or None if the run never maneuvers: ``sel`` the looks
+    from half the maneuver's duration before it to its duration after it (at least 3 and 5 look intervals: where
+    the tracks lag and overshoot; a maneuver longer than ``max_looks`` looks is shown from its start for that
+    many), ``t_lo_s``, ``t_hi_s`` that window's ends."""
     if not intervals:
         return None
     t_track = t_s[min(k_start, len(t_s) - 1)]
@@ -460,20 +459,22 @@ def _maneuver_window(t_s, intervals, k_start, xy_km=None, tracks_km=(), max_look
     dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
     shown = min(b - a, max_looks * dt)
     t_lo, t_hi = a - max(3 * dt, 0.5 * shown), a + shown + max(5 * dt, shown)
-    sel = (t_s >= t_lo) & (t_s <= t_hi)
-    box, elongated = None, False
-    if xy_km is not None:
-        p = np.concatenate([xy_km] + [x[sel] for x in tracks_km])     # truth (already in the window) and tracks
-        p = p[np.all(np.isfinite(p), axis=1)]
-        lo, hi = p.min(axis=0), p.max(axis=0)
-        size = np.maximum(hi - lo, 0.05)                       # km; a straight leg still gets some height
-        elongated = bool(size.max() > 4 * size.min())
-        if not elongated:
-            size[:] = size.max()
-        half = 0.5 * size * 1.15
-        c = 0.5 * (lo + hi)
-        box = (c[0] - half[0], c[0] + half[0], c[1] - half[1], c[1] + half[1])
-    return sel, (float(a), float(b)), (float(t_lo), float(t_hi)), box, elongated
+    return (t_s >= t_lo) & (t_s <= t_hi), (float(a), float(b)), (float(t_lo), float(t_hi))
+
+
+def _zoom_box(points_km):
+    """``((x0, x1, y0, y1), elongated)``: a box (km) around the finite rows of the ``(n, 2)`` arrays
+    ``points_km``, with a margin; square unless it is too long and thin to draw east and north to one scale."""
+    p = np.concatenate(points_km)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    size = np.maximum(hi - lo, 0.05)                       # km; a straight leg still gets some height
+    elongated = bool(size.max() > 4 * size.min())
+    if not elongated:
+        size[:] = size.max()
+    half = 0.5 * size * 1.15
+    c = 0.5 * (lo + hi)
+    return (c[0] - half[0], c[0] + half[0], c[1] - half[1], c[1] + half[1]), elongated
 
 
 def _exact_path(scenario, t0, t1):
@@ -524,10 +525,6 @@ def trajectory_figure(suite, batch, runs, scenario=None):
     colors = _colors(list(runs))
     win = _maneuver_window(t, intervals, k_start)
     turn = win is not None and _is_turn(sc, batch, win[1])
-    if win is not None and turn:
-        sel = win[0]
-        in_win = (tt >= win[2][0]) & (tt <= win[2][1])
-        win = _maneuver_window(t, intervals, k_start, path[in_win], [r.x[0, :n, :2] / 1e3 for r in runs.values()])
     fig, axes = _figure(14.0 if win else 8.0, 7.4, 1, 2 if win else 1, bottom_in=1.2, top_in=0.5, wspace_in=0.9,
                         left_in=0.85)
     axes = axes[0]
@@ -536,8 +533,8 @@ def trajectory_figure(suite, batch, runs, scenario=None):
     # the plots over the path; on a long flight the path over them (they would hide it), both visible
     ax.plot(path[:, 0], path[:, 1], "-", color="k", lw=0.6 if dense else 0.8, label="truth (exact path)",
             zorder=4 if dense else 2)
-    ax.plot(z[:, 0], z[:, 1], "o" if dense else ".", color="tab:blue", ms=2.0 if dense else 3,
-            alpha=0.45 if dense else 0.9, mew=0, label="plots (radar measurements)", zorder=3)
+    ax.plot(z[:, 0], z[:, 1], "o", color="tab:blue", ms=2.0 if dense else 2.8, alpha=0.45 if dense else 0.9, mew=0,
+            label="plots (radar measurements)", zorder=3)
     ax.plot(sites[:, 0], sites[:, 1], "^", color="tab:red", ms=10, label="radar", zorder=5)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("east (km)")
@@ -545,18 +542,18 @@ def trajectory_figure(suite, batch, runs, scenario=None):
     ax.set_title(f"{suite}: run 0, truth and plots ({t[-1] - t[0]:.0f} s, {n} looks)", fontsize=10, y=1.0, pad=5)
     handles, labels = ax.get_legend_handles_labels()
     if win:
-        sel, (ta, tb), (tlo, thi), box, elongated = win
+        sel, (ta, tb), (tlo, thi) = win
         az = axes[1]
         span = f"{ta:.0f}-{tb:.0f} s" + (" (its start)" if tb > thi else "")
         if turn:
             in_win = (tt >= tlo) & (tt <= thi)
+            (x0, x1, y0, y1), elongated = _zoom_box([path[in_win]] + [r.x[0, :n, :2][sel] / 1e3 for r in runs.values()])
             az.plot(path[in_win, 0], path[in_win, 1], **_TRUTH_ZOOM, zorder=1)
             for name, run in runs.items():
                 x = run.x[0, :n][sel] / 1e3
                 az.plot(x[:, 0], x[:, 1], color=colors[name], ls=_BOUND_STYLE.get(name, "-"), lw=1.1,
                         marker=".", ms=3, label=name, zorder=2)
             az.plot(z[sel, 0], z[sel, 1], "o", mfc="none", mec="tab:blue", ms=5, mew=0.9, zorder=3)
-            x0, x1, y0, y1 = box
             az.set_xlim(x0, x1)
             az.set_ylim(y0, y1)
             if not elongated:
