@@ -8,6 +8,7 @@ command says what it is about to do (:func:`first_line`) before it loads the tra
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from agents.policies.bundle import BUNDLED_POLICY
 from baselines.seeds import EVAL_SEED_BASE
@@ -63,7 +64,7 @@ def build_parser(prog="radar-track evaluate"):
                          "baselines.registry.register_tracker (repeatable; see docs/evaluation.md) (default: none)")
     ap.add_argument("--policy", metavar="FILE.zip",
                     help="saved stable-baselines3 model for the 'policy' tracker, with its env_config.json beside it "
-                         f"(default: the bundled {BUNDLED_POLICY.parent.name}/{BUNDLED_POLICY.name} if present)")
+                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
                     help="directory for the figures (PNG; created if missing) (default: ./results)")
     ap.add_argument("--json", metavar="FILE.json",
