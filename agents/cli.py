@@ -1,4 +1,8 @@
-"""The ``radar-track`` command: ``radar-track evaluate ...`` (the main job) and ``radar-track tune``."""
+"""The ``radar-track`` command: ``radar-track evaluate ...`` (the main job), ``train``, ``tune`` and ``sweep``.
+
+Nothing slow is imported before a command's options are parsed: ``--help`` and option errors answer at once, and
+``evaluate``, ``train`` and ``tune`` say what they do (one line on stderr) before they import the trackers, numba's
+kernels, torch or Ray."""
 
 from __future__ import annotations
 
@@ -22,18 +26,24 @@ def main(argv=None):
         return 0
     cmd, rest = argv[0], argv[1:]
     if cmd == "evaluate":
+        from agents.evaluation.options import build_parser, first_line
+        args = build_parser().parse_args(rest)          # --help and option errors: here, before the trackers load
+        if not args.quiet:
+            print(first_line(args), file=sys.stderr, flush=True)
         from agents.evaluation.evaluate import main as evaluate_main
         evaluate_main(rest)
         return 0
     if cmd == "tune":
+        from baselines.tuning_options import build_parser, first_line
+        print(first_line(build_parser().parse_args(rest)), file=sys.stderr, flush=True)
         from baselines.tuning import main as tune_main
         tune_main(rest)
         return 0
-    if cmd == "train":
+    if cmd == "train":       # agents.training.train imports torch and the env only when it trains
         from agents.training.train import main as train_main
         train_main(rest)
         return 0
-    if cmd == "sweep":
+    if cmd == "sweep":       # as train: Ray only when the sweep runs
         from agents.training.sweep import main as sweep_main
         sweep_main(rest)
         return 0

@@ -109,7 +109,7 @@ from radar_env.episode import stack_episodes
 from radar_env.units import DEG, G0_M_S2
 from radar_env.validate import check_known_keys, check_number
 
-from .trackers import TrackRun, _start
+from .trackers import TrackRun, _tracker
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "IMMCVCTStepper", "IMMCVCTStep",
@@ -823,9 +823,7 @@ def common_start(episodes, cfg=None):
     """The common track start of ``episodes`` (two-hit start + warm-up through :class:`Tracker`):
     ``(batch, look_index (B,), x (B, 4), P (B, 4, 4))`` with ``look_index`` the last warm-up look."""
     episodes = list(episodes)
-    B = len(episodes)
-    tr = _start(cfg).tracker(B)
-    out = tr.load(np.arange(B), episodes)
+    tr, out = _tracker(episodes, cfg)
     return stack_episodes(episodes), np.asarray(out.look_index, dtype=np.int64), tr.x.copy(), tr.P.copy()
 
 

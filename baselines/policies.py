@@ -65,6 +65,11 @@ class ReferencePolicy:
         u = env.unwrapped
         return cls(u.layout, u.config.action_type, u.q_levels_m_s2, **kwargs)
 
+    @property
+    def reads(self):
+        """The observation features the rule decodes (the run needs to encode only these)."""
+        return tuple(self.requires)
+
     def q_m_s2(self, obs):
         raise NotImplementedError
 
@@ -111,6 +116,10 @@ class CminPolicy(ReferencePolicy):
         self.feature = "next_c_min_g" if "next_c_min_g" in layout else "c_min_g"
         if self.feature not in layout:
             raise ValueError("policy 'cmin' needs observation feature 'next_c_min_g' or 'c_min_g'")
+
+    @property
+    def reads(self):
+        return (self.feature,)
 
     def declared(self, obs):
         return self.layout.decode(obs, self.feature) >= self.threshold_g

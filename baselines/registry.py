@@ -34,11 +34,14 @@ def tuned_imm2_spec(key="imm2"):
 
 
 def _policy_run(name):
-    """A reference policy (:func:`baselines.policies.make_policy`) run through the tracking chain."""
+    """A reference policy (:func:`baselines.policies.make_policy`) run through the tracking chain, observing only
+    the features its rule reads (the same values as in the full observation)."""
     def run(episodes, cfg):
         layout, lv = T.observation_layout(cfg)
-        pol = make_policy(name, layout, "continuous", lv)
-        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=getattr(pol, "declared", None))
+        reads = make_policy(name, layout, "continuous", lv).reads     # checked against the full observation
+        pol = make_policy(name, T.observation_layout(cfg, reads)[0] if reads else layout, "continuous", lv)
+        return T.run_q_policy(episodes, pol.q_m_s2, name=name, cfg=cfg, declare=getattr(pol, "declared", None),
+                              features=reads)
     return run
 
 

@@ -14,11 +14,6 @@ from __future__ import annotations
 
 import zlib
 
-import numpy as np
-
-from radar_env.config import resolve_scenario
-from radar_env.core import draw_setup_and_episode
-
 __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "suite_rng", "draw_random_episodes"]
 
 TRAIN_SEEDS = range(0, 1_000_000)
@@ -29,6 +24,7 @@ EVAL_SEED_BASE = 10_000_000
 def suite_rng(suite_name, seed):
     """The generator of run ``seed`` of the suite keyed ``suite_name`` (a name or ``"sha256:<hex>"``, see
     :func:`agents.evaluation.suites.suite_key`)."""
+    import numpy as np   # here, not at import: the seed ranges above are read by the commands' --help
     key = str(suite_name)
     if key.startswith("sha256:"):
         digest = bytes.fromhex(key[len("sha256:"):])
@@ -46,6 +42,10 @@ def draw_random_episodes(runs, seed=TUNING_SEEDS.start):
         runs: number of episodes, an integer >= 1.
         seed: base seed, an integer >= 0 (default: the start of :data:`TUNING_SEEDS`).
     """
+    import numpy as np
+
+    from radar_env.config import resolve_scenario
+    from radar_env.core import draw_setup_and_episode
     if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or int(runs) < 1:
         raise ValueError(f"runs must be an integer >= 1, got {runs!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:

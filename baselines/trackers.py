@@ -9,7 +9,7 @@ Kinds:
 
 * :func:`run_q_policy` -- the tracking chain with q chosen each look by a function of the observation: reference
   policies (:mod:`baselines.policies`) and learned stable-baselines3 policies run through it alike.
-* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_step`).
+* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_filter`).
 * :func:`run_turn_rate_kf` -- Adrian's KF with ``F(omega)`` fed by algorithm 1 or 2.
 * :func:`run_reinit` -- seed 002's re-initialising KF.
 * :func:`run_clairvoyant` -- the known-input KF (the physical limit) and :func:`run_oracle_q` (q = |a_true|).
@@ -23,11 +23,12 @@ or None for the defaults; the trackers' own parameters are their arguments.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
+from radar_env.filters import imm_filter, two_point_init
 from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
 from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
 from radar_env.units import DEG, G0_M_S2
@@ -72,10 +73,32 @@ def _start(cfg):
     return cfg if isinstance(cfg, TrackStart) else cfg.track_start
 
 
+_LAST_START = [None]
+"""The last track start (:func:`_tracker`): ``(key, episodes, tracker, out)``."""
+
+
+def _read_only(out):
+    for v in list(out) + list(out.features.values()):
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+    return out
+
+
 def _tracker(episodes, cfg, known_input=False):
-    tr = _start(cfg).tracker(len(episodes))
-    out = tr.load(np.arange(len(episodes)), episodes, known_input=known_input)
-    return tr, out
+    """A :class:`radar_env.tracking.Tracker` whose rows have started ``episodes`` (two-hit start and warm-up) and
+    the last warm-up :class:`radar_env.tracking.StepOutput` (read-only: runners share it).
+
+    An evaluation runs every tracker on the same episodes, so the last start is kept (with the episode objects
+    themselves, whose ids key it) and the next tracker on the same episodes and start gets a deep copy of the
+    started Tracker: bit for bit what starting again gives, without the per-episode start-up."""
+    start, episodes = _start(cfg), list(episodes)
+    key = (tuple(map(id, episodes)), start, bool(known_input))
+    last = _LAST_START[0]
+    if last is None or last[0] != key:
+        src = start.tracker(len(episodes))
+        out = _read_only(src.load(np.arange(len(episodes)), episodes, known_input=known_input))
+        _LAST_START[0] = last = (key, episodes, src, out)
+    return copy.deepcopy(last[2]), last[3]
 
 
 class _Recorder:
@@ -86,12 +109,15 @@ class _Recorder:
             self.run.extra[e] = np.full((B, K), np.nan)
 
     def put(self, rows, k, x, P, q=None, **extra):
-        self.run.x[rows, k] = x
-        self.run.P[rows, k] = P
+        run = self.run
+        K = run.q_m_s2.shape[1]
+        at = np.asarray(rows) * K + k          # flat (row, look) positions: one index array for every series
+        run.x.reshape(-1, 4)[at] = x
+        run.P.reshape(-1, 16)[at] = np.reshape(P, (-1, 16))
         if q is not None:
-            self.run.q_m_s2[rows, k] = q
+            run.q_m_s2.reshape(-1)[at] = q
         for name, v in extra.items():
-            self.run.extra[name][rows, k] = v
+            run.extra[name].reshape(-1)[at] = v
 
 
 def _loop(tr, out, step_fn):
@@ -103,29 +129,34 @@ def _loop(tr, out, step_fn):
 
 
 # ------------------------------------------------------------------------------------------------ q policies
-def observation_layout(cfg=None):
+def observation_layout(cfg=None, features=None):
     """The observation a q-policy sees and the q levels (m/s^2): those of ``cfg`` (the env config a policy was
-    trained with: anything with ``features`` and ``q_levels_g``), else the env's defaults."""
+    trained with: anything with ``features`` and ``q_levels_g``), else the env's defaults; ``features``: only
+    these entries (names), each scaled as in the full observation."""
     lv = np.asarray(getattr(cfg, "q_levels_g", DEFAULT_Q_LEVELS_G)) * G0_M_S2
-    return ObservationLayout(getattr(cfg, "features", DEFAULT_FEATURES), lv[0], lv[-1]), lv
+    names = getattr(cfg, "features", DEFAULT_FEATURES) if features is None else features
+    return ObservationLayout(names, lv[0], lv[-1]), lv
 
 
-def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
+def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, features=None):
     """Run the tracking chain with ``q = choose_q(obs_rows)`` (m/s^2) each look.
 
     ``obs_rows`` (n, F) is the env's observation (``cfg.features``, scaled exactly as RadarTrack-v0 does, and
     ``cfg.frame_stack`` of them stacked newest first, (n, k F); the defaults without ``cfg``), so a learned policy
-    sees here what it saw in training. ``declare(obs_rows) -> bool``
-    records maneuver declarations (optional). ``cfg`` also gives the track start (:func:`_start`)."""
+    sees here what it saw in training. ``features``: if ``choose_q`` reads only some entries of the newest frame
+    (a rule), their names: ``obs_rows`` then holds just those, each with the value it has in the full observation
+    (the scaling is per entry), and ``()`` gives an (n, 0) array (a constant q): the same q, without encoding
+    the rest every look. ``declare(obs_rows) -> bool`` records maneuver declarations (optional). ``cfg`` also
+    gives the track start (:func:`_start`)."""
     tr, out = _tracker(episodes, cfg)
-    layout, _ = observation_layout(cfg)
+    layout = None if features is not None and not len(features) else observation_layout(cfg, features)[0]
     B, K = tr.B, int(tr.n_looks.max())
     rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
     declared = np.zeros((B, K), dtype=bool) if declare is not None else None
     q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
-    obs = layout.encode(out, q_prev)
+    obs = layout.encode(out, q_prev) if layout is not None else np.zeros((B, 0), np.float32)
     rows0 = np.arange(B)
-    k = int(getattr(cfg, "frame_stack", 1))
+    k = int(getattr(cfg, "frame_stack", 1)) if features is None else 1
     frames = FrameStack(B, k, obs.shape[1]) if k > 1 else None   # as the env stacks them (frame_stack)
     if frames is not None:
         obs = frames.reset(rows0, obs)
@@ -138,8 +169,9 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None):
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
         o = tr.step(q, rows=None if rows.size == B else rows)
-        enc = layout.encode(o, q)
-        obs[rows] = enc if frames is None else frames.push(rows, enc)
+        if layout is not None:
+            enc = layout.encode(o, q)
+            obs[rows] = enc if frames is None else frames.push(rows, enc)
         rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
         return o
 
@@ -203,56 +235,24 @@ IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
 0.1 g CT as in Adrian's KF) and the transition matrix are our choices."""
 
 
-class IMMFilter:
-    """The IMM as its own filter on the chain's looks (:func:`radar_env.filters.imm_step`): per row the log mode
-    probabilities and the mode estimates, started with every mode at ``x0, P0`` (B, 4) / (B, 4, 4)."""
-
-    LOOK_FIELDS = ("t_s", "z_m", "R_m2", "detected")
-    """What :meth:`step` reads of a look (:meth:`radar_env.tracking.Tracker.next_look`), besides ``dt_s``."""
-
-    def __init__(self, spec: IMMSpec, x0, P0):
-        M = len(spec.q_m_s2)
-        self.x_m = np.repeat(x0[:, None], M, axis=1)
-        self.P_m = np.repeat(P0[:, None], M, axis=1)
-        self.log_mu = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (x0.shape[0], 1)))
-        with np.errstate(divide="ignore"):
-            self.log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
-        self.q = np.asarray(spec.q_m_s2, dtype=np.float64)
-        self.w = np.asarray(spec.turn_rate_rad_s, dtype=np.float64)
-        self.maneuver_modes = list(spec.maneuver_modes)
-
-    def step(self, rows, look):
-        """One look of ``rows``; returns the combined ``(x, P)`` and the probability of the maneuver modes."""
-        M = self.q.size
-        dt = np.repeat(look["dt_s"][:, None], M, 1)
-        F = transition_ct(dt, np.broadcast_to(self.w, (rows.size, M)))
-        Q = process_noise(dt, np.broadcast_to(self.q, (rows.size, M)))
-        res = imm_step(self.log_mu[rows], self.x_m[rows], self.P_m[rows], self.log_Pi, F, Q, look["z_m"],
-                       look["R_m2"], look["detected"])
-        self.log_mu[rows], self.x_m[rows], self.P_m[rows] = res.log_mu, res.x_modes, res.P_modes
-        return res.x, res.P, np.exp(res.log_mu[:, self.maneuver_modes]).sum(axis=1)
-
-
 def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
     """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate), then
-    runs as a separate filter behind the chain's cursor (``Tracker.next_look`` / ``advance``)."""
+    runs as a separate filter on the chain's looks: every look of every row in one compiled call
+    (:func:`radar_env.filters.imm_filter`, the look-by-look :func:`radar_env.filters.imm_step` bit for bit)."""
     tr, out = _tracker(episodes, cfg)
-    B, K = tr.B, int(tr.n_looks.max())
-    rec = _Recorder(name, B, K, extra=("maneuver_probability",))
-    declared = np.zeros((B, K), dtype=bool)
-    rec.put(np.arange(B), out.look_index, out.x, out.P)
-    rec.run.start_index[:] = out.look_index + 1
-    imm = IMMFilter(spec, tr.x, tr.P)
-    active = ~out.done
-    while active.any():
-        rows = np.flatnonzero(active)
-        look = tr.next_look(rows, IMMFilter.LOOK_FIELDS)
-        x, P, p_man = imm.step(rows, look)
-        rec.put(rows, look["k"], x, P, maneuver_probability=p_man)
-        declared[rows, look["k"]] = p_man > 0.5
-        active[rows] = ~tr.advance(rows, x, P)
-    rec.run.declared = declared
-    return rec.run
+    B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
+    rows = np.arange(B)
+    look = {f: tr.look_data(f)[:, :K] for f in ("t_s", "z_m", "R_m2", "detected")}
+    log_mu0 = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (B, 1)))
+    with np.errstate(divide="ignore"):
+        log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
+    x, P, log_mu = imm_filter(look["t_s"], look["z_m"], look["R_m2"], look["detected"], tr.n_looks, tr.k, tr.t_last,
+                              log_mu0, np.repeat(tr.x[:, None], M, axis=1), np.repeat(tr.P[:, None], M, axis=1),
+                              log_Pi, spec.q_m_s2, spec.turn_rate_rad_s)
+    x[rows, out.look_index], P[rows, out.look_index] = out.x, out.P     # the start look, as every tracker records it
+    p_man = np.exp(log_mu[..., list(spec.maneuver_modes)]).sum(axis=-1)     # NaN where not filtered
+    return TrackRun(name, x, P, out.look_index + 1, np.full((B, K), np.nan), declared=p_man > 0.5,
+                    extra={"maneuver_probability": p_man})
 
 
 # ------------------------------------------------------------------------------------------------ Adrian

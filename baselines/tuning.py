@@ -28,7 +28,6 @@ about 7.5 min at the idle machine's 1.2 s (kf) and 0.76 s (imm2) per evaluation.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -46,6 +45,7 @@ from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes
 from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params
+from .tuning_options import build_parser
 
 __all__ = ["Param", "TunedTracker", "TUNED_TRACKERS", "IMM2_GRID_PARAMS", "minimize_with_restarts", "tune",
            "pooled_rmse", "main"]
@@ -203,7 +203,7 @@ def _cfg_levels(cfg):
 
 def _kf_run(params, episodes, cfg):
     q = kf_q_m_s2_from_params(params)
-    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", cfg)
+    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", cfg, features=())
 
 
 def _imm2_run(params, episodes, cfg):
@@ -292,15 +292,10 @@ def tune(entry: TunedTracker, episodes, batch, cfg, x0=None, starts=3, seed=0, p
     return out
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m baselines.tuning", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--runs", type=int, default=200, help="random-scenario episodes (default 200)")
-    ap.add_argument("--trackers", default="kf,imm2,imm_cv_ct",
-                    help="comma-separated trackers to tune, from kf, imm2, imm_cv_ct (default all; the others keep "
-                         "their entry in the existing file)")
-    ap.add_argument("--starts", type=int, default=3, help="optimizer starts per tracker, >= 1 (default 3)")
-    ap.add_argument("--out", default=str(TUNED_PATH), help="output JSON (default baselines/tuned.json)")
-    args = ap.parse_args(argv)
+def main(argv=None, prog="radar-track tune"):
+    """``radar-track tune`` (options: :mod:`baselines.tuning_options`)."""
+    args = build_parser(prog).parse_args(argv)
+    args.out = args.out or str(TUNED_PATH)
     if args.runs < 1:
         raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
     if args.starts < 1:
@@ -348,7 +343,7 @@ def main(argv=None):
                      "seeds": [TUNING_SEEDS.start, TUNING_SEEDS.start + args.runs - 1],
                      "criterion": "pooled position RMSE after the track start",
                      "tuned_in_this_run": tuned, "skipped": skipped,
-                     "command": "python -m baselines.tuning " + " ".join(sys.argv[1:] if argv is None else argv),
+                     "command": " ".join([prog, *(sys.argv[1:] if argv is None else argv)]),
                      "seconds": round(time.time() - t0, 1)}
     with open(args.out, "w") as f:
         json.dump(out, f, indent=1, allow_nan=False)
@@ -356,4 +351,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    main(prog="python -m baselines.tuning")

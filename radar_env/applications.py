@@ -230,8 +230,9 @@ def intercept_course(interceptor_pos_m, interceptor_speed_m_s, target_pos_m, tar
     return InterceptCourse(_out(heading), _out(t), _out(feasible))
 
 
-def _intercept(dp, vt, s):
-    a = _dot(vt, vt) - s**2
+def _intercept(dp, vt, s, a=None):
+    if a is None:       # a given: the caller computed it for many looks at once
+        a = _dot(vt, vt) - s**2
     h = _dot(dp, vt)
     c = _dot(dp, dp)
     disc = h * h - a * c
@@ -327,24 +328,27 @@ def simulate_intercept(target_truth_xy, track_estimates, times_s, interceptor_st
     d0 = truth[:, 0] - pos
     miss = np.hypot(d0[:, 0], d0[:, 1])
     capture = np.where(miss <= r_cap, t[:, 0], np.inf)
+    # what does not depend on the interceptor's path, for every interval at once (the same element-wise arithmetic)
+    dt_all = t[:, 1:] - t[:, :-1]
+    on_all = np.arange(1, K) < n_ok[:, None]   # rows still flying (a padded row stops at its last look)
+    v_t_all = (truth[:, 1:] - truth[:, :-1]) / dt_all[..., None]
+    a_int_all = _dot(est[..., 2:], est[..., 2:]) - s[:, None] ** 2     # _intercept's a
+    r_cap2 = r_cap ** 2
     for k in range(K - 1):
-        dt = t[:, k + 1] - t[:, k]
-        on = k + 1 < n_ok   # rows still flying (a padded row stops at its last look)
-        heading, _, feas_k = _intercept(est[:, k, :2] - pos, est[:, k, 2:], s)
+        dt, on, v_t = dt_all[:, k], on_all[:, k], v_t_all[:, k]
+        heading, _, feas_k = _intercept(est[:, k, :2] - pos, est[:, k, 2:], s, a_int_all[:, k])
         feas[:, k] = feas_k & on
         v_i = s[:, None] * np.stack([np.sin(heading), np.cos(heading)], -1)
-        v_t = (truth[:, k + 1] - truth[:, k]) / dt[:, None]
         dp = truth[:, k] - pos
         dv = v_t - v_i
         # minimum distance on [0, dt]
-        tc, _ = _cpa(dp, dv)
-        tc = np.minimum(tc, dt)
+        a = _dot(dv, dv)
+        h = _dot(dp, dv)
+        tc = np.minimum(np.maximum(np.where(a > 0.0, -h / np.where(a > 0.0, a, 1.0), 0.0), 0.0), dt)   # _cpa's t
         rel = dp + dv * tc[:, None]
         miss = np.where(on, np.minimum(miss, np.hypot(rel[:, 0], rel[:, 1])), miss)
         # first entry into the capture circle on [0, dt]
-        a = _dot(dv, dv)
-        h = _dot(dp, dv)
-        c = _dot(dp, dp) - r_cap**2
+        c = _dot(dp, dp) - r_cap2
         disc = h * h - a * c
         ok = (h < 0.0) & (disc >= 0.0)
         te = np.where(ok, c / np.where(ok, np.sqrt(np.maximum(disc, 0.0)) - h, 1.0), np.inf)

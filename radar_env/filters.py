@@ -68,6 +68,7 @@ __all__ = [
     "imm_combine",
     "imm_step",
     "IMMResult",
+    "imm_filter",
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -272,3 +273,35 @@ def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMM
                   _flat(F, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(Q, (B, M), (4, 4)).reshape(B, M, 4, 4),
                   _flat(z, (B,), (2,)), _flat(R, (B,), (2, 2)), det, *out)
     return IMMResult(*out)
+
+
+def imm_filter(t_s, z_m, R_m2, detected, n_looks, k_start, t_start_s, log_mu0, x0, P0, log_Pi, q_m_s2,
+               turn_rate_rad_s):
+    """:func:`imm_step` over every look of B padded look sequences, in one compiled call: mode ``m`` predicts with
+    ``transition_ct(dt, turn_rate_rad_s[m])`` (0 = CV) and ``process_noise(dt, q_m_s2[m])``; the results are those
+    of calling ``imm_step`` look by look, bit for bit.
+
+    Args:
+        t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K): the looks (z, R not read where missed).
+        n_looks (B,), k_start (B,): row b filters looks ``k_start[b] .. n_looks[b] - 1``.
+        t_start_s (B,): time of the mode states below (the look before ``k_start``).
+        log_mu0 (B, M), x0 (B, M, 4), P0 (B, M, 4, 4): the IMM state at ``t_start_s``.
+        log_Pi (M, M): log transition matrix; q_m_s2 (M,), turn_rate_rad_s (M,): the modes.
+    Returns:
+        ``(x (B, K, 4), P (B, K, 4, 4), log_mu (B, K, M))``: the combined estimate and the posterior log mode
+        probabilities of every filtered look, NaN elsewhere.
+    """
+    t = _k.c_array(t_s, np.float64)
+    B, K = t.shape
+    log_mu0 = _k.c_array(log_mu0, np.float64)
+    M = log_mu0.shape[1]
+    n, ks = _k.c_array(np.reshape(n_looks, B), np.int64), _k.c_array(np.reshape(k_start, B), np.int64)
+    if np.any(ks < 0) or np.any(ks > n) or np.any(n > K):
+        raise ValueError(f"imm_filter: need 0 <= k_start <= n_looks <= K = {K} per row; got k_start {ks}, n_looks {n}")
+    x, P, log_mu = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.full((B, K, M), np.nan)
+    _k.k_imm_run(t, _flat(z_m, (B, K), (2,)).reshape(B, K, 2), _flat(R_m2, (B, K), (2, 2)).reshape(B, K, 2, 2),
+                 _k.c_array(np.broadcast_to(detected, (B, K)), np.bool_), n, ks,
+                 _k.c_array(t_start_s, np.float64), log_mu0, _flat(x0, (B, M), (4,)).reshape(B, M, 4),
+                 _flat(P0, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(log_Pi, (M,), (M,)),
+                 _flat(q_m_s2, (M,), ()), _flat(turn_rate_rad_s, (M,), ()), x, P, log_mu)
+    return x, P, log_mu

@@ -821,3 +821,48 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x,
             o_nis[b] = (n0 * n0 * s11 - 2.0 * n0 * n1 * s01 + n1 * n1 * s00) / d
         else:
             o_nis[b] = 0.0
+
+
+@njit(cache=True)
+def k_imm_run(t, z, R, det, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, q, w, o_x, o_P, o_log_mu):
+    """The IMM over every look of every row (filters.imm_filter): row b filters looks ``k_start[b] ..
+    n_looks[b] - 1`` from the mode states ``log_mu0[b]`` (M,), ``x0[b]`` (M, 4), ``P0[b]`` (M, 4, 4) at time
+    ``t_start[b]``; mode m predicts with ``F_ct(dt, w[m])`` and ``Q(dt, q[m])``, exactly as transition_ct and
+    process_noise, and each look is one k_imm_step on a one-row view. Writes the combined estimate ``o_x[b, k]``,
+    ``o_P[b, k]`` and the posterior log mode probabilities ``o_log_mu[b, k]`` of every filtered look."""
+    M = q.shape[0]
+    F = np.empty((1, M, 4, 4))
+    Q = np.empty((1, M, 4, 4))
+    lPi = np.empty((1, M, M))
+    lPi[0] = log_Pi
+    lm = np.empty((1, M))
+    xm = np.empty((1, M, 4))
+    Pm = np.empty((1, M, 4, 4))
+    n_lm = np.empty((1, M))
+    n_xm = np.empty((1, M, 4))
+    n_Pm = np.empty((1, M, 4, 4))
+    xc = np.empty((1, 4))
+    Pc = np.empty((1, 4, 4))
+    ll = np.empty((1, M))
+    nis = np.empty(1)
+    nu = np.empty((1, 2))
+    S = np.empty((1, 2, 2))
+    for b in range(t.shape[0]):
+        lm[0] = log_mu0[b]
+        xm[0] = x0[b]
+        Pm[0] = P0[b]
+        t_last = t_start[b]
+        for k in range(k_start[b], n_looks[b]):
+            dt = t[b, k] - t_last
+            for m in range(M):
+                _transition(dt, w[m], True, F[0, m])
+                _process_noise(dt, q[m], Q[0, m])
+            k_imm_step(lm, xm, Pm, lPi, F, Q, z[b, k:k + 1], R[b, k:k + 1], det[b, k:k + 1], n_lm, n_xm, n_Pm,
+                       xc, Pc, ll, nis, nu, S)
+            lm[:] = n_lm
+            xm[:] = n_xm
+            Pm[:] = n_Pm
+            o_x[b, k] = xc[0]
+            o_P[b, k] = Pc[0]
+            o_log_mu[b, k] = n_lm[0]
+            t_last = t[b, k]

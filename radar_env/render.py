@@ -1,9 +1,10 @@
 """Radar-scope picture of a RadarTrack-v0 episode (matplotlib, imported lazily by the env).
 
 One frame shows the radar site(s) with range rings, the true path so far, the plots, the track with its
-2-sigma position ellipse, and the current q and features as text. ``render_frame(env)`` returns an RGB array of
-shape ``FRAME_SHAPE`` for ``render_mode="rgb_array"`` (usable with ``gymnasium.wrappers.RecordVideo``), or draws
-into a window for ``"human"``.
+2-sigma position ellipse, and the current q and features as text. The view follows the track, so a site
+outside it is marked at the frame's edge in its direction, with its range and bearing from the track.
+``render_frame(env)`` returns an RGB array of shape ``FRAME_SHAPE`` for ``render_mode="rgb_array"`` (usable with
+``gymnasium.wrappers.RecordVideo``), or draws into a window for ``"human"``.
 """
 
 from __future__ import annotations
@@ -62,6 +63,23 @@ def _ellipse(x, P, n_sigma=2.0, n=60):
     return x[0] + pts[0], x[1] + pts[1]
 
 
+def _site_off_view(ax, centre, half, site):
+    """Mark a radar site outside the view (a square of half-width ``half`` km around ``centre``) at the frame's
+    edge in its direction; returns ``"radar 215 km at bearing 240 deg"`` (from the view's centre), or None if the
+    site is in view (drawn there)."""
+    d = np.asarray(site, float) - centre
+    if np.all(np.abs(d) <= half):
+        return None
+    rng_km = float(np.hypot(*d))
+    bearing = float(np.degrees(np.arctan2(d[0], d[1]))) % 360.0
+    tip = centre + d * (0.97 * half / np.max(np.abs(d)))        # on the frame's edge, towards the site
+    tail = centre + d * (0.80 * half / np.max(np.abs(d)))
+    ax.annotate("", xy=tip, xytext=tail, arrowprops=dict(arrowstyle="-|>", color=_FG, lw=1.5))
+    ax.text(*tail, f"radar\n{rng_km:.0f} km", color=_FG, fontsize=8, ha="center", va="center",
+            bbox=dict(boxstyle="round,pad=0.2", fc=_BG, ec=_DIM))
+    return f"radar {rng_km:.0f} km away at bearing {bearing:.0f} deg (arrow)"
+
+
 def render_frame(env):
     """Draw the current state of ``env`` (a :class:`radar_env.env.RadarTrackEnv`)."""
     _, Figure, FigureCanvasAgg = _import_matplotlib()
@@ -94,12 +112,14 @@ def render_frame(env):
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_aspect("equal")
+    where = [_site_off_view(ax, centre, half, s) for s in st["sites"] * km]
     ax.tick_params(colors=_FG, labelcolor=_FG, labelsize=9)
     ax.set_xlabel("east (km)", color=_FG, fontsize=9)
     ax.set_ylabel("north (km)", color=_FG, fontsize=9)
     for sp in ax.spines.values():
         sp.set_color(_DIM)
     txt = (f"t = {st['time_s']:.0f} s   q = {st['q_m_s2'] / G0_M_S2:.3g} g   range rings {ring_km:g} km\n"
+           + "".join(f"{w}\n" for w in where if w)
            + "\n".join(f"{k} = {v:.3g}" for k, v in st["features"].items()))
     ax.text(0.02, 0.98, txt, transform=ax.transAxes, va="top", ha="left", color=_FG, family="monospace",
             fontsize=8)

@@ -42,7 +42,6 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline
 
 from .filters import transition_ct
 from .units import DEG, G0_M_S2, KNOT_M_S
@@ -376,6 +375,7 @@ def _check_trajectory(t, p, v, prefix, where):
             f"{TRAJECTORY_RATE_RATIO[0]:g}-{TRAJECTORY_RATE_RATIO[1]:g}x) and their direction agrees with it by a "
             f"median cosine of {med_cos:.3g} (accepted >= {TRAJECTORY_MIN_RATE_COS:g}); vx_m_s, vy_m_s must be m/s "
             "east/north (knots are 1.94x, km/h 3.6x)")
+    from scipy.interpolate import CubicHermiteSpline   # here: a second of imports only trajectory suites need
     return CubicHermiteSpline(tr, p[:, 0], v[:, 0]), CubicHermiteSpline(tr, p[:, 1], v[:, 1])
 
 

@@ -47,3 +47,23 @@ def test_bench_bad_options_name_the_option(argv, option, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert option in err and argv[1] in err
+
+
+def test_main_job_is_timed_cold_then_warm_and_reported_with_the_load(monkeypatch, capsys):
+    bench = _bench_module()
+    caches, fake = [], iter(range(1, 10))
+
+    def once(cache_dir):          # the real run takes minutes: record the cache handed to each run instead
+        caches.append(cache_dir)
+        i = next(fake)
+        return {"wall_s": 10.0 * i, "cpu_s": 9.0 * i, "load_before": 0.5 * i, "load_after": 0.5}
+
+    monkeypatch.setattr(bench, "_main_job_once", once)
+    res = bench.main(["--only-main-job", "--main-job-runs", "3"])
+    m = res["main_job"]
+    assert len(set(caches)) == 1 and len(caches) == 4          # one numba cache: empty for the first run only
+    assert m["cold"]["wall_s"] == 10.0 and [r["wall_s"] for r in m["warm"]] == [20.0, 30.0, 40.0]
+    assert m["wall_s"] == 30.0 and m["cpu_s"] == 27.0            # the warm median
+    text = capsys.readouterr().out
+    assert "warm numba cache: 30.0 s wall, 27.0 s CPU (median of 3" in text and "cold (empty cache" in text
+    assert "(load 1.0)" in text and "single env" not in text

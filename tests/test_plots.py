@@ -1,6 +1,8 @@
 """Figures: time axes in seconds and monotone, units on every axis, legends off the data, maneuver shading only
-where the runs share it, q plot on its axis, trajectory zoom, scope-frame ticks inside the frame, warning-chart
-labels not cut, training curve naming its stages."""
+where the runs share it and at the scenario's own segment times (the same in the paper figures), truth maneuvers
+drawn as steps, no percentile band from fewer than 20 runs, off-scale trackers left out and said so, q plot on its
+axis, trajectory zoom (east/north for a turn, speed for a speed change) on the exact path, scope frame showing
+where the radar is, warning-chart labels not cut, training curve naming its stages inside the axes."""
 
 import json
 import re
@@ -14,7 +16,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from agents.evaluation import plots  # noqa: E402
-from agents.evaluation.suites import draw_suite  # noqa: E402
+from agents.evaluation.suites import draw_suite, run_scenario  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
 from radar_env.episode import stack_episodes  # noqa: E402
 
@@ -41,6 +43,10 @@ def _tracker_lines(ax):
     return [ln for ln in ax.get_lines() if ln.get_label() in TRACKERS]
 
 
+def _legend_texts(fig):
+    return [t.get_text() for lg in fig.legends for t in lg.get_texts()]
+
+
 def test_suite_figures_write_every_png(suites, tmp_path):
     batch, runs = suites["bizup2002"]
     files = plots.suite_figures("bizup2002", batch, runs, tmp_path)
@@ -57,12 +63,18 @@ def test_random_radars_runs_have_different_look_times(suites):
 
 @pytest.mark.parametrize("suite", ["bizup2002", "random_radars"])
 def test_error_curves_strictly_increasing_in_seconds(suites, suite):
+    """The median curves (left panels) of every tracker, in seconds and increasing; a tracker missing from a
+    panel is one far below the others, and its legend entry says it is not drawn there."""
     batch, runs = suites[suite]
     fig = plots.error_figure(suite, batch, runs)
     longest_s = max(batch.t_s[b, batch.n_looks[b] - 1] - batch.t_s[b, 0] for b in range(batch.batch_size))
-    for ax in fig.axes:
+    legend = _legend_texts(fig)
+    for ax in (fig.axes[0], fig.axes[2]):                     # position and velocity, in metres and m/s
         lines = _tracker_lines(ax)
-        assert {ln.get_label() for ln in lines} == set(TRACKERS)
+        drawn = {ln.get_label() for ln in lines}
+        assert "kf_low" in drawn                              # the reference (no imm2 here) is always drawn
+        for missing in set(TRACKERS) - drawn:
+            assert any(t.startswith(missing) and "not drawn" in t for t in legend), (missing, legend)
         for ln in lines:
             x = np.asarray(ln.get_xdata(), float)
             assert x.size > 5 and np.all(np.diff(x) > 0), ln.get_label()
@@ -87,6 +99,8 @@ def test_error_figure_leaves_failed_runs_out_and_says_so(suites):
     assert "kf_low (1 failed run(s) left out)" in labels
     ok_lines = {ln.get_label(): ln for ln in fig_ok.axes[0].get_lines()}
     for ln in fig.axes[0].get_lines():
+        if ln.get_label().startswith("_"):        # the reference's runs, one thin line each (NaN where absent)
+            continue
         y = np.asarray(ln.get_ydata(), float)
         assert np.all(np.isfinite(y))
         if ln.get_label() in ok_lines and ln.get_label() != "kf_low":
@@ -98,7 +112,7 @@ def test_error_figure_leaves_failed_runs_out_and_says_so(suites):
     plt.close(fig_ok)
 
 
-def test_binned_error_stats_are_per_run_means_over_the_runs_in_each_bin():
+def test_binned_error_stats_are_medians_of_per_run_means_over_the_runs_in_each_bin():
     # run 0 looks every 2 s up to 22 s, run 1 every 5 s up to 15 s, run 2 every 3 s up to 9 s
     t = np.full((3, 12), np.nan)
     t[0, :12] = 2.0 * np.arange(12)
@@ -107,16 +121,17 @@ def test_binned_error_stats_are_per_run_means_over_the_runs_in_each_bin():
     rng = np.random.default_rng(0)
     err = np.where(np.isfinite(t), rng.uniform(1, 100, t.shape), np.nan)
     width, min_runs = 10.0, 2
-    centres, mean, lo, hi = plots.binned_error_stats(t, err, width, min_runs)
-    expect_c, expect_m = [], []
+    centres, med, lo, hi = plots.binned_error_stats(t, err, width, min_runs)
+    expect_c, expect_m, expect_lo = [], [], []
     for i in range(3):
         per_run = [np.mean(err[b][(t[b] >= i * width) & (t[b] < (i + 1) * width)]) for b in range(3)
                    if np.any((t[b] >= i * width) & (t[b] < (i + 1) * width))]
         if len(per_run) >= min_runs:
             expect_c.append((i + 0.5) * width)
-            expect_m.append(np.mean(per_run))
-    assert centres.tolist() == expect_c and np.allclose(mean, expect_m)
-    assert np.all(lo <= mean) and np.all(mean <= hi)
+            expect_m.append(np.median(per_run))
+            expect_lo.append(np.percentile(per_run, plots.BAND_PERCENTILES[0]))
+    assert centres.tolist() == expect_c and np.allclose(med, expect_m) and np.allclose(lo, expect_lo)
+    assert np.all(lo <= med) and np.all(med <= hi)
     # the last bin (20-22 s) has run 0 only: hidden
     assert centres[-1] < 20.0
 
@@ -125,10 +140,10 @@ def test_maneuver_shading_only_where_runs_share_maneuver_times(suites):
     for suite, shaded in (("bizup2002", True), ("random_radars", False)):
         batch, runs = suites[suite]
         fig = plots.error_figure(suite, batch, runs)
-        labels = [t.get_text() for lg in fig.legends for t in lg.get_texts()]
+        labels = _legend_texts(fig)
         assert any("maneuver" in s for s in labels) == shaded, suite
         if not shaded:
-            assert "not shaded" in fig.axes[-1].get_xlabel()
+            assert any("not shaded" in ax.get_xlabel() for ax in fig.axes)
         plt.close(fig)
 
 
@@ -162,15 +177,84 @@ def test_q_plot_keeps_every_series_on_its_axis_with_a_labelled_floor(suites):
         y = np.asarray(ln.get_ydata(), float)
         y = y[np.isfinite(y)]
         assert y.size and np.all((y >= lo) & (y <= hi)), ln.get_label()
-    labels = [t.get_text() for t in fig.legends[0].get_texts()]
-    assert any(s.startswith("floor") and " g" in s for s in labels)
-    assert any("clairvoyant" in s and "floor" in s for s in labels)
+    labels = _legend_texts(fig)
+    floor = [s for s in labels if s.startswith("0 g") and "drawn on this line" in s]
+    assert floor, labels                                       # the floor says, in words, what lies on it
+    value = ax.get_lines()[-1].get_ydata()[0]
+    assert f"{value:g} g" in floor[0]
+    clair = next(ln for ln in ax.get_lines() if ln.get_label() == "q of clairvoyant")
+    q = runs["clairvoyant"].q_m_s2[0, :int(batch.n_looks[0])]
+    y = np.asarray(clair.get_ydata(), float)[:q.size]
+    assert np.all(y[q == 0] == value)                          # its q of 0 is drawn on the floor, visibly dashed
+    assert clair.get_linestyle() == "--"
     plt.close(fig)
+
+
+def test_truth_maneuvers_drawn_as_steps_at_the_scenarios_segment_times(suites):
+    """bizup2002 turns over 290-330 s and 610-640 s (its segments): the shading of every figure set and the
+    truth's |a| and turn-rate steps start and end there, not at the looks around them."""
+    batch, runs = suites["bizup2002"]
+    sc = run_scenario("bizup2002", 123)
+    assert plots.maneuver_intervals_s(sc) == [(290.0, 330.0), (610.0, 640.0)]
+    for make in (plots.error_figure, plots.q_figure, plots.features_figure):
+        fig = make("bizup2002", batch, runs, scenario=sc)
+        spans = sorted({(round(p.get_x(), 6), round(p.get_x() + p.get_width(), 6)) for p in fig.axes[0].patches
+                        if type(p).__name__ == "Rectangle"})          # axvspan's rectangles
+        assert (290.0, 330.0) in spans and (610.0, 640.0) in spans, (make.__name__, spans)
+        plt.close(fig)
+    fig = plots.features_figure("bizup2002", batch, runs, scenario=sc)
+    steps = [p for ax in fig.axes for p in ax.patches if type(p).__name__ == "StepPatch"]
+    assert len(steps) == 2                                      # |a| and turn rate
+    for p in steps:
+        edges = p.get_data().edges
+        assert 290.0 in edges and 330.0 in edges and 610.0 in edges and 640.0 in edges
+    acc = steps[0].get_data().values
+    assert acc.max() == pytest.approx(2.0, rel=1e-6)            # the 2 g turns, in g
+    plt.close(fig)
+    # without the scenario (or with another flight's) the figures fall back on the looks
+    assert plots.truth_model(run_scenario("bizup2002", 123), batch) is not None
+    assert plots.truth_model(run_scenario("kim_lee_accel", 123), batch) is None
+
+
+def test_paper_figure_shades_the_same_intervals(tmp_path, monkeypatch):
+    """The Bizup paper figures take their maneuver intervals from the same helper as the evaluation figures."""
+    from agents.reports import paper_figures
+    seen = []
+    monkeypatch.setattr(paper_figures, "_shade", lambda ax, spans: seen.append(list(spans)))
+    t = np.arange(0.0, 940.0, 10.0)
+    curve = {q: {"mean": np.ones_like(t), "ci95": np.zeros_like(t)} for q in ("pos_m", "speed_m_s", "vel_m_s")}
+    spans = plots.maneuver_intervals_s(run_scenario("bizup2002"))
+    paper_figures.bizup_figures(tmp_path, t, {"cmin": curve, "imm2_bizup": curve}, spans, 1000.0, 3)
+    assert seen and all(s == [(290.0, 330.0), (610.0, 640.0)] for s in seen)
+
+
+def test_no_percentile_band_from_fewer_than_20_runs(suites):
+    batch, runs = suites["bizup2002"]                           # 3 runs
+    assert batch.batch_size < plots.FEW_RUNS
+    fig = plots.error_figure("bizup2002", batch, runs)
+    assert not [c for ax in fig.axes for c in ax.collections if type(c).__name__ in ("PolyCollection",
+                                                                                     "FillBetweenPolyCollection")]
+    assert any("each of its 3 runs" in s for s in _legend_texts(fig))
+    thin = [ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("_") and ln.get_linewidth() < 1]
+    assert len(thin) >= 3                                       # the reference's runs, one line each
+    plt.close(fig)
+
+
+def test_error_panels_keep_the_scale_of_the_real_trackers(suites):
+    """The log axes span the trackers that are drawn (no 1e-6 axis for the clairvoyant's velocity error)."""
+    for suite in ("bizup2002", "random_radars"):
+        batch, runs = suites[suite]
+        fig = plots.error_figure(suite, batch, runs)
+        for ax in (fig.axes[0], fig.axes[2]):
+            lo, hi = ax.get_ylim()
+            assert hi / lo < 1e5, (suite, ax.get_ylabel(), lo, hi)     # at most 5 decades
+        assert "|v_est - v|" in fig.axes[2].get_ylabel() and "velocity" in fig.axes[2].get_ylabel()
+        plt.close(fig)
 
 
 def test_trajectory_zoom_shows_the_first_maneuver(suites):
     batch, runs = suites["bizup2002"]
-    fig = plots.trajectory_figure("bizup2002", batch, runs)
+    fig = plots.trajectory_figure("bizup2002", batch, runs, scenario=run_scenario("bizup2002", 123))
     full, zoom = fig.axes[:2]
     n = int(batch.n_looks[0])
     k = np.nonzero(batch.maneuvering[0, :n])[0]
@@ -180,6 +264,26 @@ def test_trajectory_zoom_shows_the_first_maneuver(suites):
     assert np.all((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
     fx, fy = full.get_xlim(), full.get_ylim()
     assert (x1 - x0) < 0.25 * (fx[1] - fx[0]) and (y1 - y0) < 0.25 * (fy[1] - fy[0])
+    assert "290-330 s" in zoom.get_title() and "looks" not in zoom.get_title()
+    # the overview: the exact path (the turn sampled every degree, more points than looks) and the plots on top
+    truth = next(ln for ln in full.get_lines() if ln.get_label().startswith("truth"))
+    plots_ = next(ln for ln in full.get_lines() if ln.get_label().startswith("plots"))
+    assert len(truth.get_xdata()) > n and plots_.get_zorder() > truth.get_zorder()
+    assert not [ln for ln in full.get_lines() if ln.get_label() in runs]    # tracks only in the zoom
+    plt.close(fig)
+
+
+def test_radial_speed_change_gets_a_speed_view():
+    eps = draw_suite("kim_lee_accel", 2, seed=5)
+    batch = stack_episodes(eps)
+    runs = {t: run_tracker(t, eps) for t in ("kf_low", "clairvoyant")}
+    fig = plots.trajectory_figure("kim_lee_accel", batch, runs, scenario=run_scenario("kim_lee_accel", 5))
+    view = fig.axes[1]
+    assert view.get_ylabel() == "speed (m/s)" and "(s)" in view.get_xlabel()
+    assert "25-35 s" in view.get_title()
+    assert any("range rate" in s for s in _legend_texts(fig))
+    truth = view.get_lines()[0]
+    assert np.nanmax(truth.get_ydata()) == pytest.approx(120 + 10 * 5 * 9.80665, rel=1e-6)   # 610 m/s after
     plt.close(fig)
 
 
@@ -216,6 +320,29 @@ def test_scope_frame_ticks_readable_and_labelled_in_km():
     assert ax.get_xlabel() == "east (km)" and ax.get_ylabel() == "north (km)"
     texts = _texts_inside_figure(fig)
     assert sum(1 for _, _ in texts) >= 6 and all(ok for _, ok in texts), [t for t, ok in texts if not ok]
+    # the radar (at the origin, ~200 km away) is outside the view: an arrow at the edge and its range say where
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert not (x0 <= 0 <= x1 and y0 <= 0 <= y1)
+    words = [t.get_text() for t in ax.texts]
+    assert any(w.startswith("radar") and "km" in w for w in words), words
+    assert any("bearing" in w for w in words)
+    env.close()
+
+
+def test_scope_frame_draws_a_radar_in_view():
+    import gymnasium as gym
+    import radar_env  # noqa: F401
+    env = gym.make("RadarTrack-v0", scenario="adrian_flower", render_mode="rgb_array")  # radar at the centre
+    env.reset(seed=1)
+    for _ in range(40):
+        env.step(4)
+    env.render()
+    ax = env.unwrapped._fig.axes[0]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    site = env.unwrapped._render_state()["sites"][0] / 1e3
+    if x0 <= site[0] <= x1 and y0 <= site[1] <= y1:
+        assert not any("bearing" in t.get_text() for t in ax.texts)
+        assert any(ln.get_marker() == "^" for ln in ax.get_lines())
     env.close()
 
 
@@ -252,7 +379,14 @@ def test_training_curve_draws_the_bundled_stages_end_to_end(tmp_path):
     random = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 1 and ln.get_color() == first]
     x = np.concatenate([ln.get_xdata() for ln in random])
     assert len(random) == len(stages) and np.all(np.diff(x) > 0)     # one curve per stage, end to end
-    assert all(any(s[0].split("\n")[0] in t.get_text() for t in ax.texts) for s in stages)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    box = ax.get_window_extent(r)
+    for i, s in enumerate(stages, 1):     # "stage i" inside the axes, its full name under the figure
+        t = next(t for t in ax.texts if t.get_text() == f"stage {i}")
+        b = t.get_window_extent(r)
+        assert box.x0 <= b.x0 and b.x1 <= box.x1 and box.y0 <= b.y0 and b.y1 <= box.y1, s[0]
+        assert any(s[0].split("\n")[0] in ft.get_text() for ft in fig.texts)
     assert UNIT.search(ax.get_xlabel()) and UNIT.search(ax.get_ylabel())
     plt.close(fig)
     png = plot_training_curve(BUNDLED_CONFIG, tmp_path / "curve.png")

@@ -260,3 +260,74 @@ def test_downstream_cells_say_when_they_come_from_fewer_runs():
                                                        "downstream_runs": 8}}}}
     text = downstream_tables(res, ["a", "b"])
     assert "(n=6 of 8)" in text and text.count("(n=") == 1
+
+
+# ------------------------------------------------------------------------------------ the vectorised metrics
+def _detection_stats_loop(batch, declared, masks, after_window_s=60.0):
+    """The per-run, per-maneuver loop detection_stats replaced (frozen here as the reference)."""
+    used = masks["used"]
+    man = batch.maneuvering & used
+    delays, missed = [], 0
+    B, K = man.shape
+    for b in range(B):
+        m = man[b]
+        for k0 in np.flatnonzero(m & ~np.r_[False, m[:-1]]):
+            end = k0 + np.argmax(~m[k0:]) if np.any(~m[k0:]) else K
+            t_end = batch.t_s[b, end - 1] + after_window_s
+            win = np.flatnonzero((np.arange(K) >= k0) & (batch.t_s[b] <= t_end) & batch.valid[b])
+            hits = win[declared[b, win]]
+            if hits.size:
+                delays.append(int(hits[0] - k0))
+            else:
+                missed += 1
+    n_man = len(delays) + missed
+    return (float(np.mean(delays)) if delays else np.nan, float(missed / n_man) if n_man else np.nan)
+
+
+@pytest.mark.parametrize("suite_name", ["random", "random_radars", "seed002_two_radars"])
+def test_detection_stats_equal_the_per_maneuver_loop(suite_name):
+    from agents.evaluation.metrics import detection_stats
+    eps = draw_suite(suite_name, 12, seed=777)
+    batch = stack_episodes(eps)
+    rng = np.random.default_rng(3)
+    for t in ("imm2", "cmin"):
+        run = run_tracker(t, eps)
+        masks = region_masks(batch, run.start_index)
+        for declared in (run.declared, rng.uniform(size=run.declared.shape) < 0.02, np.zeros_like(run.declared)):
+            got = detection_stats(batch, declared, masks)
+            ref = _detection_stats_loop(batch, declared, masks)
+            np.testing.assert_equal((got["detection_delay_looks"], got["missed_maneuvers"]), ref)
+
+
+def test_positive_definite_is_eigvalsh_exactly_on_hard_cases():
+    from agents.evaluation.metrics import positive_definite
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((4000, 4, 4))
+    P = A @ A.transpose(0, 2, 1)
+    lam, V = np.linalg.eigh(P)
+    cases = [P]
+    for lo in (0.0, 1e-18, -1e-18, 1e-14, -1e-14, 1e-12, 1e-9, 1e-6, -1e-3):   # smallest eigenvalue near 0
+        lam2 = lam.copy()
+        lam2[:, 0] = lo * lam[:, -1]
+        cases.append(np.einsum("nij,nj,nkj->nik", V, lam2, V))
+    S = np.diag([1e6, 1e6, 1.0, 1.0]) * (1.0 + 1e-3 * rng.standard_normal((500, 1, 1)))   # scales far apart
+    cases += [S, np.tile(np.eye(4), (3, 1, 1)) * [[[1.0]], [[0.0]], [[-1.0]]], np.zeros((0, 4, 4))]
+    U = P.copy()
+    U[:, 0, 3] += 1e9            # the upper triangle is not read (as eigvalsh)
+    cases.append(U)
+    for c in cases:
+        np.testing.assert_array_equal(positive_definite(c), np.linalg.eigvalsh(c)[:, 0] > 0 if len(c) else
+                                      np.zeros(0, bool))
+
+
+def test_score_run_is_what_the_separate_functions_give(suite):
+    from agents.evaluation.metrics import errors, score_run
+    eps, batch, runs = suite
+    for run in runs.values():
+        sc = score_run(batch, run)
+        ep, ev_ = errors(batch, run)
+        np.testing.assert_array_equal(sc.pos_err_m, ep)
+        np.testing.assert_array_equal(sc.vel_err_m_s, ev_)
+        np.testing.assert_array_equal(sc.failed, failed_runs(batch, run))
+        np.testing.assert_array_equal(sc.lost, lost_runs(batch, run))
+        assert evaluate_run(batch, run, score=sc) == evaluate_run(batch, run)

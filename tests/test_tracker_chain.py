@@ -228,3 +228,72 @@ def test_trackers_accept_a_track_start_or_an_env_config():
 def test_imm_spec_errors_name_the_field_and_value(kwargs, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(T.IMM2_BIZUP, **kwargs)
+
+
+@pytest.mark.parametrize("rule", ["kf_tuned", "kf_low", "cmin", "ckf", "kim_lee"])
+def test_rules_observing_only_their_features_equal_the_full_observation(suites, rule):
+    # the registry runs a rule on the entries it reads (none for a constant q); per-entry scaling makes that the
+    # same q, estimate and declaration as the full observation gives, bit for bit
+    from baselines.policies import make_policy
+    for suite, eps in suites.items():
+        layout, lv = T.observation_layout()
+        pol = make_policy(rule, layout, "continuous", lv)
+        full = T.run_q_policy(eps, pol.q_m_s2, rule, declare=getattr(pol, "declared", None))
+        lean = run_tracker(rule, eps)
+        for f in ("x", "P", "q_m_s2", "declared"):
+            np.testing.assert_array_equal(getattr(lean, f), getattr(full, f), err_msg=f"{rule} {f} on {suite}")
+        for k, v in full.extra.items():
+            np.testing.assert_array_equal(lean.extra[k], v, err_msg=f"{rule} {k} on {suite}")
+
+
+def test_the_shared_track_start_is_a_fresh_start_bit_for_bit(suites):
+    # trackers after the first on the same episodes get a copy of the kept start: same Tracker state, same runs
+    eps = suites["random_radars"]
+    T._LAST_START[0] = None
+    fresh = {t: run_tracker(t, eps) for t in ("imm2", "cmin", "reinit")}     # imm2 starts, the others copy
+    assert T._LAST_START[0] is not None and T._LAST_START[0][1] == list(eps)
+    for t, ref in fresh.items():
+        T._LAST_START[0] = None                                                 # each from its own start now
+        run = run_tracker(t, eps)
+        for f in ("x", "P", "q_m_s2", "declared", "start_index"):
+            np.testing.assert_array_equal(getattr(run, f), getattr(ref, f), err_msg=f"{t} {f}")
+    tr1, out1 = T._tracker(eps, None)
+    tr2, out2 = T._tracker(eps, None)
+    assert out1 is out2 and not out1.x.flags.writeable and tr1 is not tr2 and tr1.x is not tr2.x
+    for name in ("x", "P", "k", "t_last", "n_looks"):
+        np.testing.assert_array_equal(getattr(tr1, name), getattr(tr2, name))
+    tr1.step(np.full(tr1.B, 1.0))                                               # stepping one copy leaves the kept one
+    np.testing.assert_array_equal(T._tracker(eps, None)[0].k, tr2.k)
+
+
+def test_imm_filter_is_imm_step_look_by_look_and_refuses_bad_ranges():
+    from radar_env.filters import imm_filter
+    rng = np.random.default_rng(5)
+    B, K, M = 5, 40, 3
+    t = np.cumsum(rng.uniform(0.5, 12.0, (B, K)), axis=1)
+    z = rng.normal(0, 300.0, (B, K, 2)) + 100.0 * np.arange(K)[None, :, None]
+    A = rng.normal(0, 1, (B, K, 2, 2))
+    R = A @ A.transpose(0, 1, 3, 2) * 400.0 + 100.0 * np.eye(2)
+    det = rng.uniform(size=(B, K)) < 0.8
+    z[~det], R[~det] = np.nan, np.nan                       # missed looks: never read
+    n, k0 = np.array([40, 30, 25, 12, 7]), np.array([3, 1, 25, 5, 2])
+    x0 = np.tile([0.0, 0.0, 100.0, 10.0], (B, M, 1)) + rng.normal(0, 50, (B, M, 4))
+    P0 = np.tile(np.diag([1e4, 1e4, 1e2, 1e2]), (B, M, 1, 1))
+    log_mu0 = np.log(np.tile([0.6, 0.3, 0.1], (B, 1)))
+    log_Pi = np.log(np.array([[0.9, 0.05, 0.05], [0.1, 0.85, 0.05], [0.2, 0.1, 0.7]]))
+    q, w = np.array([0.3, 3.0, 1.0]), np.array([0.0, 0.02, -0.05])
+    x, P, lm = imm_filter(t, z, R, det, n, k0, t[np.arange(B), k0 - 1], log_mu0, x0, P0, log_Pi, q, w)
+    for b in range(B):
+        mu, xm, Pm = log_mu0[b:b + 1], x0[b:b + 1], P0[b:b + 1]
+        assert np.isnan(x[b, :k0[b]]).all() and np.isnan(x[b, n[b]:]).all()
+        for k in range(k0[b], n[b]):
+            dt = np.full((1, M), t[b, k] - t[b, k - 1])
+            res = imm_step(mu, xm, Pm, log_Pi, transition_ct(dt, w[None]), process_noise(dt, q[None]),
+                           z[b, k:k + 1], R[b, k:k + 1], det[b, k:k + 1])
+            mu, xm, Pm = res.log_mu, res.x_modes, res.P_modes
+            np.testing.assert_array_equal(x[b, k], res.x[0])
+            np.testing.assert_array_equal(P[b, k], res.P[0])
+            np.testing.assert_array_equal(lm[b, k], res.log_mu[0])
+    for bad_n, bad_k in ((n, np.array([3, 1, 26, 5, 2])), (np.array([41, 30, 25, 12, 7]), k0), (n, k0 - 4)):
+        with pytest.raises(ValueError, match="k_start <= n_looks <= K"):
+            imm_filter(t, z, R, det, bad_n, bad_k, t[:, 0], log_mu0, x0, P0, log_Pi, q, w)

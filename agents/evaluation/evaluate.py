@@ -12,7 +12,6 @@ scenarios).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import DESIGN_ENVELOPES, TRACKER_NAMES, tracker_names
+from baselines.registry import DESIGN_ENVELOPES, tracker_names
 from baselines.user_trackers import import_tracker_module
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
@@ -31,13 +30,16 @@ from radar_env.episode import stack_episodes
 from agents.policies.bundle import BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.metrics import FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci
+from agents.evaluation.metrics import (FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci,
+                                       score_run)
+from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
+from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
-from agents.evaluation.suites import DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, suite_key, trajectory_suite_names
+from agents.evaluation.suites import (DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EXTRA_SUITES, draw_suite, run_scenario,
+                                      suite_key, trajectory_suite_names)
 
-__all__ = ["evaluate", "main", "format_table", "DEFAULT_TRACKERS", "DEFAULT_RUNS"]
+__all__ = ["evaluate", "main", "format_table", "write_plots", "DEFAULT_TRACKERS", "DEFAULT_RUNS"]
 
-DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "adsb_dev": 12,
                 "adsb_heldout": 12, "encounters": 100, **{f: 200 for f in FAMILIES}}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
@@ -76,55 +78,68 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     bad = [t for t in common_over if t not in trackers]
     if bad:
         raise ValueError(f"common_over names {bad}, which are not among the trackers {list(trackers)}")
-    jobs = [(s, t) for s, _ in suites for t in trackers]
-    bar = _progress(len(jobs), progress)
+    # one item per (suite, tracker), weighted by the suite's looks: a tracker's cost grows with them
+    jobs = [(s, t) for s, eps in suites for t in trackers]
+    looks = {s: sum(e.n_looks for e in eps) for s, eps in suites}
+    bar = Progress("evaluate", [(f"{s}: {t}", looks[s], t) for s, t in jobs], enabled=progress)
     results, runs = {}, {}
     ray_runs = None
     if workers > 1 or address:
         from agents.evaluation.parallel import run_suites_ray
-        ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, bar)
+        finished = iter(range(len(jobs)))       # Ray runs them all at once: each tick is one more finished
+
+        def tick(msg):
+            i = next(finished)
+            bar.done(i)                          # its time: since the previous one finished (the throughput)
+            if i + 1 < len(jobs):
+                bar.start(i + 1)
+        bar.start(0)
+        ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, tick)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
         suite_runs = {} if ray_runs is None else ray_runs[suite]
         for t in trackers if ray_runs is None else ():
-            t0 = time.time()
+            bar.start(jobs.index((suite, t)))
             suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
-            bar(f"{suite}: {t} ({time.time() - t0:.1f} s)")
+            bar.done()
+        scores = {t: score_run(batch, r) for t, r in suite_runs.items()}     # errors, failed, lost: once per run
         # by default a tracker that failed every run does not empty the common set for all the others
-        dropped = [t for t in common_over if default_common and failed_runs(batch, suite_runs[t]).all()]
+        dropped = [t for t in common_over if default_common and scores[t].failed.all()]
         cover = [t for t in common_over if t not in dropped]
-        common = common_runs(batch, [suite_runs[t] for t in cover])
+        common = common_runs(batch, [suite_runs[t] for t in cover], scores=[scores[t] for t in cover])
         n_common = int(common.sum())
         res = {"runs": len(episodes), "looks_per_run_mean": float(batch.n_looks.mean()),
                "few_runs": len(episodes) < FEW_RUNS, "common_runs": n_common, "few_common_runs": n_common < FEW_RUNS,
                "common_trackers": cover, "common_excluded_failed_everywhere": dropped, "trackers": {}}
         for t, r in suite_runs.items():
-            m = evaluate_run(batch, r, common=common)
+            m = evaluate_run(batch, r, common=common, score=scores[t])
             if r.error is not None:
                 m["error"] = r.error
-            m.update(_downstream(suite, episodes, batch, r))
+            m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
             _note_undefined(m)
             res["trackers"][t] = m
         if reference in suite_runs:
             ref = suite_runs[reference]
-            ref_ok = ~failed_runs(batch, ref)
+            ref_ok = ~scores[reference].failed
+            pair = {t: (scores[t], scores[reference]) for t in suite_runs}
             res[f"ratio_vs_{reference}"] = {
-                t: list(_pair(ratio_ci(batch, r, ref))) for t, r in suite_runs.items()}
+                t: list(_pair(ratio_ci(batch, r, ref, scores=pair[t]))) for t, r in suite_runs.items()}
             res[f"ratio_vs_{reference}_runs"] = {
-                t: int((ref_ok & ~failed_runs(batch, r)).sum()) for t, r in suite_runs.items()}
+                t: int((ref_ok & ~scores[t].failed).sum()) for t in suite_runs}
             res[f"ratio_vs_{reference}_common"] = {
-                t: list(_pair(ratio_ci(batch, r, ref, runs=common))) for t, r in suite_runs.items()}
+                t: list(_pair(ratio_ci(batch, r, ref, runs=common, scores=pair[t]))) for t, r in suite_runs.items()}
         results[suite] = res
         runs[suite] = (batch, suite_runs)
-    bar(None)
+    bar.close()
     return results, runs
 
 
-def _downstream(suite, episodes, batch, run):
+def _downstream(suite, episodes, batch, run, failed=None):
     """Conflict warnings (``encounters``) or intercepts (other suites) over the runs the tracker did not fail (an
-    encounter pair goes with either of its runs); ``downstream_runs`` counts them."""
+    encounter pair goes with either of its runs; ``failed``: its failed runs if known); ``downstream_runs`` counts
+    them."""
     fn = warning_metrics if suite == "encounters" else intercept_metrics
-    keep = ~failed_runs(batch, run)
+    keep = ~(failed_runs(batch, run) if failed is None else failed)
     if suite == "encounters":
         keep = np.repeat(keep.reshape(-1, 2).all(axis=1), 2)
     if keep.all() or not keep.any():          # nothing to leave out, or nothing left (the values are then NaN)
@@ -161,32 +176,6 @@ def _finite(v):
 def _pair(rc):
     est, (lo, hi) = rc
     return est, [lo, hi]
-
-
-def _progress(total, enabled):
-    if not enabled:
-        return lambda msg: None
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        tqdm = None
-    if tqdm is None:
-        count = [0]
-
-        def plain(msg):
-            if msg is not None:
-                count[0] += 1
-                print(f"[{count[0]}/{total}] {msg}", file=sys.stderr, flush=True)
-        return plain
-    bar = tqdm(total=total, file=sys.stderr, leave=False)
-
-    def tick(msg):
-        if msg is None:
-            bar.close()
-        else:
-            bar.set_description(msg)
-            bar.update(1)
-    return tick
 
 
 # ------------------------------------------------------------------------------------------------ output
@@ -254,65 +243,47 @@ def _f_ci(est, ci, n, nd):
     return txt + (f" (n<{FEW_RUNS})" if n is not None and n < FEW_RUNS else "")
 
 
-def write_plots(runs, out_dir):
-    """PNG figures per suite; returns the list of files written."""
+def write_plots(runs, out_dir, scenarios=None, progress=False):
+    """PNG figures per suite (:mod:`agents.evaluation.plots`); returns the list of files written.
+
+    Args:
+        scenarios: ``{suite: run 0's truth model}`` (:func:`agents.evaluation.suites.run_scenario`) for the exact
+            paths and maneuver times; a suite without one is drawn from its looks.
+        progress: a bar over the figures on stderr.
+    One process: two forked plotting processes took longer than one on the shared 2-core machine (load 5)."""
     import matplotlib
     matplotlib.use("Agg")
     from agents.evaluation import plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    scenarios = scenarios or {}
+    items = [(s, k) for s in runs for k in plots.FIGURE_KINDS]
+    bar = Progress("figures", [(f"{s}: {k}", 1, k) for s, k in items], enabled=progress)
     files = []
-    for suite, (batch, suite_runs) in runs.items():
-        files += plots.suite_figures(suite, batch, suite_runs, out_dir)
+    for i, (suite, kind) in enumerate(items):
+        bar.start(i)
+        batch, suite_runs = runs[suite]
+        files += plots.suite_figures(suite, batch, suite_runs, out_dir, scenario=scenarios.get(suite), kinds=(kind,))
+        bar.done()
+    bar.close()
     return files
 
 
+def _say(args, msg):
+    """A status line on stderr (not with --quiet): what the command does next, before a slow step."""
+    if not args.quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def _list_names():
+    """``--list``: every suite and built-in tracker name."""
+    print("suites:\n  " + "\n  ".join(list(SCENARIO_NAMES) + list(EXTRA_SUITES) + ["adsb:<flight>",
+                                                                               "<file>.csv (--trajectory)"]))
+    print("trackers:\n  " + "\n  ".join(tracker_names()))
+    print(f"defaults: --scenario {','.join(DEFAULT_SUITES)} --trackers {','.join(DEFAULT_TRACKERS)}")
+
+
 # ------------------------------------------------------------------------------------------------ CLI
-def build_parser(prog="radar-track evaluate"):
-    ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
-                                 "measurement streams (common random numbers).")
-    ap.add_argument("--scenario", action="append", metavar="NAME",
-                    help=f"suite to run, repeatable; one of {list(SCENARIO_NAMES)}, encounters (conflict warnings), "
-                         "adsb_calibration, adsb_dev, adsb_heldout or adsb:<flight> "
-                         f"(default: {', '.join(DEFAULT_SUITES)})")
-    ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
-                    help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (repeatable); its suite is "
-                         "named after the file's stem, its runs are seeded by the SHA-256 of the file's bytes "
-                         "(the same file by any path gives the same episodes)")
-    ap.add_argument("--radar-site", metavar="X_KM,Y_KM",
-                    help="--trajectory suites: Adrian's ATC radar at this fixed site (km, the CSV's x/y frame) "
-                         "instead of one placed per run")
-    ap.add_argument("--radar-range-km", metavar="LO,HI",
-                    help="--trajectory suites: range annulus (km) of the per-run ATC radar placement: the site is "
-                         "drawn LO-HI km from the start, keeping the flight in range longest (default "
-                         f"{DEFAULT_RADAR_RANGE_M[0] / 1e3:g},{DEFAULT_RADAR_RANGE_M[1] / 1e3:g})")
-    ap.add_argument("--runs", type=int, help="Monte Carlo runs per suite (default: 200 random and each held-out "
-                                             "family, 10 adrian_flower, 100 encounter pairs, 24 adsb_calibration "
-                                             "and 12 adsb_dev / adsb_heldout (each flight once), 10 "
-                                             "adsb:<flight>, 50 otherwise)")
-    ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
-                    help=f"base seed of the runs, >= 0 (default {EVAL_SEED_BASE}: held out from training and tuning)")
-    ap.add_argument("--trackers", help=f"comma-separated tracker names from {list(TRACKER_NAMES)} or registered by "
-                                       f"a --tracker-module (default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if "
-                                       "a policy exists)")
-    ap.add_argument("--tracker-module", action="append", metavar="MODULE",
-                    help="import a user tracker module before the trackers are resolved: a dotted module name "
-                         "(importable from the current directory) or a .py file; it registers its trackers with "
-                         "baselines.registry.register_tracker (repeatable; see 'Your own tracker in the "
-                         "comparison' in the README)")
-    ap.add_argument("--policy", help="saved stable-baselines3 model (.zip) for the 'policy' tracker "
-                                     f"(default: {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
-    ap.add_argument("--out", default="results", help="directory for the plots (default ./results)")
-    ap.add_argument("--json", help="write every metric per tracker per suite to this JSON file (its folder must exist)")
-    ap.add_argument("--no-plots", action="store_true", help="skip the plots")
-    ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    ap.add_argument("--workers", type=int, default=1, help="split the runs over N Ray workers (same numbers as "
-                    "the serial run; needs the 'scale' extra; default 1: no Ray)")
-    ap.add_argument("--address", help="Ray cluster to run on, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else "
-                                      "an embedded local Ray with --workers CPUs)")
-    return ap
-
-
 def _km_pair(option, text):
     """``"A,B"`` -> two finite floats (km); a one-line error naming ``option`` otherwise."""
     parts = [p.strip() for p in str(text).split(",")]
@@ -353,6 +324,9 @@ def main(argv=None, prog="radar-track evaluate"):
     """The ``radar-track evaluate`` command. Every user error (options, files, outputs) stops with a one-line
     ``error: --option: ...`` (``SystemExit``) before any evaluation runs. Returns the results dict."""
     args = build_parser(prog).parse_args(argv)
+    if args.list:
+        _list_names()
+        return {}
     # a CSV path given to --scenario is a trajectory suite (named by its stem, seeded by its content)
     csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv")]
     if csv_scenarios:
@@ -395,6 +369,7 @@ def main(argv=None, prog="radar-track evaluate"):
         trackers = [t for t in DEFAULT_TRACKERS if t != "policy" or policy is not None]
     loaded = None
     if "policy" in trackers:        # load once, now: a file that is not a usable policy is a user error
+        _say(args, f"loading the policy {policy} (torch, stable-baselines3) ...")
         try:
             loaded = load_policy(policy)
         except ValueError as e:
@@ -426,8 +401,11 @@ def main(argv=None, prog="radar-track evaluate"):
         file_names = trajectory_suite_names(files, taken=names)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    n_runs = {n: args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50) for n in names}
+    _say(args, f"drawing the episodes: {sum(n_runs.values()) + len(files) * (args.runs or 50)} runs of "
+               f"{len(names) + len(files)} suite(s) ...")
     for n in names:
-        runs = args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50)
+        runs = n_runs[n]
         try:
             suites.append((n, draw_suite(n, runs, seed=args.seed)))
         except ValueError as e:
@@ -459,7 +437,9 @@ def main(argv=None, prog="radar-track evaluate"):
                                               allow_nan=False))
         print(f"metrics: {args.json}")
     if not args.no_plots:
-        written = write_plots(runs, args.out)
+        scenarios = {n: run_scenario(n, args.seed) for n in names}
+        scenarios.update({n: run_scenario(f, args.seed) for n, f in zip(file_names, files)})
+        written = write_plots(runs, args.out, scenarios, progress=not args.quiet)
         print(f"plots: {len(written)} files in {args.out}/")
     return results
 

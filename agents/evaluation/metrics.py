@@ -47,15 +47,17 @@ runs resampled for both), over the runs neither failed (or a given subset, e.g. 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from radar_env.observation import measurement_sigma_m
 
 __all__ = ["region_masks", "evaluate_run", "ratio_ci", "failed_runs", "lost_runs", "common_runs", "errors",
-           "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M"]
+           "RunScore", "score_run", "positive_definite", "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M"]
 
-NEES_95_4DOF = float(chi2.ppf(0.95, 4))
+NEES_95_4DOF = float(chdtri(4, 1.0 - 0.95))   # chi2.ppf(0.95, 4), bit for bit, without importing scipy.stats
 FEW_RUNS = 20
 MAX_ERROR_M = 1e100
 
@@ -88,8 +90,8 @@ def _boot_rmse(s, n, rng, n_boot):
     idx = rng.integers(0, B, size=(n_boot, B))
     ss, nn = s[idx].sum(axis=1), n[idx].sum(axis=1)
     ok = nn > 0
-    boots = np.sqrt(ss[ok] / nn[ok])
-    return float(est), (float(np.percentile(boots, 2.5)), float(np.percentile(boots, 97.5)))
+    lo, hi = np.percentile(np.sqrt(ss[ok] / nn[ok]), (2.5, 97.5))
+    return float(est), (float(lo), float(hi))
 
 
 def errors(batch, run):
@@ -122,26 +124,83 @@ def lost_runs(batch, run, track_loss_gate_sigma=30.0, used=None, failed=None):
     return failed | np.any(used & (ep / sig > track_loss_gate_sigma), axis=1)
 
 
-def common_runs(batch, runs, track_loss_gate_sigma=30.0):
-    """(B,) bool: the runs that none of ``runs`` (iterable of :class:`TrackRun`) lost or failed."""
+def common_runs(batch, runs, track_loss_gate_sigma=30.0, scores=None):
+    """(B,) bool: the runs that none of ``runs`` (iterable of :class:`TrackRun`) lost or failed. ``scores``: their
+    :class:`RunScore` (same gate) if already computed."""
     common = np.ones(batch.valid.shape[0], dtype=bool)
-    for run in runs:
-        common &= ~lost_runs(batch, run, track_loss_gate_sigma)
+    for i, run in enumerate(runs):
+        common &= ~(lost_runs(batch, run, track_loss_gate_sigma) if scores is None else scores[i].lost)
     return common
 
 
-def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_boot=2000, seed=0, common=None):
+class RunScore(NamedTuple):
+    """What every metric of one run on one batch starts from, computed once (:func:`score_run`)."""
+
+    masks: dict             # region_masks(batch, run.start_index, after_window_s)
+    pos_err_m: np.ndarray   # (B, K), errors(batch, run)
+    vel_err_m_s: np.ndarray
+    failed: np.ndarray      # (B,) failed_runs
+    lost: np.ndarray        # (B,) lost_runs at the gate
+
+
+def score_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0):
+    """The :class:`RunScore` of ``run``: its region masks, errors, failed and lost runs, each computed once, for
+    :func:`evaluate_run`, :func:`ratio_ci` and :func:`common_runs` (their ``score(s)`` arguments)."""
+    masks = region_masks(batch, run.start_index, after_window_s)
+    ep, ev = errors(batch, run)
+    finite = np.isfinite(run.x).all(axis=-1) & np.isfinite(run.P).all(axis=(-2, -1))
+    bad = ~finite | ~(ep <= MAX_ERROR_M) | ~(ev <= MAX_ERROR_M)   # as failed_runs
+    failed = np.any(masks["used"] & bad, axis=1)
+    r = np.hypot(batch.truth[..., 0] - batch.site_xy_m[..., 0], batch.truth[..., 1] - batch.site_xy_m[..., 1])
+    sig = measurement_sigma_m(r, batch.range_noise_std_m, batch.bearing_noise_std_rad)
+    lost = failed | np.any(masks["used"] & (ep / sig > track_loss_gate_sigma), axis=1)   # as lost_runs
+    return RunScore(masks, ep, ev, failed, lost)
+
+
+_PD_SURE = 1e-9
+""":func:`positive_definite`'s margin: a covariance whose LDL^T pivots give det(C) min_i P_ii / tr P above this
+(C = the correlation matrix of P) has its smallest eigenvalue above 1.6e-11 tr P (lambda_min(C) >= det(C) / 64 for
+a 4 x 4 correlation matrix, whose trace is 4; lambda_min(P) >= lambda_min(C) min_i P_ii), a thousand times what
+rounding in the factorisation and in LAPACK's eigvalsh (about 1e-14 tr P) can move it."""
+
+
+def positive_definite(P):
+    """(n,) bool for symmetric (n, 4, 4) covariances (their lower triangles, as ``np.linalg.eigvalsh`` reads them):
+    exactly ``np.linalg.eigvalsh(P)[:, 0] > 0``, without the eigenvalues where a vectorised LDL^T decides it with
+    a margin (:data:`_PD_SURE`); the rest go to eigvalsh."""
+    n = P.shape[0]
+    L = np.tril(P)
+    d = np.empty((n, 4))
+    ell = np.zeros((n, 4, 4))
+    with np.errstate(all="ignore"):          # a failed pivot makes NaN / inf here; those go to eigvalsh
+        for j in range(4):
+            d[:, j] = L[:, j, j] - np.einsum("nk,nk,nk->n", ell[:, j, :j], ell[:, j, :j], d[:, :j])
+            for i in range(j + 1, 4):
+                ell[:, i, j] = (L[:, i, j] - np.einsum("nk,nk,nk->n", ell[:, i, :j], ell[:, j, :j], d[:, :j])) / d[:, j]
+        diag = np.einsum("nii->ni", L)
+        margin = np.prod(d / diag, axis=1) * diag.min(axis=1) / diag.sum(axis=1)
+        sure = (d > 0).all(axis=1) & (diag > 0).all(axis=1) & (margin > _PD_SURE)
+    pd = sure.copy()
+    rest = ~sure
+    if rest.any():
+        pd[rest] = np.linalg.eigvalsh(P[rest])[:, 0] > 0
+    return pd
+
+
+def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_boot=2000, seed=0, common=None,
+                 score=None):
     """All metrics of one tracker on one suite, as a flat dict (see module docstring).
 
     Args:
         common: optional (B,) bool mask of the suite's common runs (:func:`common_runs`); adds
             ``pos_rmse_m_common``, ``pos_rmse_m_common_ci95``, ``common_runs`` and ``few_common_runs``.
+        score: the run's :class:`RunScore` (same gate and window) if already computed.
     """
     rng = np.random.default_rng(seed)
-    masks = region_masks(batch, run.start_index, after_window_s)
+    if score is None:
+        score = score_run(batch, run, track_loss_gate_sigma, after_window_s)
+    masks, ep, ev, failed = score.masks, score.pos_err_m, score.vel_err_m_s, score.failed
     used = masks["used"]
-    ep, ev = errors(batch, run)
-    failed = failed_runs(batch, run, used)
     ok = ~failed
     n_ok = int(ok.sum())
     B = int(batch.valid.shape[0])
@@ -164,7 +223,7 @@ def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_
     # NEES (4 dof) at the used looks of the scored runs; a P that is not positive definite has none (no solve)
     cand = used & ok[:, None]
     d, P = (run.x - batch.truth)[cand], run.P[cand]
-    pd = np.linalg.eigvalsh(P)[:, 0] > 0 if P.shape[0] else np.zeros(0, dtype=bool)
+    pd = positive_definite(P)
     sol = np.linalg.solve(P[pd], d[pd][..., None])[..., 0]
     nees = np.einsum("ni,ni->n", d[pd], sol)
     nees = nees[np.isfinite(nees)]
@@ -174,7 +233,7 @@ def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_
     if not nees.size:
         undefined["anees"] = no_runs if n_ok == 0 else "no look with a positive-definite covariance"
     # track loss: failed, or normalised error beyond the env's gate at any used look
-    lost = lost_runs(batch, run, track_loss_gate_sigma, used, failed)
+    lost = score.lost
     out["track_loss_rate"] = float(lost.mean())
     out["lost_runs"] = int(lost.sum())
     # Kim & Lee NPE
@@ -204,46 +263,54 @@ def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_
 
 
 def detection_stats(batch, declared, masks, after_window_s=60.0):
-    """Maneuver detection delay (looks), missed-maneuver fraction and false-alarm rate per straight look."""
+    """Maneuver detection delay (looks), missed-maneuver fraction and false-alarm rate per straight look.
+
+    A maneuver starts at a used maneuvering look after a look that is not; it is detected at the first declared
+    valid look from its start until ``after_window_s`` after its last look (look times increase within a run)."""
     used = masks["used"]
     man = batch.maneuvering & used
-    delays, missed = [], 0
     B, K = man.shape
-    for b in range(B):
-        m = man[b]
-        onsets = np.flatnonzero(m & ~np.r_[False, m[:-1]])
-        for k0 in onsets:
-            # maneuver runs until m goes False; the search window extends after_window_s beyond its end
-            end = k0 + np.argmax(~m[k0:]) if np.any(~m[k0:]) else K
-            t_end = batch.t_s[b, end - 1] + after_window_s
-            win = np.flatnonzero((np.arange(K) >= k0) & (batch.t_s[b] <= t_end) & batch.valid[b])
-            hits = win[declared[b, win]]
-            if hits.size:
-                delays.append(int(hits[0] - k0))
-            else:
-                missed += 1
-    n_man = len(delays) + missed
+    k = np.arange(K)
+    onset = man & ~np.concatenate([np.zeros((B, 1), dtype=bool), man[:, :-1]], axis=1)
+
+    def first_from(flags):     # (B, K): the first look >= k where flags holds, K if none
+        return np.minimum.accumulate(np.where(flags, k, K)[:, ::-1], axis=1)[:, ::-1]
+
+    rows, k0 = np.nonzero(onset)               # row-major: the order the delays are averaged in
+    end = first_from(~man)[rows, k0]           # the maneuver runs until its first look that is not one
+    t_end = batch.t_s[rows, end - 1] + after_window_s
+    first = first_from(declared & batch.valid)[rows, k0]
+    hit = (first < K) & (batch.t_s[rows, np.minimum(first, K - 1)] <= t_end)
+    delays = (first - k0)[hit]
+    n_man = int(k0.size)
     straight = masks["straight"]
     return {
-        "detection_delay_looks": float(np.mean(delays)) if delays else np.nan,
-        "missed_maneuvers": float(missed / n_man) if n_man else np.nan,
+        "detection_delay_looks": float(np.mean(delays)) if delays.size else np.nan,
+        "missed_maneuvers": float(int((~hit).sum()) / n_man) if n_man else np.nan,
         "false_alarm_rate": float(declared[straight].mean()) if straight.any() else np.nan,
     }
 
 
-def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_window_s=60.0, runs=None):
+def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_window_s=60.0, runs=None, scores=None):
     """Pooled position RMSE of ``run_a`` / ``run_b`` over the looks both use, with a paired 95% bootstrap CI.
 
     Pooled over the runs neither tracker failed (:func:`failed_runs`), restricted to ``runs`` ((B,) bool, e.g. the
-    common runs) if given. Returns ``(ratio, (lo, hi))``, NaN if no run is left."""
+    common runs) if given; ``scores``: the two runs' :class:`RunScore` if already computed. Returns ``(ratio, (lo,
+    hi))``, NaN if no run is left."""
     rng = np.random.default_rng(seed)
-    ma = region_masks(batch, np.maximum(run_a.start_index, run_b.start_index), after_window_s)[region]
-    sel = ~failed_runs(batch, run_a) & ~failed_runs(batch, run_b)
+    start = np.maximum(run_a.start_index, run_b.start_index)
+    if region == "used":       # the only mask that depends on the start: no need for the others
+        K = batch.valid.shape[1]
+        ma = batch.valid & (np.arange(K)[None, :] >= np.asarray(start)[:, None])
+    else:
+        ma = region_masks(batch, start, after_window_s)[region]
+    if scores is None:
+        scores = [score_run(batch, r, after_window_s=after_window_s) for r in (run_a, run_b)]
+    sel = ~scores[0].failed & ~scores[1].failed
     if runs is not None:
         sel &= np.asarray(runs, dtype=bool)
     ma = ma & sel[:, None]
-    ea, _ = errors(batch, run_a)
-    eb, _ = errors(batch, run_b)
+    ea, eb = scores[0].pos_err_m, scores[1].pos_err_m
     sa, n = _pooled_rmse(np.where(ma, ea, 0.0) ** 2, ma)
     sb, _ = _pooled_rmse(np.where(ma, eb, 0.0) ** 2, ma)
     sa, sb, n = sa[sel], sb[sel], n[sel]
@@ -253,8 +320,8 @@ def ratio_ci(batch, run_a, run_b, region="used", n_boot=2000, seed=0, after_wind
     idx = rng.integers(0, sa.size, size=(n_boot, sa.size))
     den = sb[idx].sum(axis=1)
     ok = den > 0
-    r = np.sqrt(sa[idx].sum(axis=1)[ok] / den[ok])
-    return float(est), (float(np.percentile(r, 2.5)), float(np.percentile(r, 97.5)))
+    lo, hi = np.percentile(np.sqrt(sa[idx].sum(axis=1)[ok] / den[ok]), (2.5, 97.5))
+    return float(est), (float(lo), float(hi))
 
 
 def jsonable(o):

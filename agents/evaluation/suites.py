@@ -26,18 +26,19 @@ from pathlib import Path
 import numpy as np
 
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_SEEDS, TUNING_SEEDS, suite_rng
-from radar_env.catalog import FAMILIES, SCENARIO_NAMES
-from radar_env.draws import draw_episodes
+from radar_env.catalog import FAMILIES, SCENARIO_NAMES, make_setup
+from radar_env.draws import draw_episodes, random_scenarios
 from radar_env.env import draw_setup_and_episode, resolve_scenario
 from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
+from agents.evaluation.options import DEFAULT_SUITES
+
 __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "HELDOUT_FAMILY_SUITES",
-           "DEFAULT_RADAR_RANGE_M", "draw_suite", "suite_rng", "suite_key", "trajectory_suite_names"]
+           "DEFAULT_RADAR_RANGE_M", "draw_suite", "run_scenario", "suite_rng", "suite_key", "trajectory_suite_names"]
 
 # TRAIN_SEEDS, TUNING_SEEDS, EVAL_SEED_BASE and suite_rng live in baselines.seeds (the tuning draws from them and
-# baselines never import agents); re-exported here, where the seed plan is documented.
-DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
-                  "seed002_course_changes", "seed002_two_radars")
+# baselines never import agents); re-exported here, where the seed plan is documented. DEFAULT_SUITES lives with
+# the command's options (agents.evaluation.options, read by --help without loading the simulation).
 EXTRA_SUITES = ("encounters", "adsb_calibration", "adsb_dev", "adsb_heldout")
 """Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights
 (all, and the two halves of :data:`radar_env.adsb_scenarios.ADSB_SPLIT`)."""
@@ -116,6 +117,26 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
     batch = draw_episodes(resolved, radar, random_config, [suite_rng(key, seed + i) for i in range(int(runs))],
                           radar_range_m=rr)
     return [batch.episode(i) for i in range(int(runs))]
+
+
+def run_scenario(scenario, seed=EVAL_SEED_BASE, run=0):
+    """The truth model of run ``run`` of the suite :func:`draw_suite` draws from ``scenario`` with base seed
+    ``seed``: a :class:`~radar_env.scenario.SegmentScenario` (named scenarios, the random flights and families,
+    re-drawn from the run's generator) or a :class:`~radar_env.scenario.TrajectoryScenario` (ADS-B flights, CSV
+    trajectories); None for ``encounters`` (two aircraft per run). The figures draw its exact path and maneuver
+    times (and check them against the episode's truth first)."""
+    if scenario == "encounters":
+        return None
+    resolved = resolve_scenario(scenario)
+    if hasattr(resolved, "setup"):                       # a pool: run i flies member i mod n
+        return resolved.setup(int(run)).scenario
+    if isinstance(resolved, (SegmentScenario, TrajectoryScenario)):
+        return resolved
+    if hasattr(resolved, "scenario"):                    # a Setup
+        return resolved.scenario
+    if resolved in ("random", "random_radars") or resolved in FAMILIES:
+        return random_scenarios(resolved, [suite_rng(suite_key(scenario), int(seed) + int(run))])[0][0]
+    return make_setup(resolved).scenario
 
 
 def _check_range_m(r):

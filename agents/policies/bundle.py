@@ -22,11 +22,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import gymnasium as gym
-
-import radar_env  # noqa: F401 - registers RadarTrack-v0
-from radar_env.env import RadarTrackVectorEnv
-
 __all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env", "ship_policy"]
 
 BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
@@ -63,6 +58,10 @@ def make_policy_env(policy_path=None, num_envs=None, **overrides):
     """The env a policy was trained in: ``gym.make("RadarTrack-v0", **kwargs)`` with ``kwargs`` from
     :func:`policy_env_kwargs` updated by ``overrides``, or, with ``num_envs``, the native
     :class:`radar_env.env.RadarTrackVectorEnv` with the same arguments."""
+    import gymnasium as gym      # here, not at import: BUNDLED_POLICY is read by `radar-track evaluate --help`
+
+    import radar_env  # noqa: F401 - registers RadarTrack-v0
+    from radar_env.env import RadarTrackVectorEnv
     kw = policy_env_kwargs(policy_path)
     kw.update(overrides)
     if num_envs is None:
@@ -74,7 +73,8 @@ def ship_policy(policy_path, dest_dir):
     """Copy a trained policy (its zip and the ``env_config.json`` beside it) into ``dest_dir`` for shipping, without
     the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip acts exactly as
     the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts the moments, as
-    it does for any saved model. Returns the new zip's path."""
+    it does for any saved model. Its numpy export (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written
+    beside it, so the evaluation runs it without torch. Returns the new zip's path."""
     import shutil
 
     from stable_baselines3 import PPO
@@ -86,5 +86,7 @@ def ship_policy(policy_path, dest_dir):
     model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)
     model.save(str(dest / "policy.zip"))
     shutil.copy(src.with_name("env_config.json"), dest / "env_config.json")
+    from agents.policies.numpy_policy import save_export
+    save_export(dest / "policy.zip", model)
     return dest / "policy.zip"
 

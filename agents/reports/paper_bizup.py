@@ -206,8 +206,10 @@ def bizup_figures_check(runs=100, seed=EVAL_SEED_BASE, fig_dir=None):
                 for q in ("pos_m", "speed_m_s")} for n in names}
 
     if fig_dir is not None:
-        from agents.reports.paper_figures import bizup_figures, maneuver_spans
-        bizup_figures(fig_dir, t, curves, maneuver_spans(t, man0), thr, int(runs))
+        from agents.evaluation.plots import maneuver_intervals_s
+        from agents.evaluation.suites import run_scenario
+        from agents.reports.paper_figures import bizup_figures
+        bizup_figures(fig_dir, t, curves, maneuver_intervals_s(run_scenario("bizup2002")), thr, int(runs))
     fin = np.isfinite(fma) & used
     return {
         "runs": int(runs), "trackers": names, "phases": phases, "ratios": ratios, "convergence_s": conv,

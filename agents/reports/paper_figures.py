@@ -1,4 +1,6 @@
-"""Figures of the paper checks (``docs/figures/paper_*.png``), drawn from the arrays the checks computed."""
+"""Figures of the paper checks (``docs/figures/paper_*.png``), drawn from the arrays the checks computed. The
+maneuver intervals they shade come from :func:`agents.evaluation.plots.maneuver_intervals_s`, as in the evaluation's
+figures."""
 
 from __future__ import annotations
 
@@ -6,22 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["bizup_figures", "kim_lee_figure", "maneuver_spans"]
+__all__ = ["bizup_figures", "kim_lee_figure"]
 
 _STYLE = {"cmin": ("tab:blue", "-", 1.4, "KF using c_min"),
           "kf_low": ("0.45", "-", 3.0, "uniform-motion KF (0.03 g)"),
           "ckf": ("tab:red", ":", 1.6, "CKF at 5 NM (never switches: same as the uniform-motion KF)"),
           "imm2_bizup": ("tab:green", "-", 1.4, "2-mode IMM"),
           "ckf_tuned": ("tab:red", "--", 1.4, "CKF at {thr:.2f} km (variant, threshold chosen on other runs)")}
-
-
-def maneuver_spans(t, man, end_at_next_look=True):
-    """(start, end) times of the maneuvers from a per-look flag: from the first flagged look to the next
-    unflagged one (a maneuver that starts at a look lasts until at most the next look after its last flag)."""
-    on = np.flatnonzero(man & ~np.r_[False, man[:-1]])
-    off = np.flatnonzero(man & ~np.r_[man[1:], False])
-    nxt = np.minimum(off + int(end_at_next_look), len(t) - 1)
-    return [(float(t[a]), float(t[b])) for a, b in zip(on, nxt)]
 
 
 def _shade(ax, spans):

@@ -18,14 +18,17 @@ from agents.evaluation.evaluate import DEFAULT_RUNS, evaluate, table_notes
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_POLICY
 from agents.evaluation.metrics import FEW_RUNS
-from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite
+from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, run_scenario
 
 __all__ = ["main", "markdown_tables"]
 
 REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
                    "oracle_q", "clairvoyant")
-FIGURE_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+FIGURE_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+"""The trackers of the figures: the main job's (the strongest classical tracker, imm_cv_ct, included)."""
+PER_FLIGHT_TRACKERS = ("policy", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")
+"""The columns of the ADS-B per-flight table."""
 
 
 def _fmt(v, nd=1):
@@ -193,6 +196,25 @@ def per_flight_table(per_flight):
     return "\n".join(out) + "\n"
 
 
+FIGURE_SUITES = ("random", "bizup2002", "kim_lee_accel", "adsb_calibration")
+"""The suites whose figures the documentation shows."""
+
+
+def suite_figures(runs, fig_dir, seed):
+    """``docs/figures/<suite>_*.png`` of :data:`FIGURE_SUITES` with :data:`FIGURE_TRACKERS` from the evaluation's
+    ``runs`` (suites drawn with base seed ``seed``). Returns the files written."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from agents.evaluation import plots
+    Path(fig_dir).mkdir(parents=True, exist_ok=True)
+    files = []
+    for suite in FIGURE_SUITES:
+        batch, suite_runs = runs[suite]
+        files += plots.suite_figures(suite, batch, {k: v for k, v in suite_runs.items() if k in FIGURE_TRACKERS},
+                                     fig_dir, scenario=run_scenario(suite, seed))
+    return files
+
+
 def scope_figure(path, seed):
     """One radar-scope frame (the env's rgb_array render) in bizup2002's first turn."""
     import gymnasium as gym
@@ -243,19 +265,13 @@ def main(argv=None):
               for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
     results, runs = evaluate(suites, trackers, policy)
     seconds = time.time() - t0
-    import matplotlib
-    matplotlib.use("Agg")
-    from agents.evaluation import plots
     fig_dir = docs / "figures"
-    fig_dir.mkdir(parents=True, exist_ok=True)
-    for suite in ("random", "bizup2002", "kim_lee_accel", "adsb_calibration"):
-        batch, suite_runs = runs[suite]
-        plots.suite_figures(suite, batch, {k: v for k, v in suite_runs.items() if k in FIGURE_TRACKERS}, fig_dir)
+    suite_figures(runs, fig_dir, args.seed)
     scope_figure(fig_dir / "scope_frame.png", args.seed)
     warning_figure(fig_dir / "warning_lead_time.png", results, trackers)
     adsb_batch, adsb_runs = runs["adsb_calibration"]
     results["adsb_calibration"]["per_flight"] = per_flight_rmse(
-        adsb_batch, adsb_runs, [t for t in FIGURE_TRACKERS if t != "cmin"] + ["kf_low"])
+        adsb_batch, adsb_runs, list(PER_FLIGHT_TRACKERS))
     flights = per_flight_table(results["adsb_calibration"]["per_flight"])
     down = downstream_tables(results, trackers)
     text = [

@@ -43,7 +43,6 @@ import sys
 import tomllib
 from pathlib import Path
 
-from agents.evaluation.parallel import ray_session, require_ray
 from agents.training.train import ALGOS, HP_DIR, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
@@ -285,6 +284,7 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1)
     """Run (or resume) the sweep of ``config_path``. Returns ``(rows, experiment_dir)``; the table is also written
     as ``results.csv`` and ``results.json`` in ``experiment_dir``."""
     cfg = load_sweep_config(config_path)
+    from agents.evaluation.parallel import ray_session, require_ray   # here: --help answers without them
     require_ray("radar-track sweep")
     from ray import tune
     exp_dir = Path(out).resolve() / cfg["name"]
@@ -321,13 +321,18 @@ def build_parser(prog="radar-track sweep"):
     ap = argparse.ArgumentParser(prog=prog, description="Seed and hyperparameter sweeps of 'radar-track train' on "
                                  "Ray Tune (grid, random or Optuna search; optional ASHA early stopping); run the "
                                  "same command again to resume.")
-    ap.add_argument("config", nargs="?", default=str(EXAMPLE_CONFIG),
-                    help=f"sweep config TOML (default: the example, {EXAMPLE_CONFIG.relative_to(Path(__file__).parents[2])})")
-    ap.add_argument("--out", default="sweeps", help="parent folder of the experiment folder (default ./sweeps)")
-    ap.add_argument("--address", help="Ray cluster, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else an "
-                                      "embedded local Ray)")
-    ap.add_argument("--num-cpus", type=int, help="CPUs of the embedded local Ray (default: all of the machine)")
-    ap.add_argument("--quiet", action="store_true", help="only the final table")
+    ap.add_argument("config", nargs="?", default=str(EXAMPLE_CONFIG), metavar="CONFIG.toml",
+                    help="sweep config TOML: the trials (seeds, hyperparameter grid or search space), their budget "
+                         "in env steps and the metric (default: the example, "
+                         f"{EXAMPLE_CONFIG.relative_to(Path(__file__).parents[2])})")
+    ap.add_argument("--out", default="sweeps", metavar="DIR",
+                    help="parent folder of the experiment folder (default: ./sweeps)")
+    ap.add_argument("--address", metavar="HOST:PORT",
+                    help="Ray cluster, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else an embedded local Ray)")
+    ap.add_argument("--num-cpus", type=int, metavar="N",
+                    help="CPUs of the embedded local Ray, >= 1 (default: all of the machine's)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="only the final table: no status lines, no per-trial reports (default: print them)")
     return ap
 
 
@@ -335,6 +340,9 @@ def main(argv=None, prog="radar-track sweep"):
     args = build_parser(prog).parse_args(argv)
     if args.num_cpus is not None and args.num_cpus < 1:
         raise SystemExit(f"error: --num-cpus must be >= 1, got {args.num_cpus}")
+    if not args.quiet:      # before Ray, torch and the env are imported
+        print(f"radar-track sweep: {args.config}; starting Ray (the trials import torch and the env) ...",
+              file=sys.stderr, flush=True)
     try:
         rows, exp_dir = run_sweep(args.config, args.out, args.address, args.num_cpus, verbose=0 if args.quiet else 1)
     except ValueError as e:

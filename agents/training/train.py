@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import math
 import shlex
 import shutil
 import sys
@@ -44,13 +45,12 @@ import warnings
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
+# nothing slow at import (numpy, torch, stable-baselines3 and the env are imported where they are used):
+# `radar-track train` parses its options and says what it does first; the seed ranges come from the lowest layer
+from baselines.seeds import TRAIN_SEEDS
 
-from radar_env.observation import DEFAULT_FEATURES
-
-from agents.evaluation.suites import TRAIN_SEEDS
-
-__all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
+__all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "ALGOS", "ENV_ID",
+           "TRAIN_SCENARIOS"]
 
 TRAIN_SCENARIOS = ("random", "random_radars")
 """The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
@@ -171,7 +171,7 @@ def _check_hp(algo, cls, hp):
                 x0 = float(v[4:]) if v.startswith("lin_") else float("nan")
             except ValueError:
                 x0 = float("nan")
-            if not (np.isfinite(x0) and x0 >= 0):
+            if not (math.isfinite(x0) and x0 >= 0):
                 raise ValueError(f"--hp {k}: must be a number or 'lin_<x>' with x >= 0, got {v!r}")
             continue
         int_only = _is_int(default) and k != "max_grad_norm"      # DQN's default max_grad_norm is the int 10
@@ -183,13 +183,14 @@ def _check_hp(algo, cls, hp):
             raise ValueError(f"--hp {k}: must be true or false, got {v!r}")
         if k in _RANGES and _is_num(v):
             lo, hi = _RANGES[k]
-            if not np.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+            if not math.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
                 raise ValueError(f"--hp {k}: must lie in [{lo}, {'inf' if hi is None else hi}], got {v!r}")
     return {k: v for k, v in hp.items() if k not in _SPECIAL}
 
 
 def _stack_factor(src_space, new_space):
     """k if ``new_space`` is ``src_space`` stacked k times (``frame_stack``: newest frame first), else None."""
+    import numpy as np
     lo, hi = np.asarray(src_space.low).ravel(), np.asarray(src_space.high).ravel()
     nlo, nhi = np.asarray(new_space.low).ravel(), np.asarray(new_space.high).ravel()
     if lo.size == 0 or nlo.size % lo.size:
@@ -253,6 +254,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from radar_env.observation import DEFAULT_FEATURES
+
     from agents.training.callbacks import EnvTimeCallback, ImmRatioEvalCallback
     from agents.training.sb3_vec import make_sb3_vec_env
 
@@ -280,6 +283,12 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
         raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
     src = _load_init_from(cls, algo, hp["init_from"]) if hp.get("init_from") else None
+    steps, per_rollout = trained_timesteps(cls, n_timesteps, n_envs, kwargs)
+    if verbose and steps != n_timesteps:      # said once, before the run: SB3 finishes the rollout it is in
+        print(f"note: {cls.__name__} collects {per_rollout:,} env steps at a time ({n_envs} envs x "
+              f"{per_rollout // n_envs}): --timesteps {n_timesteps:,} trains "
+              + (f"{steps:,} steps" if steps else "at least that many steps (train_freq counts episodes)"),
+              file=sys.stderr, flush=True)
     if algo in ("dqn", "sac"):
         default_starts = inspect.signature(cls.__init__).parameters["learning_starts"].default
         starts = int(kwargs.get("learning_starts", default_starts))
@@ -384,6 +393,24 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     return run
 
 
+def trained_timesteps(cls, n_timesteps, n_envs, kwargs):
+    """The env steps stable-baselines3 trains for ``n_timesteps``: it collects whole rollouts until it has at
+    least that many (PPO: ``n_envs x n_steps`` steps per rollout; DQN / SAC: ``n_envs x train_freq`` when
+    ``train_freq`` counts steps). Returns ``(steps, steps_per_rollout)``; ``steps`` is None when ``train_freq``
+    counts episodes (then it depends on where the episodes end)."""
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+    params = inspect.signature(cls.__init__).parameters
+    if issubclass(cls, OnPolicyAlgorithm):      # (DQN's n_steps is its n-step return, not a rollout length)
+        per = int(kwargs.get("n_steps", params["n_steps"].default))
+    else:
+        tf = kwargs.get("train_freq", params["train_freq"].default)
+        per, unit = (int(tf), "step") if isinstance(tf, int) else (int(tf[0]), str(tf[1]))
+        if unit != "step":
+            return None, n_envs * per
+    per *= int(n_envs)
+    return -(-int(n_timesteps) // per) * per, per
+
+
 def _tb_scalars(run, tags):
     """``{tag: (steps, values)}`` from the run's TensorBoard event files (empty if tensorboard is missing)."""
     try:
@@ -458,22 +485,48 @@ def plot_training_curve(run, png=None):
     return png
 
 
+def _file_defaults(key):
+    """``"ppo 8000000, dqn ..., sac ..."``: ``key`` in each algorithm's hyperparameter file (for --help)."""
+    out = []
+    for algo in ALGOS:
+        try:
+            out.append(f"{algo} {load_hyperparams(algo).get(key, '-')}")
+        except (OSError, ValueError):            # pragma: no cover - a broken install
+            out.append(f"{algo} ?")
+    return ", ".join(out)
+
+
 def build_parser(prog="radar-track train"):
     ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
                                  "scenarios, training seeds) with stable-baselines3.")
-    ap.add_argument("--algo", required=True, choices=ALGOS)
+    ap.add_argument("--algo", required=True, choices=ALGOS,
+                    help="the stable-baselines3 algorithm (required; its settings: "
+                         "agents/training/hyperparams/<algo>.toml)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
-                    help="default: the hyperparameter file's (discrete for PPO/DQN, continuous for SAC)")
-    ap.add_argument("--timesteps", type=int, help="total env steps (default: the file's n_timesteps)")
-    ap.add_argument("--n-envs", type=int, help="rows of the vector env (default: the file's n_envs)")
-    ap.add_argument("--seed", type=int, default=0, help="row i of the vector env is seeded seed + i (training range)")
-    ap.add_argument("--out", default="runs", help="parent folder of the run folder (default ./runs)")
-    ap.add_argument("--name", help="run folder name (default <algo>_<action>_s<seed>_<time>)")
-    ap.add_argument("--env-kwargs", default="{}", help="JSON dict of RadarTrack-v0 arguments, merged over the file's")
-    ap.add_argument("--hp", action="append", metavar="KEY=VALUE", help="override a hyperparameter (value as JSON)")
-    ap.add_argument("--hyperparams", help="TOML file to read instead of agents/training/hyperparams/<algo>.toml")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
-    ap.add_argument("--quiet", action="store_true")
+                    help="q chosen from the env's discrete levels or continuously (default: the hyperparameter "
+                         "file's: discrete for ppo and dqn, continuous for sac)")
+    ap.add_argument("--timesteps", type=int, metavar="N",
+                    help="total env steps, >= 1; rounded up to whole rollouts (n_envs x n_steps for ppo), which "
+                         f"the command says (default: the file's n_timesteps: {_file_defaults('n_timesteps')})")
+    ap.add_argument("--n-envs", type=int, metavar="N",
+                    help=f"rows of the vector env, >= 1 (default: the file's n_envs: {_file_defaults('n_envs')})")
+    ap.add_argument("--seed", type=int, default=0, metavar="S",
+                    help=f"row i of the vector env is seeded S + i; every row must lie in the training range "
+                         f"[{TRAIN_SEEDS.start}, {TRAIN_SEEDS.stop}) (default 0)")
+    ap.add_argument("--out", default="runs", metavar="DIR",
+                    help="parent folder of the run folder (default: ./runs)")
+    ap.add_argument("--name", help="run folder name inside --out (default: <algo>_<action>_s<seed>_<time>)")
+    ap.add_argument("--env-kwargs", default="{}", metavar="JSON",
+                    help="JSON object of RadarTrack-v0 arguments, merged over the file's env_kwargs (default: {})")
+    ap.add_argument("--hp", action="append", metavar="KEY=VALUE",
+                    help="override a hyperparameter, repeatable; VALUE parsed as JSON, else kept as a string "
+                         "(default: the file's values)")
+    ap.add_argument("--hyperparams", metavar="FILE.toml",
+                    help="TOML file to read instead of agents/training/hyperparams/<algo>.toml (default: that file)")
+    ap.add_argument("--no-progress", action="store_true",
+                    help="no progress bar during training (default: stable-baselines3's bar)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no status lines, no selection messages, no final summary (default: print them)")
     return ap
 
 
@@ -482,6 +535,9 @@ def main(argv=None, prog="radar-track train"):
     with a one-line ``error: --option ...`` (``SystemExit``) before the run folder is made. Returns the run folder."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
+    if not args.quiet:     # before torch, stable-baselines3 and the env are imported (in train())
+        print(f"radar-track train: {args.algo} on RadarTrack-v0; loading torch, stable-baselines3 and the env ...",
+              file=sys.stderr, flush=True)
     for opt, v in (("--timesteps", args.timesteps), ("--n-envs", args.n_envs)):
         if v is not None and v < 1:
             raise SystemExit(f"error: {opt} must be an integer >= 1, got {v}")

@@ -1,0 +1,99 @@
+"""The options of ``radar-track evaluate`` and its defaults, importable at once (no numpy, numba, torch or the
+trackers): ``radar-track evaluate --help`` and option errors answer from here before any slow import, and the
+command says what it is about to do (:func:`first_line`) before it loads the trackers and the policy.
+
+:mod:`agents.evaluation.evaluate` runs the parsed options; the suites and trackers themselves are resolved there
+(``--list`` prints every name)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from agents.policies.bundle import BUNDLED_POLICY
+from baselines.seeds import EVAL_SEED_BASE
+
+__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
+
+DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+"""The main job's trackers (``policy`` only when a policy is bundled or given)."""
+
+DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
+                  "seed002_course_changes", "seed002_two_radars")
+"""The main job's suites: random flights, random radars and the papers' named scenarios."""
+
+RADAR_RANGE_HELP_KM = (10, 150)
+"""The default of ``--radar-range-km`` as the help states it: :data:`radar_env.scenario.RADAR_PLACEMENT_RANGE_M`
+in km (a test checks that they agree; the value itself is not imported here, which would load numba)."""
+
+
+def build_parser(prog="radar-track evaluate"):
+    """The ``radar-track evaluate`` argument parser (every option with its default and unit)."""
+    lo_km, hi_km = RADAR_RANGE_HELP_KM
+    ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
+                                 "measurement streams (common random numbers): a table per suite, figures in --out.")
+    ap.add_argument("--scenario", action="append", metavar="NAME",
+                    help="suite to run, repeatable: random, random_radars, a paper's scenario (e.g. bizup2002), a "
+                         "held-out family (e.g. sharp_turns), encounters (conflict warnings), adsb_calibration, "
+                         "adsb_dev, adsb_heldout, adsb:<flight>, or a trajectory .csv (as --trajectory); --list "
+                         f"prints every name (default: {', '.join(DEFAULT_SUITES)})")
+    ap.add_argument("--trajectory", action="append", metavar="FILE.csv",
+                    help="user trajectory CSV with columns t_s,x_m,y_m,vx_m_s,vy_m_s (s, m, m/s; repeatable); its "
+                         "suite is named after the file's stem, its runs are seeded by the SHA-256 of the file's "
+                         "bytes (the same file by any path gives the same episodes) (default: none)")
+    ap.add_argument("--radar-site", metavar="X_KM,Y_KM",
+                    help="--trajectory suites: Adrian's ATC radar at this fixed site (km, the CSV's x/y frame) "
+                         "instead of one placed per run (default: placed per run, see --radar-range-km)")
+    ap.add_argument("--radar-range-km", metavar="LO,HI",
+                    help="--trajectory suites: range annulus (km) of the per-run ATC radar placement: the site is "
+                         f"drawn LO-HI km from the start, keeping the flight in range longest (default "
+                         f"{lo_km:g},{hi_km:g})")
+    ap.add_argument("--runs", type=int, metavar="N",
+                    help="Monte Carlo runs per suite, >= 1 (default: 200 random and each held-out family, 100 "
+                         "random_radars, 10 adrian_flower, 100 encounter pairs, 24 adsb_calibration and 12 adsb_dev / "
+                         "adsb_heldout (each flight once), 10 adsb:<flight>, 50 otherwise)")
+    ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE, metavar="S",
+                    help=f"base seed of the runs, >= 0; run i of a suite uses seed S + i (default {EVAL_SEED_BASE}: "
+                         "held out from training and tuning)")
+    ap.add_argument("--trackers", metavar="A,B,...",
+                    help="comma-separated tracker names, built-in or registered by a --tracker-module; --list prints "
+                         f"the built-in ones (default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if a policy exists)")
+    ap.add_argument("--tracker-module", action="append", metavar="MODULE",
+                    help="import a user tracker module before the trackers are resolved: a dotted module name "
+                         "(importable from the current directory) or a .py file; it registers its trackers with "
+                         "baselines.registry.register_tracker (repeatable; see docs/evaluation.md) (default: none)")
+    ap.add_argument("--policy", metavar="FILE.zip",
+                    help="saved stable-baselines3 model for the 'policy' tracker, with its env_config.json beside it "
+                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
+    ap.add_argument("--out", default="results", metavar="DIR",
+                    help="directory for the figures (PNG; created if missing) (default: ./results)")
+    ap.add_argument("--json", metavar="FILE.json",
+                    help="write every metric per tracker per suite to this JSON file; its folder must exist "
+                         "(default: no JSON)")
+    ap.add_argument("--no-plots", action="store_true", help="skip the figures (default: draw them)")
+    ap.add_argument("--quiet", action="store_true",
+                    help="no progress: no first line, no bars; the table only (default: progress on stderr)")
+    ap.add_argument("--workers", type=int, default=1, metavar="N",
+                    help="split the runs over N Ray workers, >= 1 (same numbers as the serial run; needs the 'scale' "
+                         "extra) (default 1: no Ray)")
+    ap.add_argument("--address", metavar="HOST:PORT",
+                    help="Ray cluster to run on, e.g. 127.0.0.1:6379 (default: RAY_ADDRESS if set, else an embedded "
+                         "local Ray with --workers CPUs)")
+    ap.add_argument("--list", action="store_true",
+                    help="print every suite and built-in tracker name and exit (default: evaluate)")
+    return ap
+
+
+def first_line(args):
+    """What the command is about to do, in one line, from the parsed options alone (printed before the slow
+    imports: the trackers, the numba kernels, torch for the policy)."""
+    if args.list:
+        return "radar-track evaluate: listing the suites and trackers (loading the registry) ..."
+    suites = list(args.scenario or []) + list(args.trajectory or [])
+    suites = suites or list(DEFAULT_SUITES)
+    trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
+                else len(DEFAULT_TRACKERS) if args.policy or BUNDLED_POLICY.is_file() else len(DEFAULT_TRACKERS) - 1)
+    shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
+    return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
+            + (" and the policy" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
+            + " ...")

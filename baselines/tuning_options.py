@@ -1,0 +1,33 @@
+"""The options of ``radar-track tune`` (also ``python -m baselines.tuning``), importable at once (no numpy, scipy or
+the trackers): ``--help`` and option errors answer from here before :mod:`baselines.tuning` is imported."""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["build_parser", "first_line"]
+
+
+def build_parser(prog="radar-track tune"):
+    """The tuning command's argument parser (every option with its default and unit)."""
+    ap = argparse.ArgumentParser(prog=prog, description="Tune the classical baselines (constant-q KF, 2-mode IMM, "
+                                 "CV/CT IMM) on random-scenario episodes drawn with tuning seeds, never on "
+                                 "evaluation seeds; writes their tuned parameters for every tracker that reads them.")
+    ap.add_argument("--runs", type=int, default=200, metavar="N",
+                    help="random-scenario episodes to tune on, >= 1 (default 200; about 7.5 min for kf and imm2 on "
+                         "an idle 2-core machine)")
+    ap.add_argument("--trackers", default="kf,imm2,imm_cv_ct", metavar="A,B,...",
+                    help="comma-separated trackers to tune, from kf, imm2, imm_cv_ct; the others keep their entry "
+                         "in the existing file (default: kf,imm2,imm_cv_ct)")
+    ap.add_argument("--starts", type=int, default=3, metavar="N",
+                    help="optimizer starts per tracker, >= 1: the previous tuned values, then random points in "
+                         "the search box (default 3)")
+    ap.add_argument("--out", metavar="FILE.json",
+                    help="output JSON (default: baselines/tuned.json, the file the trackers read)")
+    return ap
+
+
+def first_line(args):
+    """What the command is about to do (printed before numpy, scipy and the trackers are imported)."""
+    return (f"radar-track tune: tuning {args.trackers} on {args.runs} training-seed episodes ({args.starts} "
+            "optimizer starts each); loading the trackers ...")
