@@ -29,8 +29,8 @@ is a contiguous run of B numbers and every operation of the 4 x 4 algebra is an 
 memory. On the 2-core machine this runs a look about 2x faster than the batch-first layout (whose small-matrix
 products are strided) and far faster than ``bmm``, which loops over 4 x 4 products; per-look slices of tensors that
 need a gradient are taken with ``unbind`` (one backward node for the chunk, where indexing would add a full-size
-zero tensor per look). The building blocks (:func:`transition`, :func:`process_noise`, :func:`predict`,
-:func:`predict_cv`, :func:`propagate`, :func:`ct_omega_partials`, :func:`update`, :func:`nis`,
+zero tensor per look). The building blocks (:func:`transition`, :func:`ct_entries`, :func:`process_noise`,
+:func:`predict`, :func:`predict_cv`, :func:`propagate`, :func:`ct_omega_partials`, :func:`update`, :func:`nis`,
 :func:`log_likelihood`, :func:`two_point_init`) take that layout with any trailing batch shape, e.g. ``(4, M, B)``
 for M filters per row; :func:`propagate` and :func:`update` any state size (the 5-state CT-EKF of
 :mod:`radar_env.torch_imm`, the IMM built from these blocks).
@@ -52,7 +52,7 @@ import torch
 from .tracking import MAX_Q_M_S2, TrackStart
 
 __all__ = ["ChainState", "ChainLooks", "StepRecord", "ChainRun", "handover", "start_tracks", "looks_from_arrays",
-           "run", "step", "collect", "transition", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "propagate",
+           "run", "step", "collect", "transition", "ct_entries", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "propagate",
            "ct_omega_partials", "update",
            "nis", "log_likelihood", "two_point_init", "position_sq_error", "pooled_position_mse", "SERIES_THETA"]
 
@@ -276,24 +276,31 @@ def transition(dt_s, omega_rad_s=None) -> torch.Tensor:
     """``F (4, 4, *batch)`` for ``dt_s (*batch)``: ``F_cv(dt)``, or ``F_ct(dt, omega)`` if ``omega_rad_s`` is given
     (radar_env.filters; ``omega = 0`` gives ``F_cv`` exactly). Differentiable in ``omega`` everywhere: below
     ``|omega dt| <`` :data:`SERIES_THETA` the entries are their Taylor series."""
-    if omega_rad_s is not None:
-        dt_s, omega_rad_s = torch.broadcast_tensors(dt_s, omega_rad_s)
-    one, zero = torch.ones_like(dt_s), torch.zeros_like(dt_s)
     if omega_rad_s is None:
+        one, zero = torch.ones_like(dt_s), torch.zeros_like(dt_s)
         a, b, c, s = dt_s, zero, one, zero
     else:
-        th = omega_rad_s * dt_s
-        small = th.abs() < SERIES_THETA
-        ths = torch.where(small, one, th)           # keeps the unused exact branch (and its gradient) finite
-        t2 = th * th
-        a = torch.where(small, dt_s * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 - t2 / 5040.0))),
-                        dt_s * torch.sin(ths) / ths)
-        h = torch.sin(0.5 * ths)
-        b = torch.where(small, dt_s * th * (0.5 + t2 * (-1.0 / 24.0 + t2 * (1.0 / 720.0 - t2 / 40320.0))),
-                        dt_s * (2.0 * h * h) / ths)
-        c, s = torch.cos(th), torch.sin(th)
+        dt_s, omega_rad_s = torch.broadcast_tensors(dt_s, omega_rad_s)
+        one, zero = torch.ones_like(dt_s), torch.zeros_like(dt_s)
+        a, b, c, s = ct_entries(dt_s, omega_rad_s)
     return torch.stack((one, zero, a, b, zero, one, -b, a, zero, zero, c, s, zero, zero, -s, c)).view(
         (4, 4) + tuple(dt_s.shape))
+
+
+def ct_entries(dt_s, omega_rad_s):
+    """The entries ``(a, b, c, s)`` of ``F_ct = [[I, [[a, b], [-b, a]]], [0, [[c, s], [-s, c]]]]`` (*batch, of
+    tensors of the same shape): ``a = sin(th)/omega``, ``b = (1 - cos th)/omega``, ``c = cos th``, ``s = sin th``
+    (``th = omega dt``), the first two by their Taylor series below ``|th| <`` :data:`SERIES_THETA`."""
+    th = omega_rad_s * dt_s
+    small = th.abs() < SERIES_THETA
+    ths = torch.where(small, torch.ones_like(th), th)   # keeps the unused exact branch (and its gradient) finite
+    t2 = th * th
+    a = torch.where(small, dt_s * (1.0 + t2 * (-1.0 / 6.0 + t2 * (1.0 / 120.0 - t2 / 5040.0))),
+                    dt_s * torch.sin(ths) / ths)
+    h = torch.sin(0.5 * ths)
+    b = torch.where(small, dt_s * th * (0.5 + t2 * (-1.0 / 24.0 + t2 * (1.0 / 720.0 - t2 / 40320.0))),
+                    dt_s * (2.0 * h * h) / ths)
+    return a, b, torch.cos(th), torch.sin(th)
 
 
 def gamma_gamma_t(dt_s) -> torch.Tensor:

@@ -54,7 +54,7 @@ import torch
 
 from . import torch_chain as tc
 
-__all__ = ["IMMConstants", "IMMState", "IMMParams", "IMMRecord", "IMMRun", "start", "step", "collect", "run",
+__all__ = ["IMMConstants", "IMMState", "IMMParams", "IMMRecord", "IMMRun", "start", "step", "look", "collect", "run",
            "clip_turn_rate", "switch_log_probs"]
 
 DTYPE = tc.DTYPE
@@ -172,31 +172,45 @@ def _augment(x4, P4, sig_w0_2):
     return torch.cat((x4, zx)), P5
 
 
-def _moments(w, xs, Ps):
-    """Moment-matched mixture over axis 1 of ``xs (n, Mi, *b)``, ``Ps (n, n, Mi, *b)`` with weights
-    ``w (Mi, *b)``: ``(x (n, *b), sym(P) (n, n, *b))`` (the mixing: ``xs (n, Mi, 1, B)``, ``w (Mi, Mk, B)``)."""
-    x = (w * xs).sum(1)
-    d = xs - x[:, None]
-    P = (w * (Ps + d[:, None] * d[None])).sum(2)
-    return x, 0.5 * (P + P.transpose(0, 1))
+def _mix(w, A):
+    """``sum_i A[..., i, :] w[i]`` for ``A (..., Mi, B)`` and mixing weights ``w (Mi, Mk, B)``: ``(..., Mk, B)``
+    (a sum over the few modes, written out: small temporaries)."""
+    out = A[..., :1, :] * w[0]
+    for i in range(1, w.shape[0]):
+        out = out + A[..., i:i + 1, :] * w[i]
+    return out
 
 
-def _ct_predict(x0, P0, dt, q, sig_w2, G):
-    """CT-EKF prediction of ``x0 (5, Mct, B)``: exact CT motion, analytic Jacobian (baselines/imm_cv_ct.py)."""
-    w = x0[4]
-    F = tc.transition(dt, w)                                   # (4, 4, Mct, B)
-    v = x0[2:4]
-    xp = torch.cat(((F * x0[None, :4]).sum(1), w[None]))
+def _mixture(w, x, P):
+    """Moment-matched mixtures ``(x0 (n, Mk, B), P0 (n, n, Mk, B))`` of the modes ``x (n, Mi, B)``,
+    ``P (n, n, Mi, B)`` with weights ``w (Mi, Mk, B)`` (``Mk = 1``: ``w (Mi, 1, B)``): ``x0 = sum_i w_i x_i``,
+    ``P0 = sum_i w_i (P_i + (x_i - x0)(x_i - x0)^T)``, computed about the first mode (``e_i = x_i - x_1``,
+    ``m = sum_i w_i e_i``: ``P0 = sum_i w_i (P_i + e_i e_i^T) - m m^T``, the same algebra, the products at the
+    scale of the modes' differences). Exactly symmetric if every ``P_i`` is."""
+    e = x - x[:, :1]
+    m = _mix(w, e)
+    return x[:, :1] + m, _mix(w, P + e[:, None] * e[None]) - m[:, None] * m[None]
+
+
+def _ct_predict(x0, P0, dt, q, sig_w2, G5):
+    """CT-EKF prediction of ``x0 (5, Mct, B)``: the exact CT motion and its analytic Jacobian
+    (baselines/imm_cv_ct.py), ``Q = blockdiag(q^2 Gamma Gamma^T, sig_w2 dt)``."""
+    px, py, vx, vy, w = x0.unbind(0)
+    a, b, c, s = tc.ct_entries(dt, w)
     da, db = tc.ct_omega_partials(dt, w)
-    c, s = F[2, 2], F[2, 3]
-    vx, vy = v[0], v[1]
-    col = torch.stack((da * vx + db * vy, -db * vx + da * vy, dt * (-s * vx + c * vy), -dt * (c * vx + s * vy)))
+    xp = torch.stack((px + a * vx + b * vy, py - b * vx + a * vy, c * vx + s * vy, -s * vx + c * vy, w))
     zero, one = torch.zeros_like(w), torch.ones_like(w)
-    J = torch.cat((torch.cat((F, col[:, None]), 1), torch.stack((zero, zero, zero, zero, one))[None]), 0)
-    Q4 = (q * q) * G[:, :, None]                               # (4, 4, Mct, B)
-    Q = torch.cat((torch.cat((Q4, torch.zeros_like(Q4[:, :1])), 1),
-                   torch.cat((torch.zeros_like(Q4[:1]), (sig_w2 * dt)[None, None].expand_as(Q4[:1, :1])), 1)), 0)
+    J = torch.stack((one, zero, a, b, da * vx + db * vy,
+                     zero, one, -b, a, -db * vx + da * vy,
+                     zero, zero, c, s, dt * (-s * vx + c * vy),
+                     zero, zero, -s, c, -dt * (c * vx + s * vy),
+                     zero, zero, zero, zero, one)).view((5, 5) + w.shape)
+    Q = (q * q) * G5[:, :, None] + _E44 * (sig_w2 * dt)
     return xp, tc.propagate(P0, J, Q)
+
+
+_E44 = torch.zeros((5, 5, 1, 1), dtype=DTYPE)
+_E44[4, 4] = 1.0
 
 
 def step(state: IMMState, looks: tc.ChainLooks, j: int, q_m_s2, sig_w2, log_Pi, consts: IMMConstants,
@@ -204,27 +218,44 @@ def step(state: IMMState, looks: tc.ChainLooks, j: int, q_m_s2, sig_w2, log_Pi, 
     """Look ``j`` of ``looks`` from ``state`` with this look's parameters, components first and modes in the
     spec's order: ``q_m_s2 (M, B)``, ``sig_w2 (B,)``, ``log_Pi (M, M, B)``. Returns ``(new_state, IMMRecord)``;
     ``with_nis``: also the NIS of the combined prediction (diagnostics; the loss does not need it)."""
+    return look(state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j], q_m_s2, sig_w2,
+                log_Pi, consts, with_nis)
+
+
+def look(state: IMMState, dt_s, G, z_m, R_m2, mask, q_m_s2, sig_w2, log_Pi, consts: IMMConstants, with_nis=False):
+    """:func:`step` on one look's tensors (``dt_s (B,)``, ``G (4, 4, B)``, ``z_m (2, B)``, ``R_m2 (2, 2, B)``,
+    ``mask (B,)``: column ``j`` of a :class:`radar_env.torch_chain.ChainLooks`), for a caller that compiles it
+    (``torch.compile``: tensors and constants only)."""
     o = consts.order
-    q_m_s2, log_Pi = q_m_s2[o], log_Pi[o][:, o]
-    return _step(state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j], q_m_s2, sig_w2,
-                 log_Pi, consts, with_nis)
+    return _step(state, dt_s, G, z_m, R_m2, mask, q_m_s2[o], sig_w2, log_Pi[o][:, o], consts, with_nis)
 
 
 def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis):
-    """:func:`step` with the parameters in the grouped order."""
+    """:func:`step` with the parameters in the grouped order (CV modes, then CT modes)."""
     n_cv = consts.n_cv
-    # ---- mixing in 5 states (log space)
+    # ---- mixing (log space) in 5 states; a CV mode enters as [x, 0], blockdiag(P, sig_w0_2)
     a = log_Pi + state.log_mu[:, None]                         # (Mi, Mk, B)
     log_c = torch.logsumexp(a, 0)                              # (Mk, B)
     w = torch.exp(a - log_c[None])
-    x_cv5, P_cv5 = _augment(state.x_cv, state.P_cv, consts.sig_w0_2)
-    xs = torch.cat((x_cv5, state.x_ct), 1)                     # (5, Mi, B)
-    Ps = torch.cat((P_cv5, state.P_ct), 2)
-    x0, P0 = _moments(w, xs[:, :, None], Ps[:, :, :, None])    # over the modes i, for each k: (5, Mk, B)
+    x4 = torch.cat((state.x_cv, state.x_ct[:4]), 1)            # every mode's 4-state part (4, M, B)
+    P4 = torch.cat((state.P_cv, state.P_ct[:4, :4]), 2)
+    x0, P0 = _mixture(w, x4, P4)                               # the 4-state marginals of the mixtures (4, Mk, B)
+    # the CT targets' turn-rate row: modes' [P[4, :4], P[4, 4]] and turn rates (a CV mode's: 0, sig_w0_2, 0)
+    B = x4.shape[-1]
+    cv_row = torch.zeros((5, n_cv, B), dtype=DTYPE)
+    cv_row[4] = consts.sig_w0_2
+    row = torch.cat((cv_row, state.P_ct[4]), 1)                # (5, M, B)
+    om = torch.cat((torch.zeros((n_cv, B), dtype=DTYPE), state.x_ct[4]))
+    e, e4 = x4 - x4[:, :1], om - om[:1]
+    wc = w[:, n_cv:]
+    m, m4 = _mix(wc, e), _mix(wc, e4)                          # (4, Mct, B), (Mct, B)
+    r = _mix(wc, row + e4 * torch.cat((e, e4[None]))) - m4 * torch.cat((m, m4[None]))
+    x0_ct = clip_turn_rate(torch.cat((x0[:, n_cv:], (om[:1] + m4)[None])), consts)
+    P0_ct = torch.cat((torch.cat((P0[:, :, n_cv:], r[:4, None]), 1), r[None]), 0)
     # ---- mode-matched prediction
-    xp_cv, Pp_cv = tc.predict_cv(x0[:4, :n_cv], P0[:4, :4, :n_cv], dt, (q[:n_cv] ** 2) * G[:, :, None])
-    x0_ct = clip_turn_rate(x0[:, n_cv:], consts)
-    xp_ct, Pp_ct = _ct_predict(x0_ct, P0[:, :, n_cv:], dt, q[n_cv:], sig_w2, G)
+    xp_cv, Pp_cv = tc.predict_cv(x0[:, :n_cv], P0[:, :, :n_cv], dt, (q[:n_cv] * q[:n_cv]) * G[:, :, None])
+    G5 = torch.nn.functional.pad(G, (0, 0, 0, 1, 0, 1))
+    xp_ct, Pp_ct = _ct_predict(x0_ct, P0_ct, dt, q[n_cv:], sig_w2, G5)
     # ---- mode-matched update (a missed look: posterior = prior, log-likelihood 0)
     zb, Rb, mb = z[:, None], R[:, :, None], mask[None]
     x_cv, P_cv, nu, S, S_inv = tc.update(xp_cv, Pp_cv, zb, Rb, mb)
@@ -237,18 +268,18 @@ def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis):
     log_mu = t - torch.logsumexp(t, 0)
     # ---- combination of the 4-state marginals; the combined turn rate (a CV mode's is 0) and its variance
     mu = torch.exp(log_mu)
-    x, P = _moments(mu, torch.cat((x_cv, x_ct[:4]), 1), torch.cat((P_cv, P_ct[:4, :4]), 2))
+    x, P = _mixture(mu[:, None], torch.cat((x_cv, x_ct[:4]), 1), torch.cat((P_cv, P_ct[:4, :4]), 2))
     mu_ct = mu[n_cv:]
     om = (mu_ct * x_ct[4]).sum(0)
     om_var = (mu_ct * (P_ct[4, 4] + (x_ct[4] - om) ** 2)).sum(0) + mu[:n_cv].sum(0) * om * om
     nis = None
     if with_nis:        # NIS of the combined prediction (weights c normalised), as the numba kernel
-        xc, Pc = _moments(torch.softmax(log_c, 0), torch.cat((xp_cv, xp_ct[:4]), 1),
+        xc, Pc = _mixture(torch.softmax(log_c, 0)[:, None], torch.cat((xp_cv, xp_ct[:4]), 1),
                           torch.cat((Pp_cv, Pp_ct[:4, :4]), 2))
-        _, _, nu, _, S_inv = tc.update(xc, Pc, z, R, mask)
+        _, _, nu, _, S_inv = tc.update(xc[:, 0], Pc[:, :, 0], z, R, mask)
         nis = tc.nis(nu, S_inv)
     new = IMMState(x_cv, P_cv, x_ct, P_ct, log_mu)
-    return new, IMMRecord(x, P, om, om_var, nis, new)
+    return new, IMMRecord(x[:, 0], P[:, :, 0], om, om_var, nis, new)
 
 
 class IMMRun:
