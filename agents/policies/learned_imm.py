@@ -1,0 +1,312 @@
+r"""The learned IMM: imm_cv_ct whose per-look parameters a causal network sets, run in numpy + numba.
+
+``imm_cv_ct`` (:mod:`baselines.imm_cv_ct`: a CV mode, a CT-EKF mode with the turn rate in its state, a high-noise
+CV mode) holds its mode-switch probabilities and its modes' process noise constant. Here a GRU sets them at every
+look (:data:`baselines.imm_cv_ct.LOOK_PARAMS`: ``q_cv_g``, ``q_ct_g``, ``sigma_omega_deg_s15``, ``p_stay_cv``,
+``p_stay_ct``, ``q_high_g``, ``p_stay_high``); the turn rate stays in the filter's state, estimated by the filter.
+
+Per look ``k`` of a row (the parameters of look ``k`` are chosen before look ``k`` is filtered)::
+
+    input_k  = [ obs_{k-1} , detectors_{k-1} ]
+               obs: the env's observation after look k-1 (RadarTrack-v0's features, incl. the preview of plot k),
+                    from the env's own chain (radar_env.tracking.Tracker at the constant q feature_q_g, encoded by
+                    radar_env.observation.ObservationLayout, exactly as the env computes it)
+               detectors: the IMM's own output after look k-1 -- mode probabilities mu (M), combined turn rate
+                    omega / (20 deg/s), log10(its std in deg/s) / 3 (:func:`detector_inputs`)
+    h_k      = GRU(input_k, h_{k-1})                         (h = 0 at the track start)
+    delta_k  = W_out head(h_k) + b_out                       (W_out, b_out initialised to 0)
+    s_k,i    = L_i + (H_i - L_i) sigmoid(u0_i + delta_k,i)   (ParamMap: u0_i puts s at the tuned value)
+    param_i  = exp(s) for a noise (log space), sigmoid(s) for a stay probability (logit space)
+    IMM look k with param_k  ->  estimate, mode probabilities, omega, its std (the detectors of look k)
+
+``[L_i, H_i]`` is the parameter's :data:`baselines.imm_cv_ct.IMM_CV_CT_PARAMS` range in log (noises) or logit
+(probabilities) space, so every output is inside the documented range whatever the network does; the offsets
+``delta`` move each parameter in that space from ``imm_cv_ct``'s tuned constant (``baselines/tuned.json``, recorded
+in the checkpoint). With the last layer at zero the learned IMM *is* imm_cv_ct with its tuned values (tested to
+1e-9). ``sigma_omega0_deg_s`` (the turn-rate prior at a turn's onset) and the turn-rate bound stay constants.
+
+The same computation in torch, differentiable, trains it (:mod:`agents.training.learned_imm`); this module runs a
+checkpoint with numpy (the GRU) and the compiled per-look kernel (:class:`baselines.imm_cv_ct.IMMCVCTStepper`),
+equal to the torch forward to 1e-9 (tests/test_learned_imm.py), with no torch.
+
+A checkpoint is a folder: ``policy.npz`` (the weights, float64; read with ``np.load(allow_pickle=False)``, which
+runs no code, unlike a pickle), ``policy.json`` (format, architecture, input features, the base parameters, the
+feature chain's q) and ``env_config.json`` (the ``RadarTrack-v0`` arguments of its observation and training flights).
+The bundled seed is ``agents/bundled/learned_imm/`` (tracker ``policy_imm_bp`` in the evaluation).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, IMMCVCTStepper, imm_cv_ct_spec_from_params, look_parameter_names
+from baselines.trackers import TrackRun, observation_layout
+from radar_env.config import EnvConfig
+from radar_env.episode import stack_episodes
+from radar_env.units import DEG, G0_M_S2
+
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",
+           "detector_names", "initial_detectors", "gru_cell", "weight_shapes", "LearnedIMM", "save_learned_imm", "load_learned_imm",
+           "is_learned_imm_checkpoint", "run_learned_imm", "run_bundled_learned_imm"]
+
+FORMAT = "radar-track-learned-imm"
+VERSION = 1
+POLICY_FILE = "policy.npz"
+BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / POLICY_FILE
+"""The bundled learned IMM (the tracker ``policy_imm_bp``)."""
+
+OMEGA_SCALE_DEG_S = 20.0
+"""Scale of the turn-rate detector (imm_cv_ct's default turn-rate bound)."""
+STD_FLOOR_DEG_S = 1e-3
+
+
+# ------------------------------------------------------------------------------------------------ outputs
+class ParamMap:
+    """Network offsets ``delta (..., n_par)`` -> per-look parameters, bounded to their documented ranges.
+
+    Args:
+        base: ``{name: value}`` of every name in ``names`` (the tuned constants: where ``delta = 0`` maps to).
+        names: the parameters, :func:`baselines.imm_cv_ct.look_parameter_names` of the spec.
+    Attributes: ``log_space`` (n_par,) bool (True: a noise, log space; False: a stay probability, logit space),
+    ``L``, ``H``, ``u0`` (n_par,): the range in that space and the offset origin.
+    """
+
+    def __init__(self, base, names):
+        self.names = tuple(names)
+        info = {n: (lo, hi, log) for n, _, lo, hi, log in IMM_CV_CT_PARAMS}
+        self.log_space = np.array([info[n][2] for n in self.names])
+        self.lo = np.array([info[n][0] for n in self.names], dtype=np.float64)
+        self.hi = np.array([info[n][1] for n in self.names], dtype=np.float64)
+        v = np.array([float(base[n]) for n in self.names])
+        if np.any(~(v > self.lo) | ~(v < self.hi)):
+            raise ValueError(f"ParamMap: base values must lie strictly inside their ranges, got {dict(zip(names, v))}")
+        T = lambda p: np.array([math.log(v) if log else math.log(v) - math.log1p(-v)   # noqa: E731 log / logit
+                                for v, log in zip(p, self.log_space)])
+        self.L, self.H, s0 = T(self.lo), T(self.hi), T(v)
+        r = (s0 - self.L) / (self.H - self.L)
+        self.u0 = np.log(r) - np.log1p(-r)
+        self.base = v
+
+    def transformed(self, delta, xp=np, consts=None):
+        """``s = L + (H - L) sigmoid(u0 + delta)`` (log or logit of each parameter); ``xp``: ``numpy`` or
+        ``torch`` (then ``consts = self.tensors(torch)``)."""
+        L, H, u0 = (self.L, self.H, self.u0) if consts is None else consts
+        return L + (H - L) * (0.5 + 0.5 * xp.tanh(0.5 * (u0 + delta)))
+
+    def tensors(self, torch):
+        """``(L, H, u0)`` as float64 tensors (for :meth:`transformed` in torch)."""
+        return tuple(torch.as_tensor(a, dtype=torch.float64) for a in (self.L, self.H, self.u0))
+
+    def physical(self, delta):
+        """numpy ``delta (..., n_par)`` -> the parameters in their units (g, deg/s^1.5, probabilities), clipped to
+        the ranges (which only rounding can leave)."""
+        s = self.transformed(np.asarray(delta, dtype=np.float64))
+        p = np.where(self.log_space, np.exp(s), 0.5 + 0.5 * np.tanh(0.5 * s))
+        return np.clip(p, self.lo, self.hi)
+
+
+def detector_names(n_modes):
+    """Names of :func:`detector_inputs`' columns."""
+    return tuple(f"mu_{m}" for m in ("cv", "ct", "high")[:n_modes]) + ("omega_over_20deg_s", "log10_omega_std_deg_s_over_3")
+
+
+def detector_inputs(mu, omega_rad_s, omega_std_rad_s, xp=np):
+    """The IMM's own detectors as network inputs ``(n, M + 2)``: the mode probabilities ``mu (n, M)``, the combined
+    turn rate over 20 deg/s, and ``log10`` of its standard deviation in deg/s (floored at 1e-3 deg/s) over 3
+    (``xp``: ``numpy`` or ``torch``, the arrays' kind)."""
+    sd = omega_std_rad_s / DEG
+    sd = xp.log10(xp.maximum(sd, xp.full_like(sd, STD_FLOOR_DEG_S))) / 3.0
+    return xp.concatenate([mu, (omega_rad_s / (OMEGA_SCALE_DEG_S * DEG))[:, None], sd[:, None]], 1)
+
+
+def initial_detectors(spec, n):
+    """The detectors at the track start: ``mu0``, turn rate 0, its std ``sqrt(mu0_ct) sigma_omega0``."""
+    is_ct, _, _, log_mu0 = spec.mode_arrays()
+    mu0 = np.exp(log_mu0)
+    std = math.sqrt(float(mu0[is_ct].sum())) * spec.sigma_omega0_deg_s * DEG
+    return detector_inputs(np.tile(mu0, (n, 1)), np.zeros(n), np.full(n, std))
+
+
+# ------------------------------------------------------------------------------------------------ the network
+def _sigmoid(v):
+    return 0.5 + 0.5 * np.tanh(0.5 * v)
+
+
+def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
+    """One step of torch's ``GRUCell`` (gates r, z, n): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``::
+
+        r = sigmoid(W_ir x + b_ir + W_hr h + b_hr);  z = sigmoid(W_iz x + b_iz + W_hz h + b_hz)
+        n = tanh(W_in x + b_in + r * (W_hn h + b_hn));  h' = (1 - z) * n + z * h
+    """
+    gi = x @ w_ih.T + b_ih
+    gh = h @ w_hh.T + b_hh
+    H = h.shape[1]
+    r = _sigmoid(gi[:, :H] + gh[:, :H])
+    z = _sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
+    n = np.tanh(gi[:, 2 * H:] + r * gh[:, 2 * H:])
+    return (1.0 - z) * n + z * h
+
+
+def weight_shapes(arch):
+    """``{name: shape}`` of the weights for ``arch`` (``input_size``: observation + detectors, ``hidden_size``,
+    ``head``: tanh layer widths, ``n_par``)."""
+    F, H = arch["input_size"], arch["hidden_size"]
+    s = {"gru.weight_ih": (3 * H, F), "gru.weight_hh": (3 * H, H), "gru.bias_ih": (3 * H,), "gru.bias_hh": (3 * H,)}
+    prev = H
+    for i, n in enumerate(arch["head"]):
+        s[f"head.{i}.weight"], s[f"head.{i}.bias"] = (n, prev), (n,)
+        prev = n
+    s["out.weight"], s["out.bias"] = (arch["n_par"], prev), (arch["n_par"],)
+    return s
+
+
+class LearnedIMM:
+    """A learned IMM checkpoint, ready to run (numpy GRU + the numba per-look IMM kernel).
+
+    Args:
+        weights: ``{name: array}`` (:func:`weight_shapes`). config: the ``policy.json`` dict. env_kwargs: the
+            ``RadarTrack-v0`` arguments (its observation's features, q levels and track start).
+    """
+
+    def __init__(self, weights, config, env_kwargs):
+        self.config, self.env_kwargs = config, dict(env_kwargs)
+        self.arch = config["architecture"]
+        self.w = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
+        want = weight_shapes(self.arch)
+        got = {k: v.shape for k, v in self.w.items()}
+        if got != {k: tuple(v) for k, v in want.items()}:
+            raise ValueError(f"learned IMM weights do not match the architecture {self.arch}: got {got}, need {want}")
+        self.spec = imm_cv_ct_spec_from_params(config["base_parameters"])
+        self.names = look_parameter_names(self.spec)
+        if tuple(config["parameters"]) != self.names:
+            raise ValueError(f"policy.json parameters {config['parameters']} != {list(self.names)}")
+        self.pmap = ParamMap(config["base_parameters"], self.names)
+        self.cfg = EnvConfig.from_kwargs(**_env_kwargs(self.env_kwargs))
+        self.feature_q_m_s2 = float(config["feature_q_g"]) * G0_M_S2
+        self.layout, _ = observation_layout(self.cfg)
+        n_in = len(self.cfg.features) + len(detector_names(self.spec.n_modes))
+        if self.arch["input_size"] != n_in or tuple(config["input_features"]) != tuple(self.cfg.features):
+            raise ValueError(f"policy.json: input_size {self.arch['input_size']} / features do not match the env's "
+                             f"{len(self.cfg.features)} features + {n_in - len(self.cfg.features)} detectors")
+
+    def offsets(self, inputs, h):
+        """``(delta (n, n_par), h' (n, H))`` of the network for ``inputs (n, F)``."""
+        w = self.w
+        h = gru_cell(inputs, h, w["gru.weight_ih"], w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"])
+        y = h
+        for i in range(len(self.arch["head"])):
+            y = np.tanh(y @ w[f"head.{i}.weight"].T + w[f"head.{i}.bias"])
+        return y @ w["out.weight"].T + w["out.bias"], h
+
+    def run(self, episodes, name="policy_imm_bp"):
+        """The learned IMM on ``episodes`` from the common track start: a :class:`baselines.trackers.TrackRun`
+        (x, P combined; extra series ``maneuver_probability``, ``turn_rate_deg_s`` and each parameter as
+        ``param_<name>``; declared = maneuver probability > 0.5)."""
+        episodes = list(episodes)
+        B = len(episodes)
+        tr = self.cfg.track_start.tracker(B)
+        out = tr.load(np.arange(B), episodes)
+        batch = stack_episodes(episodes)
+        K = batch.t_s.shape[1]
+        k0 = np.asarray(out.look_index, dtype=np.int64)
+        spec = self.spec
+        x5 = np.concatenate([tr.x, np.zeros((B, 1))], axis=1)
+        P5 = np.zeros((B, 5, 5))
+        P5[:, :4, :4] = tr.P
+        P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+        imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
+        x, P = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan)
+        rows0 = np.arange(B)
+        x[rows0, k0], P[rows0, k0] = tr.x, tr.P          # the start look, as every tracker records it
+        extra = {k: np.full((B, K), np.nan) for k in ["maneuver_probability", "turn_rate_deg_s"] +
+                 [f"param_{n}" for n in self.names]}
+        q_feat = self.feature_q_m_s2
+        # the observation after the start, as the env's reset gives it (q_prev: the warm-up q)
+        obs = self.layout.encode(out, np.full(B, self.cfg.track_start.warmup_q_m_s2)).astype(np.float64)
+        det = initial_detectors(spec, B)
+        h = np.zeros((B, self.arch["hidden_size"]))
+        active = imm.k < imm.n_looks
+        while active.any():
+            rows = np.flatnonzero(active)
+            delta, h[rows] = self.offsets(np.concatenate([obs[rows], det[rows]], 1), h[rows])
+            params = self.pmap.physical(delta)
+            o = imm.step(params, rows)
+            k = o.look_index
+            x[rows, k], P[rows, k] = o.x, o.P
+            extra["maneuver_probability"][rows, k] = 1.0 - o.mu[:, 0]
+            extra["turn_rate_deg_s"][rows, k] = np.degrees(o.omega_rad_s)
+            for i, n in enumerate(self.names):
+                extra[f"param_{n}"][rows, k] = params[:, i]
+            det[rows] = detector_inputs(o.mu, o.omega_rad_s, o.omega_std_rad_s)
+            f = tr.step(np.full(rows.size, q_feat), rows=None if rows.size == B else rows)
+            obs[rows] = self.layout.encode(f, np.full(rows.size, q_feat))
+            active[rows] = ~o.done
+        p_man = extra["maneuver_probability"]
+        declared = np.zeros((B, K), dtype=bool)
+        declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
+        return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared, extra=extra)
+
+
+def _env_kwargs(kw):
+    from agents.policies.bundle import _tuples
+    return _tuples(json.loads(json.dumps(kw)))
+
+
+def save_learned_imm(directory, weights, config, env_kwargs):
+    """Write a checkpoint folder (module docstring); returns the ``policy.npz`` path."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    cfg = {"format": FORMAT, "version": VERSION, **config}
+    np.savez(d / POLICY_FILE, **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
+    (d / "policy.json").write_text(json.dumps(cfg, indent=1, allow_nan=False))
+    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))
+    return d / POLICY_FILE
+
+
+def is_learned_imm_checkpoint(path):
+    """Whether ``path`` (a ``policy.npz`` or its folder) is a learned IMM checkpoint (its ``policy.json`` says so)."""
+    p = Path(path)
+    meta = (p if p.is_dir() else p.parent) / "policy.json"
+    try:
+        return json.loads(meta.read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def load_learned_imm(path) -> LearnedIMM:
+    """A :class:`LearnedIMM` from a checkpoint folder or its ``policy.npz`` (no pickle). ``ValueError`` for a
+    missing or malformed checkpoint, naming the file."""
+    p = Path(path)
+    d = p if p.is_dir() else p.parent
+    try:
+        config = json.loads((d / "policy.json").read_text())
+        env_kwargs = json.loads((d / "env_config.json").read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{d}: not a learned IMM checkpoint (policy.json / env_config.json: {e})") from None
+    if config.get("format") != FORMAT or config.get("version") != VERSION:
+        raise ValueError(f"{d / 'policy.json'}: format {config.get('format')!r} version {config.get('version')!r}, "
+                         f"need {FORMAT!r} version {VERSION}")
+    try:
+        with np.load(d / POLICY_FILE, allow_pickle=False) as z:
+            weights = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{d / POLICY_FILE}: cannot read the weights ({e})") from None
+    return LearnedIMM(weights, config, env_kwargs)
+
+
+def run_learned_imm(episodes, path, name="policy_imm_bp"):
+    """The learned IMM of checkpoint ``path`` on ``episodes`` (a :class:`baselines.trackers.TrackRun`)."""
+    return load_learned_imm(path).run(episodes, name)
+
+
+def run_bundled_learned_imm(episodes, cfg=None):
+    """The tracker ``policy_imm_bp``: the bundled seed (:data:`BUNDLED_LEARNED_IMM`). ``cfg`` is ignored: the
+    checkpoint carries its own track start and observation."""
+    if not BUNDLED_LEARNED_IMM.is_file():
+        raise ValueError(f"policy_imm_bp: no bundled learned IMM at {BUNDLED_LEARNED_IMM}")
+    return run_learned_imm(episodes, BUNDLED_LEARNED_IMM)
+

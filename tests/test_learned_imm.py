@@ -1,0 +1,173 @@
+"""The learned IMM (agents/policies/learned_imm.py, agents/training/learned_imm.py): at its initial weights it is
+imm_cv_ct with its tuned values (numpy inference and torch forward, to 1e-9, on drawn episodes of several
+scenario kinds); with other weights the numpy GRU + numba per-look kernel equals the torch forward in lockstep to
+1e-9 (estimate, covariance, mode probabilities, the parameters); every output inside its documented range; the
+checkpoint round trip without pickle; a tiny training run end to end."""
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from agents.evaluation.suites import draw_suite  # noqa: E402
+from agents.policies import learned_imm as LI  # noqa: E402
+from agents.training import learned_imm as LT  # noqa: E402
+from baselines import imm_cv_ct as I  # noqa: E402
+from baselines.registry import run_tracker  # noqa: E402
+
+TOL = 1e-9
+
+
+def _short(eps, n):
+    from test_torch_chain import _short as cut
+    return [cut(e, min(e.n_looks, n)) for e in eps]
+
+
+@pytest.fixture(scope="module")
+def setup():
+    hp = LT.load_hp(overrides={"compile": False, "hidden_size": 16})
+    env_kwargs, cfg = LT._env_config(hp)
+    return hp, env_kwargs, cfg
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    eps = (draw_suite("random", 4, seed=31) + draw_suite("random_radars", 3, seed=31)
+           + draw_suite("bizup2002", 1, seed=31) + draw_suite("adsb_dev", 1, seed=31)
+           + draw_suite("adrian_flower", 1, seed=31))
+    return _short(eps, 400)
+
+
+def _rel(a, b):
+    m = np.isfinite(b)
+    assert np.array_equal(m, np.isfinite(a))
+    return float(np.max(np.abs(a[m] - b[m]) / (np.abs(b[m]) + 1.0)))
+
+
+def _rel_P(a, b):
+    m = np.isfinite(b[..., 0, 0])
+    assert np.array_equal(m, np.isfinite(a[..., 0, 0]))
+    return float(np.max(np.abs(a[m] - b[m]) / np.abs(b[m]).max(axis=(-2, -1), keepdims=True)))
+
+
+def _torch_run(model, eps, cfg):
+    with torch.no_grad():
+        x, looks, rec = LT.forward_episodes(model, eps, cfg)
+    m = looks.scored_mask.numpy()
+    P = torch.stack([r.P for r, _ in rec]).permute(3, 0, 1, 2).numpy()
+    mu = torch.stack([torch.exp(r.modes.log_mu[model._inverse]) for r, _ in rec]).permute(2, 0, 1).numpy()
+    delta = torch.stack([d for _, d in rec], 1).numpy()
+    return x.numpy(), P, mu, delta, looks, m
+
+
+def test_initial_weights_are_imm_cv_ct(setup, episodes):
+    hp, env_kwargs, cfg = setup
+    model = LT.make_model(hp, cfg)
+    ref = run_tracker("imm_cv_ct", episodes)
+    got = model.inference(cfg, env_kwargs).run(episodes)
+    assert _rel(got.x, ref.x) < TOL and _rel_P(got.P, ref.P) < TOL
+    np.testing.assert_array_equal(got.start_index, ref.start_index)
+    np.testing.assert_allclose(got.extra["maneuver_probability"], ref.extra["maneuver_probability"], atol=TOL)
+    x, P, mu, delta, looks, m = _torch_run(model, episodes, cfg)
+    assert _rel(x[m], looks.align(ref.x).numpy()[m]) < TOL
+    assert _rel_P(P[m], looks.align(ref.P).numpy()[m]) < TOL
+    assert np.all(delta == 0.0)
+    vec = I.look_parameter_vector(I.tuned_imm_cv_ct_spec())
+    for i, n in enumerate(I.LOOK_PARAMS):
+        np.testing.assert_allclose(got.extra[f"param_{n}"][np.isfinite(got.extra[f"param_{n}"])], vec[i], rtol=1e-13)
+
+
+def test_numpy_inference_equals_the_torch_forward(setup, episodes):
+    hp, env_kwargs, cfg = setup
+    torch.manual_seed(3)
+    model = LT.make_model(hp, cfg)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.4 * torch.randn_like(p))
+    got = model.inference(cfg, env_kwargs).run(episodes)
+    x, P, mu, delta, looks, m = _torch_run(model, episodes, cfg)
+    ref = run_tracker("imm_cv_ct", episodes)
+    assert np.nanmax(np.abs(got.x - ref.x)) > 50.0                       # the parameters moved the estimate
+    errs = {"x": _rel(x[m], looks.align(got.x).numpy()[m]), "P": _rel_P(P[m], looks.align(got.P).numpy()[m]),
+            "mu_cv": float(np.max(np.abs(1.0 - mu[m][:, 0] - looks.align(got.extra["maneuver_probability"])
+                                         .numpy()[m])))}
+    phys = model.pmap.physical(delta[m])
+    for i, n in enumerate(model.names):
+        errs[n] = float(np.max(np.abs(phys[:, i] - looks.align(got.extra[f"param_{n}"]).numpy()[m]) / phys[:, i]))
+    assert max(errs.values()) < TOL, errs
+    spread = phys.max(0) / phys.min(0)
+    assert np.all(spread > 1.01), spread                                # the network does vary them per look
+
+
+def test_outputs_stay_inside_the_documented_ranges():
+    spec = I.tuned_imm_cv_ct_spec()
+    names = I.look_parameter_names(spec)
+    pm = LI.ParamMap({n: getattr(spec, n) for n in names}, names)
+    rng = np.random.default_rng(0)
+    delta = np.concatenate([rng.normal(0, 30, (500, len(names))), np.full((1, len(names)), 1e6),
+                            np.full((1, len(names)), -1e6), np.zeros((1, len(names)))])
+    p = pm.physical(delta)
+    assert np.all(p >= pm.lo) and np.all(p <= pm.hi)
+    np.testing.assert_allclose(p[-1], I.look_parameter_vector(spec), rtol=1e-14)
+    I.check_look_parameters(spec, p)                                     # the kernel accepts every one
+    # torch's transform is numpy's
+    s_t = pm.transformed(torch.as_tensor(delta), torch, pm.tensors(torch)).numpy()
+    np.testing.assert_allclose(s_t, pm.transformed(delta), rtol=1e-14, atol=1e-13)   # (s is O(10))
+    # monotone in each offset
+    d = np.zeros((50, len(names)))
+    d[:, 2] = np.linspace(-5, 5, 50)
+    assert np.all(np.diff(pm.physical(d)[:, 2]) > 0)
+
+
+def test_numpy_gru_equals_torch():
+    torch.manual_seed(0)
+    cell = torch.nn.GRUCell(7, 5, dtype=torch.float64)
+    x, h = torch.randn(11, 7, dtype=torch.float64), torch.randn(11, 5, dtype=torch.float64)
+    ref = cell(x, h).detach().numpy()
+    got = LI.gru_cell(x.numpy(), h.numpy(), *(getattr(cell, n).detach().numpy() for n in
+                                              ("weight_ih", "weight_hh", "bias_ih", "bias_hh")))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+
+
+def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
+    hp, env_kwargs, cfg = setup
+    torch.manual_seed(1)
+    model = LT.make_model(hp, cfg)
+    with torch.no_grad():
+        model.out.weight.add_(0.1 * torch.randn_like(model.out.weight))
+    path = model.save_checkpoint(tmp_path / "ck", cfg, env_kwargs)
+    assert LI.is_learned_imm_checkpoint(path) and not LI.is_learned_imm_checkpoint(tmp_path)
+    with np.load(path, allow_pickle=False) as z:
+        assert set(z.files) == set(LI.weight_shapes(model.architecture()))
+    eps = episodes[:3]
+    a = LI.run_learned_imm(eps, path)
+    b = model.inference(cfg, env_kwargs).run(eps)
+    np.testing.assert_array_equal(a.x, b.x)
+    meta = json.loads((tmp_path / "ck" / "policy.json").read_text())
+    meta["version"] = 99
+    (tmp_path / "ck" / "policy.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="version"):
+        LI.load_learned_imm(path)
+    with pytest.raises(ValueError, match="not a learned IMM checkpoint"):
+        LI.load_learned_imm(tmp_path / "nothing" / "policy.npz")
+
+
+def test_tiny_training_run(tmp_path, setup):
+    hp, _, _ = setup
+    hp = dict(hp, n_steps=2, batch_episodes=6, chunk_looks=8, eval_every=1, eval_scenarios={"random": 3},
+              select_on=["random"])
+    run = LT.train_learned_imm(hp, seed=5, out=tmp_path, name="t", progress=False, verbose=0)
+    s = json.loads((run / "summary.json").read_text())
+    assert s["steps"] == 2 and len(s["selection_history"]) == 3
+    assert s["selection_history"][0]["selection_ratio"] == pytest.approx(1.0, abs=1e-9)   # it starts as imm_cv_ct
+    assert LI.is_learned_imm_checkpoint(run / "best" / "policy.npz")
+    w = np.load(run / "policy.npz", allow_pickle=False)["out.weight"]
+    assert np.any(w != 0.0)                                                   # the output layer moved
+    with pytest.raises(ValueError, match="already exists"):
+        LT.train_learned_imm(hp, seed=5, out=tmp_path, name="t", progress=False, verbose=0)
+    with pytest.raises(ValueError, match="--seed"):
+        LT.train_learned_imm(hp, seed=900_000, out=tmp_path, progress=False, verbose=0)
+    with pytest.raises(ValueError, match="--hp hidden_size"):
+        LT.load_hp(overrides={"hidden_size": 0})
