@@ -203,13 +203,57 @@ class Tracker:
         self.bank = FeatureBank(self.B, n_adrian=n_adrian, window_kim_lee=window_kim_lee, fma_weight=fma_weight)
         self._cap = 0
         self._looks = np.zeros((self.B, 0, _k.W_LOOK))   # packed look rows (B, K_cap, W_LOOK)
-        self._flags = {"detected": np.zeros((self.B, 0), bool), "maneuvering": np.zeros((self.B, 0), bool)}
-        self.n_looks = np.zeros(self.B, dtype=np.int64)
-        self.k = np.zeros(self.B, dtype=np.int64)          # next look to process
-        self.t_last = np.zeros(self.B)
-        self.x = np.zeros((self.B, 4))
-        self.P = np.tile(np.eye(4), (self.B, 1, 1))
+        # packed state (kernels.S_* / I_*): x, P, t_last and k, n_looks are views into these two arrays
+        self._st = np.zeros((self.B, _k.W_ST))
+        self._st[:, _k.S_P:_k.S_P + 16] = np.eye(4).reshape(16)
+        self._it = np.zeros((self.B, _k.W_IT), dtype=np.int64)
         self.names = [""] * self.B
+
+    # views of the packed state (properties, so that a copy or a pickle of the tracker keeps them joined)
+    @property
+    def x(self):
+        """(B, 4) posterior means (a view: writes go to the state)."""
+        return self._st[:, _k.S_X:_k.S_X + 4]
+
+    @x.setter
+    def x(self, v):
+        self._st[:, _k.S_X:_k.S_X + 4] = v
+
+    @property
+    def P(self):
+        """(B, 4, 4) posterior covariances (a view)."""
+        return self._st[:, _k.S_P:_k.S_P + 16].reshape(self.B, 4, 4)
+
+    @P.setter
+    def P(self, v):
+        self._st[:, _k.S_P:_k.S_P + 16] = np.reshape(v, (self.B, 16))
+
+    @property
+    def t_last(self):
+        """(B,) time of the last processed look (a view)."""
+        return self._st[:, _k.S_T]
+
+    @t_last.setter
+    def t_last(self, v):
+        self._st[:, _k.S_T] = v
+
+    @property
+    def k(self):
+        """(B,) index of the next look to process (a view)."""
+        return self._it[:, _k.I_K]
+
+    @k.setter
+    def k(self, v):
+        self._it[:, _k.I_K] = v
+
+    @property
+    def n_looks(self):
+        """(B,) looks in each row's episode (a view)."""
+        return self._it[:, _k.I_N]
+
+    @n_looks.setter
+    def n_looks(self, v):
+        self._it[:, _k.I_N] = v
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K):
@@ -232,20 +276,21 @@ class Tracker:
                 raise ValueError(f"episode {e.name!r} has {e.n_looks} looks; the track start needs {need} "
                                  f"(two hits at looks {i1} and {i2}, then {self.warmup_scans} warm-up looks)")
         self._ensure_capacity(max(e.n_looks for e in episodes))
-        L, fl = self._looks, self._flags
+        L = self._looks
         for r, e in zip(rows, episodes):
             K = e.n_looks
             blk = _episode_rows(e)
             L[r, :K] = blk
             L[r, K:] = blk[-1]          # pad: repeat the last look, not detected
             L[r, K:, _k.L_DET] = 0.0
-            for f in fl:
-                fl[f][r, :K] = getattr(e, f)
-                fl[f][r, K:] = fl[f][r, K - 1]
-            fl["detected"][r, K:] = False
             self.n_looks[r], self.names[r] = K, e.name
+        return self._start(rows, i1s, i2s, known_input)
+
+    def _start(self, rows, i1s, i2s, known_input=False):
+        """Two-hit start of ``rows`` (episodes already in the look arrays) and the warm-up; the last warm-up
+        StepOutput."""
         b = self.bank
-        _k.k_track_start(rows, i1s, i2s, self.x, self.P, self.k, self.t_last, self._looks, b._f, b._i, b._b, b._par)
+        _k.k_track_start(rows, i1s, i2s, self._st, self._it, self._looks, b._f, b._i, b._b, b._par)
         return self._step(np.full(rows.size, self.warmup_q_m_s2), rows, False, None, known_input, self.warmup_scans)
 
     @staticmethod
@@ -281,8 +326,7 @@ class Tracker:
         o, ob, oi = self._out_blocks(n)
         b = self.bank
         status, i = _k.k_tracker_step(sel, all_rows, q, w, turn_rate_rad_s is not None, bool(known_input), MAX_Q_M_S2,
-                                      n_rep, self.x, self.P, self.k, self.t_last, self.n_looks, self._looks, b._f,
-                                      b._i, b._b, b._par, o, ob, oi)
+                                      n_rep, self._st, self._it, self._looks, b._f, b._i, b._b, b._par, o, ob, oi)
         if status == 1:
             raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {q[i]!r}")
         if status == 2:
@@ -298,15 +342,11 @@ class Tracker:
         self._ensure_capacity(src._cap)
         c = src._cap
         self._looks[dst_rows, :c] = src._looks[src_rows]
-        for f in self._flags:
-            self._flags[f][dst_rows, :c] = src._flags[f][src_rows]
         if self._cap > c:
             self._looks[dst_rows, c:] = src._looks[src_rows, -1:]
             self._looks[dst_rows, c:, _k.L_DET] = 0.0
-            self._flags["maneuvering"][dst_rows, c:] = src._flags["maneuvering"][src_rows, -1:]
-            self._flags["detected"][dst_rows, c:] = False
-        for name in ("n_looks", "k", "t_last", "x", "P"):
-            getattr(self, name)[dst_rows] = getattr(src, name)[src_rows]
+        self._st[dst_rows] = src._st[src_rows]
+        self._it[dst_rows] = src._it[src_rows]
         for d, s_ in zip(dst_rows, src_rows):
             self.names[d] = src.names[s_]
         self.bank.put_rows(dst_rows, src.bank.take_rows(src_rows))
@@ -318,29 +358,33 @@ class Tracker:
         if c:
             new[:, c:] = self._looks[:, -1:]
             new[:, c:, _k.L_DET] = 0.0
-        flags = {}
-        for f, a in self._flags.items():
-            b = np.zeros((self.B, K), bool)
-            b[:, :c] = a
-            if c and f != "detected":
-                b[:, c:] = a[:, -1:]
-            flags[f] = b
-        self._looks, self._flags, self._cap = new, flags, K
+        self._looks, self._cap = new, K
 
     def remaining_looks(self):
         """(B,) looks left to process per row."""
         return self.n_looks - self.k
 
+    _FLAG_COLUMNS = {"detected": _k.L_DET, "maneuvering": _k.L_MAN}
+
     def look_data(self, name):
-        """The stored (B, K_cap, ...) array of one look field (read-only view), e.g. ``"truth"``."""
-        if name in self._flags:
-            v = self._flags[name].view()
+        """The stored (B, K_cap, ...) array of one look field (read-only), e.g. ``"truth"``: a view of the packed
+        looks, or for the flags ``detected`` / ``maneuvering`` a bool array made from them."""
+        if name in self._FLAG_COLUMNS:
+            v = self._looks[:, :, self._FLAG_COLUMNS[name]] != 0.0
         else:
             c, tail = _k.LOOK_COLUMNS[name]
             w = int(np.prod(tail)) if tail else 1
             v = self._looks[:, :, c:c + w].reshape((self.B, self._cap) + tail)
         v.flags.writeable = False
         return v
+
+    def _look_field(self, rows, k, name):
+        """Field ``name`` of look ``k[i]`` of row ``rows[i]`` (n, ...), read from the packed looks."""
+        if name in self._FLAG_COLUMNS:
+            return self._looks[rows, k, self._FLAG_COLUMNS[name]] != 0.0
+        c, tail = _k.LOOK_COLUMNS[name]
+        w = int(np.prod(tail)) if tail else 1
+        return self._looks[rows, k, c:c + w].reshape((rows.size,) + tail)
 
     # ------------------------------------------------------------------------------------------ cursor
     # For filters that run beside the chain on the same looks (the IMM, re-initialisation, Konle's blend): they read
@@ -361,9 +405,9 @@ class Tracker:
         ``R_m2``, ``detected``, ``site_xy_m``, the measured polar values and the sigmas of the site that looked)."""
         rows = self._cursor_rows(rows)
         k = self.k[rows]
-        look = {f: self.look_data(f)[rows, k] for f in (self._CURSOR_FIELDS if fields is None else fields)}
+        look = {f: self._look_field(rows, k, f) for f in (self._CURSOR_FIELDS if fields is None else fields)}
         look["k"] = k
-        look["dt_s"] = self.look_data("t_s")[rows, k] - self.t_last[rows]
+        look["dt_s"] = self._looks[rows, k, _k.L_T] - self.t_last[rows]
         return look
 
     def advance(self, rows, x, P):
@@ -373,7 +417,7 @@ class Tracker:
         rows = self._cursor_rows(rows)
         k = self.k[rows]
         self.x[rows], self.P[rows] = x, P
-        self.t_last[rows] = self.look_data("t_s")[rows, k]
+        self.t_last[rows] = self._looks[rows, k, _k.L_T]
         self.k[rows] = k + 1
         return self.k[rows] >= self.n_looks[rows]
 
