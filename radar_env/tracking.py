@@ -265,6 +265,12 @@ class Tracker:
         :class:`StepOutput` for those rows (in the order of ``rows``). ``known_input`` is passed to the warm-up
         steps (only the clairvoyant bound uses it)."""
         rows = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
+        i1s, i2s = self._put(rows, episodes)
+        return self._start(rows, i1s, i2s, known_input)
+
+    def _put(self, rows, episodes):
+        """Check ``episodes`` for the track start and pack them into the looks of ``rows`` (int64 array); returns
+        the looks of their two hits ``(i1s, i2s)``."""
         episodes = list(episodes)
         if rows.size != len(episodes):
             raise ValueError(f"got {rows.size} rows and {len(episodes)} episodes")
@@ -284,7 +290,7 @@ class Tracker:
             L[r, K:] = blk[-1]          # pad: repeat the last look, not detected
             L[r, K:, _k.L_DET] = 0.0
             self.n_looks[r], self.names[r] = K, e.name
-        return self._start(rows, i1s, i2s, known_input)
+        return i1s, i2s
 
     def _start(self, rows, i1s, i2s, known_input=False):
         """Two-hit start of ``rows`` (episodes already in the look arrays) and the warm-up; the last warm-up
