@@ -1,6 +1,6 @@
 r"""Compiled kernels of RadarTrack-v0's step and reset: the tracking chain of :mod:`radar_env.kernels` (called, not
 copied), then the observation (:class:`radar_env.observation.ObservationLayout`'s scaling, frame stacking), the
-reward's position and track-loss terms and the end flags, written into preallocated arrays in one call for all rows.
+reward's position and track-loss terms and the end flags, written into the caller's arrays in one call for all rows.
 
 Layouts (module constants):
 
@@ -14,8 +14,7 @@ An observation entry of the plan is ``(special, column, divisor, kind, scale, lo
 feature column ``column`` of the step's feature row (:data:`radar_env.kernels.BANK_FLOAT_KEYS` +
 ``PREVIEW_KEYS``) over ``divisor``; the other ``SP_*`` values are the entries that are not a feature over a divisor
 (degrees and Kim & Lee's q of feature ``column``, dt, the position-std ratio from the range in ``column``, the
-previous q, the detection flag). ``kind`` is the scaling
-(``KIND_*``): linear ``x / scale``, ``log10(1 + max(x, 0)) / scale`` or the action map of q; NaN -> 0, then clipped
+previous q, the detection flag). ``kind`` is the scaling (``KIND_*``): linear ``x / scale``, ``log10(1 + max(x, 0)) / scale`` or the action map of q; NaN -> 0, then clipped
 to ``[low, high]`` and rounded to float32: the operations of the numpy scaling, in its order (bit for bit).
 """
 
@@ -189,7 +188,8 @@ def _emit(i, r, q, t_prev, lost_gate, ep, plan, st, it, looks, of, frames, new_e
         f[FO_P + a] = P[a]
     f[FO_Z], f[FO_Z + 1] = lk[_k.L_Z], lk[_k.L_Z + 1]
     f[FO_POLAR], f[FO_POLAR + 1], f[FO_POLAR + 2] = lk[_k.L_RANGE], lk[_k.L_BEAR], lk[_k.L_RDOT]
-    # reward terms (core._reward_terms): the error normalised by the plot noise at the true range, or in metres
+    # the reward's position and track-loss terms (its NEES term: core._Core._inconsistency): the error over the
+    # plot noise at the true range (observation.measurement_sigma_m), or in units of REWARD_SCALE_M
     tx, ty = lk[_k.L_TRUTH], lk[_k.L_TRUTH + 1]
     r_true = math.hypot(tx - lk[_k.L_SITE], ty - lk[_k.L_SITE + 1])
     err_m = math.hypot(x[0] - tx, x[1] - ty)

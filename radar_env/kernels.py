@@ -10,6 +10,8 @@ these kernels.
 Layouts (module constants, compile-time constants inside the kernels):
 
 * a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1);
+* the tracker's state ``st (B, W_ST)`` float (``S_*``: x, P, time of the last look) and ``it (B, W_IT)`` int
+  (``I_*``: next look, looks in the episode);
 * the feature-bank state of one track: ``bf`` (float: ring buffers, FMA, held values), ``bi`` (int: ring-buffer
   indices and counts), ``bb`` (bool: validity flags), offsets from :func:`bank_offsets`;
 * one step's output row ``O_*`` (float), ``OB_*`` (bool) and the feature columns ``FB_*`` (bank) / ``FP_*``

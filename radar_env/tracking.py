@@ -25,10 +25,13 @@ initialisation from the first two detected looks (position from the second, velo
 returns the output of the last warm-up look, from which the first choice of q is made.
 
 Implementation: the whole step (predict, update, features, preview) of all stepped rows is one compiled kernel
-call (:func:`radar_env.kernels.k_tracker_step`), and the track start with its warm-up another
-(:func:`radar_env.kernels.k_tracker_load`). The state lives in preallocated arrays that the kernels update in
-place: ``x (B,4)``, ``P (B,4,4)``, ``k``, ``t_last``, ``n_looks (B,)``, the feature bank's packed ring buffers and
-the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`).
+call (:func:`radar_env.kernels.k_tracker_step`), and the track start another (:func:`radar_env.kernels.k_track_start`,
+then the warm-up as ``k_tracker_step`` with ``n_rep = warmup_scans``). The state lives in preallocated arrays that
+the kernels update in place: ``x (B,4)``, ``P (B,4,4)`` and ``t_last`` are views of one packed float array, ``k`` and
+``n_looks (B,)`` of one int array (:data:`radar_env.kernels.S_X` ...), beside the feature bank's packed ring buffers
+and the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`). The
+env runs the same row step (:func:`radar_env.kernels._step_row`) from its own kernel
+(:mod:`radar_env.env_kernels`).
 """
 
 from __future__ import annotations
@@ -178,6 +181,22 @@ def _episode_rows(e):
     return blk
 
 
+def _packed(array, col, width, shape, doc):
+    """A property viewing ``width`` columns from ``col`` of the packed state array named ``array``, shaped
+    ``(B,) + shape``; assigning to it writes into the state."""
+    def get(self):
+        a = getattr(self, array)
+        return a[:, col] if width == 1 else a[:, col:col + width].reshape((self.B,) + shape)
+
+    def put(self, v):
+        a = getattr(self, array)
+        if width == 1:
+            a[:, col] = v
+        else:
+            a[:, col:col + width] = np.broadcast_to(v, (self.B,) + shape).reshape(self.B, width)
+    return property(get, put, doc=doc)
+
+
 class Tracker:
     """B Kalman tracks over B episodes, stepped together (see module docstring).
 
@@ -210,50 +229,11 @@ class Tracker:
         self.names = [""] * self.B
 
     # views of the packed state (properties, so that a copy or a pickle of the tracker keeps them joined)
-    @property
-    def x(self):
-        """(B, 4) posterior means (a view: writes go to the state)."""
-        return self._st[:, _k.S_X:_k.S_X + 4]
-
-    @x.setter
-    def x(self, v):
-        self._st[:, _k.S_X:_k.S_X + 4] = v
-
-    @property
-    def P(self):
-        """(B, 4, 4) posterior covariances (a view)."""
-        return self._st[:, _k.S_P:_k.S_P + 16].reshape(self.B, 4, 4)
-
-    @P.setter
-    def P(self, v):
-        self._st[:, _k.S_P:_k.S_P + 16] = np.reshape(v, (self.B, 16))
-
-    @property
-    def t_last(self):
-        """(B,) time of the last processed look (a view)."""
-        return self._st[:, _k.S_T]
-
-    @t_last.setter
-    def t_last(self, v):
-        self._st[:, _k.S_T] = v
-
-    @property
-    def k(self):
-        """(B,) index of the next look to process (a view)."""
-        return self._it[:, _k.I_K]
-
-    @k.setter
-    def k(self, v):
-        self._it[:, _k.I_K] = v
-
-    @property
-    def n_looks(self):
-        """(B,) looks in each row's episode (a view)."""
-        return self._it[:, _k.I_N]
-
-    @n_looks.setter
-    def n_looks(self, v):
-        self._it[:, _k.I_N] = v
+    x = _packed("_st", _k.S_X, 4, (4,), "(B, 4) posterior means (a view: writes go to the state).")
+    P = _packed("_st", _k.S_P, 16, (4, 4), "(B, 4, 4) posterior covariances (a view).")
+    t_last = _packed("_st", _k.S_T, 1, (), "(B,) time of the last processed look (a view).")
+    k = _packed("_it", _k.I_K, 1, (), "(B,) index of the next look to process (a view).")
+    n_looks = _packed("_it", _k.I_N, 1, (), "(B,) looks in each row's episode (a view).")
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K):
