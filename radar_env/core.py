@@ -233,11 +233,11 @@ class _Core:
 
     def reset(self, scenario=None):
         """Every row draws a new episode from its generator (prepared draws are discarded) and starts it. Returns
-        the output blocks ``(obs, fo, fs, bo)``."""
+        the output blocks ``(obs, fo, fs, bo)`` and the reward's inconsistency term (None unless weighted)."""
         self._ready[:] = False
         blocks = self._blocks()
         self._start(self._all, blocks, scenario)
-        return blocks
+        return blocks, (self._inconsistency(blocks[1]) if self.cfg.reward_nees_weight > 0 else None)
 
     def step(self, action):
         """One step of every row. Returns ``(blocks, reward, terminated, truncated, inconsistency, final)``: the

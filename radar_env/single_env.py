@@ -194,9 +194,9 @@ class RadarTrackEnv(gym.Env):
         check_known_keys("reset", options, ["scenario"], noun="option")
         core = self._core
         core.rngs[0] = self.np_random
-        obs, fo, fs, bo = core.reset(scenario)
+        (obs, fo, fs, bo), inc = core.reset(scenario)
         self._needs_reset = False
-        info = core.info_row(fo, fs, bo, core._inconsistency(fo) if self.config.reward_nees_weight > 0 else None)
+        info = core.info_row(fo, fs, bo, inc)
         self._history = [(info["estimate"], info["covariance"], info["q_m_s2"], info["time_s"], obs[0])]
         if self.render_mode == "human":
             self.render()

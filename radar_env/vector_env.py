@@ -92,9 +92,8 @@ class RadarTrackVectorEnv(VectorEnv):
         if seed is not None or not self._started:
             self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
         core = self._core
-        obs, fo, fs, bo = core.reset(scenario)
+        (obs, fo, fs, bo), inc = core.reset(scenario)
         self._started = True
-        inc = core._inconsistency(fo) if self.config.reward_nees_weight > 0 else None
         return obs, _with_masks(core.info(fo, fs, bo, inc))
 
     def step(self, actions):
