@@ -1,10 +1,10 @@
-"""Speed of RadarTrack-v0 beside CartPole-v1, measured in one run (issue 16's targets; the README's "Speed" table).
+"""Speed of RadarTrack-v0 beside CartPole-v1, measured in one run (issues 16 and 27; docs/speed.md's table).
 
 Run by hand from the repository root: ``python benchmarks/bench_env.py [--seconds 2] [--markdown]``. Measures
 
 (a) CartPole-v1 through ``gym.make`` and RadarTrack-v0 through ``gym.make`` (with its wrappers): steps/s, resets
     included, random actions drawn beforehand (so both pay the same per-step cost outside the env);
-(b) at each ``--num-envs`` N (default 1, 16, 256, 1024, 4096): Gymnasium's CartPole vector env
+(b) at each ``--num-envs`` N (default 1, 16, 64, 256, 1024, 4096): Gymnasium's CartPole vector env
     (``gym.make_vec("CartPole-v1", num_envs=N, vectorization_mode="vector_entry_point")``, i.e. its numpy
     ``CartPoleVectorEnv``) and RadarTrack's native vector env (``RadarTrackVectorEnv``): row-steps/s
     (N x vector steps / s), autoresets included;
@@ -24,7 +24,9 @@ Every rate is also given as seconds per 1M steps (as gymnax publishes) and as a 
 and, for the envs, at least until the resets in it reach ``--min-resets-per-env`` per env: RadarTrack's vector
 env draws the next episodes of finished rows in batches, so a window shorter than about one episode per row would
 miss most of that cost (or be dominated by one batch). ``--profile`` prints a cProfile of the single env and of
-the vector env at 256 envs; ``--markdown`` prints the results as the README's table.
+the vector env at 256 envs; ``--markdown`` prints the results as docs/speed.md's table. The report ends with
+issue 27's targets, each reached / NOT reached with the measured number, and gives the machine's load average at the
+start and the end (the rates are shared with whatever else runs: compare runs made under the same load).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from radar_env.episode import draw_episode  # noqa: E402
 from radar_env.tracking import Tracker  # noqa: E402
 from radar_env.units import G0_M_S2  # noqa: E402
 
-DEFAULT_NUM_ENVS = (1, 16, 256, 1024, 4096)
+DEFAULT_NUM_ENVS = (1, 16, 64, 256, 1024, 4096)
 _ACTION_POOL = 64     # random actions drawn beforehand and cycled through
 
 
@@ -197,12 +199,13 @@ env.step(env.action_space.sample())
 venv = RadarTrackVectorEnv(num_envs=4)
 venv.reset(seed=0)
 venv.step(venv.action_space.sample())
+t_env = time.perf_counter()
 M = 2
 kf.imm_step(np.log(np.full((1, M), 0.5)), np.zeros((1, M, 4)), np.tile(np.eye(4), (1, M, 1, 1)),
             np.log(np.full((M, M), 0.5)), np.tile(kf.transition_cv(1.0), (1, M, 1, 1)),
             np.tile(kf.process_noise(1.0, 1.0), (1, M, 1, 1)), np.zeros((1, 2)), np.eye(2)[None])
 t2 = time.perf_counter()
-print(json.dumps({"import_s": t1 - t0, "first_use_s": t2 - t1}))
+print(json.dumps({"import_s": t1 - t0, "first_use_s": t2 - t1, "env_first_use_s": t_env - t1}))
 """
 
 
@@ -339,9 +342,59 @@ def _rate_rows(results):
     return rows
 
 
+# issue 27's targets: (name, how to read it from the results, bound, "min" = at least / "max" = at most, unit)
+TARGETS = (
+    ("vector env row-steps/s at 1,024 envs", lambda r: _vector_rate(r, 1024), 1_000_000, "min", "/s"),
+    ("vector env row-steps/s at 64 envs", lambda r: _vector_rate(r, 64), 300_000, "min", "/s"),
+    ("memory at 1,024 envs (MB resident after 200 steps)",
+     lambda r: r["memory"]["rss_after_mb"] if r.get("memory", {}).get("num_envs") == 1024 else None, 500, "max",
+     " MB"),
+    ("single env / CartPole-v1", lambda r: r["single"].steps_per_s / r["cartpole_single"].steps_per_s, 0.25, "min",
+     "x"),
+    ("first use, empty numba cache (make, reset and step both envs, s)",
+     lambda r: r["import"]["cold"]["env_first_use_s"] if r.get("import") else None, 15.0, "max", " s"),
+)
+
+
+def _vector_rate(results, n):
+    pair = results["vector"].get(n)
+    return pair[0].steps_per_s if pair else None
+
+
+def target_rows(results):
+    """(target, value or None, bound, reached or None) for :data:`TARGETS`."""
+    out = []
+    for name, get, bound, kind, unit in TARGETS:
+        try:
+            v = get(results)
+        except (KeyError, TypeError):
+            v = None
+        ok = None if v is None else (v >= bound if kind == "min" else v <= bound)
+        out.append((name, v, bound, kind, unit, ok))
+    return out
+
+
+def _print_targets(results, markdown):
+    lines = []
+    for name, v, bound, kind, unit, ok in target_rows(results):
+        fmt = (lambda x: f"{x:,.0f}") if bound >= 100 else (lambda x: f"{x:.3g}")
+        got = "not measured" if v is None else f"{fmt(v)}{unit}"
+        verdict = "-" if ok is None else ("reached" if ok else "NOT reached")
+        lines.append((name, f"{'>=' if kind == 'min' else '<='} {fmt(bound)}{unit}", got, verdict))
+    if markdown:
+        print("\n| target | bound | measured | |\n|---|---:|---:|---|")
+        for ln in lines:
+            print("| " + " | ".join(ln) + " |")
+    else:
+        print("targets:")
+        for name, b, got, verdict in lines:
+            print(f"  {name:<64} {b:>14} {got:>16}  {verdict}")
+
+
 def print_text(results):
     print(f"RadarTrack-v0 speed, {results['date']}, commit {results['commit']}, {results['cpus']} CPUs, "
           + ", ".join(f"{k} {v}" for k, v in results["versions"].items()))
+    print(_load_text(results))
     hdr = f"{'case':<24} {'envs':>5} {'steps/s':>12} {'CartPole':>12} {'ratio':>8} {'s / 1M':>9} {'resets/env':>10}"
     print(hdr)
     for case, n, ours, cart in _rate_rows(results):
@@ -350,6 +403,15 @@ def print_text(results):
         print(f"{case:<24} {n:>5} {ours.steps_per_s:12,.0f} {cp} {ratio} {_per_1m(ours.steps_per_s):9.1f} "
               f"{ours.resets / n:10.2f}")
     _print_extras(results, markdown=False)
+    _print_targets(results, markdown=False)
+
+
+def _load_text(results):
+    a, b = results.get("load_start"), results.get("load_end")
+    if a is None or b is None:
+        return "machine load not recorded"
+    return (f"machine load (1-min average, {results['cpus']} CPUs) {a:.2f} at the start, {b:.2f} at the end: the rates "
+            "are shared with whatever else ran")
 
 
 def _print_extras(results, markdown):
@@ -366,8 +428,9 @@ def _print_extras(results, markdown):
     if results.get("import"):
         c, w = results["import"]["cold"], results["import"]["warm"]
         lines.append(f"first import + first use, empty numba cache: {c['import_s']:.2f} s + {c['first_use_s']:.2f} s "
-                     f"({c['wall_s']:.1f} s for the interpreter); cached: {w['import_s']:.2f} s + "
-                     f"{w['first_use_s']:.2f} s ({w['wall_s']:.1f} s)")
+                     f"(of which the envs {c.get('env_first_use_s', float('nan')):.2f} s, the rest a first IMM step; "
+                     f"{c['wall_s']:.1f} s for the interpreter, {c['cpu_s']:.1f} s CPU); cached: {w['import_s']:.2f} "
+                     f"s + {w['first_use_s']:.2f} s ({w['wall_s']:.1f} s)")
     if results.get("memory"):
         m = results["memory"]
         lines.append(f"vector env at {m['num_envs']} envs after 200 steps: {m['rss_after_mb']:.0f} MB resident "
@@ -381,7 +444,7 @@ def print_markdown(results):
     print(f"Measured {results['date']} (commit {results['commit']}, {results['cpus']} CPUs, Python {v['python']}, "
           f"numpy {v['numpy']}, gymnasium {v['gymnasium']}, numba {v['numba']}) with "
           f"`python benchmarks/bench_env.py {results['argv']}`; windows of at least {results['seconds']:g} s and "
-          f"{results['min_resets_per_env']:g} reset(s) per env.\n")
+          f"{results['min_resets_per_env']:g} reset(s) per env; {_load_text(results)}.\n")
     print("| case | envs | steps/s | CartPole steps/s | ratio to CartPole | s per 1M steps | resets per env |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for case, n, ours, cart in _rate_rows(results):
@@ -391,6 +454,7 @@ def print_markdown(results):
               f"{ours.resets / n:.2f} |")
     print()
     _print_extras(results, markdown=True)
+    _print_targets(results, markdown=True)
 
 
 def _shown_argv(argv):
@@ -435,7 +499,7 @@ def main(argv=None):
     ap.add_argument("--min-resets-per-env", type=_nonneg(float), default=1.0,
                     help="each env rate's window also lasts until this many resets per env were seen (default 1)")
     ap.add_argument("--num-envs", type=_num_envs, default=DEFAULT_NUM_ENVS,
-                    help="comma-separated vector sizes (default 1,16,256,1024,4096)")
+                    help="comma-separated vector sizes (default 1,16,64,256,1024,4096)")
     ap.add_argument("--memory-envs", type=_nonneg(int), default=1024,
                     help="vector size for the resident-memory check, 0 skips it (default 1024)")
     ap.add_argument("--skip-main-job", action="store_true", help="do not time the main job (a few minutes: once "
@@ -453,7 +517,8 @@ def main(argv=None):
 
     results = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
                "commit": _git_commit(), "cpus": os.cpu_count(), "versions": _versions(), "seconds": T,
-               "min_resets_per_env": mr, "argv": _shown_argv(sys.argv[1:] if argv is None else argv)}
+               "min_resets_per_env": mr, "argv": _shown_argv(sys.argv[1:] if argv is None else argv),
+               "load_start": os.getloadavg()[0]}
     if args.only_main_job:
         log("main job ...")
         results["main_job"] = main_job(args.main_job_runs)
@@ -480,6 +545,7 @@ def main(argv=None):
         log(f"memory at {args.memory_envs} envs ...")
         results["memory"] = dict(vector_memory(args.memory_envs), num_envs=args.memory_envs)
 
+    results["load_end"] = os.getloadavg()[0]
     (print_markdown if args.markdown else print_text)(results)
     if args.json:
         def enc(o):

@@ -1,8 +1,9 @@
 """The batched core of RadarTrack-v0 (no Gymnasium needed): N tracks stepped together.
 
-:class:`_Core` maps actions to q (:func:`actions_to_q_m_s2`), runs the one tracking chain
-(:class:`radar_env.tracking.Tracker`), and builds observations, rewards, end flags and the info dict. Episodes come
-from :func:`draw_setup_and_episode`. The single env and the vector env are thin Gymnasium layers over it.
+:class:`_Core` runs the env's step for all rows in one compiled call (:mod:`radar_env.env_kernels`: action -> q,
+the one tracking chain of :class:`radar_env.tracking.Tracker`, observation, reward, end flags) and builds the info
+dict from its output arrays. Episodes are drawn straight into the tracker (:class:`radar_env.draws.LookDrawer`).
+The single env and the vector env are thin Gymnasium layers over it.
 """
 
 from __future__ import annotations
@@ -11,9 +12,11 @@ import math
 
 import numpy as np
 
+from . import env_kernels as _ek
+from . import kernels as _k
 from .config import NEES_99_2DOF, REWARD_SCALE_M, EnvConfig, resolve_scenario
-from .draws import MAX_EPISODE_DRAWS, draw_episodes
-from .observation import FrameStack, ObservationLayout, measurement_sigma_m
+from .draws import MAX_EPISODE_DRAWS, LookDrawer, _keys, draw_episodes
+from .observation import FrameStack, ObservationLayout
 from .scenario import RADAR_PLACEMENT_RANGE_M
 from .units import G0_M_S2
 
@@ -39,64 +42,160 @@ def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=Env
 
 def actions_to_q_m_s2(actions, action_type, levels_m_s2):
     """The action map (no validation): discrete index -> ``levels_m_s2[i]``; continuous ``a`` in [-1, 1] (clipped)
-    -> ``q_min (q_max / q_min)^((a + 1) / 2)`` with ``q_min, q_max`` the first and last level. Returns (n,)."""
+    -> ``q_min (q_max / q_min)^((a + 1) / 2)`` with ``q_min, q_max`` the first and last level (the env's step
+    kernel computes the same, :func:`radar_env.env_kernels._continuous_q`). Returns (n,)."""
     levels = np.asarray(levels_m_s2, dtype=np.float64)
     a = np.asarray(actions)
     if action_type == "discrete":
         return levels[a.reshape(-1).astype(np.int64)]
-    a = np.clip(a.astype(np.float64).reshape(a.shape[0] if a.ndim else 1, -1)[:, 0], -1.0, 1.0)
-    l0, l1 = math.log10(levels[0]), math.log10(levels[-1])
-    return 10.0 ** (l0 + 0.5 * (a + 1.0) * (l1 - l0))
+    a = _k.c_array(a.astype(np.float64).reshape(a.shape[0] if a.ndim else 1, -1)[:, 0], np.float64)
+    q = np.empty(a.shape[0])
+    _ek.k_continuous_q(a, math.log10(levels[0]), math.log10(levels[-1]), q)
+    return q
+
+
+_NO_ROWS = np.zeros(0, dtype=np.int64)
+_NO_ACTIONS = np.zeros(0)
 
 
 # ---------------------------------------------------------------------------------------------------- batched core
 class _Core:
-    """N tracks stepped together: actions -> q -> tracking chain -> observation, reward, end flags, info."""
+    """N tracks stepped together: actions -> q -> tracking chain -> observation, reward, end flags, info; every
+    step one call of :func:`radar_env.env_kernels.k_env` (the reward's NEES term, when weighted, in numpy).
 
-    def __init__(self, n, cfg: EnvConfig):
-        self.n, self.cfg = n, cfg
+    Episodes are drawn straight into the tracker's looks (:class:`radar_env.draws.LookDrawer`; a pool through
+    :func:`radar_env.draws.draw_episodes`) and started by the same kernel. With
+    ``autoreset`` (the vector env) rows that end are restarted in the same ``step``: their next draw is prepared
+    from their own generator as before (all rows without one prepared take it when a finishing row has none), so
+    each row's episodes are those of a single env with its seed."""
+
+    def __init__(self, n, cfg: EnvConfig, autoreset=False, max_episode_steps=None):
+        self.n, self.cfg, self.autoreset = n, cfg, bool(autoreset)
         self.levels_m_s2 = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         self.q_min, self.q_max = self.levels_m_s2[0], self.levels_m_s2[-1]
         self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
-        self.frames = FrameStack(n, cfg.frame_stack, len(cfg.features)) if cfg.frame_stack > 1 else None
+        self.frames = FrameStack(n, cfg.frame_stack, len(cfg.features))   # the kernels stack into frames.buf
         self.tracker = cfg.track_start.tracker(n)
-        self.q_prev = np.full(n, cfg.warmup_q_g * G0_M_S2)
         self.rngs = [None] * n
         # resolved once: a CSV trajectory is read here, not at every reset
         self.scenario = resolve_scenario(cfg.scenario)
         self.random_config = cfg.random_scenario_config
-        # Refuse at build what would fail at a reset (a scenario too short for warmup_scans, a random_config whose
-        # flights never stay in range): one probe draw from a throwaway generator; no row's stream is touched.
-        draw_setup_and_episode(self.scenario, cfg.radar, self.random_config, np.random.default_rng(0),
-                               cfg.warmup_scans)
+        # Refuse at build what would fail at a reset (a fixed scenario too short for warmup_scans, a random
+        # configuration whose longest flight has too few looks) without drawing: LookDrawer checks it in closed
+        # form. A pool is probed with one draw from a throwaway generator; no row's stream is touched.
+        self.drawer = LookDrawer.of(self.scenario, cfg.radar, self.random_config, cfg.warmup_scans)
+        if self.drawer is None:
+            draw_setup_and_episode(self.scenario, cfg.radar, self.random_config, np.random.default_rng(0),
+                                   cfg.warmup_scans)
+        self.ep = self._env_parameters(max_episode_steps)
+        _ek.announce_compilation()
+        self.elapsed = np.zeros(n, dtype=np.int64)
+        self.obs_width = cfg.frame_stack * len(cfg.features)
+        self._all = np.arange(n, dtype=np.int64)
+        self._ready = np.zeros(n, dtype=bool)          # rows whose next draw is prepared (autoreset)
+        self._keys = np.zeros(n, dtype=np.uint64)      # ... as the drawer's key
+        self._prepared = [None] * n                    # ... or, for a pool, as an episode
+
+    def _env_parameters(self, max_episode_steps):
+        cfg, lay = self.cfg, self.layout
+        plan = lay.env_plan
+        head = np.zeros(_ek.W_EP_HEAD)
+        head[_ek.EP_ACT_CONT] = cfg.action_type == "continuous"
+        head[_ek.EP_NLEV] = self.levels_m_s2.size
+        head[_ek.EP_L0], head[_ek.EP_L1] = math.log10(self.levels_m_s2[0]), math.log10(self.levels_m_s2[-1])
+        head[_ek.EP_LQ0], head[_ek.EP_LQ1] = lay._lq0, lay._lq1
+        head[_ek.EP_WARM_Q], head[_ek.EP_WARM_N] = cfg.warmup_q_g * G0_M_S2, cfg.warmup_scans
+        head[_ek.EP_GATE], head[_ek.EP_CLIP] = cfg.track_loss_gate_sigma, cfg.reward_clip
+        head[_ek.EP_RKIND], head[_ek.EP_SCALE_M] = _ek.REWARD_KINDS[cfg.reward_type], REWARD_SCALE_M
+        head[_ek.EP_MAX_STEPS] = 0 if max_episode_steps is None else max_episode_steps
+        head[_ek.EP_NFEAT], head[_ek.EP_NSTACK] = plan.shape[0], cfg.frame_stack
+        head[_ek.EP_LEVELS] = _ek.W_EP_HEAD
+        head[_ek.EP_PLAN] = _ek.W_EP_HEAD + self.levels_m_s2.size
+        return np.concatenate([head, self.levels_m_s2, plan.reshape(-1)])
 
     # ---- actions
-    def action_to_q(self, action):
-        """Validated action -> (n,) q in m/s^2 (:func:`actions_to_q_m_s2`); ``ValueError`` naming the valid range.
-        Cheap checks on small arrays: this runs every step."""
+    def _actions(self, action):
+        """The actions as (n,) float64 for the kernels, after the checks that need the Python object (dtype,
+        size); the kernels check the values (:meth:`_refuse`)."""
         a = np.asarray(action)
         kind = a.dtype.kind
         # bool, complex, str and object actions are refused, not cast: True would silently be level 1
         if kind not in "iuf":
             raise ValueError(f"action must be {'integer' if self.cfg.action_type == 'discrete' else 'real'} "
                              f"number(s), got {action!r} (dtype {a.dtype})")
+        if a.size != self.n:
+            self._refuse(_ek.ST_ACTION_SHAPE, action)
+        return a.astype(np.float64).reshape(self.n)
+
+    def _refuse(self, status, action):
         n, n_levels = self.n, self.levels_m_s2.size
-        if self.cfg.action_type == "discrete":
-            if a.size != n or (kind == "f" and not (np.isfinite(a) & (a == np.round(a))).all()):
-                raise ValueError(f"action must be {n} integer(s) in [0, {n_levels - 1}], got {action!r}")
-            if kind == "f":   # range checked before the cast, which is undefined for huge values
-                ok = ((a >= 0) & (a < n_levels)).all()
-                ai = a.reshape(n).astype(np.int64)
-            else:
-                ai = a.reshape(n).astype(np.int64, copy=False)
-                ok = not (ai.view(np.uint64) >= n_levels).any()   # a negative index wraps to a huge unsigned one
-            if not ok:
-                raise ValueError(f"action must be in [0, {n_levels - 1}] (Discrete({n_levels})), got {action!r}")
-            return self.levels_m_s2[ai]
-        a = a.astype(np.float64).reshape(-1)
-        if a.size != n or not (np.abs(a) <= 1.0 + 1e-6).all():   # False for NaN / inf
+        if self.cfg.action_type == "continuous":
             raise ValueError(f"action must be {n} finite value(s) in [-1, 1] (Box(-1, 1)), got {action!r}")
-        return actions_to_q_m_s2(a, "continuous", self.levels_m_s2)
+        if status == _ek.ST_ACTION_SHAPE:
+            raise ValueError(f"action must be {n} integer(s) in [0, {n_levels - 1}], got {action!r}")
+        if status == _ek.ST_ACTION_RANGE:
+            raise ValueError(f"action must be in [0, {n_levels - 1}] (Discrete({n_levels})), got {action!r}")
+        raise ValueError("step() called on a row whose episode has ended; load a new episode first")
+
+    def action_to_q(self, action):
+        """Validated action -> (n,) q in m/s^2 (:func:`actions_to_q_m_s2`); ``ValueError`` naming the valid range."""
+        a = self._actions(action)
+        q = np.empty(self.n)
+        status = _ek.k_action_q(a, self.ep, q)
+        if status != _ek.ST_OK:
+            self._refuse(status, action)
+        return q
+
+    # ---- output blocks and info
+    def _blocks(self):
+        """Fresh output arrays of one call (the info holds views of them, so they are new every step)."""
+        n = self.n
+        return (np.empty((n, self.obs_width), dtype=np.float32), np.empty((n, _ek.W_FO)),
+                np.empty((_ek.W_FS, n)), np.empty((_ek.W_BO, n), dtype=bool))
+
+    def _kernel_args(self):
+        tr, b = self.tracker, self.tracker.bank
+        return (self.ep, tr._st, tr._it, tr._looks, b._f, b._i, b._b, b._par, self.frames.buf, self.elapsed)
+
+    def info(self, fo, fs, bo, inconsistency=None):
+        """The batched info dict: views of the output blocks."""
+        n = fo.shape[0]
+        terms = {"position_error": fs[_ek.FS_POS], "track_lost": fs[_ek.FS_LOST]}
+        if inconsistency is not None:
+            terms["inconsistency"] = inconsistency
+        q = fs[_ek.FS_Q]
+        return {
+            "truth": fo[:, _ek.FO_TRUTH:_ek.FO_TRUTH + 4],
+            "estimate": fo[:, _ek.FO_X:_ek.FO_X + 4],
+            "covariance": fo[:, _ek.FO_P:_ek.FO_P + 16].reshape(n, 4, 4),
+            "measurement": fo[:, _ek.FO_Z:_ek.FO_Z + 2],
+            "measurement_covariance": fo[:, _ek.FO_R:_ek.FO_R + 4].reshape(n, 2, 2),
+            "polar": fo[:, _ek.FO_POLAR:_ek.FO_POLAR + 3],
+            "q_m_s2": q,
+            "q": q,      # deprecated alias of q_m_s2 (m/s^2, not g), removed in the next version
+            "dt": fs[_ek.FS_DT],
+            "detected": bo[_ek.BO_DET],
+            "maneuvering": bo[_ek.BO_MAN],
+            "time_s": fs[_ek.FS_T],
+            "reward_terms": terms,
+            "track_lost": bo[_ek.BO_LOST],
+        }
+
+    def info_row(self, fo, fs, bo, inconsistency=None, i=0):
+        """Row ``i``'s info with Python scalars for the scalar keys and reward terms (the single env's info)."""
+        f = fo[i]
+        s = fs[:, i].tolist()
+        b = bo[:, i].tolist()
+        terms = {"position_error": s[_ek.FS_POS], "track_lost": s[_ek.FS_LOST]}
+        if inconsistency is not None:
+            terms["inconsistency"] = inconsistency[i].item()
+        q = s[_ek.FS_Q]
+        return {"truth": f[_ek.FO_TRUTH:_ek.FO_TRUTH + 4], "estimate": f[_ek.FO_X:_ek.FO_X + 4],
+                "covariance": f[_ek.FO_P:_ek.FO_P + 16].reshape(4, 4), "measurement": f[_ek.FO_Z:_ek.FO_Z + 2],
+                "measurement_covariance": f[_ek.FO_R:_ek.FO_R + 4].reshape(2, 2),
+                "polar": f[_ek.FO_POLAR:_ek.FO_POLAR + 3], "q_m_s2": q, "q": q, "dt": s[_ek.FS_DT],
+                "detected": b[_ek.BO_DET], "maneuvering": b[_ek.BO_MAN], "time_s": s[_ek.FS_T],
+                "reward_terms": terms, "track_lost": b[_ek.BO_LOST]}
 
     # ---- episodes
     def _draw(self, rows, scenario=None):
@@ -106,129 +205,81 @@ class _Core:
                               self.cfg.warmup_scans)
         return [batch.episode(i) for i in range(batch.batch_size)]
 
-    def enable_prefetch(self):
-        """Start the next episode of rows in batches (vector env autoreset). A row's next episode is drawn from its
-        own generator exactly as it would be at its reset, so results do not change; only the warm-up of many
-        rows runs as one batched call instead of one small call per finishing row."""
-        self._pf = self.cfg.track_start.tracker(self.n)
-        self._pf_ready = np.zeros(self.n, dtype=bool)
-        self._pf_out = None
-
-    def invalidate_prefetch(self):
-        if getattr(self, "_pf", None) is not None:
-            self._pf_ready[:] = False
-
-    def _next_from_prefetch(self, rows):
-        stale = np.flatnonzero(~self._pf_ready)
-        if np.any(~self._pf_ready[rows]):
-            out = self._pf.load(stale, self._draw(stale))
-            if self._pf_out is None:
-                self._pf_out = _empty_like_rows(out, self.n)
-            _scatter_rows(self._pf_out, out, stale)
-            self._pf_ready[stale] = True
-        self.tracker.copy_rows_from(self._pf, rows, rows)
-        self._pf_ready[rows] = False
-        return _gather_rows(self._pf_out, rows)
-
-    def reset_rows(self, rows, scenario=None, use_prefetch=False):
-        if use_prefetch and scenario is None and getattr(self, "_pf", None) is not None:
-            out = self._next_from_prefetch(rows)
+    def _start(self, rows, blocks, scenario=None, prepared=False):
+        """Draw (or take the prepared draws of) ``rows``, start their tracks and write their first observation and
+        info at their indices of ``blocks``."""
+        drawer = self.drawer
+        if scenario is not None:
+            drawer = LookDrawer.of(resolve_scenario(scenario), self.cfg.radar, self.random_config,
+                                   self.cfg.warmup_scans)
+        if drawer is not None:
+            keys = self._keys[rows] if prepared else _keys([self.rngs[r] for r in rows])
+            drawer.draw(keys, rows, self.tracker)
         else:
-            self.invalidate_prefetch()
-            out = self.tracker.load(rows, self._draw(rows, scenario))
-        self.q_prev[rows] = self.cfg.warmup_q_g * G0_M_S2
-        obs = self.layout.encode(out, self.q_prev[rows])
-        if self.frames is not None:
-            obs = self.frames.reset(rows, obs)
-        info = self._info(out, self._reward_terms(out, np.zeros(len(rows), dtype=bool), np.zeros(len(rows))))
-        return obs, info, out
+            eps = [self._prepared[r] for r in rows] if prepared else self._draw(rows, scenario)
+            self.tracker._put(rows, eps)
+        status = _ek.k_env(rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
+        if status != _ek.ST_OK:   # drawn episodes always start (the draws check it); a bug otherwise
+            raise RuntimeError(f"track start failed for row {rows[-1 - status]}")
+
+    def _prepare(self, rows):
+        """Take the next draw of ``rows`` from their generators now (the draw of their next reset)."""
+        if self.drawer is not None:
+            self._keys[rows] = _keys([self.rngs[r] for r in rows])
+        else:
+            for r, e in zip(rows, self._draw(rows)):
+                self._prepared[r] = e
+        self._ready[rows] = True
+
+    def reset(self, scenario=None):
+        """Every row draws a new episode from its generator (prepared draws are discarded) and starts it. Returns
+        the output blocks ``(obs, fo, fs, bo)`` and the reward's inconsistency term (None unless weighted)."""
+        self._ready[:] = False
+        blocks = self._blocks()
+        self._start(self._all, blocks, scenario)
+        return blocks, (self._inconsistency(blocks[1]) if self.cfg.reward_nees_weight > 0 else None)
 
     def step(self, action):
-        q = self.action_to_q(action)
-        out = self.tracker.step(q)
-        self.q_prev = q.copy()
-        err_norm = self._normalised_error(out)
-        lost = err_norm > self.cfg.track_loss_gate_sigma
-        remaining = (self.tracker.n_looks - self.tracker.k).astype(np.float64)
-        terms = self._reward_terms(out, lost, remaining, err_norm)
-        reward = sum(terms.values())
-        terminated = lost
-        truncated = out.done & ~lost
-        obs = self.layout.encode(out, q)
-        if self.frames is not None:
-            obs = self.frames.push(slice(None), obs)
-        info = self._info(out, terms)
-        info["track_lost"] = lost
-        return obs, reward, terminated, truncated, info
+        """One step of every row. Returns ``(blocks, reward, terminated, truncated, inconsistency, final)``: the
+        output blocks after any autoreset, and ``final = None`` or ``(rows, obs, fo, fs, bo, inconsistency)`` of
+        the rows that ended (their last step's outputs; the blocks then hold their new episodes' first)."""
+        a = self._actions(action)
+        blocks = obs, fo, fs, bo = self._blocks()
+        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
+        if status != _ek.ST_OK:
+            self._refuse(status, action)
+        inc = self._inconsistency(fo) if self.cfg.reward_nees_weight > 0 else None
+        if not self.autoreset or not bo[_ek.BO_DONE].any():
+            rew = fs[_ek.FS_REWARD] if inc is None else fs[_ek.FS_REWARD] + inc
+            return blocks, rew, bo[_ek.BO_LOST], bo[_ek.BO_TRUNC], inc, None
+        rows = np.flatnonzero(bo[_ek.BO_DONE])
+        final = (rows, obs[rows], fo.copy(), fs.copy(), bo.copy(), inc)
+        ffs, fbo = final[3], final[4]
+        rew = ffs[_ek.FS_REWARD] if inc is None else ffs[_ek.FS_REWARD] + inc
+        if np.any(~self._ready[rows]):
+            self._prepare(np.flatnonzero(~self._ready))
+        self._start(rows, blocks, prepared=True)
+        self._ready[rows] = False
+        if inc is not None:
+            inc = inc.copy()
+            inc[rows] = self._inconsistency(fo[rows])
+        return blocks, rew, fbo[_ek.BO_LOST], fbo[_ek.BO_TRUNC], inc, final
 
     # ---- reward
-    def _normalised_error(self, out):
-        r = np.hypot(out.truth[:, 0] - out.site_xy_m[:, 0], out.truth[:, 1] - out.site_xy_m[:, 1])
-        sig = measurement_sigma_m(r, out.range_noise_std_m, out.bearing_noise_std_rad)
-        return np.hypot(out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]) / sig
-
-    def _reward_terms(self, out, lost, remaining, err_norm=None):
-        e = self._normalised_error(out) if err_norm is None else err_norm
-        clip, kind = self.cfg.reward_clip, self.cfg.reward_type
-        if kind == "squared_m":   # metres, not sigmas: weighs looks as the pooled position RMSE does
-            e = np.hypot(out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]) / REWARD_SCALE_M
-        pos = -np.minimum(e if kind == "absolute" else e * e, clip)
-        terms = {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
-        w = self.cfg.reward_nees_weight
-        if w > 0:   # overconfidence: the position NEES beyond its 99 % bound, in units of the bound
-            d = out.x[:, :2] - out.truth[:, :2]
-            # a pivoted solve: the position block can be nearly singular (range vs cross-range at long range)
-            nees = np.einsum("ni,ni->n", d, np.linalg.solve(out.P[:, :2, :2], d[:, :, None])[:, :, 0])
-            terms["inconsistency"] = -w * np.minimum(np.maximum(nees / NEES_99_2DOF - 1.0, 0.0), clip)
-        return terms
-
-    # ---- info
-    def _info(self, out, terms):
-        # StepOutput arrays are new every step (gathered or computed), so the info can hold them without copies.
-        x = out.x
-        polar = np.empty((x.shape[0], 3))   # np.stack costs more than the three copies at these sizes
-        polar[:, 0], polar[:, 1], polar[:, 2] = out.range_m, out.bearing_rad, out.radial_velocity_m_s
-        return {
-            "truth": out.truth,
-            "estimate": x,
-            "covariance": out.P,
-            "measurement": out.z_m,
-            "measurement_covariance": out.R_m2,
-            "polar": polar,
-            "q_m_s2": out.q_m_s2,
-            "q": out.q_m_s2,      # deprecated alias of q_m_s2 (m/s^2, not g), removed in the next version
-            "dt": out.dt_s,
-            "detected": out.detected,
-            "maneuvering": out.maneuvering,
-            "time_s": out.t_s,
-            "reward_terms": dict(terms),
-            "track_lost": np.zeros(x.shape[0], dtype=bool),
-        }
-
-
-
-def _empty_like_rows(out, n):
-    """A StepOutput-shaped store with n rows."""
-    vals = []
-    for v in out:
-        if isinstance(v, dict):
-            vals.append({k: np.zeros((n,) + a.shape[1:], dtype=a.dtype) for k, a in v.items()})
-        else:
-            vals.append(np.zeros((n,) + v.shape[1:], dtype=v.dtype))
-    return type(out)(*vals)
-
-
-def _scatter_rows(store, out, rows):
-    for sv, v in zip(store, out):
-        if isinstance(v, dict):
-            for k, a in v.items():
-                sv[k][rows] = a
-        else:
-            sv[rows] = v
-
-
-def _gather_rows(store, rows):
-    return type(store)(*[({k: a[rows] for k, a in v.items()} if isinstance(v, dict) else v[rows]) for v in store])
+    def _inconsistency(self, fo):
+        """The reward's ``inconsistency`` term of ``reward_nees_weight`` (the other terms are in the step kernel:
+        ``position_error`` = -min(e^2 or e, reward_clip) with e the error over the plot noise at the true range, or
+        in units of REWARD_SCALE_M; ``track_lost`` = -reward_clip * (looks remaining) when e > the gate)."""
+        n = fo.shape[0]
+        x = fo[:, _ek.FO_X:_ek.FO_X + 4]
+        P = fo[:, _ek.FO_P:_ek.FO_P + 16].reshape(n, 4, 4)
+        truth = fo[:, _ek.FO_TRUTH:_ek.FO_TRUTH + 4]
+        w, clip = self.cfg.reward_nees_weight, self.cfg.reward_clip
+        # overconfidence: the position NEES beyond its 99 % bound, in units of the bound
+        d = x[:, :2] - truth[:, :2]
+        # a pivoted solve: the position block can be nearly singular (range vs cross-range at long range)
+        nees = np.einsum("ni,ni->n", d, np.linalg.solve(P[:, :2, :2], d[:, :, None])[:, :, 0])
+        return -w * np.minimum(np.maximum(nees / NEES_99_2DOF - 1.0, 0.0), clip)
 
 
 _SCALAR_INFO = frozenset(("q_m_s2", "q", "dt", "detected", "maneuvering", "track_lost", "time_s"))

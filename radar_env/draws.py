@@ -44,7 +44,6 @@ import math
 from collections import OrderedDict
 from functools import lru_cache
 
-import numba
 import numpy as np
 
 from .catalog import FAMILIES, RANDOM_RADAR_RANGES, Setup, family_config, make_setup
@@ -52,10 +51,12 @@ from .episode import EpisodeBatch
 from .radar import Radar, atc_radar, scan_schedule
 from .scenario import (RADAR_PLACEMENT_RANGE_M, RandomScenarioConfig, Segment, SegmentScenario,
                        TrajectoryScenario)
+from . import kernels as _k
+from numba import njit
 from .tracking import looks_for_track_start
 from .units import DEG, G0_M_S2, KNOT_M_S
 
-__all__ = ["draw_episodes", "random_scenarios", "MAX_EPISODE_DRAWS", "EpisodeDrawError"]
+__all__ = ["draw_episodes", "random_scenarios", "LookDrawer", "MAX_EPISODE_DRAWS", "EpisodeDrawError"]
 
 MAX_EPISODE_DRAWS = 200
 """Attempts per episode for one long enough for the track start (see the module docstring)."""
@@ -86,7 +87,7 @@ _INV53 = 2.0 ** -53
 _TWO_PI = 2.0 * math.pi
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _u01(key, c):
     """Uniform in [0, 1) at counter ``c`` (int) of the stream keyed ``key`` (uint64): SplitMix64."""
     z = key + (np.uint64(c) + _ONE) * _GAMMA
@@ -96,7 +97,7 @@ def _u01(key, c):
     return float(z >> _S11) * _INV53
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _normal_pair(key, c):
     """Two independent standard normals from counters ``c``, ``c + 1`` (Box-Muller)."""
     u1 = 1.0 - _u01(key, c)          # (0, 1]: log is finite
@@ -105,7 +106,7 @@ def _normal_pair(key, c):
     return r * math.cos(_TWO_PI * u2), r * math.sin(_TWO_PI * u2)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _normal(key, c):
     """The first normal of :func:`_normal_pair` alone (its sine is not needed)."""
     u1 = 1.0 - _u01(key, c)
@@ -117,7 +118,7 @@ def uniforms(key, start, n):
     return _uniforms(np.uint64(key), int(start), int(n))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _uniforms(key, start, n):
     out = np.empty(n)
     for i in range(n):
@@ -126,7 +127,7 @@ def _uniforms(key, start, n):
 
 
 # ---------------------------------------------------------------------------------------------------- kinematics
-@numba.njit(cache=True)
+@njit(cache=True)
 def _sinc(x):
     if x == 0.0:
         return 1.0
@@ -134,7 +135,7 @@ def _sinc(x):
     return math.sin(y) / y
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _propagate(x0, w, a, tau, out):
     """SegmentScenario._propagate for one segment: state ``tau`` s into a segment starting at ``x0``."""
     if a != 0.0:
@@ -158,7 +159,7 @@ def _propagate(x0, w, a, tau, out):
     out[3] = -sn * vx + cs * vy
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _segment_starts(x0, seg, nseg, starts, t0):
     """Start time and state of every segment (SegmentScenario.__init__); returns the duration."""
     t = 0.0
@@ -166,36 +167,41 @@ def _segment_starts(x0, seg, nseg, starts, t0):
     tmp = np.empty(4)
     for i in range(nseg):
         t0[i] = t
-        starts[i, :] = x
+        for a in range(4):   # element loops, not slice assignment: its shape check compiles an error formatter
+            starts[i, a] = x[a]
         _propagate(x, seg[i, 1], seg[i, 2], seg[i, 0], tmp)
-        x[:] = tmp
+        for a in range(4):
+            x[a] = tmp[a]
         t += seg[i, 0]
     return t
 
 
-@numba.njit(cache=True)
-def _truth_row(t, K, seg, nseg, starts, t0, dur, truth, accel, turn, man):
-    """Truth at sorted times ``t[:K]`` (SegmentScenario.states_at / accelerations_at / turn_rates_at /
+@njit(cache=True)
+def _truth_look(tk, i, seg, nseg, starts, t0, dur, x):
+    """Truth at time ``tk`` into ``x`` (4,), searching the segment from ``i`` on (times sorted). Returns (segment,
+    accel x, accel y, turn rate, maneuvering) (SegmentScenario.states_at / accelerations_at / turn_rates_at /
     maneuvering_at)."""
+    tk = min(max(tk, 0.0), dur)
+    while i + 1 < nseg and t0[i + 1] <= tk:
+        i += 1
+    w, a = seg[i, 1], seg[i, 2]
+    _propagate(starts[i], w, a, tk - t0[i], x)
+    s = math.hypot(x[2], x[3])
+    ax = w * x[3] + a * x[2] / s
+    ay = -w * x[2] + a * x[3] / s
+    return i, ax, ay, w, math.hypot(ax, ay) > _MANEUVER_THRESHOLD_M_S2
+
+
+@njit(cache=True)
+def _truth_row(t, K, seg, nseg, starts, t0, dur, truth, accel, turn, man):
+    """Truth at sorted times ``t[:K]`` (:func:`_truth_look` per look)."""
     i = 0
-    x = np.empty(4)
     for k in range(K):
-        tk = min(max(t[k], 0.0), dur)
-        while i + 1 < nseg and t0[i + 1] <= tk:
-            i += 1
-        w, a = seg[i, 1], seg[i, 2]
-        _propagate(starts[i], w, a, tk - t0[i], x)
-        truth[k, :] = x
-        s = math.hypot(x[2], x[3])
-        ax = w * x[3] + a * x[2] / s
-        ay = -w * x[2] + a * x[3] / s
-        accel[k, 0], accel[k, 1] = ax, ay
-        turn[k] = w
-        man[k] = math.hypot(ax, ay) > _MANEUVER_THRESHOLD_M_S2
+        i, accel[k, 0], accel[k, 1], turn[k], man[k] = _truth_look(t[k], i, seg, nseg, starts, t0, dur, truth[k])
 
 
 # ---------------------------------------------------------------------------------------------------- random flights
-@numba.njit(cache=True)
+@njit(cache=True)
 def _draw_segments(key, c, cf, x0, seg):
     """One flight (random_scenario's draws, same rules as scenario._draw_segments). Returns (nseg, counter)."""
     speed = cf[0] + (cf[1] - cf[0]) * _u01(key, c)
@@ -239,19 +245,19 @@ def _draw_segments(key, c, cf, x0, seg):
     return n, c
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _grid_size(dur):
     n_grid = int(math.ceil((dur + 1e-9) / _GRID_DT_S))
     extra = (n_grid - 1) * _GRID_DT_S < dur
     return n_grid, extra
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _grid_time(k, n_grid, dur):
     return dur if k >= n_grid else k * _GRID_DT_S
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _first_exit(grid_xy, G, sx, sy, lo, hi, step_m):
     """First grid index whose point lies outside the annulus [lo, hi] around (sx, sy) (G if none). The distance
     changes by at most ``step_m`` between grid points (the flight's top speed times the spacing), so the points a
@@ -266,7 +272,7 @@ def _first_exit(grid_xy, G, sx, sy, lo, hi, step_m):
     return G
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _place_on_grid(key, c, n_cand, lo, hi, grid_xy, n_grid, extra, dur, sites, step_m):
     """place_radar_site on grid positions: candidates (distance uniform in [lo, hi], direction uniform) around the
     first point; the one whose annulus holds the flight longest wins (ties: first drawn). Returns (site x, y,
@@ -286,7 +292,7 @@ def _place_on_grid(key, c, n_cand, lo, hi, grid_xy, n_grid, extra, dur, sites, s
     return sites[best, 0], sites[best, 1], until, c + 2 * n_cand
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _place_on_flight(key, c, n_cand, lo, hi, seg, nseg, starts, t0, dur, sites):
     """place_radar_site for a segment flight (grid positions evaluated exactly, then :func:`_place_on_grid`)."""
     n_grid, extra = _grid_size(dur)
@@ -309,12 +315,12 @@ def _place_on_flight(key, c, n_cand, lo, hi, seg, nseg, starts, t0, dur, sites):
 
 
 # ---------------------------------------------------------------------------------------------------- radars, looks
-@numba.njit(cache=True)
+@njit(cache=True)
 def _logu(key, c, lo, hi):
     return math.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * _u01(key, c))
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _random_site(key, c, rr, x, y, first_site, out):
     """catalog.random_radar's site draws (period, range, bearing, radial-velocity noise, Pd, first scan)."""
     per = _logu(key, c, rr[0], rr[1])
@@ -328,7 +334,7 @@ def _random_site(key, c, rr, x, y, first_site, out):
     return c + 6
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _n_looks(sites, ns, dur):
     K = 0
     for i in range(ns):
@@ -338,7 +344,7 @@ def _n_looks(sites, ns, dur):
     return K
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _schedule(sites, ns, dur, t, idx):
     """radar.scan_schedule: looks of every site in [0, dur], sorted by time (ties: lower site first)."""
     cnt = np.zeros(ns, dtype=np.int64)
@@ -360,7 +366,7 @@ def _schedule(sites, ns, dur, t, idx):
     return K
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _detections_ok(key, c, t, idx, sites, K, warmup):
     """Whether the looks' detections (uniform ``c + k`` < Pd of look k) allow the track start."""
     i1 = -1
@@ -373,57 +379,128 @@ def _detections_ok(key, c, t, idx, sites, K, warmup):
     return False
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
+def _measure_look(key, c, K, k, site, tx, ty, tvx, tvy):
+    """draw_episode's plot of look ``k`` (of K) by ``site`` (a site-table row) of the truth ``(tx, ty, tvx, tvy)``,
+    from counters ``c + k`` (detection) and ``c + K + 4k ...`` (noise). Returns (detected, range, bearing, radial
+    velocity, z x, z y, R00, R01, R11); the plot values are NaN where missed."""
+    sx, sy = site[_SX], site[_SY]
+    sr, sb, sv = site[_SR], site[_SB], site[_SV]
+    dx, dy = tx - sx, ty - sy
+    r = math.hypot(dx, dy)
+    br = math.atan2(dx, dy)
+    rd = (dx * tvx + dy * tvy) / (r if r > 0 else 1.0)
+    d = _u01(key, c + k) < site[_PD]
+    e0, e1 = _normal_pair(key, c + K + 4 * k)
+    e2 = _normal(key, c + K + 4 * k + 2)
+    if not d:
+        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    rm = max(r + site[_RB] + sr * e0, 0.0)
+    bm = br + site[_BB] + sb * e1
+    bm = math.pi - ((math.pi - bm) % _TWO_PI)      # wrap to (-pi, pi]
+    sn, cs = math.sin(bm), math.cos(bm)
+    rsb = rm * sb
+    sr2, cb2 = sr * sr, rsb * rsb
+    return (True, rm, bm, rd + sv * e2, sx + rm * sn, sy + rm * cs, sr2 * sn * sn + cb2 * cs * cs,
+            (sr2 - cb2) * sn * cs, sr2 * cs * cs + cb2 * sn * sn)
+
+
+@njit(cache=True)
 def _measure_row(b, key, c, K, Kmax, sites, t_s, site_index, site_xy, truth, accel, turn, man, det, rng_m, brg,
                  rdot_m, z, R, sr_o, sb_o, sv_o, valid):
-    """draw_episode's plots for row ``b`` (truth and schedule already in the row), then the padding of
-    stack_episodes (repeat the last look, not detected, NaN plots)."""
+    """draw_episode's plots for row ``b`` (truth and schedule already in the row; :func:`_measure_look`), then the
+    padding of stack_episodes (repeat the last look, not detected, NaN plots)."""
     for k in range(K):
         s = site_index[b, k]
-        sx, sy = sites[s, _SX], sites[s, _SY]
-        sr, sb, sv = sites[s, _SR], sites[s, _SB], sites[s, _SV]
-        site_xy[b, k, 0], site_xy[b, k, 1] = sx, sy
-        sr_o[b, k], sb_o[b, k], sv_o[b, k] = sr, sb, sv
-        dx, dy = truth[b, k, 0] - sx, truth[b, k, 1] - sy
-        r = math.hypot(dx, dy)
-        br = math.atan2(dx, dy)
-        rd = (dx * truth[b, k, 2] + dy * truth[b, k, 3]) / (r if r > 0 else 1.0)
-        d = _u01(key, c + k) < sites[s, _PD]
-        e0, e1 = _normal_pair(key, c + K + 4 * k)
-        e2 = _normal(key, c + K + 4 * k + 2)
+        site = sites[s]
+        site_xy[b, k, 0], site_xy[b, k, 1] = site[_SX], site[_SY]
+        sr_o[b, k], sb_o[b, k], sv_o[b, k] = site[_SR], site[_SB], site[_SV]
         valid[b, k] = True
-        det[b, k] = d
-        if not d:
-            rng_m[b, k] = brg[b, k] = rdot_m[b, k] = np.nan
-            z[b, k, 0] = z[b, k, 1] = np.nan
-            R[b, k, 0, 0] = R[b, k, 0, 1] = R[b, k, 1, 0] = R[b, k, 1, 1] = np.nan
-            continue
-        rm = max(r + sites[s, _RB] + sr * e0, 0.0)
-        bm = br + sites[s, _BB] + sb * e1
-        bm = math.pi - ((math.pi - bm) % _TWO_PI)      # wrap to (-pi, pi]
-        rng_m[b, k], brg[b, k], rdot_m[b, k] = rm, bm, rd + sv * e2
-        sn, cs = math.sin(bm), math.cos(bm)
-        z[b, k, 0], z[b, k, 1] = sx + rm * sn, sy + rm * cs
-        rsb = rm * sb
-        sr2, cb2 = sr * sr, rsb * rsb
-        R[b, k, 0, 0] = sr2 * sn * sn + cb2 * cs * cs
-        R[b, k, 1, 1] = sr2 * cs * cs + cb2 * sn * sn
-        R[b, k, 0, 1] = R[b, k, 1, 0] = (sr2 - cb2) * sn * cs
+        (det[b, k], rng_m[b, k], brg[b, k], rdot_m[b, k], z[b, k, 0], z[b, k, 1], R[b, k, 0, 0], R[b, k, 0, 1],
+         R[b, k, 1, 1]) = _measure_look(key, c, K, k, site, truth[b, k, 0], truth[b, k, 1], truth[b, k, 2],
+                                        truth[b, k, 3])
+        R[b, k, 1, 0] = R[b, k, 0, 1]
     for k in range(K, Kmax):
         t_s[b, k], site_index[b, k] = t_s[b, K - 1], site_index[b, K - 1]
-        site_xy[b, k, :] = site_xy[b, K - 1, :]
-        truth[b, k, :] = truth[b, K - 1, :]
-        accel[b, k, :] = accel[b, K - 1, :]
+        for a in range(4):
+            truth[b, k, a] = truth[b, K - 1, a]
+        for a in range(2):
+            site_xy[b, k, a] = site_xy[b, K - 1, a]
+            accel[b, k, a] = accel[b, K - 1, a]
+            z[b, k, a] = np.nan
+            R[b, k, a, 0] = R[b, k, a, 1] = np.nan
         turn[b, k] = turn[b, K - 1]
         sr_o[b, k], sb_o[b, k], sv_o[b, k] = sr_o[b, K - 1], sb_o[b, K - 1], sv_o[b, K - 1]
         man[b, k] = det[b, k] = valid[b, k] = False
         rng_m[b, k] = brg[b, k] = rdot_m[b, k] = np.nan
-        z[b, k, :] = np.nan
-        R[b, k, :, :] = np.nan
+
+
+@njit(cache=True)
+def _measure_looks(r, key, c, K, sites, idx, looks):
+    """The plots of row ``r`` straight into the tracker's packed looks ``looks (B, K_cap, W_LOOK)`` (time, truth
+    and its acceleration, turn rate and maneuvering flag already there; :func:`_measure_look`), then the tracker's
+    padding (the last look repeated, not detected)."""
+    for k in range(K):
+        lk = looks[r, k]
+        site = sites[idx[k]]
+        lk[_k.L_SITE], lk[_k.L_SITE + 1] = site[_SX], site[_SY]
+        lk[_k.L_RSTD], lk[_k.L_BSTD], lk[_k.L_RDSTD] = site[_SR], site[_SB], site[_SV]
+        tr = _k.L_TRUTH
+        (d, lk[_k.L_RANGE], lk[_k.L_BEAR], lk[_k.L_RDOT], lk[_k.L_Z], lk[_k.L_Z + 1], lk[_k.L_R], lk[_k.L_R + 1],
+         lk[_k.L_R + 3]) = _measure_look(key, c, K, k, site, lk[tr], lk[tr + 1], lk[tr + 2], lk[tr + 3])
+        lk[_k.L_R + 2] = lk[_k.L_R + 1]
+        lk[_k.L_DET] = 1.0 if d else 0.0
+    for k in range(K, looks.shape[1]):
+        for col in range(looks.shape[2]):
+            looks[r, k, col] = looks[r, K - 1, col]
+        looks[r, k, _k.L_DET] = 0.0
+
+
+@njit(cache=True)
+def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, looks, it):
+    """The accepted random draws (:func:`_random_rows`) of ``rows`` written straight into a tracker's packed looks
+    and look counts (``it[:, I_N]``): schedule, truth, plots, padding."""
+    smax = segs.shape[1]
+    starts = np.empty((smax, 4))
+    t0 = np.empty(smax)
+    t = np.empty(looks.shape[1])
+    idx = np.empty(looks.shape[1], dtype=np.int64)
+    for j in range(rows.size):
+        r = rows[j]
+        dur = _segment_starts(x0[j], segs[j], nseg[j], starts, t0)
+        _schedule(sites[j], nsites[j], dur, t, idx)
+        i = 0
+        for k in range(K[j]):
+            lk = looks[r, k]
+            lk[_k.L_T] = t[k]
+            i, lk[_k.L_TACC], lk[_k.L_TACC + 1], lk[_k.L_TTURN], man = _truth_look(
+                t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_k.L_TRUTH:_k.L_TRUTH + 4])
+            lk[_k.L_MAN] = 1.0 if man else 0.0
+        _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks)
+        it[r, _k.I_N] = K[j]
+
+
+@njit(cache=True)
+def k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth0, accel0, turn0, man0, looks, it):
+    """The accepted draws of a fixed scenario (:func:`_fixed_rows`) of ``rows`` written straight into a tracker's
+    packed looks and look counts."""
+    K = t.size
+    for j in range(rows.size):
+        r = rows[j]
+        for k in range(K):
+            lk = looks[r, k]
+            lk[_k.L_T] = t[k]
+            for a in range(4):
+                lk[_k.L_TRUTH + a] = truth0[k, a]
+            lk[_k.L_TACC], lk[_k.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
+            lk[_k.L_TTURN] = turn0[k]
+            lk[_k.L_MAN] = 1.0 if man0[k] else 0.0
+        _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks)
+        it[r, _k.I_N] = K
 
 
 # ---------------------------------------------------------------------------------------------------- random kernels
-@numba.njit(cache=True)
+@njit(cache=True)
 def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, smax):
     """Phase 1 for the random scenarios: per row the accepted flight, radar and look counter (no look arrays).
 
@@ -472,7 +549,8 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
             if mode == 2:
                 n_s = user_sites.shape[0]
                 for i in range(n_s):
-                    st[i, :] = user_sites[i, :]
+                    for col in range(_NCOL):   # (c is the stream counter)
+                        st[i, col] = user_sites[i, col]
                     st[i, _SX] = user_sites[i, _SX] + (sx - user_sites[0, _SX])
                     st[i, _SY] = user_sites[i, _SY] + (sy - user_sites[0, _SY])
             elif mode == 1 and _u01(key, c) < cf[19]:
@@ -489,7 +567,8 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
             else:
                 if mode == 1:
                     c += 1
-                st[0, :] = user_sites[0, :]   # the ATC site (mode 0, or mode 1's ATC branch)
+                for col in range(_NCOL):   # the ATC site (mode 0, or mode 1's ATC branch)
+                    st[0, col] = user_sites[0, col]
                 st[0, _SX], st[0, _SY] = sx, sy
                 n_s = 1
             nsites[b] = n_s
@@ -504,7 +583,7 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
     return x0, segs, nseg, sites, nsites, K, cdet, status
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fill_random(keys, x0, segs, nseg, sites, nsites, K, cdet, Kmax, out):
     (t_s, site_index, site_xy, truth, accel, turn, man, det, rng_m, brg, rdot_m, z, R, sr_o, sb_o, sv_o,
      valid) = out
@@ -520,7 +599,7 @@ def _fill_random(keys, x0, segs, nseg, sites, nsites, K, cdet, Kmax, out):
 
 
 # ---------------------------------------------------------------------------------------------------- fixed kernel
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fixed_rows(keys, t, idx, base_sites, place, grid_xy, n_grid, extra, dur, lo, hi, n_cand, warmup, max_draws):
     """Per row: the placement (if ``place``: the first site moved there, the others by the same offset) and the
     accepted look counter of a fixed scenario."""
@@ -534,7 +613,9 @@ def _fixed_rows(keys, t, idx, base_sites, place, grid_xy, n_grid, extra, dur, lo
     for b in range(B):
         key = keys[b]
         c = 0
-        sites[b, :, :] = base_sites
+        for i in range(ns):
+            for col in range(_NCOL):
+                sites[b, i, col] = base_sites[i, col]
         for _ in range(max_draws):
             if place:
                 sx, sy, _u, c = _place_on_grid(key, c, n_cand, lo, hi, grid_xy, n_grid, extra, dur, cand, 0.0)
@@ -548,18 +629,17 @@ def _fixed_rows(keys, t, idx, base_sites, place, grid_xy, n_grid, extra, dur, lo
     return sites, cdet, status
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fill_fixed(keys, sites, cdet, t, idx, truth0, accel0, turn0, man0, out):
     (t_s, site_index, site_xy, truth, accel, turn, man, det, rng_m, brg, rdot_m, z, R, sr_o, sb_o, sv_o,
      valid) = out
     K = t.size
     for b in range(keys.size):
-        t_s[b, :] = t
-        site_index[b, :] = idx
-        truth[b, :, :] = truth0
-        accel[b, :, :] = accel0
-        turn[b, :] = turn0
-        man[b, :] = man0
+        for k in range(K):
+            t_s[b, k], site_index[b, k], turn[b, k], man[b, k] = t[k], idx[k], turn0[k], man0[k]
+            for a in range(4):
+                truth[b, k, a] = truth0[k, a]
+            accel[b, k, 0], accel[b, k, 1] = accel0[k, 0], accel0[k, 1]
         _measure_row(b, keys[b], cdet[b], K, K, sites[b], t_s, site_index, site_xy, truth, accel, turn, man, det,
                      rng_m, brg, rdot_m, z, R, sr_o, sb_o, sv_o, valid)
 
@@ -645,12 +725,7 @@ def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws):
 def _draw_random(name, keys, cfg, radar, warmup_scans, max_draws):
     x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(name, keys, cfg, radar, warmup_scans,
                                                                         max_draws)
-    if np.any(status == 2):
-        raise EpisodeDrawError(f"random_scenario: no draw stayed in range_km={cfg.range_km} for min_duration_s="
-                               f"{cfg.min_duration_s} s in {RANDOM_SCENARIO_TRIES} tries; widen range_km, lower "
-                               "min_duration_s or slow the flights (speed_kt)")
-    if np.any(status != 0):
-        raise _too_few_draws(name, warmup_scans, max_draws)
+    _check_random_status(status, cfg, name, warmup_scans, max_draws)
     out = _empty_out(keys.size, int(K.max()))
     _fill_random(keys, x0, segs, nseg, sites, nsites, K, cdet, int(K.max()), out)
     return _batch([name if name in FAMILIES else "random"] * keys.size, out, K)
@@ -708,19 +783,25 @@ def _fixed_truth(scenario, radar, place):
     return val
 
 
-def _draw_fixed(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse):
-    (t, idx, truth, accel, turn, man), grid = _fixed_truth(scenario, radar, place)
+def _refuse_too_short(scenario, t, warmup_scans):
+    """ValueError when even every look detected is too few for the track start (then every draw is)."""
     K = t.size
-    if refuse:   # every look detected is the best case: if it is too short, every draw is
-        need = looks_for_track_start(np.ones(K, dtype=bool), t, warmup_scans)
-        if need is None:
-            raise ValueError(f"RadarTrack-v0: scenario {scenario.name!r} has no two looks at different times for "
-                             "the two-hit track start")
-        if K < need:
-            raise ValueError(
-                f"RadarTrack-v0: scenario {scenario.name!r} has {K} looks but warmup_scans={warmup_scans} needs "
-                f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); lower warmup_scans (valid "
-                f"here: <= {K - (need - warmup_scans)}) or use a longer scenario or faster radar")
+    need = looks_for_track_start(np.ones(K, dtype=bool), t, warmup_scans)
+    if need is None:
+        raise ValueError(f"RadarTrack-v0: scenario {scenario.name!r} has no two looks at different times for "
+                         "the two-hit track start")
+    if K < need:
+        raise ValueError(
+            f"RadarTrack-v0: scenario {scenario.name!r} has {K} looks but warmup_scans={warmup_scans} needs "
+            f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); lower warmup_scans (valid "
+            f"here: <= {K - (need - warmup_scans)}) or use a longer scenario or faster radar")
+
+
+def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse):
+    """The cached truth of a fixed scenario and, per key, its sites, look counter and status (:func:`_fixed_rows`)."""
+    (t, idx, truth, accel, turn, man), grid = _fixed_truth(scenario, radar, place)
+    if refuse:
+        _refuse_too_short(scenario, t, warmup_scans)
     if place:
         grid_xy, n_grid, extra, dur = grid
         lo, hi = (float(v) for v in radar_range_m)
@@ -729,9 +810,118 @@ def _draw_fixed(scenario, radar, keys, warmup_scans, max_draws, place, radar_ran
         grid_xy, n_grid, extra, dur, lo, hi, n_cand = np.zeros((1, 2)), 1, False, 0.0, 0.0, 0.0, 0
     sites, cdet, status = _fixed_rows(keys, t, idx, _site_table(radar), place, grid_xy, n_grid, extra, dur, lo, hi,
                                       n_cand, int(warmup_scans), int(max_draws))
-    out = _empty_out(keys.size, K)
+    return (t, idx, truth, accel, turn, man), sites, cdet, status
+
+
+def _draw_fixed(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse):
+    (t, idx, truth, accel, turn, man), sites, cdet, status = _fixed_phase1(scenario, radar, keys, warmup_scans,
+                                                                           max_draws, place, radar_range_m, refuse)
+    out = _empty_out(keys.size, t.size)
     _fill_fixed(keys, sites, cdet, t, idx, truth, accel, turn, man, out)
     return out, status
+
+
+def _fixed_args(scenario, radar):
+    """(scenario, radar, place) of a fixed scenario as draw_episodes resolves them, or None for a pool."""
+    if isinstance(scenario, str):
+        scenario = make_setup(scenario)
+    if hasattr(scenario, "draw_setup"):
+        return None
+    if isinstance(scenario, Setup):
+        return scenario.scenario, (scenario.radar if radar is None else radar), False
+    if isinstance(scenario, (SegmentScenario, TrajectoryScenario)):
+        return (scenario, _ATC, True) if radar is None else (scenario, radar, False)
+    raise ValueError(f"scenario must be a name, a Setup, a SegmentScenario / TrajectoryScenario or a pool with "
+                     f"draw_setup, got {type(scenario).__name__}")
+
+
+class LookDrawer:
+    """Draws episodes of one scenario straight into a :class:`radar_env.tracking.Tracker`'s packed looks (the env's
+    resets): the same kernels and streams as :func:`draw_episodes`, so row ``r`` drawn with key ``k`` holds the
+    episode ``draw_episodes`` gives for a generator whose next word is ``k`` (no :class:`EpisodeBatch`, no
+    per-row Python). ``LookDrawer.of(...)`` is None for a pool (drawn by :func:`draw_episodes`).
+
+    The constructor checks cheaply what a draw would refuse: a fixed scenario too short for ``warmup_scans``
+    (its cached look times), a random configuration whose longest possible flight has too few looks
+    (:func:`max_random_looks`)."""
+
+    def __init__(self, scenario, radar, random_config, warmup_scans, radar_range_m=RADAR_PLACEMENT_RANGE_M,
+                 max_draws=MAX_EPISODE_DRAWS):
+        self.warmup_scans, self.max_draws, self.radar_range_m = int(warmup_scans), int(max_draws), radar_range_m
+        self.random = isinstance(scenario, str) and (scenario in ("random", "random_radars") or scenario in FAMILIES)
+        if self.random:
+            if scenario in FAMILIES:
+                if random_config is not None:
+                    raise ValueError(f"random_config applies to 'random' and 'random_radars'; scenario {scenario!r} "
+                                     "is a held-out family with its own (radar_env.catalog.FAMILIES)")
+                cfg = family_config(scenario)
+            else:
+                cfg = random_config or _DEFAULT_CONFIG
+            self.name, self.cfg, self.radar = scenario, cfg, radar
+            self.label = scenario if scenario in FAMILIES else "random"
+            if max_random_looks(scenario, cfg, radar) < self.warmup_scans + 3:
+                raise _too_few_draws(scenario, self.warmup_scans, self.max_draws)
+        else:
+            sc, rd, place = _fixed_args(scenario, radar)
+            self.fixed = (sc, rd, place)
+            self.label = sc.name
+            t = _fixed_truth(sc, rd, place)[0][0]
+            _refuse_too_short(sc, t, self.warmup_scans)
+
+    @classmethod
+    def of(cls, scenario, radar, random_config, warmup_scans, radar_range_m=RADAR_PLACEMENT_RANGE_M):
+        """The drawer of ``scenario`` (resolved as the env does), or None for a pool."""
+        if not (isinstance(scenario, str) and (scenario in ("random", "random_radars") or scenario in FAMILIES)):
+            if _fixed_args(scenario, radar) is None:
+                return None
+        return cls(scenario, radar, random_config, warmup_scans, radar_range_m)
+
+    def draw(self, keys, rows, tracker):
+        """Episodes from ``keys`` (uint64, one per row) into ``rows`` (int64) of ``tracker``: looks, look counts and
+        names (the track is not started). Raises as :func:`draw_episodes`."""
+        w = self.warmup_scans
+        if self.random:
+            x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(self.name, keys, self.cfg, self.radar,
+                                                                                w, self.max_draws)
+            _check_random_status(status, self.cfg, self.name, w, self.max_draws)
+            tracker._ensure_capacity(int(K.max()))
+            k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, tracker._looks, tracker._it)
+        else:
+            sc, rd, place = self.fixed
+            (t, idx, truth, accel, turn, man), sites, cdet, status = _fixed_phase1(
+                sc, rd, keys, w, self.max_draws, place, self.radar_range_m, False)
+            if np.any(status != 0):
+                raise _too_few_draws(sc.name, w, self.max_draws)
+            tracker._ensure_capacity(t.size)
+            k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth, accel, turn, man, tracker._looks, tracker._it)
+        for r in rows:
+            tracker.names[r] = self.label
+
+
+def max_random_looks(name, cfg, radar):
+    """An upper bound on the looks of any episode of a random scenario (closed form, no draw): the longest flight
+    the configuration allows (every leg, speed change and turn at its longest, capped by ``max_duration_s``)
+    seen by the fastest radar it can draw (``random_radars``: up to two sites at the shortest scan period)."""
+    cf = _config_vector(cfg, 0.0)
+    v_lo, v_hi = cf[0], cf[1]
+    first = max(cf[21], cf[6])
+    w_min = min(cf[7] * G0_M_S2 / v_hi, cf[14])
+    per_maneuver = cf[5] + (v_hi - v_lo) / cf[12] + cf[10] / w_min
+    dur = min(first + (int(cf[3]) - 1) * per_maneuver, cf[23])
+    tables = [_site_table(radar if radar is not None else _ATC)]
+    if name == "random_radars" and radar is None:
+        p = RANDOM_RADAR_RANGES["scan_period_s"][0]
+        tables.append(np.array([[0.0, 0.0, p] + [0.0] * (_NCOL - 3)] * 2))
+    return max(int(sum(math.floor(dur / s[_PER] + 1e-9) + 1 for s in tab)) for tab in tables)
+
+
+def _check_random_status(status, cfg, name, warmup_scans, max_draws):
+    if np.any(status == 2):
+        raise EpisodeDrawError(f"random_scenario: no draw stayed in range_km={cfg.range_km} for min_duration_s="
+                               f"{cfg.min_duration_s} s in {RANDOM_SCENARIO_TRIES} tries; widen range_km, lower "
+                               "min_duration_s or slow the flights (speed_kt)")
+    if np.any(status != 0):
+        raise _too_few_draws(name, warmup_scans, max_draws)
 
 
 def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_range_m=RADAR_PLACEMENT_RANGE_M,
@@ -770,14 +960,7 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
         scenario = make_setup(scenario)
     if hasattr(scenario, "draw_setup"):
         return _draw_pool(scenario, radar, rngs, warmup_scans, max_draws)
-    if isinstance(scenario, Setup):
-        sc, rd, place = scenario.scenario, (scenario.radar if radar is None else radar), False
-    elif isinstance(scenario, (SegmentScenario, TrajectoryScenario)):
-        sc, rd, place = scenario, radar, radar is None
-        rd = _ATC if place else rd
-    else:
-        raise ValueError(f"scenario must be a name, a Setup, a SegmentScenario / TrajectoryScenario or a pool with "
-                         f"draw_setup, got {type(scenario).__name__}")
+    sc, rd, place = _fixed_args(scenario, radar)
     out, status = _draw_fixed(sc, rd, _keys(rngs), warmup_scans, max_draws, place, radar_range_m, refuse=True)
     if np.any(status != 0):
         raise _too_few_draws(sc.name, warmup_scans, max_draws)

@@ -15,7 +15,7 @@ from .config import (DEFAULT_Q_LEVELS_G, RENDER_MODES, REWARD_SCALE_M, REWARD_TY
 from .core import (MAX_EPISODE_DRAWS, _Core, _row, actions_to_q_m_s2,  # noqa: F401
                    draw_setup_and_episode)
 from .single_env import RadarTrackEnv
-from .vector_env import RadarTrackVectorEnv, _merge_rows, _with_masks  # noqa: F401
+from .vector_env import RadarTrackVectorEnv, _with_masks  # noqa: F401
 
 __all__ = ["RadarTrackEnv", "RadarTrackVectorEnv", "EnvConfig", "DEFAULT_Q_LEVELS_G", "resolve_scenario",
            "draw_setup_and_episode", "actions_to_q_m_s2"]

@@ -10,6 +10,8 @@ these kernels.
 Layouts (module constants, compile-time constants inside the kernels):
 
 * a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1);
+* the tracker's state ``st (B, W_ST)`` float (``S_*``: x, P, time of the last look) and ``it (B, W_IT)`` int
+  (``I_*``: next look, looks in the episode);
 * the feature-bank state of one track: ``bf`` (float: ring buffers, FMA, held values), ``bi`` (int: ring-buffer
   indices and counts), ``bb`` (bool: validity flags), offsets from :func:`bank_offsets`;
 * one step's output row ``O_*`` (float), ``OB_*`` (bool) and the feature columns ``FB_*`` (bank) / ``FP_*``
@@ -76,6 +78,13 @@ W_BANK_B = 3
 # bank parameters (float64 vector)
 PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
 W_PAR = 7
+
+# packed tracker state: floats ``st (B, W_ST)`` (posterior x, P, time of the last processed look) and ints
+# ``it (B, W_IT)`` (next look to process, looks in the episode): few kernel arguments
+S_X, S_P, S_T = 0, 4, 20
+W_ST = 21
+I_K, I_N = 0, 1
+W_IT = 2
 
 
 def c_array(a, dtype=None):
@@ -188,6 +197,46 @@ def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
             xo[i] += u[i]
         for j in range(4):
             Po[i, j] += Q[i, j]
+    _symmetrize(Po)
+
+
+@njit(cache=True)
+def _propagate_cv(x, P, dt, xo, FPF):
+    """:func:`_propagate` for ``F = F_cv(dt)`` in closed form: the same products and sums in the same order, without
+    the multiplications by the zeros and ones of F (equal bit for bit up to the sign of an exact zero)."""
+    xo[0] = x[0] + dt * x[2]
+    xo[1] = x[1] + dt * x[3]
+    xo[2] = x[2]
+    xo[3] = x[3]
+    for j in range(4):   # F P: rows 0, 1 gain dt times rows 2, 3
+        FPF[0, j] = P[0, j] + dt * P[2, j]
+        FPF[1, j] = P[1, j] + dt * P[3, j]
+        FPF[2, j] = P[2, j]
+        FPF[3, j] = P[3, j]
+    for i in range(4):   # (F P) F^T: columns 0, 1 gain dt times columns 2, 3
+        FPF[i, 0] = FPF[i, 0] + FPF[i, 2] * dt
+        FPF[i, 1] = FPF[i, 1] + FPF[i, 3] * dt
+
+
+@njit(cache=True)
+def _predict_cv(x, P, dt, q, u, has_u, xo, Po):
+    """:func:`_predict` for the CV model, ``F_cv(dt)`` and ``Q = q^2 Gamma Gamma^T`` in closed form (the same
+    operations: every entry of Q is added, zeros included)."""
+    _propagate_cv(x, P, dt, xo, Po)
+    q2 = q * q
+    dt2 = dt * dt
+    pp, pv, vv = q2 * (dt2 * dt2) / 4.0, q2 * (dt2 * dt) / 2.0, q2 * dt2
+    for i in range(4):
+        if has_u:
+            xo[i] += u[i]
+        for j in range(4):
+            d = i - j
+            if i == j:
+                Po[i, j] += pp if i < 2 else vv
+            elif d == 2 or d == -2:
+                Po[i, j] += pv
+            else:
+                Po[i, j] += 0.0
     _symmetrize(Po)
 
 
@@ -438,18 +487,17 @@ def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, 
 
 # ========================================================================================================= preview
 @njit(cache=True)
-def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, F, FP, FPF, xh, of):
+def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, FPF, xh, of):
     """Features of the next plot against the q-free prediction (see tracking.preview_next_plot) into ``of``
-    (W_PREVIEW). ``det`` False (missed or no next look) gives 0 for every plot feature. F, FP, FPF (4,4) and
-    xh (4,) are scratch."""
+    (W_PREVIEW). ``det`` False (missed or no next look) gives 0 for every plot feature. FPF (4,4) and xh (4,) are
+    scratch."""
     dt = t_next - t
     for m in range(W_PREVIEW):
         of[m] = 0.0
     of[FP_DT] = dt
     if not det:
         return
-    _transition(dt, 0.0, False, F)
-    _propagate(x, P, F, xh, FPF, FP)
+    _propagate_cv(x, P, dt, xh, FPF)
     s00 = FPF[0, 0] + R[0, 0]
     s01 = FPF[0, 1] + R[0, 1]
     s10 = FPF[1, 0] + R[1, 0]
@@ -483,17 +531,28 @@ def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, 
 
 # =================================================================================================== tracker step
 @njit(cache=True)
-def _step_row(r, q, w, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb, par, o, ob, of, ofb,
-              F, Q, FP, u, R, zz, xp, Pp):
-    """One look of tracker row ``r``: predict, update, features, preview; state updated in place, outputs into
-    ``o`` (W_OUT), ``ob`` (W_OUTB), ``of`` (W_FEAT), ``ofb`` (W_BANK_OUTB). F..Pp: scratch."""
-    kk = k[r]
+def _scratch():
+    """Scratch of :func:`_step_row`: F, Q, FP (4,4), u (4,), R (2,2), zz (2,), xh (4,)."""
+    return (np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4)), np.zeros(4), np.empty((2, 2)), np.empty(2),
+            np.empty(4))
+
+
+@njit(cache=True)
+def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP,
+              u, R, zz, xh):
+    """One look of tracker row ``r``: predict (CV in closed form; CT, or a known input, through F), update,
+    features, preview. The state (``st``, ``it``, bank) is updated in place; the prior into ``xp``, ``Pp``, the
+    posterior into ``xo``, ``Po``, the innovation into ``nu``, ``S``, the features into ``of`` (W_FEAT) and
+    ``ofb`` (W_BANK_OUTB). Returns the NIS. F..zz: scratch (:func:`_scratch`). Reads the look data where it
+    lies (``looks[r, k]``) and copies none of it."""
+    kk = it[r, I_K]
     lk = looks[r, kk]
     t = lk[L_T]
-    dt = t - t_last[r]
+    xr = st[r, S_X:S_X + 4]
+    Pr = st[r, S_P:S_P + 16].reshape((4, 4))
+    dt = t - st[r, S_T]
     det = lk[L_DET] != 0.0
-    _transition(dt, w, ct, F)
-    _process_noise(dt, q, Q)
+    _transition(dt, w, ct, F)   # the bank's Kim & Lee term and the known input use F
     if known_input:
         tp = looks[r, kk - 1]
         for i in range(4):
@@ -501,16 +560,15 @@ def _step_row(r, q, w, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi,
             for j in range(4):
                 acc += F[i, j] * tp[L_TRUTH + j]
             u[i] = lk[L_TRUTH + i] - acc
-    xr, Pr = x[r], P[r]
-    _predict(xr, Pr, F, Q, u, known_input, xp, Pp, FP)
+    if ct:
+        _process_noise(dt, q, Q)
+        _predict(xr, Pr, F, Q, u, known_input, xp, Pp, FP)
+    else:
+        _predict_cv(xr, Pr, dt, q, u, known_input, xp, Pp)
     for i in range(2):
         zz[i] = lk[L_Z + i]
         for j in range(2):
             R[i, j] = lk[L_R + 2 * i + j]
-    xo = o[O_X:O_X + 4]
-    Po = o[O_P:O_P + 16].reshape((4, 4))
-    nu = o[O_NU:O_NU + 2]
-    S = o[O_S:O_S + 4].reshape((2, 2))
     nis, _ = _update(xp, Pp, zz, R, det, xo, Po, nu, S)
     # feature bank: plot inputs zeroed where missed (held features ignore them)
     if not det:
@@ -522,32 +580,14 @@ def _step_row(r, q, w, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi,
     rd = lk[L_RDOT] if det else 0.0
     _bank_update(bf[r], bi[r], bb[r], par, xr, xp, Pr, F, R, nu, S, xo, zz, t, dt, bear, rd, det,
                  lk[L_SITE:L_SITE + 2], of[:W_BANK_OUT], ofb)
-    # outputs
-    o[O_T], o[O_DT], o[O_Q], o[O_NIS] = t, dt, q, nis
-    for i in range(4):
-        o[O_XPR + i] = xp[i]
-        for j in range(4):
-            o[O_PPR + 4 * i + j] = Pp[i, j]
-    for i in range(2):
-        o[O_Z + i] = lk[L_Z + i]
-        o[O_SITE + i] = lk[L_SITE + i]
-        o[O_TACC + i] = lk[L_TACC + i]
-    for i in range(4):
-        o[O_R + i] = lk[L_R + i]
-        o[O_TRUTH + i] = lk[L_TRUTH + i]
-    o[O_RANGE], o[O_BEAR], o[O_RDOT] = lk[L_RANGE], lk[L_BEAR], lk[L_RDOT]
-    o[O_RSTD], o[O_BSTD] = lk[L_RSTD], lk[L_BSTD]
-    ob[OB_DET] = det
-    ob[OB_MAN] = lk[L_MAN] != 0.0
     # state
     for i in range(4):
         xr[i] = xo[i]
         for j in range(4):
             Pr[i, j] = Po[i, j]
-    t_last[r] = t
-    k[r] = kk + 1
-    has_next = kk + 1 < n_looks[r]
-    ob[OB_DONE] = not has_next
+    st[r, S_T] = t
+    it[r, I_K] = kk + 1
+    has_next = kk + 1 < it[r, I_N]
     ln = looks[r, min(kk + 1, looks.shape[1] - 1)]
     det_n = has_next and ln[L_DET] != 0.0
     t_n = ln[L_T] if has_next else t
@@ -555,7 +595,8 @@ def _step_row(r, q, w, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi,
         for j in range(2):
             R[i, j] = ln[L_R + 2 * i + j]
     _preview(xr, Pr, t, det_n, t_n, ln[L_Z:L_Z + 2], R, ln[L_BEAR], ln[L_RDOT], ln[L_RDSTD],
-             ln[L_SITE:L_SITE + 2], MIN_DT_S, F, FP, Q, xp, of[W_BANK_OUT:])
+             ln[L_SITE:L_SITE + 2], MIN_DT_S, FP, xh, of[W_BANK_OUT:])
+    return nis
 
 
 @njit(cache=True)
@@ -568,8 +609,7 @@ def _check_q(q, max_q):
 
 
 @njit(cache=True)
-def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, n_rep, x, P, k, t_last, n_looks, looks, bf, bi, bb,
-                   par, o, ob, oi):
+def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, n_rep, st, it, looks, bf, bi, bb, par, o, ob, oi):
     """Tracker.step for ``rows`` (or every row if ``all_rows``), ``n_rep`` looks in a row at the same q (1 for a
     step, ``warmup_scans`` for the warm-up of a track start); the outputs are those of the last look:
     ``o (n, W_OUT + W_FEAT)`` float, ``ob (n, W_OUTB + W_BANK_OUTB)`` bool, ``oi (n,)`` look index. Returns
@@ -581,46 +621,74 @@ def k_tracker_step(rows, all_rows, q, w, ct, known_input, max_q, n_rep, x, P, k,
         return 1, bad
     for i in range(n):
         r = i if all_rows else rows[i]
-        if k[r] + n_rep > n_looks[r]:
+        if it[r, I_K] + n_rep > it[r, I_N]:
             return 2, i
-    F = np.empty((4, 4))
-    Q = np.empty((4, 4))
-    FP = np.empty((4, 4))
-    u = np.zeros(4)
-    R = np.empty((2, 2))
-    zz = np.empty(2)
+    F, Q, FP, u, R, zz, xh = _scratch()
     xp = np.empty(4)
     Pp = np.empty((4, 4))
     for i in range(n):
         r = i if all_rows else rows[i]
+        oo = o[i]
+        xo = oo[O_X:O_X + 4]
+        Po = oo[O_P:O_P + 16].reshape((4, 4))
+        nu = oo[O_NU:O_NU + 2]
+        S = oo[O_S:O_S + 4].reshape((2, 2))
         for _ in range(n_rep):
-            oi[i] = k[r]
-            _step_row(r, q[i], w[i] if ct else 0.0, ct, known_input, x, P, k, t_last, n_looks, looks, bf, bi, bb,
-                      par, o[i, :W_OUT], ob[i, :W_OUTB], o[i, W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xp, Pp)
+            kk = it[r, I_K]
+            oi[i] = kk
+            t_prev = st[r, S_T]
+            nis = _step_row(r, q[i], w[i] if ct else 0.0, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp,
+                            xo, Po, nu, S, oo[W_OUT:], ob[i, W_OUTB:], F, Q, FP, u, R, zz, xh)
+        # the wide output row of the public StepOutput: prior, the look's data
+        lk = looks[r, kk]
+        oo[O_T], oo[O_DT], oo[O_Q], oo[O_NIS] = lk[L_T], lk[L_T] - t_prev, q[i], nis
+        for a in range(4):
+            oo[O_XPR + a] = xp[a]
+            for c in range(4):
+                oo[O_PPR + 4 * a + c] = Pp[a, c]
+        for a in range(2):
+            oo[O_Z + a] = lk[L_Z + a]
+            oo[O_SITE + a] = lk[L_SITE + a]
+            oo[O_TACC + a] = lk[L_TACC + a]
+        for a in range(4):
+            oo[O_R + a] = lk[L_R + a]
+            oo[O_TRUTH + a] = lk[L_TRUTH + a]
+        oo[O_RANGE], oo[O_BEAR], oo[O_RDOT] = lk[L_RANGE], lk[L_BEAR], lk[L_RDOT]
+        oo[O_RSTD], oo[O_BSTD] = lk[L_RSTD], lk[L_BSTD]
+        ob[i, OB_DET] = lk[L_DET] != 0.0
+        ob[i, OB_MAN] = lk[L_MAN] != 0.0
+        ob[i, OB_DONE] = it[r, I_K] >= it[r, I_N]
     return 0, 0
 
 
 @njit(cache=True)
-def k_track_start(rows, i1s, i2s, x, P, k, t_last, looks, bf, bi, bb, par):
-    """Two-hit start of ``rows`` from looks ``i1s``, ``i2s`` (tracking.init_looks; episode data already in
-    ``looks``): two-point initialisation, the next look to process, and the feature bank reset and seeded with the
-    two plots and the start heading. The warm-up is then ``k_tracker_step`` with ``n_rep = warmup_scans``."""
+def _track_start_row(r, i1, i2, st, it, looks, bf, bi, bb, par, seed_xy, seed_t, R1, R2):
+    """Two-hit start of row ``r`` from looks ``i1``, ``i2`` (tracking.init_looks): two-point initialisation, the
+    next look to process, and the feature bank reset and seeded with the two plots and the start heading.
+    seed_xy, R1, R2 (2,2) and seed_t (2,) are scratch."""
+    l1, l2 = looks[r, i1], looks[r, i2]
+    for a in range(2):
+        seed_xy[0, a], seed_xy[1, a] = l1[L_Z + a], l2[L_Z + a]
+        for b in range(2):
+            R1[a, b], R2[a, b] = l1[L_R + 2 * a + b], l2[L_R + 2 * a + b]
+    seed_t[0], seed_t[1] = l1[L_T], l2[L_T]
+    x = st[r, S_X:S_X + 4]
+    _two_point_init(seed_xy[0], R1, l1[L_T], seed_xy[1], R2, l2[L_T], x, st[r, S_P:S_P + 16].reshape((4, 4)))
+    it[r, I_K] = i2 + 1
+    st[r, S_T] = l2[L_T]
+    _bank_reset(bf[r], bi[r], bb[r], int(par[PAR_N]), seed_xy, seed_t, 2, x, l2[L_T], True)
+
+
+@njit(cache=True)
+def k_track_start(rows, i1s, i2s, st, it, looks, bf, bi, bb, par):
+    """:func:`_track_start_row` for ``rows`` (episode data already in ``looks``). The warm-up is then
+    ``k_tracker_step`` with ``n_rep = warmup_scans``."""
     seed_xy = np.empty((2, 2))
     seed_t = np.empty(2)
     R1 = np.empty((2, 2))
     R2 = np.empty((2, 2))
     for i in range(rows.shape[0]):
-        r = rows[i]
-        l1, l2 = looks[r, i1s[i]], looks[r, i2s[i]]
-        for a in range(2):
-            seed_xy[0, a], seed_xy[1, a] = l1[L_Z + a], l2[L_Z + a]
-            for b in range(2):
-                R1[a, b], R2[a, b] = l1[L_R + 2 * a + b], l2[L_R + 2 * a + b]
-        seed_t[0], seed_t[1] = l1[L_T], l2[L_T]
-        _two_point_init(seed_xy[0], R1, l1[L_T], seed_xy[1], R2, l2[L_T], x[r], P[r])
-        k[r] = i2s[i] + 1
-        t_last[r] = l2[L_T]
-        _bank_reset(bf[r], bi[r], bb[r], int(par[PAR_N]), seed_xy, seed_t, 2, x[r], l2[L_T], True)
+        _track_start_row(rows[i], i1s[i], i2s[i], st, it, looks, bf, bi, bb, par, seed_xy, seed_t, R1, R2)
 
 
 # ================================================================================================ batched filters
@@ -673,13 +741,11 @@ def k_bank_reset(rows, bf, bi, bb, n, seed_xy, seed_t, n_seed, x, t, seed_headin
 
 @njit(cache=True)
 def k_preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, of):
-    F = np.empty((4, 4))
-    FP = np.empty((4, 4))
     FPF = np.empty((4, 4))
     xh = np.empty(4)
     for b in range(x.shape[0]):
         _preview(x[b], P[b], t[b], det[b], t_next[b], z[b], R[b], bearing[b], rdot[b], rdot_std[b], site[b],
-                 min_dt, F, FP, FPF, xh, of[b])
+                 min_dt, FPF, xh, of[b])
 
 
 # ============================================================================================================ IMM

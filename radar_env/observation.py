@@ -51,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import env_kernels as _ek
+from . import kernels as _k
 from .units import G0_M_S2
 from .validate import check_known_keys
 
@@ -118,7 +120,14 @@ _FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to t
     "next_rdot_nu": ("next_rdot_nu", 1.0),
     "next_meas_std_m": ("next_meas_std_m", 1.0), "next_detected": ("next_detected", 1.0),
 }
-_DEGREES_FROM = {"turn_rate_alg1_deg_s": "turn_rate_alg1_rad_s", "turn_rate_alg2_deg_s": "turn_rate_alg2_rad_s"}
+_SPECIAL_SOURCES = {  # observation name -> (env_kernels.SP_* special, the feature it reads or None)
+    "turn_rate_alg1_deg_s": (_ek.SP_DEGREES, "turn_rate_alg1_rad_s"),
+    "turn_rate_alg2_deg_s": (_ek.SP_DEGREES, "turn_rate_alg2_rad_s"),
+    "kim_lee_q_g": (_ek.SP_KIM_LEE_Q, "kim_lee_phi_m2_s4"), "dt_s": (_ek.SP_DT, None),
+    "pos_std_ratio": (_ek.SP_POS_STD, "range_m"), "q_prev_g": (_ek.SP_Q_PREV, None),
+    "detected": (_ek.SP_DETECTED, None),
+}
+_FEATURE_COLUMN = {k: i for i, k in enumerate(_k.BANK_FLOAT_KEYS + _k.PREVIEW_KEYS)}
 PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
 
 
@@ -146,91 +155,68 @@ class ObservationLayout:
         self.specs = [FEATURE_SPECS[n] for n in names]
         self.low = np.array([s.low for s in self.specs], dtype=np.float32)
         self.high = np.array([s.high for s in self.specs], dtype=np.float32)
-        self._lq0, self._lq1 = np.log10(q_min_m_s2 / G0_M_S2), np.log10(q_max_m_s2 / G0_M_S2)
+        self._lq0, self._lq1 = float(np.log10(q_min_m_s2 / G0_M_S2)), float(np.log10(q_max_m_s2 / G0_M_S2))
         self._index = {n: i for i, n in enumerate(names)}
-        self._scale = np.array([s.scale for s in self.specs])
-        self._log10p = np.array([s.kind == "log10p" for s in self.specs])
-        self._logq = np.array([s.kind == "logq" for s in self.specs])
-        # encode's plan, made once: the columns that are a feature over a divisor (one stack and one division for
-        # all of them), the entries of the two non-linear scalings, and the other columns by name
-        self._columns = [(_FROM_FEATURES[n][0] if n in _FROM_FEATURES else None, n) for n in names]
-        self._divisor_col = np.array([_FROM_FEATURES[n][1] if n in _FROM_FEATURES else 1.0 for n in names])[:, None]
-        self._log10p_idx, self._logq_idx = np.flatnonzero(self._log10p), np.flatnonzero(self._logq)
-        self._scale_col = self._scale[:, None]
-        self._log10p_scale_col = self._scale[self._log10p_idx][:, None]
-        self._low_col, self._high_col = self.low.astype(np.float64)[:, None], self.high.astype(np.float64)[:, None]
+        # the compiled encoding's plan (radar_env.env_kernels: one row per entry); ``_sources`` names the feature
+        # each entry reads (None: dt, q_prev, detected), ``env_plan`` reads the chain's feature row directly
+        self._sources, rows = [], []
+        for n, s in zip(names, self.specs):
+            kind = {"linear": _ek.KIND_LINEAR, "log10p": _ek.KIND_LOG10P, "logq": _ek.KIND_LOGQ}[s.kind]
+            if n in _FROM_FEATURES:
+                key, divisor = _FROM_FEATURES[n]
+                special = _ek.SP_COLUMN
+            else:
+                key, divisor = _SPECIAL_SOURCES[n][1], 1.0
+                special = _SPECIAL_SOURCES[n][0]
+            self._sources.append(key)
+            rows.append([special, 0.0, divisor, kind, s.scale, s.low, s.high])
+        self._plan = np.array(rows, dtype=np.float64).reshape(len(names), _ek.W_PLAN)
+        self._plan[:, _ek.PL_COL] = np.arange(len(names))
+        self.env_plan = self._plan.copy()
+        self.env_plan[:, _ek.PL_COL] = [_FEATURE_COLUMN.get(k, 0) for k in self._sources]
 
     def __contains__(self, name):
         return name in self._index
 
-    def physical(self, out, q_prev_m_s2):
-        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput`."""
+    def _inputs(self, out, q_prev_m_s2):
+        """The compiled encoding's inputs from a StepOutput: the features each entry reads (n, F) and the step's
+        dt, position variances, site sigmas, detection flags and previous q (n,)."""
         f = out.features
         n = out.dt_s.shape[0]
-        phys = np.empty((n, len(self.names)))
-        for i, name in enumerate(self.names):
-            if name in _FROM_FEATURES:
-                key, divisor = _FROM_FEATURES[name]
-                phys[:, i] = f[key] / divisor
-            elif name in _DEGREES_FROM:
-                phys[:, i] = np.degrees(f[_DEGREES_FROM[name]])
-            elif name == "kim_lee_q_g":
-                phys[:, i] = np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2
-            elif name == "dt_s":
-                phys[:, i] = out.dt_s
-            elif name == "pos_std_ratio":
-                sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
-                phys[:, i] = np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig
-            elif name == "q_prev_g":
-                phys[:, i] = np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2
-            else:  # "detected"
-                phys[:, i] = out.detected
+        src = np.zeros((n, len(self.names)))
+        for j, key in enumerate(self._sources):
+            if key is not None:
+                src[:, j] = f[key]
+        c = _k.c_array
+        q = np.asarray(q_prev_m_s2, dtype=np.float64)
+        return (src, c(out.dt_s, np.float64), c(out.P[:, 0, 0], np.float64), c(out.P[:, 1, 1], np.float64),
+                c(out.range_noise_std_m, np.float64), c(out.bearing_noise_std_rad, np.float64),
+                c(out.detected, np.bool_), c(q if q.shape == (n,) else np.broadcast_to(q, (n,)), np.float64))
+
+    def physical(self, out, q_prev_m_s2):
+        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput`."""
+        inp = self._inputs(out, q_prev_m_s2)
+        phys = np.empty(inp[0].shape)
+        _ek.k_physical(self._plan, *inp, phys)
         return phys
 
     def encode_physical(self, phys):
-        """(n, F) physical values -> (n, F) float32 observation, clipped to the Box."""
+        """(..., F) physical values -> (..., F) float32 observation, clipped to the Box."""
         phys = np.asarray(phys, dtype=np.float64)
         F = len(self.names)
-        return self._encode_rows(phys.reshape(-1, F).T).reshape(phys.shape)
-
-    def _encode_rows(self, pt):
-        """(F, n) physical values, one row per feature -> (n, F) float32 observation (C order). Rows, so each
-        scaling touches a few contiguous rows; the same element-wise operations as the scaling table, bit for bit."""
-        obs = pt / self._scale_col
-        i = self._log10p_idx
-        if i.size:
-            obs[i] = np.log10(1.0 + np.maximum(pt[i], 0.0)) / self._log10p_scale_col
-        i = self._logq_idx
-        if i.size:
-            lq = np.log10(np.maximum(pt[i], 1e-12))
-            obs[i] = 2.0 * (lq - self._lq0) / (self._lq1 - self._lq0) - 1.0
-        np.copyto(obs, 0.0, where=np.isnan(obs))
-        np.minimum(np.maximum(obs, self._low_col, out=obs), self._high_col, out=obs)   # np.clip, NaN gone
-        return obs.T.astype(np.float32, order="C")
+        flat = _k.c_array(phys.reshape(-1, F), np.float64)
+        obs = np.empty(flat.shape, dtype=np.float32)
+        _ek.k_scale(self._plan, self._lq0, self._lq1, flat, obs)
+        return obs.reshape(phys.shape)
 
     def encode(self, out, q_prev_m_s2):
         """The (n, F) float32 observation of a :class:`radar_env.tracking.StepOutput`: ``encode_physical(
-        physical(out, q_prev_m_s2))``, bit for bit, in a few vectorised calls (the env's per-step path)."""
-        f = out.features
-        cols = [f[key] if key is not None else self._special(name, out, q_prev_m_s2) for key, name in self._columns]
-        return self._encode_rows(np.concatenate(cols).reshape(len(cols), -1) / self._divisor_col)
-
-    def _special(self, name, out, q_prev_m_s2):
-        """A column of :meth:`physical` that is not a feature over a divisor."""
-        f = out.features
-        if name in _DEGREES_FROM:
-            return np.degrees(f[_DEGREES_FROM[name]])
-        if name == "kim_lee_q_g":
-            return np.sqrt(np.maximum(f["kim_lee_phi_m2_s4"], 0.0)) / G0_M_S2
-        if name == "dt_s":
-            return out.dt_s
-        if name == "pos_std_ratio":
-            sig = measurement_sigma_m(f["range_m"], out.range_noise_std_m, out.bearing_noise_std_rad)
-            return np.sqrt(0.5 * (out.P[:, 0, 0] + out.P[:, 1, 1])) / sig
-        if name == "q_prev_g":
-            q = np.asarray(q_prev_m_s2, dtype=np.float64) / G0_M_S2
-            return q if q.shape == out.dt_s.shape else np.full(out.dt_s.shape, q)
-        return out.detected   # "detected"
+        physical(out, q_prev_m_s2))`` in one compiled pass (the env's step runs the same code,
+        :mod:`radar_env.env_kernels`)."""
+        inp = self._inputs(out, q_prev_m_s2)
+        obs = np.empty(inp[0].shape, dtype=np.float32)
+        _ek.k_encode(self._plan, self._lq0, self._lq1, *inp, obs)
+        return obs
 
     def decode(self, obs, name):
         """Physical value of feature ``name`` from observations ``obs`` (..., F) (clipped values stay clipped)."""

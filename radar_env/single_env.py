@@ -7,7 +7,8 @@ import numpy as np
 from gymnasium import spaces
 
 from .config import RENDER_MODES, EnvConfig
-from .core import _Core, _row
+from .core import _Core
+from .env_kernels import BO_TRUNC
 from .validate import check_known_keys
 
 __all__ = ["RadarTrackEnv"]
@@ -191,10 +192,11 @@ class RadarTrackEnv(gym.Env):
         options = dict(options or {})
         scenario = options.pop("scenario", None)
         check_known_keys("reset", options, ["scenario"], noun="option")
-        self._core.rngs[0] = self.np_random
-        obs, info, _ = self._core.reset_rows(np.array([0]), scenario)
+        core = self._core
+        core.rngs[0] = self.np_random
+        (obs, fo, fs, bo), inc = core.reset(scenario)
         self._needs_reset = False
-        info = _row(info, 0)
+        info = core.info_row(fo, fs, bo, inc)
         self._history = [(info["estimate"], info["covariance"], info["q_m_s2"], info["time_s"], obs[0])]
         if self.render_mode == "human":
             self.render()
@@ -206,14 +208,16 @@ class RadarTrackEnv(gym.Env):
         a = np.asarray(action)
         if a.size != 1:
             raise ValueError(f"action must be a single value ({self.action_space}), got {action!r}")
-        obs, rew, term, trunc, info = self._core.step(a.reshape(1))
-        self._needs_reset = bool(term[0] or trunc[0])
-        info = _row(info, 0)
+        core = self._core
+        (obs, fo, fs, bo), rew, _, _, inc, _ = core.step(a.reshape(1))
+        info = core.info_row(fo, fs, bo, inc)
+        term, trunc = info["track_lost"], bool(bo[BO_TRUNC, 0])
+        self._needs_reset = term or trunc
         if self.render_mode is not None:
             self._history.append((info["estimate"], info["covariance"], info["q_m_s2"], info["time_s"], obs[0]))
         if self.render_mode == "human":
             self.render()
-        return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), info
+        return obs[0], rew[0].item(), term, trunc, info
 
     def episode(self):
         """The current episode's stored looks (``Tracker.look_data`` views for row 0)."""

@@ -25,10 +25,13 @@ initialisation from the first two detected looks (position from the second, velo
 returns the output of the last warm-up look, from which the first choice of q is made.
 
 Implementation: the whole step (predict, update, features, preview) of all stepped rows is one compiled kernel
-call (:func:`radar_env.kernels.k_tracker_step`), and the track start with its warm-up another
-(:func:`radar_env.kernels.k_tracker_load`). The state lives in preallocated arrays that the kernels update in
-place: ``x (B,4)``, ``P (B,4,4)``, ``k``, ``t_last``, ``n_looks (B,)``, the feature bank's packed ring buffers and
-the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`).
+call (:func:`radar_env.kernels.k_tracker_step`), and the track start another (:func:`radar_env.kernels.k_track_start`,
+then the warm-up as ``k_tracker_step`` with ``n_rep = warmup_scans``). The state lives in preallocated arrays that
+the kernels update in place: ``x (B,4)``, ``P (B,4,4)`` and ``t_last`` are views of one packed float array, ``k`` and
+``n_looks (B,)`` of one int array (:data:`radar_env.kernels.S_X` ...), beside the feature bank's packed ring buffers
+and the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`). The
+env runs the same row step (:func:`radar_env.kernels._step_row`) from its own kernel
+(:mod:`radar_env.env_kernels`).
 """
 
 from __future__ import annotations
@@ -178,6 +181,22 @@ def _episode_rows(e):
     return blk
 
 
+def _packed(array, col, width, shape, doc):
+    """A property viewing ``width`` columns from ``col`` of the packed state array named ``array``, shaped
+    ``(B,) + shape``; assigning to it writes into the state."""
+    def get(self):
+        a = getattr(self, array)
+        return a[:, col] if width == 1 else a[:, col:col + width].reshape((self.B,) + shape)
+
+    def put(self, v):
+        a = getattr(self, array)
+        if width == 1:
+            a[:, col] = v
+        else:
+            a[:, col:col + width] = np.broadcast_to(v, (self.B,) + shape).reshape(self.B, width)
+    return property(get, put, doc=doc)
+
+
 class Tracker:
     """B Kalman tracks over B episodes, stepped together (see module docstring).
 
@@ -203,13 +222,18 @@ class Tracker:
         self.bank = FeatureBank(self.B, n_adrian=n_adrian, window_kim_lee=window_kim_lee, fma_weight=fma_weight)
         self._cap = 0
         self._looks = np.zeros((self.B, 0, _k.W_LOOK))   # packed look rows (B, K_cap, W_LOOK)
-        self._flags = {"detected": np.zeros((self.B, 0), bool), "maneuvering": np.zeros((self.B, 0), bool)}
-        self.n_looks = np.zeros(self.B, dtype=np.int64)
-        self.k = np.zeros(self.B, dtype=np.int64)          # next look to process
-        self.t_last = np.zeros(self.B)
-        self.x = np.zeros((self.B, 4))
-        self.P = np.tile(np.eye(4), (self.B, 1, 1))
+        # packed state (kernels.S_* / I_*): x, P, t_last and k, n_looks are views into these two arrays
+        self._st = np.zeros((self.B, _k.W_ST))
+        self._st[:, _k.S_P:_k.S_P + 16] = np.eye(4).reshape(16)
+        self._it = np.zeros((self.B, _k.W_IT), dtype=np.int64)
         self.names = [""] * self.B
+
+    # views of the packed state (properties, so that a copy or a pickle of the tracker keeps them joined)
+    x = _packed("_st", _k.S_X, 4, (4,), "(B, 4) posterior means (a view: writes go to the state).")
+    P = _packed("_st", _k.S_P, 16, (4, 4), "(B, 4, 4) posterior covariances (a view).")
+    t_last = _packed("_st", _k.S_T, 1, (), "(B,) time of the last processed look (a view).")
+    k = _packed("_it", _k.I_K, 1, (), "(B,) index of the next look to process (a view).")
+    n_looks = _packed("_it", _k.I_N, 1, (), "(B,) looks in each row's episode (a view).")
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K):
@@ -221,6 +245,12 @@ class Tracker:
         :class:`StepOutput` for those rows (in the order of ``rows``). ``known_input`` is passed to the warm-up
         steps (only the clairvoyant bound uses it)."""
         rows = _k.c_array(np.asarray(rows, dtype=np.int64).reshape(-1))
+        i1s, i2s = self._put(rows, episodes)
+        return self._start(rows, i1s, i2s, known_input)
+
+    def _put(self, rows, episodes):
+        """Check ``episodes`` for the track start and pack them into the looks of ``rows`` (int64 array); returns
+        the looks of their two hits ``(i1s, i2s)``."""
         episodes = list(episodes)
         if rows.size != len(episodes):
             raise ValueError(f"got {rows.size} rows and {len(episodes)} episodes")
@@ -232,20 +262,21 @@ class Tracker:
                 raise ValueError(f"episode {e.name!r} has {e.n_looks} looks; the track start needs {need} "
                                  f"(two hits at looks {i1} and {i2}, then {self.warmup_scans} warm-up looks)")
         self._ensure_capacity(max(e.n_looks for e in episodes))
-        L, fl = self._looks, self._flags
+        L = self._looks
         for r, e in zip(rows, episodes):
             K = e.n_looks
             blk = _episode_rows(e)
             L[r, :K] = blk
             L[r, K:] = blk[-1]          # pad: repeat the last look, not detected
             L[r, K:, _k.L_DET] = 0.0
-            for f in fl:
-                fl[f][r, :K] = getattr(e, f)
-                fl[f][r, K:] = fl[f][r, K - 1]
-            fl["detected"][r, K:] = False
             self.n_looks[r], self.names[r] = K, e.name
+        return i1s, i2s
+
+    def _start(self, rows, i1s, i2s, known_input=False):
+        """Two-hit start of ``rows`` (episodes already in the look arrays) and the warm-up; the last warm-up
+        StepOutput."""
         b = self.bank
-        _k.k_track_start(rows, i1s, i2s, self.x, self.P, self.k, self.t_last, self._looks, b._f, b._i, b._b, b._par)
+        _k.k_track_start(rows, i1s, i2s, self._st, self._it, self._looks, b._f, b._i, b._b, b._par)
         return self._step(np.full(rows.size, self.warmup_q_m_s2), rows, False, None, known_input, self.warmup_scans)
 
     @staticmethod
@@ -281,8 +312,7 @@ class Tracker:
         o, ob, oi = self._out_blocks(n)
         b = self.bank
         status, i = _k.k_tracker_step(sel, all_rows, q, w, turn_rate_rad_s is not None, bool(known_input), MAX_Q_M_S2,
-                                      n_rep, self.x, self.P, self.k, self.t_last, self.n_looks, self._looks, b._f,
-                                      b._i, b._b, b._par, o, ob, oi)
+                                      n_rep, self._st, self._it, self._looks, b._f, b._i, b._b, b._par, o, ob, oi)
         if status == 1:
             raise ValueError(f"q_m_s2 must be finite and in [0, {MAX_Q_M_S2:.1f}] m/s^2, got {q[i]!r}")
         if status == 2:
@@ -298,15 +328,11 @@ class Tracker:
         self._ensure_capacity(src._cap)
         c = src._cap
         self._looks[dst_rows, :c] = src._looks[src_rows]
-        for f in self._flags:
-            self._flags[f][dst_rows, :c] = src._flags[f][src_rows]
         if self._cap > c:
             self._looks[dst_rows, c:] = src._looks[src_rows, -1:]
             self._looks[dst_rows, c:, _k.L_DET] = 0.0
-            self._flags["maneuvering"][dst_rows, c:] = src._flags["maneuvering"][src_rows, -1:]
-            self._flags["detected"][dst_rows, c:] = False
-        for name in ("n_looks", "k", "t_last", "x", "P"):
-            getattr(self, name)[dst_rows] = getattr(src, name)[src_rows]
+        self._st[dst_rows] = src._st[src_rows]
+        self._it[dst_rows] = src._it[src_rows]
         for d, s_ in zip(dst_rows, src_rows):
             self.names[d] = src.names[s_]
         self.bank.put_rows(dst_rows, src.bank.take_rows(src_rows))
@@ -318,29 +344,33 @@ class Tracker:
         if c:
             new[:, c:] = self._looks[:, -1:]
             new[:, c:, _k.L_DET] = 0.0
-        flags = {}
-        for f, a in self._flags.items():
-            b = np.zeros((self.B, K), bool)
-            b[:, :c] = a
-            if c and f != "detected":
-                b[:, c:] = a[:, -1:]
-            flags[f] = b
-        self._looks, self._flags, self._cap = new, flags, K
+        self._looks, self._cap = new, K
 
     def remaining_looks(self):
         """(B,) looks left to process per row."""
         return self.n_looks - self.k
 
+    _FLAG_COLUMNS = {"detected": _k.L_DET, "maneuvering": _k.L_MAN}
+
     def look_data(self, name):
-        """The stored (B, K_cap, ...) array of one look field (read-only view), e.g. ``"truth"``."""
-        if name in self._flags:
-            v = self._flags[name].view()
+        """The stored (B, K_cap, ...) array of one look field (read-only), e.g. ``"truth"``: a view of the packed
+        looks, or for the flags ``detected`` / ``maneuvering`` a bool array made from them."""
+        if name in self._FLAG_COLUMNS:
+            v = self._looks[:, :, self._FLAG_COLUMNS[name]] != 0.0
         else:
             c, tail = _k.LOOK_COLUMNS[name]
             w = int(np.prod(tail)) if tail else 1
             v = self._looks[:, :, c:c + w].reshape((self.B, self._cap) + tail)
         v.flags.writeable = False
         return v
+
+    def _look_field(self, rows, k, name):
+        """Field ``name`` of look ``k[i]`` of row ``rows[i]`` (n, ...), read from the packed looks."""
+        if name in self._FLAG_COLUMNS:
+            return self._looks[rows, k, self._FLAG_COLUMNS[name]] != 0.0
+        c, tail = _k.LOOK_COLUMNS[name]
+        w = int(np.prod(tail)) if tail else 1
+        return self._looks[rows, k, c:c + w].reshape((rows.size,) + tail)
 
     # ------------------------------------------------------------------------------------------ cursor
     # For filters that run beside the chain on the same looks (the IMM, re-initialisation, Konle's blend): they read
@@ -361,9 +391,9 @@ class Tracker:
         ``R_m2``, ``detected``, ``site_xy_m``, the measured polar values and the sigmas of the site that looked)."""
         rows = self._cursor_rows(rows)
         k = self.k[rows]
-        look = {f: self.look_data(f)[rows, k] for f in (self._CURSOR_FIELDS if fields is None else fields)}
+        look = {f: self._look_field(rows, k, f) for f in (self._CURSOR_FIELDS if fields is None else fields)}
         look["k"] = k
-        look["dt_s"] = self.look_data("t_s")[rows, k] - self.t_last[rows]
+        look["dt_s"] = self._looks[rows, k, _k.L_T] - self.t_last[rows]
         return look
 
     def advance(self, rows, x, P):
@@ -373,7 +403,7 @@ class Tracker:
         rows = self._cursor_rows(rows)
         k = self.k[rows]
         self.x[rows], self.P[rows] = x, P
-        self.t_last[rows] = self.look_data("t_s")[rows, k]
+        self.t_last[rows] = self._looks[rows, k, _k.L_T]
         self.k[rows] = k + 1
         return self.k[rows] >= self.n_looks[rows]
 

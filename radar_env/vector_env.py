@@ -12,6 +12,7 @@ from gymnasium.vector.vector_env import AutoresetMode
 
 from .config import EnvConfig
 from .core import _Core
+from .env_kernels import BO_DONE
 from .validate import check_known_keys
 
 __all__ = ["RadarTrackVectorEnv"]
@@ -26,9 +27,10 @@ class RadarTrackVectorEnv(VectorEnv):
     ``info["final_obs"][i]`` / ``info["final_info"]`` hold the last observation and info of the finished one
     (``info["_final_obs"]`` is the mask of rows that ended). Seeding: ``reset(seed=s)`` seeds row i with
     ``s + i``, as Gymnasium's ``SyncVectorEnv`` does, so row i equals ``RadarTrackEnv`` reset with ``s + i``.
-    Finished rows start their next tracks in batches (each row's next episode drawn ahead from its own generator,
-    so autoreset results are unchanged); an explicit ``reset()`` without a seed discards those prepared episodes,
-    so after it the rows continue from their generators' advanced state.
+    Finished rows start their next tracks inside the same step (drawn straight into the tracker and started by one
+    kernel call; each row's next draw is prepared from its own generator, all rows without one at once when a
+    finishing row has none); an explicit ``reset()`` without a seed discards those prepared draws, so after it the
+    rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
 
     Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
@@ -58,8 +60,7 @@ class RadarTrackVectorEnv(VectorEnv):
         if self.config.render_mode is not None:
             raise ValueError("RadarTrackVectorEnv does not render; use the single env")
         self.num_envs = int(num_envs)
-        self._core = _Core(self.num_envs, self.config)
-        self._core.enable_prefetch()
+        self._core = _Core(self.num_envs, self.config, autoreset=True, max_episode_steps=self.max_episode_steps)
         n_act = len(self.config.q_levels_g)
         self.single_action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
                                     else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
@@ -67,8 +68,6 @@ class RadarTrackVectorEnv(VectorEnv):
         self.single_observation_space = spaces.Box(*self.config.observation_bounds(lay), dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self._all = np.arange(self.num_envs)
-        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._started = False
 
     @property
@@ -92,10 +91,10 @@ class RadarTrackVectorEnv(VectorEnv):
                 raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
         if seed is not None or not self._started:
             self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
-        obs, info, _ = self._core.reset_rows(self._all, scenario)
-        self._elapsed[:] = 0
+        core = self._core
+        (obs, fo, fs, bo), inc = core.reset(scenario)
         self._started = True
-        return obs, _with_masks(info)
+        return obs, _with_masks(core.info(fo, fs, bo, inc))
 
     def step(self, actions):
         if not self._started:
@@ -107,38 +106,19 @@ class RadarTrackVectorEnv(VectorEnv):
         if a.shape not in shapes:
             raise ValueError(f"actions must have shape {' or '.join(map(str, shapes))} ({self.action_space}), got "
                              f"shape {a.shape}: {actions!r}")
-        obs, rew, term, trunc, info = core.step(a.reshape(n))
-        self._elapsed += 1
-        if self.max_episode_steps is not None:
-            trunc = trunc | (self._elapsed >= self.max_episode_steps)
-        done = term | trunc
-        self._elapsed[done] = 0
-        if np.any(done):
-            rows = np.flatnonzero(done)
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            for r in rows:
-                final_obs[r] = obs[r].copy()
-            final_info = _with_masks(info, done)
-            new_obs, new_info, _ = core.reset_rows(rows, use_prefetch=True)
-            obs[rows] = new_obs   # obs is new every step (the ended rows' last observations are copied above)
-            info = _merge_rows(info, new_info, rows)
+        (obs, fo, fs, bo), rew, term, trunc, inc, final = core.step(a.reshape(n))
+        info = core.info(fo, fs, bo, inc)
+        if final is not None:   # rows that ended were restarted in this step (same-step autoreset)
+            rows, fobs, ffo, ffs, fbo, finc = final
+            done = fbo[BO_DONE]
+            final_obs = np.full(n, None, dtype=object)
+            for j, r in enumerate(rows):
+                final_obs[r] = fobs[j]
             info["final_obs"] = final_obs
             info["_final_obs"] = done.copy()
-            info["final_info"] = final_info
+            info["final_info"] = _with_masks(core.info(ffo, ffs, fbo, finc), done)
             info["_final_info"] = done.copy()
         return obs, rew, term, trunc, _with_masks(info)
-
-
-def _merge_rows(info, new, rows):
-    out = {}
-    for k, v in info.items():
-        if isinstance(v, dict):
-            out[k] = _merge_rows(v, new[k], rows)
-        else:
-            a = np.array(v, copy=True)
-            a[rows] = new[k]
-            out[k] = a
-    return out
 
 
 def _with_masks(info, mask=None):

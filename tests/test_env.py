@@ -1,7 +1,6 @@
 """RadarTrack-v0: registration, env checkers, seeding, the info contract, configuration errors, track loss,
 the native vector env against the single env, and robustness under random/extreme actions."""
 
-import dataclasses
 import importlib
 import subprocess
 import sys
@@ -12,7 +11,8 @@ import numpy as np
 import pytest
 
 import radar_env
-import radar_env.core as rcore
+from radar_env.draws import LookDrawer
+from radar_env.kernels import L_MAN, L_TACC, L_TRUTH, L_TTURN
 import radar_env.env as renv
 from radar_env.catalog import make_setup
 from radar_env.radar import atc_radar
@@ -211,16 +211,17 @@ def test_observation_does_not_depend_on_truth(monkeypatch):
         return out
 
     ref = run()
-    orig = rcore.draw_episodes   # the core draws its episodes through this (radar_env.draws)
+    orig = LookDrawer.draw   # the core draws its episodes straight into the tracker's looks (radar_env.draws)
 
-    def perturbed(*args, **kwargs):
-        b = orig(*args, **kwargs)
-        return dataclasses.replace(b, truth=b.truth + np.array([300.0, -200.0, 5.0, -3.0]),
-                                   truth_accel_m_s2=b.truth_accel_m_s2 + 20.0,
-                                   truth_turn_rate_rad_s=b.truth_turn_rate_rad_s + 0.1,
-                                   maneuvering=~b.maneuvering)
+    def perturbed(self, keys, rows, tracker):
+        orig(self, keys, rows, tracker)
+        L = tracker._looks
+        L[rows, :, L_TRUTH:L_TRUTH + 4] += np.array([300.0, -200.0, 5.0, -3.0])
+        L[rows, :, L_TACC:L_TACC + 2] += 20.0
+        L[rows, :, L_TTURN] += 0.1
+        L[rows, :, L_MAN] = 1.0 - L[rows, :, L_MAN]
 
-    monkeypatch.setattr(rcore, "draw_episodes", perturbed)   # the core draws the episodes
+    monkeypatch.setattr(LookDrawer, "draw", perturbed)   # the core draws the episodes
     alt = run()
     assert len(ref) == len(alt)
     for a, b in zip(ref, alt):

@@ -30,7 +30,8 @@ def _frozen_encode(lay, out, q_prev):
 def outputs():
     core = _Core(8, EnvConfig())
     core.rngs = [np.random.default_rng(s) for s in range(8)]
-    _, _, out0 = core.reset_rows(np.arange(8))
+    core.reset()
+    out0 = core.tracker.load(np.arange(8), core._draw(np.arange(8)))   # a track start's StepOutput
     outs = [out0]
     rng = np.random.default_rng(1)
     for _ in range(3):
