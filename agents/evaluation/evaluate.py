@@ -32,7 +32,7 @@ from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.metrics import (FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci,
                                        score_run)
-from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
+from agents.evaluation.options import DEFAULT_TRACKERS, LEARNED_TRACKERS, build_parser, default_trackers
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
 from agents.evaluation.suites import (DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EXTRA_SUITES, draw_suite, run_scenario,
@@ -279,8 +279,8 @@ def _list_names():
     """``--list``: every suite and built-in tracker name."""
     print("suites:\n  " + "\n  ".join(list(SCENARIO_NAMES) + list(EXTRA_SUITES) + ["adsb:<flight>",
                                                                                "<file>.csv (--trajectory)"]))
-    print("trackers:\n  " + "\n  ".join(tracker_names()))
-    print(f"defaults: --scenario {','.join(DEFAULT_SUITES)} --trackers {','.join(DEFAULT_TRACKERS)}")
+    print("trackers:\n  " + "\n  ".join(list(tracker_names()) + list(LEARNED_TRACKERS)))
+    print(f"defaults: --scenario {','.join(DEFAULT_SUITES)} --trackers {','.join(default_trackers(True))}")
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -351,7 +351,7 @@ def main(argv=None, prog="radar-track evaluate"):
     if args.tracker_module and (args.workers > 1 or args.address):
         raise SystemExit("error: --tracker-module: user trackers are registered in this process only and cannot run "
                          f"on Ray workers; use --workers 1 without --address (got --workers {args.workers})")
-    known = tracker_names()
+    known = tuple(tracker_names()) + tuple(LEARNED_TRACKERS)
     if args.trackers is not None:
         trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
         if not trackers:
@@ -363,10 +363,14 @@ def main(argv=None, prog="radar-track evaluate"):
                              + ("" if args.tracker_module else " (user trackers need --tracker-module)"))
         if "policy" in trackers and policy is None:
             raise SystemExit("error: tracker 'policy' needs --policy PATH (no bundled policy found)")
+        missing = [t for t in trackers if t in LEARNED_TRACKERS and not LEARNED_TRACKERS[t].is_file()]
+        if missing:
+            raise SystemExit(f"error: --trackers: {missing[0]!r} runs its bundled checkpoint, which is missing "
+                             f"({LEARNED_TRACKERS[missing[0]]})")
         if len(set(trackers)) != len(trackers):
             raise SystemExit(f"error: --trackers: a tracker is named twice in {args.trackers!r}")
     else:
-        trackers = [t for t in DEFAULT_TRACKERS if t != "policy" or policy is not None]
+        trackers = default_trackers(policy is not None)
     loaded = None
     if "policy" in trackers:        # load once, now: a file that is not a usable policy is a user error
         _say(args, f"loading the policy {policy} (torch, stable-baselines3) ...")

@@ -10,13 +10,26 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_LEARNED_IMM, BUNDLED_POLICY
 from baselines.seeds import EVAL_SEED_BASE
 
-__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
+__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "LEARNED_TRACKERS", "default_trackers", "build_parser",
+           "first_line"]
 
 DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-"""The main job's trackers (``policy`` only when a policy is bundled or given)."""
+"""The main job's trackers (``policy`` only when a policy is bundled or given), then the bundled
+:data:`LEARNED_TRACKERS` that exist."""
+
+LEARNED_TRACKERS = {"policy_imm_bp": BUNDLED_LEARNED_IMM}
+"""Learned trackers run by name from their bundled checkpoint: ``policy_imm_bp``, the learned IMM
+(:mod:`agents.policies.learned_imm`)."""
+
+
+def default_trackers(has_policy):
+    """The main job's default tracker list: :data:`DEFAULT_TRACKERS` (``policy`` if ``has_policy``) and every
+    bundled learned tracker."""
+    return [t for t in DEFAULT_TRACKERS if t != "policy" or has_policy] + [
+        t for t, path in LEARNED_TRACKERS.items() if path.is_file()]
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
@@ -92,7 +105,7 @@ def first_line(args):
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
-                else len(DEFAULT_TRACKERS) if args.policy or BUNDLED_POLICY.is_file() else len(DEFAULT_TRACKERS) - 1)
+                else len(default_trackers(bool(args.policy) or BUNDLED_POLICY.is_file())))
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
             + (" and the policy" if trackers and (args.trackers is None or "policy" in args.trackers) else "")

@@ -22,10 +22,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env", "ship_policy"]
+__all__ = ["BUNDLED_POLICY", "BUNDLED_LEARNED_IMM", "policy_env_kwargs", "make_policy_env", "ship_policy"]
 
 BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
+BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / "policy.npz"
+"""The bundled learned IMM (the tracker ``policy_imm_bp``; :mod:`agents.policies.learned_imm`)."""
 
 
 def _tuples(v):

@@ -49,6 +49,8 @@ from radar_env.config import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import DEG, G0_M_S2
 
+from agents.policies.bundle import BUNDLED_LEARNED_IMM, _tuples
+
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",
            "detector_names", "initial_detectors", "gru_cell", "weight_shapes", "LearnedIMM", "save_learned_imm", "load_learned_imm",
            "is_learned_imm_checkpoint", "run_learned_imm", "run_bundled_learned_imm"]
@@ -56,8 +58,6 @@ __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap"
 FORMAT = "radar-track-learned-imm"
 VERSION = 1
 POLICY_FILE = "policy.npz"
-BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / POLICY_FILE
-"""The bundled learned IMM (the tracker ``policy_imm_bp``)."""
 
 OMEGA_SCALE_DEG_S = 20.0
 """Scale of the turn-rate detector (imm_cv_ct's default turn-rate bound)."""
@@ -252,7 +252,6 @@ class LearnedIMM:
 
 
 def _env_kwargs(kw):
-    from agents.policies.bundle import _tuples
     return _tuples(json.loads(json.dumps(kw)))
 
 

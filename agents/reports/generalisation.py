@@ -34,7 +34,8 @@ from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 
 __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spread_table", "targets_table",
-           "track_start_table", "NAMED_SUITES"]
+           "track_start_table", "NAMED_SUITES", "learned_imm_section", "learned_imm_targets",
+           "learned_imm_targets_table", "learned_imm_seeds"]
 
 CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
 """The classical field the *strongest classical tracker* is taken from (tuned IMMs, Bizup's IMM, the tuned KF,
@@ -70,13 +71,15 @@ def _ratio(batch, a, b):
 def _score(batch, policy_run, classical_runs, strongest):
     m = evaluate_run(batch, policy_run)
     return {"pos_rmse_m": m["pos_rmse_m"], "pos_rmse_m_ci95": m["pos_rmse_m_ci95"],
-            "track_loss_rate": m["track_loss_rate"], "failed_runs": m["failed_runs"],
+            "track_loss_rate": m["track_loss_rate"], "failed_runs": m["failed_runs"], "anees": m["anees"],
             "ratio_vs_imm2": _ratio(batch, policy_run, classical_runs["imm2"]),
+            "ratio_vs_imm_cv_ct": _ratio(batch, policy_run, classical_runs["imm_cv_ct"]),
             "ratio_vs_strongest": _ratio(batch, policy_run, classical_runs[strongest])}
 
 
-def evaluate_suite(suite, episodes, policies, bounds=()):
-    """Classical field, ``bounds`` and every policy of ``policies`` (``{name: (choose_q, cfg)}``) on one suite.
+def evaluate_suite(suite, episodes, policies, bounds=(), trackers=None):
+    """Classical field, ``bounds``, every policy of ``policies`` (``{name: (choose_q, cfg)}``) and every learned
+    tracker of ``trackers`` (``{name: run(episodes) -> TrackRun}``, scored like the policies) on one suite.
     Returns the suite's JSON-able result."""
     batch = stack_episodes(episodes)
     runs = {t: run_tracker(t, episodes) for t in CLASSICAL + tuple(bounds)}
@@ -86,11 +89,13 @@ def evaluate_suite(suite, episodes, policies, bounds=()):
     res = {"runs": len(episodes), "few_runs": len(episodes) < FEW_RUNS,
            "looks_per_run_mean": float(batch.n_looks.mean()), "strongest_classical": strongest,
            "trackers": {t: {k: metrics[t][k] for k in ("pos_rmse_m", "pos_rmse_m_ci95", "track_loss_rate",
-                                                     "failed_runs")} for t in runs},
+                                                     "failed_runs", "anees")} for t in runs},
            "ratio_vs_imm2": {t: _ratio(batch, r, runs["imm2"]) for t, r in runs.items()},
            "policies": {}}
     for name, (choose_q, cfg) in policies.items():
         res["policies"][name] = _score(batch, run_q_policy(episodes, choose_q, name, cfg), runs, strongest)
+    for name, run in (trackers or {}).items():
+        res["policies"][name] = _score(batch, run(episodes), runs, strongest)
     if "hindsight_q" in runs and "policy" in res["policies"]:
         fake = {"trackers": {"policy": res["policies"]["policy"], **metrics}}
         res["headroom_share"] = headroom_share(fake)
@@ -132,6 +137,108 @@ def track_start_table(data):
 def recipe_policies(recipe_dir=RECIPE_DIR):
     """``{name: path}`` of every recipe seed shipped in ``recipe_dir`` (sorted)."""
     return {p.parent.name: p for p in sorted(Path(recipe_dir).glob("*/policy.zip"))}
+
+
+LEARNED_IMM_SEEDS_DIR = RECIPE_DIR.parent / "learned_imm_seeds"
+"""Every trained seed of the learned IMM's recipe: ``<name>/policy.npz`` (the bundled one, ``policy_imm_bp``, is
+``agents/bundled/learned_imm/``, a copy of the seed its ``train_config.json`` names)."""
+
+
+def learned_imm_seeds(seeds_dir=LEARNED_IMM_SEEDS_DIR):
+    """``{name: path}`` of every learned IMM seed shipped in ``seeds_dir`` (sorted)."""
+    return {p.parent.name: p for p in sorted(Path(seeds_dir).glob("*/policy.npz"))}
+
+
+def learned_imm_section(seed, seeds_dir=LEARNED_IMM_SEEDS_DIR, runs=200, progress=print):
+    """The learned IMM's seeds on every suite of the seed-spread table (held-out seeds ``seed + i``, the same runs):
+    ``{"seeds": [...], "bundled": name or None, "suites": {suite: evaluate_suite(...)}}``."""
+    from agents.policies.bundle import BUNDLED_LEARNED_IMM
+    from agents.policies.learned_imm import load_learned_imm
+    paths = learned_imm_seeds(seeds_dir)
+    models = {n: load_learned_imm(p) for n, p in paths.items()}
+    bundled = None
+    cfg_file = BUNDLED_LEARNED_IMM.with_name("train_config.json")
+    if cfg_file.is_file():
+        bundled = json.loads(cfg_file.read_text()).get("chosen_seed")
+    out = {"seeds": list(models), "bundled": bundled, "suites": {}}
+    if not models:
+        return out
+    t0 = time.time()
+    for suite in DEFAULT_SUITES + HELDOUT_FAMILY_SUITES:
+        eps = draw_suite(suite, _runs(suite, runs), seed=seed)
+        out["suites"][suite] = evaluate_suite(suite, eps, {}, (), {n: (lambda e, m=m, n=n: m.run(e, n))
+                                                                  for n, m in models.items()})
+        progress(f"{suite}: learned IMM seeds ({time.time() - t0:.0f} s)")
+    return out
+
+
+LEARNED_IMM_BOUNDED = NAMED_SUITES + HELDOUT_FAMILY_SUITES
+"""Where the learned IMM must be at most 1.0 x the strongest classical tracker (upper end <= 1.02): every named
+scenario, family and adsb_heldout."""
+
+
+def learned_imm_targets(li):
+    """Issue 26's targets for each learned IMM seed (held-out seeds): ``[(target, {seed: (reached, numbers)},
+    reached by >= 2 of the seeds)]``; ``li`` is :func:`learned_imm_section`'s result."""
+    su, seeds = li["suites"], li["seeds"]
+    pol = lambda s, n: su[s]["policies"][n]   # noqa: E731
+
+    def r_ci(r):
+        return f"{r[0]:.3f} [{r[1][0]:.3f}, {r[1][1]:.3f}]"
+
+    rows = []
+
+    def add(name, per_seed):
+        res = {n: per_seed(n) for n in seeds}
+        rows.append((name, res, sum(bool(v[0]) for v in res.values()) >= 2))
+
+    if "random" in su:
+        add("random <= 0.90 x imm_cv_ct (stretch 0.85)",
+            lambda n: (pol("random", n)["ratio_vs_imm_cv_ct"][0] <= 0.90, r_ci(pol("random", n)["ratio_vs_imm_cv_ct"])))
+    if "bizup2002" in su:
+        add("bizup2002 <= 0.95 x imm_cv_ct",
+            lambda n: (pol("bizup2002", n)["ratio_vs_imm_cv_ct"][0] <= 0.95,
+                       r_ci(pol("bizup2002", n)["ratio_vs_imm_cv_ct"])))
+    bounded = [s for s in LEARNED_IMM_BOUNDED if s in su]
+
+    def bound(n):
+        bad = [s for s in bounded if not (pol(s, n)["ratio_vs_strongest"][0] <= 1.0
+                                          and pol(s, n)["ratio_vs_strongest"][1][1] <= 1.02)]
+        return not bad, ("fails on " + ", ".join(f"{s} {r_ci(pol(s, n)['ratio_vs_strongest'])} / "
+                                                  f"{su[s]['strongest_classical']}" for s in bad)
+                         if bad else f"all {len(bounded)} suites")
+    add("every named scenario, family and adsb_heldout: <= 1.0 x the strongest classical, upper end <= 1.02", bound)
+
+    def loss(n):
+        worse = [s for s in su if pol(s, n)["track_loss_rate"] > su[s]["trackers"]["imm_cv_ct"]["track_loss_rate"]]
+        return not worse, ("worse on " + ", ".join(
+            f"{s} ({100 * pol(s, n)['track_loss_rate']:.1f} % vs "
+            f"{100 * su[s]['trackers']['imm_cv_ct']['track_loss_rate']:.1f} %)" for s in worse)
+            if worse else f"all {len(su)} suites")
+    add("track loss <= imm_cv_ct's on every suite", loss)
+    if "random" in su:
+        ref = su["random"]["trackers"]["imm_cv_ct"]["anees"]
+        add("ANEES on random <= imm_cv_ct's",
+            lambda n: (pol("random", n)["anees"] <= ref, f"{pol('random', n)['anees']:.2f} vs {ref:.2f}"))
+    return rows
+
+
+def learned_imm_targets_table(data):
+    """Markdown: issue 26's targets, one column per learned IMM seed, and whether 2 of them reach each."""
+    li = data.get("learned_imm") or {"seeds": [], "suites": {}}
+    if not li["seeds"]:
+        return "No learned IMM seeds are shipped (agents/bundled/learned_imm_seeds/)."
+    seeds = li["seeds"]
+    mark = lambda n: n + (" (bundled)" if n == li.get("bundled") else "")   # noqa: E731
+    lines = ["| target (learned IMM, held-out seeds) | " + " | ".join(mark(n) for n in seeds)
+             + " | reached by >= 2 seeds |", "|---" * (2 + len(seeds)) + "|"]
+    for name, res, two in learned_imm_targets(li):
+        cells = [f"{'yes' if ok else '**no**'}: {nums}" for ok, nums in (res[n] for n in seeds)]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {'yes' if two else '**no**'} |")
+    allm = [n for n in seeds if all(res[n][0] for _, res, _ in learned_imm_targets(li))]
+    lines.append(f"| all of the above | " + " | ".join("yes" if n in allm else "**no**" for n in seeds)
+                 + f" | {'yes' if len(allm) >= 2 else '**no**'} ({len(allm)} of {len(seeds)}) |")
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------------------ tables
@@ -249,8 +356,26 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
     ap.add_argument("--family-runs", type=int, default=FAMILY_RUNS)
     ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update the generated blocks of docs/*.md")
+    ap.add_argument("--learned-imm-only", action="store_true",
+                    help="compute only the learned IMM's section (its seeds against the classical field on every "
+                         "suite) into docs/generalisation.json and its targets block; the rest is kept")
     args = ap.parse_args(argv)
     t0 = time.time()
+    docs = Path(args.docs)
+    if args.learned_imm_only:
+        data = json.loads((docs / "generalisation.json").read_text())
+        if data.get("seed") != args.seed:
+            raise SystemExit(f"error: docs/generalisation.json was computed with --seed {data.get('seed')}, not "
+                             f"{args.seed}")
+        data["learned_imm"] = learned_imm_section(args.seed, progress=lambda m: print(m, flush=True))
+        data["learned_imm"]["seconds"] = time.time() - t0
+        (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
+        text = learned_imm_targets_table(data)
+        if args.readme:
+            from agents.reports.readme_blocks import replace_block
+            replace_block("learned-imm-targets", text)
+        print(text)
+        return
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
     seeds = {n: load_policy(p) for n, p in recipe_policies().items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
@@ -270,11 +395,11 @@ def main(argv=None):
         data["spread"][suite] = evaluate_suite(suite, eps, {**bundle, **seeds})
         print(f"{suite}: seed spread ({time.time() - t0:.0f} s)", flush=True)
     data["track_start"] = track_start_study(args.seed, 200)
+    data["learned_imm"] = learned_imm_section(args.seed, progress=lambda m: print(m, flush=True))
     data["seconds"] = time.time() - t0
-    docs = Path(args.docs)
     (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"families": families_table(data), "seed-spread": spread_table(data), "targets": targets_table(data),
-              "track-start": track_start_table(data)}
+              "track-start": track_start_table(data), "learned-imm-targets": learned_imm_targets_table(data)}
     if args.readme:
         from agents.reports.readme_blocks import replace_block
         for name, text in blocks.items():
