@@ -176,9 +176,15 @@ class _Core:
         terms = {"position_error": pos, "track_lost": np.where(lost, -clip * remaining, 0.0)}
         w = self.cfg.reward_nees_weight
         if w > 0:   # overconfidence: the position NEES beyond its 99 % bound, in units of the bound
-            d = out.x[:, :2] - out.truth[:, :2]
-            # a pivoted solve: the position block can be nearly singular (range vs cross-range at long range)
-            nees = np.einsum("ni,ni->n", d, np.linalg.solve(out.P[:, :2, :2], d[:, :, None])[:, :, 0])
+            d0, d1 = out.x[:, 0] - out.truth[:, 0], out.x[:, 1] - out.truth[:, 1]
+            a, b, c = out.P[:, 0, 0], out.P[:, 0, 1], out.P[:, 1, 1]
+            det = a * c - b * b
+            # the 2 x 2 closed form, never a LinAlgError: the update keeps P positive definite on every radar the
+            # env accepts (radar_env.kernels._pd_floor); a block that is not (det <= 0) would count as maximally
+            # inconsistent (the clipped penalty), never as a number from a singular solve
+            ok = (det > 0.0) & (a > 0.0)
+            nees = np.divide(c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1, det, out=np.full(det.shape, np.inf),
+                             where=ok)
             terms["inconsistency"] = -w * np.minimum(np.maximum(nees / NEES_99_2DOF - 1.0, 0.0), clip)
         return terms
 
