@@ -20,6 +20,7 @@ vector env with the same arguments.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -27,7 +28,11 @@ import gymnasium as gym
 import radar_env  # noqa: F401 - registers RadarTrack-v0
 from radar_env.env import RadarTrackVectorEnv
 
-__all__ = ["BUNDLED_POLICY", "policy_env_kwargs", "make_policy_env", "ship_policy"]
+__all__ = ["BUNDLED_POLICY", "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env", "ship_policy",
+           "embed_env_config", "recorded_env_kwargs"]
+
+ENV_CONFIG_ENTRY = "radar_track_env_config.json"
+"""Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
 BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
@@ -59,6 +64,45 @@ def policy_env_kwargs(policy_path=None):
     return _tuples(kw)
 
 
+def embed_env_config(zip_path, env_kwargs):
+    """Store the env arguments a model was trained with inside its zip (entry :data:`ENV_CONFIG_ENTRY`, plain JSON;
+    stable-baselines3 reads only its own entries), so that :func:`agents.policies.loading.load_policy` can refuse an
+    ``env_config.json`` edited or swapped since. Called by training and :func:`ship_policy` after each save."""
+    with zipfile.ZipFile(zip_path, "a") as z:
+        if ENV_CONFIG_ENTRY not in z.namelist():
+            z.writestr(ENV_CONFIG_ENTRY, json.dumps(env_kwargs, indent=1))
+
+
+def recorded_env_kwargs(policy_path):
+    """``(kwargs, where)``: the record of the env a policy was trained in, independent of the ``env_config.json``
+    beside it: the zip's embedded copy (:func:`embed_env_config`), else the run's hyperparameters (``config.json``
+    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``train_config.json``).
+    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled)."""
+    path = Path(policy_path)
+    try:
+        with zipfile.ZipFile(path) as z:
+            if ENV_CONFIG_ENTRY in z.namelist():
+                kw = json.loads(z.read(ENV_CONFIG_ENTRY).decode())
+                if isinstance(kw, dict):
+                    return _tuples(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
+    except (OSError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError):
+        pass
+    for cand, key in ((path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
+                      (path.with_name("config.json"), ("env_kwargs",)),
+                      (path.parent.with_name("config.json"), ("env_kwargs",))):
+        if not cand.is_file():
+            continue
+        try:
+            v = json.loads(cand.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            continue
+        for k in key:
+            v = v.get(k) if isinstance(v, dict) else None
+        if isinstance(v, dict):
+            return _tuples(v), str(cand)
+    return None, None
+
+
 def make_policy_env(policy_path=None, num_envs=None, **overrides):
     """The env a policy was trained in: ``gym.make("RadarTrack-v0", **kwargs)`` with ``kwargs`` from
     :func:`policy_env_kwargs` updated by ``overrides``, or, with ``num_envs``, the native
@@ -86,5 +130,6 @@ def ship_policy(policy_path, dest_dir):
     model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)
     model.save(str(dest / "policy.zip"))
     shutil.copy(src.with_name("env_config.json"), dest / "env_config.json")
+    embed_env_config(dest / "policy.zip", json.loads((dest / "env_config.json").read_text()))
     return dest / "policy.zip"
 
