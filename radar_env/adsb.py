@@ -154,12 +154,8 @@ def _read_text(path):
                              "again") from None
         except (gzip.BadGzipFile, zlib.error, OSError) as e:
             raise ValueError(f"{path}: not a readable gzip file ({e}); a plain CSV must not end in '.gz'") from None
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        line = raw[: e.start].count(b"\n") + 1
-        raise ValueError(f"{path}: line {line}: not text (byte 0x{raw[e.start]:02x} at offset {e.start}); expected a "
-                         f"CSV with header {','.join(COLUMNS)}") from None
+    from .scenario import decode_utf8
+    return decode_utf8(raw, path)
 
 
 def load_raw(flight):

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_ray import TINY_SWEEP
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
@@ -138,26 +139,8 @@ def test_a_second_run_under_a_name_being_written_is_refused_and_touches_nothing(
 
 
 # ------------------------------------------------------------------------------------------------ SIGINT to sweep
-SLOW_SWEEP = """
-[sweep]
-name = "interrupted"
-algo = "ppo"
-[base]
-n_timesteps = 5_000_000
-n_envs = 4
-n_steps = 64
-batch_size = 128
-n_epochs = 1
-eval_freq = 1_000_000
-checkpoint_freq = 10_000_000
-select_on = ["random"]
-[base.eval_scenarios]
-random = 2
-[base.policy_kwargs]
-net_arch = [8]
-[space]
-seed = [0, 1]
-"""
+SLOW_SWEEP = TINY_SWEEP.replace('name = "tiny"', 'name = "interrupted"').replace("n_timesteps = 2048",
+                                                                                  "n_timesteps = 5_000_000")
 
 
 def test_sigint_to_a_sweep_exits_non_zero_marks_trials_unfinished_and_prints_the_resume_command(tmp_path):

@@ -32,6 +32,7 @@ from agents.policies.loading import load_policy
 from baselines.user_trackers import import_tracker_module
 from radar_env import adsb
 from radar_env.env import RadarTrackEnv
+from test_cli_errors import _write_flight
 
 QUICK = ["--no-plots", "--quiet"]
 BASE = ["--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "kf_low"]
@@ -43,16 +44,6 @@ def _one_line(excinfo, *words):
     for w in words:
         assert w in msg, (w, msg)
     return msg
-
-
-def _write_flight(path, speed_m_s=200.0, y_m=50e3, duration_s=600.0):
-    t = np.arange(0.0, duration_s + 0.5, 1.0)
-    x = -60e3 + speed_m_s * t
-    rows = ["t_s,x_m,y_m,vx_m_s,vy_m_s"] + [f"{ti:.1f},{xi:.1f},{y_m:.1f},{speed_m_s:.1f},0.0" for ti, xi in
-                                            zip(t, x)]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(rows) + "\n")
-    return path
 
 
 # ------------------------------------------------------------------------------------------------ policy files
@@ -184,7 +175,7 @@ def _shipped_gz():
 
 
 @pytest.mark.parametrize("kind, reason", [("truncated", "truncated gzip"), ("garbage", "not a readable gzip"),
-                                          ("binary", "not text")])
+                                          ("binary", "not UTF-8 text")])
 def test_bad_adsb_files_are_one_line_errors_naming_file_and_reason(tmp_path, kind, reason):
     raw = _shipped_gz().read_bytes()
     if kind == "truncated":
