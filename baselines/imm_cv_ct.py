@@ -45,7 +45,8 @@ The mixed mean and covariance into each mode are the usual moment-matched mixtur
 the CT mode takes all five components, a CV mode its 4-state marginal (its :math:`\omega` part is reset to the
 augmentation, so the 4-state CV arithmetic is exactly that of a 4-state KF: the zero cross-covariances make the fifth
 row inert). Mode probabilities are carried as logs (the log-space mixing of :func:`radar_env.filters.imm_mix`); the
-update is the chain's (:func:`radar_env.filters.update`'s covariance form and floor, positive definite); NIS and the Gaussian log-likelihood are those of :func:`radar_env.filters.update` (a
+update is the chain's (:func:`radar_env.filters.update`'s covariance form and floor, positive definite); NIS and
+the Gaussian log-likelihood are those of :func:`radar_env.filters.update` (a
 missed look: posterior = prior, log-likelihood 0). The output per look is the moment-matched combination of the
 modes' 4-state marginals, the combined turn rate :math:`\sum_j \mu_j \omega_j` (a CV mode's turn rate is 0), and the
 maneuver probability :math:`1 - \mu_{cv}` (the CT mode's probability when there is no third mode; with a third mode,

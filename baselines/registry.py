@@ -24,7 +24,8 @@ from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
-__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",
+__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters",
+           "tuned_imm2_spec", "TUNED_PATH",
            "register_tracker", "tracker_names"]
 
 

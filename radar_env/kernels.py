@@ -307,9 +307,9 @@ def _gain_update(x, P, n, nu0, nu1, r00, r01, r11, xo, Po):
     Computed in the frame of R's principal axes (:func:`_plot_frame`: the position rotated by ``G``, R diagonal,
     ``S'^-1`` accurate for a near-singular R): ``K' = P'H^T S'^-1``, ``x+ = x + K nu``; the covariance as
     ``P+' H^T = K' R'`` (position rows and columns) and ``P+[2:, 2:] = P[2:, 2:] - K'[2:] P'[:2, 2:]`` (the other
-    states), rotated back, symmetrised and floored by :func:`_pd_floor`. (``P - K H P`` or the Joseph form subtract prior-sized terms in the position block: a
-    rounding error of eps x the prior, above the posterior itself after a hard coast.) The same numbers as the
-    textbook update to rounding. xo/Po must not alias x/P."""
+    states), rotated back, symmetrised and floored by :func:`_pd_floor`. (``P - K H P`` or the Joseph form subtract
+    prior-sized terms in the position block: a rounding error of eps x the prior, above the posterior itself after
+    a hard coast.) The same numbers as the textbook update to rounding. xo/Po must not alias x/P."""
     c, s, l1, l2, a0, a1, a01, i00, i01, i11, det_s = _plot_frame(P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1],
                                                                    r00, r01, r11)
     cs, cc, ss = c * s, c * c, s * s

@@ -41,6 +41,7 @@ def _log_uniform(lo, hi):
     return st.floats(np.log10(lo), np.log10(hi)).map(lambda e: float(10.0 ** e))
 
 
+@pytest.mark.filterwarnings("ignore:scenario 'built_flight'")     # slow scans fly far from the radar on purpose
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     scan_period_s=_log_uniform(0.02, 3600.0),

@@ -247,7 +247,8 @@ def results_table(result_grid, space_keys, n_timesteps, early_stopping=True, int
     ``done`` (reached ``n_timesteps``), ``error``, ``stopped early`` (stopped by an early-stopping scheduler:
     ``early_stopping`` and not ``interrupted``) or ``unfinished`` (an interrupted sweep's trial: run the same
     command again to resume it)."""
-    # Tune's trial states tell an early stop (ASHA: TERMINATED short of n_timesteps) from an interruption
+    # a trial TERMINATED short of n_timesteps: an early stop only under an early-stopping scheduler and without
+    # an interrupt (Tune ends an interrupted trial TERMINATED too)
     trials = getattr(getattr(result_grid, "_experiment_analysis", None), "trials", None) or []
     states = [t.status for t in trials] if len(trials) == len(result_grid) else [None] * len(result_grid)
     rows = []

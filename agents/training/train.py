@@ -17,7 +17,8 @@ adapter (:mod:`agents.training.sb3_vec`), random scenarios only, row ``i`` seede
 a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback; none if the
 process was killed) and no final ``policy.zip``; a later run under the same name replaces it, while a finished
 ``<name>/`` is never overwritten (an error), and a run under the name another run is writing now is refused (an
-exclusive lock on ``<out>/.<name>.lock``, held while the run writes; run and sweep names are plain folder names). A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
+exclusive lock on ``<out>/.<name>.lock``, held while the run writes; run and sweep names are plain folder names).
+A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
 (``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
 ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
