@@ -24,7 +24,8 @@ from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
-__all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",
+__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters",
+           "tuned_imm2_spec", "TUNED_PATH",
            "register_tracker", "tracker_names"]
 
 
@@ -110,6 +111,11 @@ def register_tracker(name, fn, overwrite=False, batch=False):
 def tracker_names():
     """Every tracker name :func:`run_tracker` and ``--trackers`` accept: the built-ins, then user trackers."""
     return ("policy",) + tuple(_RUNNERS)
+
+BOUND_TRACKERS = ("clairvoyant", "oracle_q", "hindsight_q", "hindsight_q_turn")
+"""Trackers that see the truth (its acceleration, or the whole episode): reference bounds, not causal trackers. A
+bound worse than a real tracker on a suite is flagged by the evaluation (it bounds nothing there: e.g. the known
+input of ``clairvoyant`` is no help when the track is lost on a radar far outside the filter's assumptions)."""
 
 DESIGN_ENVELOPES = {
     "alpha_beta": "Kalata gains assume a constant scan period; with irregular or two-site looks each gap gets the "

@@ -58,13 +58,21 @@ def _fail_on_run(i, episodes, cfg):
     return registry._RUNNERS["kf_tuned"](episodes, cfg)
 
 
+def _crash_worker(episodes, cfg):
+    """Kills the Ray worker process running it (every retry too)."""
+    import os
+    os._exit(3)
+
+
 FAILING_TRACKERS = {"fails_on_run0": functools.partial(_fail_on_run, 0),     # lands in chunk 0
                     "fails_on_run3": functools.partial(_fail_on_run, 3)}     # lands in chunk 1
+WORKER_ONLY_TRACKERS = {"crashes_worker": _crash_worker}     # registered in Ray workers only (it kills its process)
 
 
 def _register_failing_trackers():
     """Ray worker setup hook: the test trackers exist in every worker process (a monkeypatch stays in the driver)."""
     registry._RUNNERS.update(FAILING_TRACKERS)
+    registry._RUNNERS.update(WORKER_ONLY_TRACKERS)
 
 
 @pytest.fixture(scope="module")
@@ -241,6 +249,16 @@ def test_a_tracker_failing_on_some_runs_on_two_workers_equals_the_serial_run(loc
         serial = run_one(t, eps)
         _assert_runs_equal(par[t], serial)
         assert par[t].error == serial.error and (serial.error is None) == (t == "kf_tuned")
+
+
+def test_a_worker_that_keeps_crashing_ends_in_one_line_naming_rays_logs(local_ray):
+    """Ray retries a task whose worker died; when every retry dies too, the user gets one line (the error type and
+    where Ray's logs are), not a Ray traceback."""
+    suites = [("bizup2002", draw_suite("bizup2002", 2, seed=FAIL_SEED))]
+    with pytest.raises(ValueError) as e:
+        run_suites_ray(suites, ["crashes_worker"], workers=2, seed=FAIL_SEED)
+    msg = str(e.value)
+    assert "\n" not in msg and "WorkerCrashedError" in msg and "Ray's logs: " in msg and "/logs" in msg
 
 
 def test_cli_workers_json_equals_serial(local_ray, tmp_path):

@@ -15,13 +15,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import DESIGN_ENVELOPES, tracker_names
+from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, tracker_names
 from baselines.user_trackers import import_tracker_module
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
@@ -30,11 +32,13 @@ from radar_env.episode import stack_episodes
 from agents.policies.bundle import BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.metrics import (FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci,
-                                       score_run)
+from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
+from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
+                                       jsonable, ratio_ci, score_run)
 from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
+from baselines.seeds import EVAL_SEED_BASE
 from agents.evaluation.suites import (DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EXTRA_SUITES, draw_suite, run_scenario,
                                       suite_key, trajectory_suite_names)
 
@@ -118,6 +122,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
             _note_undefined(m)
             res["trackers"][t] = m
+        res["bounds_beaten"] = bounds_beaten(res["trackers"])
         if reference in suite_runs:
             ref = suite_runs[reference]
             ref_ok = ~scores[reference].failed
@@ -132,6 +137,20 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         runs[suite] = (batch, suite_runs)
     bar.close()
     return results, runs
+
+
+def bounds_beaten(trackers):
+    """``{bound: {"pos_rmse_m": .., "beaten_by": name, "beaten_by_pos_rmse_m": ..}}`` for each bound tracker
+    (:data:`baselines.registry.BOUND_TRACKERS`) whose pooled position RMSE is above that of the best real tracker
+    of the suite (``trackers``: name -> metrics): such a "bound" bounds nothing there, and the tables say so."""
+    real = {t: m["pos_rmse_m"] for t, m in trackers.items()
+            if t not in BOUND_TRACKERS and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"])}
+    if not real:
+        return {}
+    best = min(real, key=real.get)
+    return {t: {"pos_rmse_m": m["pos_rmse_m"], "beaten_by": best, "beaten_by_pos_rmse_m": real[best]}
+            for t, m in trackers.items() if t in BOUND_TRACKERS and m.get("pos_rmse_m") is not None
+            and np.isfinite(m["pos_rmse_m"]) and m["pos_rmse_m"] > real[best]}
 
 
 def _downstream(suite, episodes, batch, run, failed=None):
@@ -184,7 +203,9 @@ def format_table(results, reference="imm2"):
 
     ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``common`` over the suite's
     common runs (no compared tracker lost or failed them); the ratio columns are paired over the runs neither
-    tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs."""
+    tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs; ``*``
+    beside an ANEES one taken from under 90 % of the looks (:func:`table_notes` says how many, and names a bound
+    tracker that some real tracker beat)."""
     lines = []
     head = ("tracker", "pos RMSE m [95% CI]", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
             "in95", "lost", "failed", "common RMSE m [95% CI]", f"/{reference} all [95% CI]",
@@ -206,7 +227,7 @@ def format_table(results, reference="imm2"):
                 t,
                 _f_ci(m["pos_rmse_m"], m["pos_rmse_m_ci95"], m.get("runs_scored", res["runs"]), 1),
                 _f(m["pos_rmse_m_maneuver"], 9), _f(m["pos_rmse_m_after"], 8), _f(m["pos_rmse_m_straight"], 9),
-                _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _f(m["anees"], 6, 2),
+                _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _anees_cell(m, 6),
                 _f(m["nees_in_95"], 5, 2), _f(m["track_loss_rate"], 5, 2), str(m.get("failed_runs", "-")),
                 _f_ci(m["pos_rmse_m_common"], m["pos_rmse_m_common_ci95"], m["common_runs"], 1)
                 if "pos_rmse_m_common" in m else "-",
@@ -221,12 +242,28 @@ def table_notes(suite_result):
     """Notes printed under a suite's table: a tracker that raised (its error), and the design envelope of each
     tracker used outside the conditions its paper assumed (:data:`baselines.registry.DESIGN_ENVELOPES`)."""
     notes = []
+    beaten = suite_result.get("bounds_beaten", {})
     for t, m in suite_result["trackers"].items():
         if m.get("error"):
             notes.append(f"{t}: failed on every run: {m['error']}")
+        if t in beaten:
+            b = beaten[t]
+            notes.append(f"{t}: NOT A BOUND on this suite: a bound (it sees the truth), yet its position RMSE "
+                         f"{b['pos_rmse_m']:.1f} m is above {b['beaten_by']}'s {b['beaten_by_pos_rmse_m']:.1f} m")
+        if m.get("anees_few_valid_looks") and m.get("nees_valid_looks") is not None:
+            n_all = m["nees_valid_looks"] + m["nees_invalid_looks"]
+            notes.append(f"{t}: ANEES from only {m['nees_valid_looks']} of {n_all} scored looks (under "
+                         f"{MIN_VALID_NEES_SHARE:.0%}): the others' covariance is not positive definite")
         if t in DESIGN_ENVELOPES:
             notes.append(f"{t}: design envelope: {DESIGN_ENVELOPES[t]}")
     return notes
+
+
+def _anees_cell(m, w):
+    """The ANEES column: ``*`` beside a value taken from under MIN_VALID_NEES_SHARE of the looks (see the notes)."""
+    if m.get("anees_few_valid_looks") and m.get("anees") is not None and np.isfinite(m["anees"]):
+        return f"{m['anees']:.2f}*".rjust(w)
+    return _f(m["anees"], w, 2)
 
 
 def _f(v, w, nd=1):
@@ -243,14 +280,19 @@ def _f_ci(est, ci, n, nd):
     return txt + (f" (n<{FEW_RUNS})" if n is not None and n < FEW_RUNS else "")
 
 
-def write_plots(runs, out_dir, scenarios=None, progress=False):
+def write_plots(runs, out_dir, scenarios=None, progress=False, inputs=()):
     """PNG figures per suite (:mod:`agents.evaluation.plots`); returns the list of files written.
 
     Args:
         scenarios: ``{suite: run 0's truth model}`` (:func:`agents.evaluation.suites.run_scenario`) for the exact
             paths and maneuver times; a suite without one is drawn from its looks.
         progress: a bar over the figures on stderr.
-    One process: two forked plotting processes took longer than one on the shared 2-core machine (load 5)."""
+        inputs: the run's input files: one of them is never replaced (a warning instead).
+
+    The figures are drawn in a temporary folder inside ``out_dir`` and renamed into it
+    (:func:`agents.evaluation.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
+    suite name cannot lead outside ``out_dir``. One process: two forked plotting processes took longer than one on
+    the shared 2-core machine (load 5)."""
     import matplotlib
     matplotlib.use("Agg")
     from agents.evaluation import plots
@@ -260,11 +302,20 @@ def write_plots(runs, out_dir, scenarios=None, progress=False):
     items = [(s, k) for s in runs for k in plots.FIGURE_KINDS]
     bar = Progress("figures", [(f"{s}: {k}", 1, k) for s, k in items], enabled=progress)
     files = []
-    for i, (suite, kind) in enumerate(items):
-        bar.start(i)
-        batch, suite_runs = runs[suite]
-        files += plots.suite_figures(suite, batch, suite_runs, out_dir, scenario=scenarios.get(suite), kinds=(kind,))
-        bar.done()
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".plots-") as tmp:
+        for i, (suite, kind) in enumerate(items):
+            bar.start(i)
+            batch, suite_runs = runs[suite]
+            safe = re.sub(r"[/\\]", "_", suite) if suite not in (".", "..") else "_"
+            for f in plots.suite_figures(safe, batch, suite_runs, Path(tmp), scenario=scenarios.get(suite),
+                                         kinds=(kind,)):
+                dest = out_dir / Path(f).name
+                if any(same_file(dest, inp) for inp in inputs if inp is not None):
+                    print(f"warning: --out: not writing {dest}: it is an input of this run", file=sys.stderr)
+                    continue
+                move_replacing(f, dest)
+                files.append(dest)
+            bar.done()
     bar.close()
     return files
 
@@ -296,8 +347,9 @@ def _km_pair(option, text):
     return vals
 
 
-def _check_outputs(args):
-    """Fail before the evaluation runs if an output cannot be written (``--out`` for plots, ``--json``)."""
+def _check_outputs(args, inputs=()):
+    """Fail before the evaluation runs if an output cannot be written (``--out`` for plots, ``--json``), or if
+    ``--json`` is a symbolic link or one of the run's ``inputs`` (it would be overwritten)."""
     if not args.no_plots:
         out = Path(args.out)
         if out.exists() and not out.is_dir():
@@ -318,6 +370,79 @@ def _check_outputs(args):
                              "directory)")
         if not os.access(folder, os.W_OK | os.X_OK) or (js.exists() and not os.access(js, os.W_OK)):
             raise SystemExit(f"error: --json: {args.json!r} is not writable")
+        try:
+            check_output_file("--json", js, inputs)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
+
+
+BYTES_PER_LOOK = 1000
+"""Driver memory per look of a suite without trackers (the episodes, their padded batch, the chain's look rows)."""
+BYTES_PER_LOOK_TRACKER = 500
+"""Memory per look and tracker (its TrackRun: estimate, covariance, q, extras; the scoring's temporaries)."""
+SECONDS_PER_LOOK_TRACKER = {"hindsight_q": 5e-3, "hindsight_q_turn": 1e-2, "konle": 2e-4, "policy": 1e-4}
+"""Rough wall time per look and tracker, scoring included, on a shared 2-core machine (others:
+``SECONDS_PER_LOOK_DEFAULT``; measured: 5 trackers on 2000 random runs, 3.5e5 padded looks, 105 s and 1.1 GiB), for
+the up-front estimate of a long evaluation."""
+SECONDS_PER_LOOK_DEFAULT = 6e-5
+
+
+def _available_memory_bytes():
+    """MemAvailable from /proc/meminfo, else the physical memory."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def estimate_cost(plan, trackers, seed=EVAL_SEED_BASE):
+    """``(bytes, seconds, looks)``: the driver memory and the rough wall time of evaluating ``trackers`` on the
+    suites of ``plan`` (``(option, name, source, runs, draw_suite kwargs)``), from the looks per run of a pilot
+    draw of at most 4 runs per suite (:data:`BYTES_PER_LOOK`, :data:`BYTES_PER_LOOK_TRACKER`,
+    :data:`SECONDS_PER_LOOK_TRACKER`)."""
+    looks = 0.0
+    for option, name, source, runs, kw in plan:
+        try:
+            pilot = draw_suite(source, min(int(runs), 4), seed=seed, **kw)
+        except ValueError as e:
+            raise SystemExit(f"error: {option}: {e}") from None
+        per_run = len(pilot) / min(int(runs), 4)                 # encounters: two episodes per run
+        looks += runs * per_run * max(e.n_looks for e in pilot)   # padded to the longest run
+    mem = looks * (BYTES_PER_LOOK + BYTES_PER_LOOK_TRACKER * len(trackers))
+    sec = looks * sum(SECONDS_PER_LOOK_TRACKER.get(t, SECONDS_PER_LOOK_DEFAULT) for t in trackers)
+    return mem, sec, looks
+
+
+def _check_cost(plan, trackers, seed):
+    """Refuse a plan whose memory estimate exceeds the available memory (one line, naming --runs); print the
+    estimate to stderr when it is large (over 2 GB or 10 minutes)."""
+    mem, sec, looks = estimate_cost(plan, trackers, seed)
+    avail = _available_memory_bytes()
+    what = (f"{sum(p[3] for p in plan)} runs over {len(plan)} suite(s), about {looks:.3g} looks x "
+            f"{len(trackers)} trackers")
+    if avail is not None and mem > avail:
+        raise SystemExit(f"error: --runs: {what} need about {mem / 2**30:.3g} GiB of memory, more than the "
+                         f"{avail / 2**30:.3g} GiB available (and about {sec / 3600:.3g} h); lower --runs or split "
+                         "the suites")
+    if mem > 2 * 2**30 or sec > 600:
+        print(f"estimate: {what}: about {mem / 2**30:.2g} GiB of memory and {sec / 60:.3g} min (rough, 2-core "
+              "machine)", file=sys.stderr)
+
+
+def _input_files(args, policy):
+    """The files this run reads (outputs must not replace them): trajectory CSVs, ADS-B flight files given by path,
+    tracker-module files, the policy and the env_config.json beside it."""
+    files = list(args.trajectory or []) + [m for m in args.tracker_module or [] if m.endswith(".py")]
+    files += [n[len("adsb:"):] for n in args.scenario or [] if n.startswith("adsb:")]
+    if policy is not None:
+        files += [policy, str(Path(policy).with_name("env_config.json"))]
+    return [f for f in files if Path(f).is_file()]
 
 
 def main(argv=None, prog="radar-track evaluate"):
@@ -328,9 +453,9 @@ def main(argv=None, prog="radar-track evaluate"):
         _list_names()
         return {}
     # a CSV path given to --scenario is a trajectory suite (named by its stem, seeded by its content)
-    csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv")]
+    csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv") and not n.startswith("adsb:")]
     if csv_scenarios:
-        args.scenario = [n for n in args.scenario if not n.endswith(".csv")]
+        args.scenario = [n for n in args.scenario if n not in csv_scenarios]
         args.trajectory = list(args.trajectory or []) + csv_scenarios
     if args.seed < 0:
         raise SystemExit(f"error: --seed must be an integer >= 0, got {args.seed}")
@@ -390,7 +515,8 @@ def main(argv=None, prog="radar-track evaluate"):
         if not 0.0 < lo_km < hi_km:
             raise SystemExit(f"error: --radar-range-km: expected 0 < LO < HI (km), got {args.radar_range_km!r}")
         radar_range_m = (lo_km * 1e3, hi_km * 1e3)
-    _check_outputs(args)
+    inputs = _input_files(args, policy if "policy" in trackers else None)
+    _check_outputs(args, inputs)
     names = list(args.scenario or ([] if args.trajectory else DEFAULT_SUITES))
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -401,21 +527,17 @@ def main(argv=None, prog="radar-track evaluate"):
         file_names = trajectory_suite_names(files, taken=names)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    n_runs = {n: args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50) for n in names}
-    _say(args, f"drawing the episodes: {sum(n_runs.values()) + len(files) * (args.runs or 50)} runs of "
-               f"{len(names) + len(files)} suite(s) ...")
-    for n in names:
-        runs = n_runs[n]
+    plan = [("--scenario", n, n, args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50), {})
+            for n in names]
+    plan += [("--trajectory", n, f, args.runs or 50, {"radar": radar, "radar_range_m": radar_range_m})
+             for n, f in zip(file_names, files)]
+    _check_cost(plan, trackers, args.seed)
+    _say(args, f"drawing the episodes: {sum(p[3] for p in plan)} runs of {len(plan)} suite(s) ...")
+    for option, n, source, runs, kw in plan:
         try:
-            suites.append((n, draw_suite(n, runs, seed=args.seed)))
+            suites.append((n, draw_suite(source, runs, seed=args.seed, **kw)))
         except ValueError as e:
-            raise SystemExit(f"error: --scenario: {e}") from None
-    for n, f in zip(file_names, files):
-        try:
-            suites.append((n, draw_suite(f, args.runs or 50, seed=args.seed, radar=radar,
-                                         radar_range_m=radar_range_m)))
-        except ValueError as e:
-            raise SystemExit(f"error: --trajectory: {e}") from None
+            raise SystemExit(f"error: {option}: {e}") from None
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
@@ -433,13 +555,13 @@ def main(argv=None, prog="radar-track evaluate"):
                 "radar_range_km": (None if radar is not None or not files else
                                    [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
-        Path(args.json).write_text(json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
-                                              allow_nan=False))
+        write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
+                                                   allow_nan=False))
         print(f"metrics: {args.json}")
     if not args.no_plots:
         scenarios = {n: run_scenario(n, args.seed) for n in names}
         scenarios.update({n: run_scenario(f, args.seed) for n, f in zip(file_names, files)})
-        written = write_plots(runs, args.out, scenarios, progress=not args.quiet)
+        written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
         print(f"plots: {len(written)} files in {args.out}/")
     return results
 

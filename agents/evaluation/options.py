@@ -31,7 +31,10 @@ def build_parser(prog="radar-track evaluate"):
     """The ``radar-track evaluate`` argument parser (every option with its default and unit)."""
     lo_km, hi_km = RADAR_RANGE_HELP_KM
     ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
-                                 "measurement streams (common random numbers): a table per suite, figures in --out.")
+                                 "measurement streams (common random numbers): a table per suite, figures in --out.",
+                                 epilog="Security: --policy files (stable-baselines3 zips) and --tracker-module "
+                                        "files are code: loading them runs what their author wrote. Use only files "
+                                        "you trust.")
     ap.add_argument("--scenario", action="append", metavar="NAME",
                     help="suite to run, repeatable: random, random_radars, a paper's scenario (e.g. bizup2002), a "
                          "held-out family (e.g. sharp_turns), encounters (conflict warnings), adsb_calibration, "
@@ -60,16 +63,19 @@ def build_parser(prog="radar-track evaluate"):
                          f"the built-in ones (default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if a policy exists)")
     ap.add_argument("--tracker-module", action="append", metavar="MODULE",
                     help="import a user tracker module before the trackers are resolved: a dotted module name "
-                         "(importable from the current directory) or a .py file; it registers its trackers with "
-                         "baselines.registry.register_tracker (repeatable; see docs/evaluation.md) (default: none)")
+                         "(found in the current directory, which is not left on sys.path, or installed) or a .py file; it "
+                         "registers its trackers with baselines.registry.register_tracker (repeatable; see "
+                         "docs/evaluation.md). It runs as code (default: none)")
     ap.add_argument("--policy", metavar="FILE.zip",
                     help="saved stable-baselines3 model for the 'policy' tracker, with its env_config.json beside it "
-                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
+                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present). A "
+                         "policy zip is a pickle: loading it runs the code inside; load only files you trust")
     ap.add_argument("--out", default="results", metavar="DIR",
-                    help="directory for the figures (PNG; created if missing) (default: ./results)")
+                    help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
+                         "followed) (default: ./results)")
     ap.add_argument("--json", metavar="FILE.json",
-                    help="write every metric per tracker per suite to this JSON file; its folder must exist "
-                         "(default: no JSON)")
+                    help="write every metric per tracker per suite to this JSON file; its folder must exist; not "
+                         "a symbolic link, not one of the run's input files (default: no JSON)")
     ap.add_argument("--no-plots", action="store_true", help="skip the figures (default: draw them)")
     ap.add_argument("--quiet", action="store_true",
                     help="no progress: no first line, no bars; the table only (default: progress on stderr)")

@@ -25,6 +25,7 @@ from radar_env.episode import stack_episodes
 from radar_env.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
+from agents.policies.bundle import embed_env_config
 from agents.policies.loading import model_choose_q
 from agents.evaluation.metrics import errors, failed_runs, region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
@@ -130,6 +131,7 @@ class ImmRatioEvalCallback(BaseCallback):
             if self.best_dir is not None:
                 self.best_dir.mkdir(parents=True, exist_ok=True)
                 self.model.save(self.best_dir / "policy.zip")
+                embed_env_config(self.best_dir / "policy.zip", self.env_kwargs)
                 (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
                 (self.best_dir / "selection.json").write_text(json.dumps(jsonable(row), indent=1))
         row["best"] = bool(improved)

@@ -16,7 +16,9 @@ adapter (:mod:`agents.training.sb3_vec`), random scenarios only, row ``i`` seede
 ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only once the final model and ``summary.json`` are saved;
 a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback; none if the
 process was killed) and no final ``policy.zip``; a later run under the same name replaces it, while a finished
-``<name>/`` is never overwritten (an error). A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
+``<name>/`` is never overwritten (an error), and a run under the name another run is writing now is refused (an
+exclusive lock on ``<out>/.<name>.lock``, held while the run writes; run and sweep names are plain folder names).
+A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
 (``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
 ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
@@ -35,6 +37,7 @@ import argparse
 import inspect
 import json
 import math
+import os
 import shlex
 import shutil
 import sys
@@ -49,7 +52,10 @@ from pathlib import Path
 # `radar-track train` parses its options and says what it does first; the seed ranges come from the lowest layer
 from baselines.seeds import TRAIN_SEEDS
 
-__all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "ALGOS", "ENV_ID",
+from agents.policies.bundle import embed_env_config     # JSON and zipfile only
+
+__all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
+           "ALGOS", "ENV_ID",
            "TRAIN_SCENARIOS"]
 
 TRAIN_SCENARIOS = ("random", "random_radars")
@@ -83,6 +89,49 @@ def load_hyperparams(algo, path=None):
     if ENV_ID not in table:
         raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
     return table[ENV_ID]
+
+
+def check_plain_name(option, name):
+    """``name`` if it is a plain folder name (one path component: no ``/`` or ``\\``, not ``.``/``..``, not empty, no
+    NUL), so that a run or sweep folder stays inside its ``--out``; ``ValueError`` naming ``option`` otherwise."""
+    if (not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name or "\\" in name
+            or "/" in name or "\0" in name):
+        raise ValueError(f"{option}: must be a plain folder name inside --out (no '/', '..'), got {name!r}")
+    return name
+
+
+class _RunLock:
+    """An exclusive lock on the run name ``<out>/<name>`` for as long as a run writes it: the ``flock`` of
+    ``<out>/.<name>.lock`` (released by the kernel if the process dies, so a killed run's ``.partial`` can be
+    replaced later). A second run under the same name while the first runs is refused (``ValueError`` naming
+    ``--name``) instead of deleting the first's ``.partial`` and mixing its files into the first's folder."""
+
+    def __init__(self, run):
+        import fcntl
+        self.path = run.with_name(f".{run.name}.lock")
+        run.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise ValueError(f"--name: another run is writing {str(run)!r} now (it holds {str(self.path)!r}); "
+                                 "choose another name or wait for it to end") from None
+            try:     # the previous holder may have removed the file between our open and our lock: lock it anew
+                if os.stat(self.path).st_ino == os.fstat(fd).st_ino:
+                    break
+            except FileNotFoundError:
+                pass
+            os.close(fd)
+        self.fd = fd
+        os.write(fd, f"{os.getpid()}\n".encode())
+
+    def release(self):
+        if self.fd is not None:
+            self.path.unlink(missing_ok=True)      # while still holding it (see the check above)
+            os.close(self.fd)
+            self.fd = None
 
 
 def _schedule(v):
@@ -298,9 +347,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                           stacklevel=2)
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    if run_name is not None and (not isinstance(run_name, str) or run_name in ("", ".", "..")
-                                 or Path(run_name).name != run_name or "\\" in run_name):
-        raise ValueError(f"--name: must be a plain folder name inside --out (no '/', '..'), got {run_name!r}")
+    if run_name is not None:
+        check_plain_name("--name", run_name)
     run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
     part = run.with_name(run.name + ".partial")
     if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
@@ -348,12 +396,19 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
+    lock = _RunLock(run)        # two runs with one name: the second stops here, before touching the first's files
     try:
+        if run.exists():
+            raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
         if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
             shutil.rmtree(part)
         part.mkdir(parents=True)
     except OSError as e:
+        lock.release()
         raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
+    except BaseException:
+        lock.release()
+        raise
     try:
         (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
         (part / "args.json").write_text(json.dumps(args or {}, indent=1))
@@ -364,6 +419,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                     tb_log_name=algo)
         wall = time.perf_counter() - t0
         model.save(part / "policy.zip")
+        embed_env_config(part / "policy.zip", env_kwargs)
         if isinstance(env, VecNormalize):
             env.save(str(part / "vecnormalize.pkl"))
         eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
@@ -380,8 +436,10 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         env.close()
     except BaseException:
         (part / "FAILED").write_text(traceback.format_exc())
+        lock.release()
         raise
     part.rename(run)
+    lock.release()
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
@@ -498,7 +556,9 @@ def _file_defaults(key):
 
 def build_parser(prog="radar-track train"):
     ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
-                                 "scenarios, training seeds) with stable-baselines3.")
+                                 "scenarios, training seeds) with stable-baselines3.",
+                                 epilog="Security: the saved policy.zip (and a model given as --hp init_from=PATH) "
+                                        "is a pickle: loading it runs the code inside. Load only files you trust.")
     ap.add_argument("--algo", required=True, choices=ALGOS,
                     help="the stable-baselines3 algorithm (required; its settings: "
                          "agents/training/hyperparams/<algo>.toml)")
@@ -519,8 +579,9 @@ def build_parser(prog="radar-track train"):
     ap.add_argument("--env-kwargs", default="{}", metavar="JSON",
                     help="JSON object of RadarTrack-v0 arguments, merged over the file's env_kwargs (default: {})")
     ap.add_argument("--hp", action="append", metavar="KEY=VALUE",
-                    help="override a hyperparameter, repeatable; VALUE parsed as JSON, else kept as a string "
-                         "(default: the file's values)")
+                    help="override a hyperparameter, repeatable; VALUE parsed as JSON, else kept as a string; "
+                         "init_from=PATH fine-tunes a saved model (a pickle: only one you trust) (default: the "
+                         "file's values)")
     ap.add_argument("--hyperparams", metavar="FILE.toml",
                     help="TOML file to read instead of agents/training/hyperparams/<algo>.toml (default: that file)")
     ap.add_argument("--no-progress", action="store_true",
