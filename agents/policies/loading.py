@@ -2,7 +2,8 @@
 trained with.
 
 Loading a stable-baselines3 zip unpickles Python objects from it: a policy file can run code. Load only files you
-trust.
+trust. A recurrent policy trained by backpropagation (``.npz``, :mod:`agents.policies.recurrent`) is plain arrays
+and JSON, loaded without pickle.
 """
 
 from __future__ import annotations
@@ -15,20 +16,26 @@ from radar_env.env import EnvConfig, actions_to_q_m_s2
 from radar_env.units import G0_M_S2
 
 from agents.policies.bundle import policy_env_kwargs
+from agents.policies.recurrent import is_recurrent_checkpoint, load_recurrent_policy
 
 __all__ = ["load_policy", "model_choose_q"]
 
 
 def load_policy(path):
-    """Load a saved stable-baselines3 model (PPO, DQN, SAC, A2C or TD3 zip) and the env config it was trained
-    with (``env_config.json`` beside it, else the defaults with the model's action type).
+    """Load a saved policy and the env config it was trained with, by file type: a stable-baselines3 model (PPO,
+    DQN, SAC, A2C or TD3 ``.zip``; ``env_config.json`` beside it, else the defaults with the model's action type)
+    or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
+    ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle).
 
-    Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2. Raises ``ValueError`` for a file
-    that is not such a model, or a model whose observation or action space does not match its env config (the
-    message says which env kwargs it needs)."""
+    Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2 (a recurrent policy is a stateful
+    ``choose_q`` for :func:`baselines.trackers.run_q_policy`: ``reset(rows)``, ``choose_q(obs, rows)``). Raises
+    ``ValueError`` for a file that is not such a policy, or one whose observation or action space does not match
+    its env config (the message says which env kwargs it needs)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
+    if is_recurrent_checkpoint(path):
+        return load_recurrent_policy(path)
     try:
         import stable_baselines3 as sb3
     except ImportError as e:  # pragma: no cover - depends on the install

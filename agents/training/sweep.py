@@ -1,6 +1,7 @@
 """Seed and hyperparameter sweeps on Ray Tune: ``radar-track sweep CONFIG.toml [--out DIR] [--address ADDR]``.
 
-Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`) with its own run folder
+Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`, or with ``method = "backprop"``
+:func:`agents.training.backprop.train_backprop`) with its own run folder
 ``<out>/<name>/runs/<trial>/``; the selection metric (``selection_ratio``: the geometric mean of the policy/imm2
 RMSE ratios on the selection suites, training-range seeds, :class:`agents.training.callbacks.ImmRatioEvalCallback`) is
 reported to Tune after every selection evaluation, so an ASHA scheduler can stop weak trials early. At the end a
@@ -12,6 +13,7 @@ The config (example: ``agents/training/sweeps/example.toml``)::
 
     [sweep]
     name = "ppo_lr_seeds"        # experiment folder under --out (default: the config file's stem)
+    method = "ppo"               # ppo (SB3, with algo) | backprop (hyperparams backprop.toml; budget n_steps)
     algo = "ppo"                 # ppo | dqn | sac
     hyperparams = "ppo.toml"     # base file (a path, or a name in agents/training/hyperparams/; default <algo>.toml)
     search = "grid"              # grid | random | optuna
@@ -53,7 +55,7 @@ METRIC = "selection_ratio"
 SEARCHES = ("grid", "random", "optuna")
 SCHEDULERS = ("fifo", "asha")
 DISTRIBUTIONS = ("uniform", "loguniform", "randint")
-_SWEEP_KEYS = {"name", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
+_SWEEP_KEYS = {"name", "method", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
                "max_concurrent_trials", "scheduler", "grace_evals"}
 
 
@@ -109,8 +111,13 @@ def load_sweep_config(path):
     bad = set(sw) - _SWEEP_KEYS
     if bad:
         raise ValueError(f"{path}: unknown [sweep] key(s) {sorted(bad)}; valid: {sorted(_SWEEP_KEYS)}")
-    algo = sw.get("algo", "ppo")
-    if algo not in ALGOS:
+    method = sw.get("method", "ppo")
+    if method not in ("ppo", "backprop"):
+        raise ValueError(f"{path}: [sweep] method must be 'ppo' or 'backprop', got {method!r}")
+    if method == "backprop" and "algo" in sw:
+        raise ValueError(f"{path}: [sweep] algo applies to method = 'ppo' (SB3); method = 'backprop' has none")
+    algo = "backprop" if method == "backprop" else sw.get("algo", "ppo")
+    if algo not in ALGOS + ("backprop",):
         raise ValueError(f"{path}: [sweep] algo must be one of {ALGOS}, got {algo!r}")
     hp_file = sw.get("hyperparams")
     if hp_file is not None:
@@ -203,9 +210,23 @@ def _trial(config, algo, hp, runs_dir):
             report(row)
         return
 
-    train(algo, trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
-          command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
-          on_selection=report)
+    if algo == "backprop":
+        from agents.training.backprop import train_backprop
+        fit = train_backprop
+    else:
+        def fit(hp, **kw):
+            return train(algo, hp, **kw)
+    fit(trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
+        command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
+        on_selection=report)
+
+
+def _budget(algo, hp):
+    """``(budget, between evaluations)`` of a trial, in the unit its selection rows count as ``timesteps``: env steps
+    for SB3, optimiser steps for backprop."""
+    if algo == "backprop":
+        return int(hp.get("n_steps", 1)), int(hp.get("eval_every", 1))
+    return int(hp.get("n_timesteps", 1_000_000)), int(hp.get("eval_freq", 100_000))
 
 
 def _trial_name(trial):
@@ -216,8 +237,8 @@ def _scheduler(cfg):
     if cfg["scheduler"] != "asha":
         return None
     from ray.tune.schedulers import ASHAScheduler
-    hp = cfg["hp"]
-    n_evals = max(1, math.ceil(int(hp.get("n_timesteps", 1_000_000)) / int(hp.get("eval_freq", 100_000))))
+    budget, every = _budget(cfg["algo"], cfg["hp"])
+    n_evals = max(1, math.ceil(budget / every))
     return ASHAScheduler(time_attr="training_iteration", max_t=n_evals + 1, grace_period=cfg["grace_evals"])
 
 
@@ -306,7 +327,7 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1)
                                             trial_name_creator=_trial_name, trial_dirname_creator=_trial_name),
                 run_config=tune.RunConfig(name=cfg["name"], storage_path=str(exp_dir.parent), verbose=verbose))
         grid = tuner.fit()
-    rows = results_table(grid, list(cfg["space"]), int(cfg["hp"].get("n_timesteps", 1_000_000)))
+    rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0])
     exp_dir.mkdir(parents=True, exist_ok=True)
     (exp_dir / "results.json").write_text(json.dumps({"config": cfg["config_path"], "metric": METRIC, "mode": "min",
                                                       "trials": rows}, indent=1))

@@ -35,13 +35,9 @@ import argparse
 import inspect
 import json
 import shlex
-import shutil
 import sys
 import time
-import tomllib
-import traceback
 import warnings
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -49,40 +45,15 @@ import numpy as np
 from radar_env.observation import DEFAULT_FEATURES
 
 from agents.evaluation.suites import TRAIN_SEEDS
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, finish_run, load_hyperparams, mark_failed,  # noqa: F401
+                                  open_run_folder, parse_hp as _parse_hp, run_paths, write_run_files)
 
 __all__ = ["main", "load_hyperparams", "train", "plot_training_curve", "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
 
-TRAIN_SCENARIOS = ("random", "random_radars")
-"""The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
-
-ENV_ID = "RadarTrack-v0"
 ALGOS = ("ppo", "dqn", "sac")
-HP_DIR = Path(__file__).with_name("hyperparams")
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
 _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
             "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on", "init_from")
-
-
-def load_hyperparams(algo, path=None):
-    """The ``RadarTrack-v0`` table of ``agents/training/hyperparams/<algo>.toml`` (package data, read through
-    ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``."""
-    if path:
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"--hyperparams: file {str(path)!r} does not exist")
-        text, where = path.read_bytes(), str(path)
-    else:
-        if algo not in ALGOS:
-            raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
-        res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
-        text, where = res.read_bytes(), f"agents/training/hyperparams/{algo}.toml"
-    try:
-        table = tomllib.loads(text.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--hyperparams: {where} is not TOML ({e})") from None
-    if ENV_ID not in table:
-        raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
-    return table[ENV_ID]
 
 
 def _schedule(v):
@@ -103,19 +74,6 @@ def _policy_kwargs(pk):
         pk["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU,
                                "silu": nn.SiLU}[name]
     return pk
-
-
-def _parse_hp(items):
-    out = {}
-    for it in items or []:
-        if "=" not in it:
-            raise SystemExit(f"error: --hp expects KEY=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
-    return out
 
 
 # types of the special keys: (check, what it must be)
@@ -288,16 +246,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                           "no gradient update, the saved policy is its random initialisation", UserWarning,
                           stacklevel=2)
 
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    if run_name is not None and (not isinstance(run_name, str) or run_name in ("", ".", "..")
-                                 or Path(run_name).name != run_name or "\\" in run_name):
-        raise ValueError(f"--name: must be a plain folder name inside --out (no '/', '..'), got {run_name!r}")
-    run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
-    part = run.with_name(run.name + ".partial")
-    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
-        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
-    if Path(out).exists() and not Path(out).is_dir():
-        raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
+    run, part = run_paths(out, run_name, f"{algo}_{act}_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
 
     try:
         env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
@@ -339,17 +288,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
+    open_run_folder(part)
     try:
-        if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
-            shutil.rmtree(part)
-        part.mkdir(parents=True)
-    except OSError as e:
-        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
-    try:
-        (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
-        (part / "args.json").write_text(json.dumps(args or {}, indent=1))
-        (part / "command.txt").write_text((command or "") + "\n")
-        (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+        write_run_files(part, {"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, args, command, env_kwargs)
         t0 = time.perf_counter()
         model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
                     tb_log_name=algo)
@@ -370,9 +311,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         env.close()
     except BaseException:
-        (part / "FAILED").write_text(traceback.format_exc())
+        mark_failed(part)
         raise
-    part.rename(run)
+    finish_run(part, run)
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
@@ -460,8 +401,14 @@ def plot_training_curve(run, png=None):
 
 def build_parser(prog="radar-track train"):
     ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
-                                 "scenarios, training seeds) with stable-baselines3.")
-    ap.add_argument("--algo", required=True, choices=ALGOS)
+                                 "scenarios, training seeds) with stable-baselines3 (--method ppo, the default) or "
+                                 "end to end by backpropagation through the filter (--method backprop).")
+    ap.add_argument("--method", choices=("ppo", "backprop"), default="ppo",
+                    help="ppo: reinforcement learning with stable-baselines3 (--algo); backprop: a GRU q-policy "
+                         "trained by backpropagation through the filter (agents/training/backprop.py)")
+    ap.add_argument("--algo", choices=ALGOS, help="--method ppo: the SB3 algorithm (required)")
+    ap.add_argument("--tracker", help="--method backprop: the differentiable model (default: the hyperparameter "
+                                      "file's, 'cv': the CV filter with a GRU choosing q)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
                     help="default: the hyperparameter file's (discrete for PPO/DQN, continuous for SAC)")
     ap.add_argument("--timesteps", type=int, help="total env steps (default: the file's n_timesteps)")
@@ -482,6 +429,13 @@ def main(argv=None, prog="radar-track train"):
     with a one-line ``error: --option ...`` (``SystemExit``) before the run folder is made. Returns the run folder."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
+    if args.method == "backprop":
+        from agents.training.backprop import main_from_args
+        return main_from_args(args, argv)
+    if args.algo is None:
+        raise SystemExit("error: --algo is required with --method ppo (one of " + ", ".join(ALGOS) + ")")
+    if args.tracker is not None:
+        raise SystemExit("error: --tracker applies to --method backprop")
     for opt, v in (("--timesteps", args.timesteps), ("--n-envs", args.n_envs)):
         if v is not None and v < 1:
             raise SystemExit(f"error: {opt} must be an integer >= 1, got {v}")
