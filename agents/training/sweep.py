@@ -252,8 +252,9 @@ def _search_alg(cfg):
     return None
 
 
-def results_table(result_grid, space_keys, n_timesteps):
-    """One row per trial, best ``selection_ratio`` first (errored trials last, with their error)."""
+def results_table(result_grid, space_keys, n_timesteps, policy_file="policy.zip"):
+    """One row per trial, best ``selection_ratio`` first (errored trials last, with their error); ``best_policy``
+    is the trial's ``best/<policy_file>``."""
     # Tune's trial states tell an early stop (ASHA: TERMINATED short of n_timesteps) from an interruption
     trials = getattr(getattr(result_grid, "_experiment_analysis", None), "trials", None) or []
     states = [t.status for t in trials] if len(trials) == len(result_grid) else [None] * len(result_grid)
@@ -279,7 +280,7 @@ def results_table(result_grid, space_keys, n_timesteps):
         if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.training.train)
             d = Path(m["run_dir"])
             d = d if d.is_dir() or not d.with_name(d.name + ".partial").is_dir() else d.with_name(d.name + ".partial")
-            row["best_policy"] = str(d / "best" / "policy.zip")
+            row["best_policy"] = str(d / "best" / policy_file)
         rows.append(row)
     rows.sort(key=lambda r: (r["best_selection_ratio"] is None, r["best_selection_ratio"] or 0.0, r["trial"]))
     return rows
@@ -327,7 +328,8 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1)
                                             trial_name_creator=_trial_name, trial_dirname_creator=_trial_name),
                 run_config=tune.RunConfig(name=cfg["name"], storage_path=str(exp_dir.parent), verbose=verbose))
         grid = tuner.fit()
-    rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0])
+    rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0],
+                         "policy.npz" if cfg["algo"] == "backprop" else "policy.zip")
     exp_dir.mkdir(parents=True, exist_ok=True)
     (exp_dir / "results.json").write_text(json.dumps({"config": cfg["config_path"], "metric": METRIC, "mode": "min",
                                                       "trials": rows}, indent=1))
