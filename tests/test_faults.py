@@ -109,12 +109,14 @@ time.sleep(120)
 """
 
 
-def test_a_second_run_under_a_name_being_written_is_refused_and_touches_nothing(tmp_path):
+@pytest.mark.parametrize("method", ["ppo", "backprop"])
+def test_a_second_run_under_a_name_being_written_is_refused_and_touches_nothing(tmp_path, method):
     """The first run holds its name's lock (here a process holding it, as a running ``train`` does); the second
-    stops before deleting the first's ``.partial``; once the first is gone (killed: the kernel drops the lock) the
-    name can be taken again."""
-    pytest.importorskip("stable_baselines3")
-    from agents.training.train import _RunLock, main as train_main
+    stops before deleting the first's ``.partial``, whichever trainer it is; once the first is gone (killed: the
+    kernel drops the lock) the name can be taken again."""
+    pytest.importorskip("stable_baselines3" if method == "ppo" else "torch")
+    from agents.training.runs import RunLock
+    from agents.training.train import main as train_main
     out = tmp_path / "runs"
     part = out / "same.partial"
     part.mkdir(parents=True)
@@ -125,8 +127,9 @@ def test_a_second_run_under_a_name_being_written_is_refused_and_touches_nothing(
         assert holder.stdout.readline().strip() == "locked"
         t0 = time.monotonic()
         with pytest.raises(SystemExit) as e:
-            train_main(["--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--out", str(out), "--name", "same",
-                        "--no-progress", "--quiet"])
+            train_main((["--algo", "ppo", "--timesteps", "256", "--n-envs", "2"] if method == "ppo" else
+                        ["--method", "backprop", "--hp", "n_steps=1", "--hp", "batch_episodes=2"])
+                       + ["--out", str(out), "--name", "same", "--no-progress", "--quiet"])
         msg = str(e.value)
         assert "\n" not in msg and msg.startswith("error: --name: another run is writing")
         assert time.monotonic() - t0 < 60
@@ -134,7 +137,7 @@ def test_a_second_run_under_a_name_being_written_is_refused_and_touches_nothing(
     finally:
         holder.kill()
         holder.wait(timeout=30)
-    lock = _RunLock(out / "same")                       # released by the kernel with the holder
+    lock = RunLock(out / "same")                        # released by the kernel with the holder
     lock.release()
     assert not (out / ".same.lock").exists()
 

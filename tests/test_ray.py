@@ -6,6 +6,7 @@ import functools
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -293,3 +294,32 @@ def test_sweep_of_two_trials_writes_its_table_and_resumes(local_ray, tmp_path):
     rows2, _ = run_sweep(cfg, tmp_path / "out", verbose=0)
     assert rows2 == rows
     assert mtimes == {r["trial"]: (exp / "runs" / r["trial"] / "summary.json").stat().st_mtime_ns for r in rows}
+
+
+TINY_BACKPROP_SWEEP = """
+[sweep]
+name = "tiny_bp"
+method = "backprop"
+[base]
+n_steps = 2
+eval_every = 1
+batch_episodes = 3
+chunk_looks = 6
+hidden_size = 4
+select_on = ["random"]
+[base.eval_scenarios]
+random = 3
+[space]
+seed = [0]
+"""
+
+
+def test_backprop_sweep_runs_a_trial_on_ray(local_ray, tmp_path):
+    cfg = tmp_path / "tiny_bp.toml"
+    cfg.write_text(TINY_BACKPROP_SWEEP)
+    rows, exp = run_sweep(cfg, tmp_path / "out", verbose=0)
+    (r,) = rows
+    hist = json.loads((exp / "runs" / r["trial"] / "summary.json").read_text())["selection_history"]
+    assert r["status"] == "done" and r["error"] is None and r["timesteps"] == 2 and r["evals"] == len(hist) == 3
+    assert r["best_selection_ratio"] == min(h["selection_ratio"] for h in hist)
+    assert r["best_policy"].endswith("policy.npz") and Path(r["best_policy"]).is_file()

@@ -4,7 +4,8 @@
 seeds, see :mod:`agents.evaluation.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
 writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.evaluation.metrics`).
 
-Defaults: the bundled learned policy if one exists (``agents/bundled/``), the tuned 2-mode IMM (``imm2``), the tuned
+Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, and ``policy_bp``, trained
+by backpropagation), the tuned 2-mode IMM (``imm2``), the tuned
 CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
 KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
 scenarios).
@@ -23,13 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, tracker_names
+from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, POLICY_TRACKERS, tracker_names
 from baselines.user_trackers import import_tracker_module
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
 
-from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
@@ -52,12 +53,14 @@ the ADS-B suites fly each of their flights once; the held-out families 200); oth
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None):
+             common_over=None, loaded_policy=None, policy_bp_path=None, loaded_policy_bp=None):
     """Run ``trackers`` on every suite.
 
     Args:
         suites: list of ``(name, episodes)``.
-        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``.
+        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``, ``policy_bp`` runs
+            ``policy_bp_path`` (default: the bundled backprop policy, :data:`BUNDLED_BP_POLICY`). Either file may be
+            an SB3 zip or a recurrent ``.npz`` (:func:`agents.policies.loading.load_policy`).
         reference: tracker the ratio column is taken against (if present).
         workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.evaluation.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
@@ -65,18 +68,24 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
             (:func:`agents.evaluation.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
-        loaded_policy: ``load_policy(policy_path)``'s result if the caller has it already (not loaded again).
+        loaded_policy, loaded_policy_bp: ``load_policy(policy_path)``'s (``policy_bp_path``'s) result if the caller
+            has it already (not loaded again).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
         ``"ratio_vs_" + reference + "_runs"``), ``..._common`` the same over the suite's ``common_runs``;
         ``runs[suite]`` = ``(batch, {name: TrackRun})``.
     """
-    choose_q = pol_cfg = None
-    if "policy" in trackers:
-        if policy_path is None:
-            raise ValueError("tracker 'policy' needs a policy file (--policy PATH); none bundled")
-        choose_q, pol_cfg = loaded_policy if loaded_policy is not None else load_policy(policy_path)
+    if policy_bp_path is None and BUNDLED_BP_POLICY.is_file():
+        policy_bp_path = BUNDLED_BP_POLICY
+    paths = {"policy": policy_path, "policy_bp": policy_bp_path}
+    given = {"policy": loaded_policy, "policy_bp": loaded_policy_bp}
+    policies = {}                           # tracker -> (choose_q, env config)
+    for t in POLICY_TRACKERS:
+        if t in trackers:
+            if paths[t] is None and given[t] is None:
+                raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
+            policies[t] = given[t] if given[t] is not None else load_policy(paths[t])
     default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
@@ -98,13 +107,13 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if i + 1 < len(jobs):
                 bar.start(i + 1)
         bar.start(0)
-        ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, tick)
+        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
         suite_runs = {} if ray_runs is None else ray_runs[suite]
         for t in trackers if ray_runs is None else ():
             bar.start(jobs.index((suite, t)))
-            suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
+            suite_runs[t] = run_one(t, episodes, *policies.get(t, (None, None)))
             bar.done()
         scores = {t: score_run(batch, r) for t, r in suite_runs.items()}     # errors, failed, lost: once per run
         # by default a tracker that failed every run does not empty the common set for all the others
@@ -435,13 +444,13 @@ def _check_cost(plan, trackers, seed):
               "machine)", file=sys.stderr)
 
 
-def _input_files(args, policy):
+def _input_files(args, policies=()):
     """The files this run reads (outputs must not replace them): trajectory CSVs, ADS-B flight files given by path,
-    tracker-module files, the policy and the env_config.json beside it."""
+    tracker-module files, the policy files and the policy.json / env_config.json beside them."""
     files = list(args.trajectory or []) + [m for m in args.tracker_module or [] if m.endswith(".py")]
     files += [n[len("adsb:"):] for n in args.scenario or [] if n.startswith("adsb:")]
-    if policy is not None:
-        files += [policy, str(Path(policy).with_name("env_config.json"))]
+    for p in policies:
+        files += [p, str(Path(p).with_suffix(".json")), str(Path(p).with_name("env_config.json"))]
     return [f for f in files if Path(f).is_file()]
 
 
@@ -468,6 +477,12 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --policy: file {policy!r} does not exist (or is not a file)")
     if policy is None and BUNDLED_POLICY.is_file():
         policy = str(BUNDLED_POLICY)
+    policy_bp = args.policy_bp
+    if policy_bp is not None and not Path(policy_bp).is_file():
+        raise SystemExit(f"error: --policy-bp: file {policy_bp!r} does not exist (or is not a file)")
+    if policy_bp is None and BUNDLED_BP_POLICY.is_file():
+        policy_bp = str(BUNDLED_BP_POLICY)
+    policy_files = {"policy": policy, "policy_bp": policy_bp}
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)
@@ -486,19 +501,21 @@ def main(argv=None, prog="radar-track evaluate"):
         if bad:
             raise SystemExit(f"error: --trackers: unknown tracker(s) {bad}; valid: {list(known)}"
                              + ("" if args.tracker_module else " (user trackers need --tracker-module)"))
-        if "policy" in trackers and policy is None:
-            raise SystemExit("error: tracker 'policy' needs --policy PATH (no bundled policy found)")
+        for t in POLICY_TRACKERS:
+            if t in trackers and policy_files[t] is None:
+                raise SystemExit(f"error: tracker {t!r} needs --{t.replace('_', '-')} PATH (no bundled policy found)")
         if len(set(trackers)) != len(trackers):
             raise SystemExit(f"error: --trackers: a tracker is named twice in {args.trackers!r}")
     else:
-        trackers = [t for t in DEFAULT_TRACKERS if t != "policy" or policy is not None]
-    loaded = None
-    if "policy" in trackers:        # load once, now: a file that is not a usable policy is a user error
-        _say(args, f"loading the policy {policy} (torch, stable-baselines3) ...")
-        try:
-            loaded = load_policy(policy)
-        except ValueError as e:
-            raise SystemExit(f"error: --policy: {e}") from None
+        trackers = [t for t in DEFAULT_TRACKERS if t not in POLICY_TRACKERS or policy_files[t] is not None]
+    loaded = {}
+    for t in POLICY_TRACKERS:       # load once, now: a file that is not a usable policy is a user error
+        if t in trackers:
+            _say(args, f"loading the policy {policy_files[t]} ({t}) ...")
+            try:
+                loaded[t] = load_policy(policy_files[t])
+            except ValueError as e:
+                raise SystemExit(f"error: --{t.replace('_', '-')}: {e}") from None
     radar, radar_range_m = None, None
     if args.radar_site is not None or args.radar_range_km is not None:
         if not args.trajectory:
@@ -515,7 +532,7 @@ def main(argv=None, prog="radar-track evaluate"):
         if not 0.0 < lo_km < hi_km:
             raise SystemExit(f"error: --radar-range-km: expected 0 < LO < HI (km), got {args.radar_range_km!r}")
         radar_range_m = (lo_km * 1e3, hi_km * 1e3)
-    inputs = _input_files(args, policy if "policy" in trackers else None)
+    inputs = _input_files(args, [policy_files[t] for t in POLICY_TRACKERS if t in trackers])
     _check_outputs(args, inputs)
     names = list(args.scenario or ([] if args.trajectory else DEFAULT_SUITES))
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -541,14 +558,16 @@ def main(argv=None, prog="radar-track evaluate"):
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed, loaded_policy=loaded)
+                                 address=args.address, seed=args.seed, loaded_policy=loaded.get("policy"),
+                                 policy_bp_path=policy_bp, loaded_policy_bp=loaded.get("policy_bp"))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
-                "policy": policy, "suites": [s for s, _ in suites],
+                "policy": policy, "policy_bp": policy_bp if "policy_bp" in trackers else None,
+                "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},
                 "radar_site_km": None if radar is None else [x_km, y_km],

@@ -10,13 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from baselines.seeds import EVAL_SEED_BASE
 
 __all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
 
-DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-"""The main job's trackers (``policy`` only when a policy is bundled or given)."""
+DEFAULT_TRACKERS = ("policy", "policy_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+"""The main job's trackers (``policy``, PPO, and ``policy_bp``, trained by backpropagation, only when such a policy
+is bundled or given)."""
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
@@ -66,10 +67,15 @@ def build_parser(prog="radar-track evaluate"):
                          "(found in the current directory, which is not left on sys.path, or installed) or a .py file; it "
                          "registers its trackers with baselines.registry.register_tracker (repeatable; see "
                          "docs/evaluation.md). It runs as code (default: none)")
-    ap.add_argument("--policy", metavar="FILE.zip",
-                    help="saved stable-baselines3 model for the 'policy' tracker, with its env_config.json beside it "
+    ap.add_argument("--policy", metavar="FILE",
+                    help="saved policy for the 'policy' tracker: a stable-baselines3 model (.zip) or a recurrent "
+                         "policy trained by backpropagation (policy.npz), with its env_config.json beside it "
                          f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present). A "
                          "policy zip is a pickle: loading it runs the code inside; load only files you trust")
+    ap.add_argument("--policy-bp", metavar="FILE",
+                    help="saved policy for the 'policy_bp' tracker (policy.npz with policy.json and env_config.json "
+                         "beside it, or an SB3 .zip) (default: the bundled "
+                         f"{BUNDLED_BP_POLICY.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
                     help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
                          "followed) (default: ./results)")
@@ -98,8 +104,9 @@ def first_line(args):
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
-                else len(DEFAULT_TRACKERS) if args.policy or BUNDLED_POLICY.is_file() else len(DEFAULT_TRACKERS) - 1)
+                else len(DEFAULT_TRACKERS) - (not (args.policy or BUNDLED_POLICY.is_file()))
+                - (not (args.policy_bp or BUNDLED_BP_POLICY.is_file())))
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
-            + (" and the policy" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
+            + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
             + " ...")

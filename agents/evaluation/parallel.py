@@ -197,21 +197,24 @@ _POLICY_CACHE = {}
 
 
 def _policy_in_worker(blob):
-    """Load the policy shipped as file contents (cached per worker process: Ray reuses workers)."""
-    zip_bytes, env_cfg = blob
-    key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
+    """Load the policy shipped as file contents (``{file name: bytes}``, the policy file first; cached per worker
+    process: Ray reuses workers)."""
+    h = hashlib.sha1()
+    for name, data in blob.items():
+        h.update(name.encode() + b"\0" + data)
+    key = h.hexdigest()
     if key not in _POLICY_CACHE:
         with tempfile.TemporaryDirectory(prefix="radar_track_policy_") as tmp:   # the model is in memory after
             d = Path(tmp)
-            (d / "policy.zip").write_bytes(zip_bytes)
-            if env_cfg is not None:
-                (d / "env_config.json").write_bytes(env_cfg)
-            _POLICY_CACHE[key] = load_policy(d / "policy.zip")
+            for name, data in blob.items():
+                (d / name).write_bytes(data)
+            _POLICY_CACHE[key] = load_policy(d / next(iter(blob)))
     return _POLICY_CACHE[key]
 
 
-def _run_chunk(tracker, episodes, policy_blob):
-    choose_q, cfg = _policy_in_worker(policy_blob) if tracker == "policy" else (None, None)
+def _run_chunk(tracker, episodes, policy_blobs):
+    blob = (policy_blobs or {}).get(tracker)
+    choose_q, cfg = _policy_in_worker(blob) if blob is not None else (None, None)
     return run_one(tracker, episodes, choose_q, cfg)
 
 
@@ -226,11 +229,16 @@ def _task_given(episodes, tracker, policy_blob):
 
 # ------------------------------------------------------------------------------------------------ driver side
 def _policy_blob(policy_path):
+    """``{file name: bytes}`` of a policy file and the files it is loaded with (``env_config.json``; a recurrent
+    policy's ``policy.json``), the policy file first."""
     if policy_path is None:
         return None
     p = Path(policy_path)
-    cfg = p.with_name("env_config.json")
-    return p.read_bytes(), cfg.read_bytes() if cfg.is_file() else None
+    blob = {p.name: p.read_bytes()}
+    for f in (p.with_suffix(".json"), p.with_name("env_config.json")):
+        if f.is_file() and f != p:
+            blob[f.name] = f.read_bytes()
+    return blob
 
 
 def _first_run_redraws(suite, episodes, seed):
@@ -245,6 +253,7 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
     Args:
         suites: list of ``(name, episodes)`` as drawn by the driver (:func:`agents.evaluation.suites.draw_suite`).
         trackers: tracker names; ``policy`` needs ``policy_path``.
+        policy_path: the ``policy`` tracker's file, or ``{policy tracker: file}`` (``policy``, ``policy_bp``).
         workers: chunks per suite (and local CPUs when Ray is started here).
         address: Ray cluster address (default ``RAY_ADDRESS``, else an embedded local Ray).
         seed: base seed the named suites were drawn with; None: send every suite's episodes.
@@ -254,7 +263,8 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     tick = tick or (lambda msg: None)
-    blob = _policy_blob(policy_path) if "policy" in trackers else None
+    paths = policy_path if isinstance(policy_path, dict) else {"policy": policy_path}
+    blob = {t: _policy_blob(p) for t, p in paths.items() if t in trackers}
     with ray_session(address, workers, "--workers/--address") as ray:
         draw = ray.remote(num_cpus=1)(_task_draw)
         given = ray.remote(num_cpus=1)(_task_given)

@@ -23,14 +23,17 @@ import json
 import zipfile
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env", "ship_policy",
-           "embed_env_config", "recorded_env_kwargs"]
+__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env",
+           "ship_policy", "embed_env_config", "recorded_env_kwargs"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
 BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
+BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop" / "policy.npz"
+"""The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
+:mod:`agents.policies.recurrent`, with ``policy.json`` and ``env_config.json`` beside it)."""
 
 
 def _tuples(v):
@@ -114,17 +117,23 @@ def make_policy_env(policy_path=None, num_envs=None, **overrides):
 
 
 def ship_policy(policy_path, dest_dir):
-    """Copy a trained policy (its zip and the ``env_config.json`` beside it) into ``dest_dir`` for shipping, without
-    the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip acts exactly as
-    the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts the moments, as
-    it does for any saved model. Its numpy export (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written
-    beside it, so the evaluation runs it without torch. Returns the new zip's path."""
+    """Copy a trained policy into ``dest_dir`` for shipping. A PPO zip (and the ``env_config.json`` beside it) is
+    written without the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip
+    acts exactly as the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts
+    the moments, as it does for any saved model. A recurrent policy (``policy.npz``, trained by backpropagation) is
+    copied with its ``policy.json`` and ``env_config.json`` (it holds no optimizer state). A PPO zip's numpy export
+    (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written beside it, so the evaluation runs it without
+    torch. Returns the new policy file's path."""
     import shutil
 
-    from stable_baselines3 import PPO
     src = Path(policy_path)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
+    if src.suffix == ".npz":
+        for f in (src, src.with_suffix(".json"), src.with_name("env_config.json")):
+            shutil.copy(f, dest / f.name)
+        return dest / src.name
+    from stable_baselines3 import PPO
     model = PPO.load(str(src), device="cpu")
     opt = model.policy.optimizer
     model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)

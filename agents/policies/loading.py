@@ -6,7 +6,8 @@ code the file's author put there (with your user's rights), before any check of 
 checkpoint is the same. Load only files you trust (your own training runs, the bundled policy); the checks below
 catch mistakes, not malice. A zip with a current numpy export beside it (``policy.npz``,
 :mod:`agents.policies.numpy_policy`; the bundled policies have one) is not unpickled: the export holds arrays only,
-and the policy then runs without torch or SB3.
+and the policy then runs without torch or SB3. A recurrent policy trained by backpropagation (``.npz`` with its
+``policy.json``, :mod:`agents.policies.recurrent`) is plain arrays and JSON, loaded without pickle.
 
 :func:`load_policy` refuses, naming the field, a model that does not fit the env config it is evaluated with: a
 different observation size or action space, observation bounds that differ entry by entry from the env's (other or
@@ -29,23 +30,29 @@ from radar_env.units import G0_M_S2
 
 from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
+from agents.policies.recurrent import is_recurrent_checkpoint, load_recurrent_policy
 
 __all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q"]
 
 
 def load_policy(path):
-    """Load a saved stable-baselines3 model (PPO, DQN, SAC, A2C or TD3 zip) and the env config it was trained
-    with (``env_config.json`` beside it, else the defaults with the model's action type).
+    """Load a saved policy and the env config it was trained with, by file type: a stable-baselines3 model (PPO,
+    DQN, SAC, A2C or TD3 ``.zip``; ``env_config.json`` beside it, else the defaults with the model's action type)
+    or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
+    ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle).
 
     Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2, evaluated in numpy wherever the
-    model's structure allows (:func:`load_model`). Raises ``ValueError`` for a file that is not such a model, or a
-    model whose observation space (size or bounds), action space or recorded training env does not match its env
-    config (the message names the field; module docstring).
+    model's structure allows (:func:`load_model`; a recurrent policy is a stateful ``choose_q`` for
+    :func:`baselines.trackers.run_q_policy`: ``reset(rows)``, ``choose_q(obs, rows)``). Raises ``ValueError`` for a
+    file that is not such a policy, or one whose observation space (size or bounds), action space or recorded
+    training env does not match its env config (the message names the field; module docstring).
 
-    Without a current numpy export the zip is unpickled: it runs code. Load only files you trust."""
+    Without a current numpy export an SB3 zip is unpickled: it runs code. Load only files you trust."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
+    if is_recurrent_checkpoint(path):
+        return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}
     where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"

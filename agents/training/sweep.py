@@ -1,6 +1,7 @@
 """Seed and hyperparameter sweeps on Ray Tune: ``radar-track sweep CONFIG.toml [--out DIR] [--address ADDR]``.
 
-Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`) with its own run folder
+Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`, or with ``method = "backprop"``
+:func:`agents.training.backprop.train_backprop`) with its own run folder
 ``<out>/<name>/runs/<trial>/``; the selection metric (``selection_ratio``: the geometric mean of the policy/imm2
 RMSE ratios on the selection suites, training-range seeds, :class:`agents.training.callbacks.ImmRatioEvalCallback`) is
 reported to Tune after every selection evaluation, so an ASHA scheduler can stop weak trials early. At the end a
@@ -15,6 +16,7 @@ The config (example: ``agents/training/sweeps/example.toml``)::
 
     [sweep]
     name = "ppo_lr_seeds"        # experiment folder under --out (default: the config file's stem)
+    method = "ppo"               # ppo (SB3, with algo) | backprop (hyperparams backprop.toml; budget n_steps)
     algo = "ppo"                 # ppo | dqn | sac
     hyperparams = "ppo.toml"     # base file (a path, or a name in agents/training/hyperparams/; default <algo>.toml)
     search = "grid"              # grid | random | optuna
@@ -59,7 +61,7 @@ METRIC = "selection_ratio"
 SEARCHES = ("grid", "random", "optuna")
 SCHEDULERS = ("fifo", "asha")
 DISTRIBUTIONS = ("uniform", "loguniform", "randint")
-_SWEEP_KEYS = {"name", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
+_SWEEP_KEYS = {"name", "method", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
                "max_concurrent_trials", "scheduler", "grace_evals"}
 
 
@@ -115,8 +117,13 @@ def load_sweep_config(path):
     bad = set(sw) - _SWEEP_KEYS
     if bad:
         raise ValueError(f"{path}: unknown [sweep] key(s) {sorted(bad)}; valid: {sorted(_SWEEP_KEYS)}")
-    algo = sw.get("algo", "ppo")
-    if algo not in ALGOS:
+    method = sw.get("method", "ppo")
+    if method not in ("ppo", "backprop"):
+        raise ValueError(f"{path}: [sweep] method must be 'ppo' or 'backprop', got {method!r}")
+    if method == "backprop" and "algo" in sw:
+        raise ValueError(f"{path}: [sweep] algo applies to method = 'ppo' (SB3); method = 'backprop' has none")
+    algo = "backprop" if method == "backprop" else sw.get("algo", "ppo")
+    if algo not in ALGOS + ("backprop",):
         raise ValueError(f"{path}: [sweep] algo must be one of {ALGOS}, got {algo!r}")
     hp_file = sw.get("hyperparams")
     if hp_file is not None:
@@ -213,9 +220,23 @@ def _trial(config, algo, hp, runs_dir):
             report(row)
         return
 
-    train(algo, trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
-          command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
-          on_selection=report)
+    if algo == "backprop":
+        from agents.training.backprop import train_backprop
+        fit = train_backprop
+    else:
+        def fit(hp, **kw):
+            return train(algo, hp, **kw)
+    fit(trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
+        command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
+        on_selection=report)
+
+
+def _budget(algo, hp):
+    """``(budget, between evaluations)`` of a trial, in the unit its selection rows count as ``timesteps``: env steps
+    for SB3, optimiser steps for backprop."""
+    if algo == "backprop":
+        return int(hp.get("n_steps", 1)), int(hp.get("eval_every", 1))
+    return int(hp.get("n_timesteps", 1_000_000)), int(hp.get("eval_freq", 100_000))
 
 
 def _trial_name(trial):
@@ -226,8 +247,8 @@ def _scheduler(cfg):
     if cfg["scheduler"] != "asha":
         return None
     from ray.tune.schedulers import ASHAScheduler
-    hp = cfg["hp"]
-    n_evals = max(1, math.ceil(int(hp.get("n_timesteps", 1_000_000)) / int(hp.get("eval_freq", 100_000))))
+    budget, every = _budget(cfg["algo"], cfg["hp"])
+    n_evals = max(1, math.ceil(budget / every))
     return ASHAScheduler(time_attr="training_iteration", max_t=n_evals + 1, grace_period=cfg["grace_evals"])
 
 
@@ -241,11 +262,12 @@ def _search_alg(cfg):
     return None
 
 
-def results_table(result_grid, space_keys, n_timesteps, early_stopping=True, interrupted=False):
+def results_table(result_grid, space_keys, n_timesteps, early_stopping=True, interrupted=False,
+                  policy_file="policy.zip"):
     """One row per trial, best ``selection_ratio`` first (errored trials last, with their error). ``status``:
     ``done`` (reached ``n_timesteps``), ``error``, ``stopped early`` (stopped by an early-stopping scheduler:
     ``early_stopping`` and not ``interrupted``) or ``unfinished`` (an interrupted sweep's trial: run the same
-    command again to resume it)."""
+    command again to resume it). ``best_policy`` is the trial's ``best/<policy_file>``."""
     # a trial TERMINATED short of n_timesteps: an early stop only under an early-stopping scheduler and without
     # an interrupt (Tune ends an interrupted trial TERMINATED too)
     trials = getattr(getattr(result_grid, "_experiment_analysis", None), "trials", None) or []
@@ -272,7 +294,7 @@ def results_table(result_grid, space_keys, n_timesteps, early_stopping=True, int
         if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.training.train)
             d = Path(m["run_dir"])
             d = d if d.is_dir() or not d.with_name(d.name + ".partial").is_dir() else d.with_name(d.name + ".partial")
-            row["best_policy"] = str(d / "best" / "policy.zip")
+            row["best_policy"] = str(d / "best" / policy_file)
         rows.append(row)
     rows.sort(key=lambda r: (r["best_selection_ratio"] is None, r["best_selection_ratio"] or 0.0, r["trial"]))
     return rows
@@ -364,8 +386,9 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
             except (ray.exceptions.RayError, tune.TuneError) as e:
                 raise ValueError(ray_error_line(e, "the sweep")) from None
         interrupted = sigint.seen
-    rows = results_table(grid, list(cfg["space"]), int(cfg["hp"].get("n_timesteps", 1_000_000)),
-                         early_stopping=cfg["scheduler"] == "asha", interrupted=interrupted)
+    rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0],
+                         early_stopping=cfg["scheduler"] == "asha", interrupted=interrupted,
+                         policy_file="policy.npz" if cfg["algo"] == "backprop" else "policy.zip")
     exp_dir.mkdir(parents=True, exist_ok=True)
     write_text_replacing(exp_dir / "results.json", json.dumps(
         {"config": cfg["config_path"], "metric": METRIC, "mode": "min", "interrupted": interrupted, "trials": rows},

@@ -37,15 +37,10 @@ import argparse
 import inspect
 import json
 import math
-import os
 import shlex
-import shutil
 import sys
 import time
-import tomllib
-import traceback
 import warnings
-from importlib import resources
 from pathlib import Path
 
 # nothing slow at import (numpy, torch, stable-baselines3 and the env are imported where they are used):
@@ -54,84 +49,17 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, check_plain_name, finish_run,  # noqa: F401
+                                  load_hyperparams, mark_failed, open_run_folder, parse_hp as _parse_hp, run_paths,
+                                  write_run_files)
+
 __all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
-           "ALGOS", "ENV_ID",
-           "TRAIN_SCENARIOS"]
+           "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
 
-TRAIN_SCENARIOS = ("random", "random_radars")
-"""The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
-
-ENV_ID = "RadarTrack-v0"
 ALGOS = ("ppo", "dqn", "sac")
-HP_DIR = Path(__file__).with_name("hyperparams")
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
 _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
             "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on", "init_from")
-
-
-def load_hyperparams(algo, path=None):
-    """The ``RadarTrack-v0`` table of ``agents/training/hyperparams/<algo>.toml`` (package data, read through
-    ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``."""
-    if path:
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"--hyperparams: file {str(path)!r} does not exist")
-        text, where = path.read_bytes(), str(path)
-    else:
-        if algo not in ALGOS:
-            raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
-        res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
-        text, where = res.read_bytes(), f"agents/training/hyperparams/{algo}.toml"
-    try:
-        table = tomllib.loads(text.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--hyperparams: {where} is not TOML ({e})") from None
-    if ENV_ID not in table:
-        raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
-    return table[ENV_ID]
-
-
-def check_plain_name(option, name):
-    """``name`` if it is a plain folder name (one path component: no ``/`` or ``\\``, not ``.``/``..``, not empty, no
-    NUL), so that a run or sweep folder stays inside its ``--out``; ``ValueError`` naming ``option`` otherwise."""
-    if (not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name or "\\" in name
-            or "/" in name or "\0" in name):
-        raise ValueError(f"{option}: must be a plain folder name inside --out (no '/', '..'), got {name!r}")
-    return name
-
-
-class _RunLock:
-    """An exclusive lock on the run name ``<out>/<name>`` for as long as a run writes it: the ``flock`` of
-    ``<out>/.<name>.lock`` (released by the kernel if the process dies, so a killed run's ``.partial`` can be
-    replaced later). A second run under the same name while the first runs is refused (``ValueError`` naming
-    ``--name``) instead of deleting the first's ``.partial`` and mixing its files into the first's folder."""
-
-    def __init__(self, run):
-        import fcntl
-        self.path = run.with_name(f".{run.name}.lock")
-        run.parent.mkdir(parents=True, exist_ok=True)
-        while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                raise ValueError(f"--name: another run is writing {str(run)!r} now (it holds {str(self.path)!r}); "
-                                 "choose another name or wait for it to end") from None
-            try:     # the previous holder may have removed the file between our open and our lock: lock it anew
-                if os.stat(self.path).st_ino == os.fstat(fd).st_ino:
-                    break
-            except FileNotFoundError:
-                pass
-            os.close(fd)
-        self.fd = fd
-        os.write(fd, f"{os.getpid()}\n".encode())
-
-    def release(self):
-        if self.fd is not None:
-            self.path.unlink(missing_ok=True)      # while still holding it (see the check above)
-            os.close(self.fd)
-            self.fd = None
 
 
 def _schedule(v):
@@ -152,19 +80,6 @@ def _policy_kwargs(pk):
         pk["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU,
                                "silu": nn.SiLU}[name]
     return pk
-
-
-def _parse_hp(items):
-    out = {}
-    for it in items or []:
-        if "=" not in it:
-            raise SystemExit(f"error: --hp expects KEY=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
-    return out
 
 
 # types of the special keys: (check, what it must be)
@@ -346,15 +261,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                           "no gradient update, the saved policy is its random initialisation", UserWarning,
                           stacklevel=2)
 
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    if run_name is not None:
-        check_plain_name("--name", run_name)
-    run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
-    part = run.with_name(run.name + ".partial")
-    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
-        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
-    if Path(out).exists() and not Path(out).is_dir():
-        raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
+    run, part = run_paths(out, run_name, f"{algo}_{act}_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
 
     try:
         env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
@@ -396,24 +303,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
-    lock = _RunLock(run)        # two runs with one name: the second stops here, before touching the first's files
+    lock = open_run_folder(run, part)   # two runs with one name: the second stops here, before the first's files
     try:
-        if run.exists():
-            raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
-        if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
-            shutil.rmtree(part)
-        part.mkdir(parents=True)
-    except OSError as e:
-        lock.release()
-        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
-    except BaseException:
-        lock.release()
-        raise
-    try:
-        (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
-        (part / "args.json").write_text(json.dumps(args or {}, indent=1))
-        (part / "command.txt").write_text((command or "") + "\n")
-        (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+        write_run_files(part, {"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, args, command, env_kwargs)
         t0 = time.perf_counter()
         model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
                     tb_log_name=algo)
@@ -435,11 +327,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         env.close()
     except BaseException:
-        (part / "FAILED").write_text(traceback.format_exc())
-        lock.release()
+        mark_failed(part, lock)
         raise
-    part.rename(run)
-    lock.release()
+    finish_run(part, run, lock)
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
@@ -556,12 +446,21 @@ def _file_defaults(key):
 
 def build_parser(prog="radar-track train"):
     ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
-                                 "scenarios, training seeds) with stable-baselines3.",
+                                 "scenarios, training seeds) with stable-baselines3 (--method ppo, the default) or "
+                                 "end to end by backpropagation through the filter (--method backprop).",
                                  epilog="Security: the saved policy.zip (and a model given as --hp init_from=PATH) "
-                                        "is a pickle: loading it runs the code inside. Load only files you trust.")
-    ap.add_argument("--algo", required=True, choices=ALGOS,
-                    help="the stable-baselines3 algorithm (required; its settings: "
+                                        "is a pickle: loading it runs the code inside. Load only files you trust. "
+                                        "--method backprop saves policy.npz + policy.json: arrays and JSON, no "
+                                        "pickle.")
+    ap.add_argument("--method", choices=("ppo", "backprop"), default="ppo",
+                    help="ppo: reinforcement learning with stable-baselines3 (--algo); backprop: a GRU q-policy "
+                         "trained by backpropagation through the filter (agents/training/backprop.py; its settings: "
+                         "agents/training/hyperparams/backprop.toml) (default: ppo)")
+    ap.add_argument("--algo", choices=ALGOS,
+                    help="--method ppo: the stable-baselines3 algorithm (required there; its settings: "
                          "agents/training/hyperparams/<algo>.toml)")
+    ap.add_argument("--tracker", help="--method backprop: the differentiable model (default: the hyperparameter "
+                                      "file's, 'cv': the CV filter with a GRU choosing q)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
                     help="q chosen from the env's discrete levels or continuously (default: the hyperparameter "
                          "file's: discrete for ppo and dqn, continuous for sac)")
@@ -596,6 +495,16 @@ def main(argv=None, prog="radar-track train"):
     with a one-line ``error: --option ...`` (``SystemExit``) before the run folder is made. Returns the run folder."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
+    if args.method == "backprop":
+        if not args.quiet:     # before torch and the env are imported
+            print("radar-track train: a GRU q-policy by backpropagation through the filter on RadarTrack-v0; loading "
+                  "torch and the env ...", file=sys.stderr, flush=True)
+        from agents.training.backprop import main_from_args
+        return main_from_args(args, argv)
+    if args.algo is None:
+        raise SystemExit("error: --algo is required with --method ppo (one of " + ", ".join(ALGOS) + ")")
+    if args.tracker is not None:
+        raise SystemExit("error: --tracker applies to --method backprop")
     if not args.quiet:     # before torch, stable-baselines3 and the env are imported (in train())
         print(f"radar-track train: {args.algo} on RadarTrack-v0; loading torch, stable-baselines3 and the env ...",
               file=sys.stderr, flush=True)
