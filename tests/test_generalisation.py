@@ -129,3 +129,16 @@ def test_bp_targets_join_the_targets_table_only_when_policy_bp_was_evaluated():
         res["policies"]["policy_bp"] = _bp_suite(0.92, 0.92)["policies"]["policy_bp"]
         res["trackers"]["imm_cv_ct"] = {"anees": 2.0}
     assert len(g.targets(data)) > n and any(name.startswith("policy_bp") for name, _, _ in g.targets(data))
+
+
+def test_recipe_policies_take_a_zip_not_its_numpy_export(tmp_path):
+    from agents.reports.generalisation import RECIPE_DIR, recipe_policies
+    shipped = recipe_policies(RECIPE_DIR)
+    assert shipped and all(p.suffix == ".zip" for p in shipped.values())      # each has a policy.npz export beside it
+    (tmp_path / "bp_s1").mkdir()
+    for f in ("policy.npz", "policy.json"):
+        (tmp_path / "bp_s1" / f).write_bytes(b"")
+    (tmp_path / "ppo_s1").mkdir()
+    for f in ("policy.zip", "policy.npz"):
+        (tmp_path / "ppo_s1" / f).write_bytes(b"")
+    assert {n: p.name for n, p in recipe_policies(tmp_path).items()} == {"bp_s1": "policy.npz", "ppo_s1": "policy.zip"}

@@ -142,9 +142,12 @@ def track_start_table(data):
 
 
 def recipe_policies(recipe_dir=RECIPE_DIR):
-    """``{name: path}`` of every recipe seed shipped in ``recipe_dir`` (sorted): SB3 zips and recurrent ``.npz``."""
-    return {p.parent.name: p for p in sorted([*Path(recipe_dir).glob("*/policy.zip"),
-                                              *Path(recipe_dir).glob("*/policy.npz")])}
+    """``{name: path}`` of every recipe seed shipped in ``recipe_dir`` (sorted): SB3 zips and recurrent policies
+    (``policy.npz`` with ``policy.json``; the ``policy.npz`` beside an SB3 zip is that zip's numpy export)."""
+    found = [*Path(recipe_dir).glob("*/policy.zip"),
+             *(p for p in Path(recipe_dir).glob("*/policy.npz")
+               if p.with_suffix(".json").is_file() and not p.with_suffix(".zip").is_file())]
+    return {p.parent.name: p for p in sorted(found)}
 
 
 # ------------------------------------------------------------------------------------------------ tables
