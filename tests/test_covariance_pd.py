@@ -16,13 +16,12 @@ from __future__ import annotations
 import importlib.util
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from radar_env import filters as kf
+from radar_env import env_kernels as ek, filters as kf
 from radar_env.env import RadarTrackEnv
 from radar_env.radar import Radar, RadarSite, converted_covariance
 
@@ -146,11 +145,11 @@ def test_nees_reward_term_is_defined_where_the_position_block_is_singular():
     env.reset(seed=0)
     core = env.unwrapped._core
     P = np.stack([np.diag([1.0, 1.0, 1.0, 1.0]), np.diag([1.0, 0.0, 1.0, 1.0]), np.diag([1.0, -1.0, 1.0, 1.0])])
-    out = SimpleNamespace(x=np.zeros((3, 4)), truth=np.tile([30.0, 40.0, 0.0, 0.0], (3, 1)), P=P,
-                          site_xy_m=np.tile([0.0, -1e5], (3, 1)), range_noise_std_m=np.full(3, 50.0),
-                          bearing_noise_std_rad=np.full(3, 1e-3))
-    terms = core._reward_terms(out, np.zeros(3, dtype=bool), np.zeros(3))
+    fo = np.zeros((3, ek.W_FO))                 # the step kernel's per-row output block: truth, estimate, P, ...
+    fo[:, ek.FO_TRUTH:ek.FO_TRUTH + 4] = [30.0, 40.0, 0.0, 0.0]
+    fo[:, ek.FO_P:ek.FO_P + 16] = P.reshape(3, 16)
+    inconsistency = core._inconsistency(fo)
     clip = core.cfg.reward_clip
     nees = 30.0**2 + 40.0**2
-    assert terms["inconsistency"][0] == pytest.approx(-2.0 * min(nees / 9.21034037197618 - 1.0, clip))
-    assert np.array_equal(terms["inconsistency"][1:], [-2.0 * clip, -2.0 * clip])
+    assert inconsistency[0] == pytest.approx(-2.0 * min(nees / 9.21034037197618 - 1.0, clip))
+    assert np.array_equal(inconsistency[1:], [-2.0 * clip, -2.0 * clip])
