@@ -828,8 +828,10 @@ def _refuse_too_short(scenario, t, warmup_scans):
             "scenario or a faster radar")
 
 
-def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse):
-    """The cached truth of a fixed scenario and, per key, its sites, look counter and status (:func:`_fixed_rows`)."""
+def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse, warn=None):
+    """The cached truth of a fixed scenario and, per key, its sites, look counter and status (:func:`_fixed_rows`).
+    ``refuse``: refuse a scenario too short for the track start; ``warn`` (default: ``refuse``): warn if the first
+    row's flight goes far beyond its radar's range (:func:`_warn_if_out_of_range`)."""
     (t, idx, truth, accel, turn, man), grid = _fixed_truth(scenario, radar, place)
     if refuse:
         _refuse_too_short(scenario, t, warmup_scans)
@@ -841,7 +843,7 @@ def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_r
         grid_xy, n_grid, extra, dur, lo, hi, n_cand = np.zeros((1, 2)), 1, False, 0.0, 0.0, 0.0, 0
     sites, cdet, status = _fixed_rows(keys, t, idx, _site_table(radar), place, grid_xy, n_grid, extra, dur, lo, hi,
                                       n_cand, int(warmup_scans), int(max_draws))
-    if refuse and status[0] == 0:      # a user scenario (pools and named setups are not checked)
+    if (refuse if warn is None else warn) and status[0] == 0:   # a user scenario (pools are not checked)
         _warn_if_out_of_range(scenario, radar, t, idx, truth, sites, place, hi)
     return (t, idx, truth, accel, turn, man), sites, cdet, status
 
@@ -897,6 +899,7 @@ class LookDrawer:
         else:
             sc, rd, place = _fixed_args(scenario, radar)
             self.fixed = (sc, rd, place)
+            self._range_checked = False
             self.label = sc.name
             t = _fixed_truth(sc, rd, place)[0][0]
             _refuse_too_short(sc, t, self.warmup_scans)
@@ -922,7 +925,8 @@ class LookDrawer:
         else:
             sc, rd, place = self.fixed
             (t, idx, truth, accel, turn, man), sites, cdet, status = _fixed_phase1(
-                sc, rd, keys, w, self.max_draws, place, self.radar_range_m, False)
+                sc, rd, keys, w, self.max_draws, place, self.radar_range_m, False, warn=not self._range_checked)
+            self._range_checked = True       # refused at build (too short); warned once, at the first draw
             if np.any(status != 0):
                 raise _too_few_draws(sc.name, w, self.max_draws)
             tracker._ensure_capacity(t.size)

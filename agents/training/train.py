@@ -457,8 +457,8 @@ def build_parser(prog="radar-track train"):
                          "trained by backpropagation through the filter (agents/training/backprop.py; its settings: "
                          "agents/training/hyperparams/backprop.toml) (default: ppo)")
     ap.add_argument("--algo", choices=ALGOS,
-                    help="--method ppo: the stable-baselines3 algorithm (required there; its settings: "
-                         "agents/training/hyperparams/<algo>.toml)")
+                    help="--method ppo: the stable-baselines3 algorithm (its settings: "
+                         "agents/training/hyperparams/<algo>.toml) (default: none; required with --method ppo)")
     ap.add_argument("--tracker", help="--method backprop: the differentiable model (default: the hyperparameter "
                                       "file's, 'cv': the CV filter with a GRU choosing q)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
