@@ -24,7 +24,7 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env",
-           "ship_policy", "embed_env_config", "recorded_env_kwargs"]
+           "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
@@ -36,12 +36,12 @@ BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop"
 :mod:`agents.policies.recurrent`, with ``policy.json`` and ``env_config.json`` beside it)."""
 
 
-def _tuples(v):
+def env_kwargs_from_json(v):
     """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
     if isinstance(v, list):
-        return tuple(_tuples(x) for x in v)
+        return tuple(env_kwargs_from_json(x) for x in v)
     if isinstance(v, dict):
-        return {k: _tuples(x) for k, x in v.items()}
+        return {k: env_kwargs_from_json(x) for k, x in v.items()}
     return v
 
 
@@ -59,7 +59,7 @@ def policy_env_kwargs(policy_path=None):
         raise ValueError(f"{cfg}: not valid JSON ({e})") from e
     if not isinstance(kw, dict):
         raise ValueError(f"{cfg}: must hold a JSON object of RadarTrack-v0 arguments, got {type(kw).__name__}")
-    return _tuples(kw)
+    return env_kwargs_from_json(kw)
 
 
 def embed_env_config(zip_path, env_kwargs):
@@ -82,7 +82,7 @@ def recorded_env_kwargs(policy_path):
             if ENV_CONFIG_ENTRY in z.namelist():
                 kw = json.loads(z.read(ENV_CONFIG_ENTRY).decode())
                 if isinstance(kw, dict):
-                    return _tuples(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
+                    return env_kwargs_from_json(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
     except (OSError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError):
         pass
     for cand, key in ((path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
@@ -97,7 +97,7 @@ def recorded_env_kwargs(policy_path):
         for k in key:
             v = v.get(k) if isinstance(v, dict) else None
         if isinstance(v, dict):
-            return _tuples(v), str(cand)
+            return env_kwargs_from_json(v), str(cand)
     return None, None
 
 

@@ -52,6 +52,8 @@ from radar_env.config import EnvConfig
 from radar_env.core import actions_to_q_m_s2
 from radar_env.units import G0_M_S2
 
+from agents.policies.bundle import env_kwargs_from_json
+
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "save_recurrent_policy",
            "load_recurrent_policy", "is_recurrent_checkpoint", "weight_shapes"]
 
@@ -188,14 +190,6 @@ def save_recurrent_policy(directory, weights, config, env_kwargs):
     return d / POLICY_FILE
 
 
-def _tuples(v):
-    if isinstance(v, list):
-        return tuple(_tuples(x) for x in v)
-    if isinstance(v, dict):
-        return {k: _tuples(x) for k, x in v.items()}
-    return v
-
-
 def load_recurrent_policy(path):
     """Load a checkpoint (``policy.npz`` with ``policy.json`` and ``env_config.json`` beside it).
 
@@ -240,7 +234,7 @@ def load_recurrent_policy(path):
     if not isinstance(env_kw, dict):
         raise ValueError(f"{env_file}: must hold a JSON object of RadarTrack-v0 arguments")
     try:
-        cfg = EnvConfig.from_kwargs(**_tuples(env_kw))
+        cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kw))
     except (TypeError, ValueError) as e:
         raise ValueError(f"{env_file}: {e}") from None
     if cfg.action_type != "continuous":

@@ -69,10 +69,11 @@ from radar_env.observation import DEFAULT_FEATURES, ObservationLayout, measureme
 from radar_env.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
+from agents.policies.bundle import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (TRAIN_SCENARIOS, finish_run, load_hyperparams, mark_failed, open_run_folder,
-                                  parse_hp, run_paths, write_run_files)
+from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, finish_run, load_hyperparams, mark_failed,
+                                  open_run_folder, run_paths, write_run_files)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_SPEC", "LOSSES", "check_hp", "train_backprop", "make_model",
            "StreamingTrainer", "optimiser_step", "MAX_TRAIN_SEED"]
@@ -309,19 +310,11 @@ def check_hp(hp):
                          f"got {env_kwargs['frame_stack']!r}")
     env_kwargs.setdefault("features", list(DEFAULT_FEATURES))   # pinned: the default list may grow
     try:
-        cfg = EnvConfig.from_kwargs(**{k: _tuples(v) for k, v in env_kwargs.items()})
+        cfg = EnvConfig.from_kwargs(**{k: env_kwargs_from_json(v) for k, v in env_kwargs.items()})
     except (TypeError, ValueError) as e:
         raise ValueError(f"--env-kwargs: {e}") from None
     hp["env_kwargs"] = env_kwargs
     return hp, env_kwargs, cfg
-
-
-def _tuples(v):
-    if isinstance(v, list):
-        return tuple(_tuples(x) for x in v)
-    if isinstance(v, dict):
-        return {k: _tuples(x) for k, x in v.items()}
-    return v
 
 
 # ================================================================================================ the trainer
@@ -647,14 +640,7 @@ def main_from_args(args, argv):
         hp = load_hyperparams("backprop", args.hyperparams)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    try:
-        ek = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
-    if not isinstance(ek, dict):
-        raise SystemExit("error: --env-kwargs must be a JSON object")
-    hp.update(parse_hp(args.hp))
-    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    hp = apply_cli_overrides(hp, args.env_kwargs, args.hp)
     if args.tracker is not None:
         hp["tracker"] = args.tracker
     command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])

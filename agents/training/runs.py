@@ -18,8 +18,9 @@ import traceback
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "check_plain_name",
-           "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed", "finish_run"]
+__all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
+           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed",
+           "finish_run"]
 
 ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
@@ -65,6 +66,21 @@ def parse_hp(items):
         except json.JSONDecodeError:
             out[k] = v
     return out
+
+
+def apply_cli_overrides(hp, env_kwargs_json, hp_items):
+    """``hp`` (a hyperparameter table) with the command line's overrides: ``--hp KEY=VALUE`` items and the
+    ``--env-kwargs`` JSON object merged over the table's ``env_kwargs``; a one-line ``SystemExit`` for JSON that is
+    not an object."""
+    try:
+        ek = json.loads(env_kwargs_json)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
+    if not isinstance(ek, dict):
+        raise SystemExit("error: --env-kwargs must be a JSON object")
+    hp.update(parse_hp(hp_items))
+    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    return hp
 
 
 # ------------------------------------------------------------------------------------------------ run folders

@@ -49,9 +49,9 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, check_plain_name, finish_run,  # noqa: F401
-                                  load_hyperparams, mark_failed, open_run_folder, parse_hp as _parse_hp, run_paths,
-                                  write_run_files)
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
+                                  check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
+                                  run_paths, write_run_files)
 
 __all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
            "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
@@ -517,14 +517,7 @@ def main(argv=None, prog="radar-track train"):
         hp = load_hyperparams(args.algo, args.hyperparams)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    try:
-        ek = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
-    if not isinstance(ek, dict):
-        raise SystemExit("error: --env-kwargs must be a JSON object")
-    hp.update(_parse_hp(args.hp))
-    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    hp = apply_cli_overrides(hp, args.env_kwargs, args.hp)
     if args.action_type:
         hp["env_kwargs"]["action_type"] = args.action_type
     if args.timesteps is not None:
