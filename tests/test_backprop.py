@@ -430,3 +430,17 @@ def test_bench_backprop_runs_with_tiny_settings(tmp_path):
     assert r["row_looks_per_s"] > 0 and 0 < r["numba_share"] < 1 and json.loads(out.read_text())["results"]
     with pytest.raises(SystemExit):
         mod.main(["--flights", "nope"])
+
+
+def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():
+    """BLAS rounds a one-row product differently from a many-row one; the policy's linear layers must not (a row's
+    q would depend on the episodes sharing its batch)."""
+    from agents.policies.recurrent import linear
+    rng = np.random.default_rng(7)
+    for F, H in ((27, 96), (32, 96), (32, 1)):
+        W = rng.normal(size=(H, F))
+        x = rng.normal(size=(200, F))
+        full = linear(x, W)
+        assert np.allclose(full, x @ W.T, rtol=1e-12, atol=1e-12)
+        for i in (0, 77, 199):
+            assert np.array_equal(linear(x[i:i + 1], W)[0], full[i])

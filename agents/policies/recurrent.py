@@ -67,10 +67,17 @@ def _sigmoid(v):
     return 1.0 / (1.0 + np.exp(-v))
 
 
+def linear(x, w):
+    """``x (n, F) @ w.T`` with every row's sums in an order that does not depend on ``n``: numpy's einsum loops
+    instead of BLAS, whose kernels for one row and for several round differently (a row's q would then depend on
+    the episodes that share its batch, which the evaluation's batch-independence test refuses)."""
+    return np.einsum("nf,hf->nh", x, w)
+
+
 def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
     """One GRU step (torch's ``GRUCell`` equations, module docstring): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``."""
-    gi = x @ w_ih.T + b_ih
-    gh = h @ w_hh.T + b_hh
+    gi = linear(x, w_ih) + b_ih
+    gh = linear(h, w_hh) + b_hh
     H = h.shape[1]
     r = _sigmoid(gi[:, :H] + gh[:, :H])
     z = _sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
@@ -122,8 +129,8 @@ class RecurrentQPolicy:
                      w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"])
         y = h
         for i in range(self.n_head):
-            y = np.tanh(y @ w[f"head.{i}.weight"].T + w[f"head.{i}.bias"])
-        return np.tanh(y @ w["out.weight"].T + w["out.bias"])[:, 0], h
+            y = np.tanh(linear(y, w[f"head.{i}.weight"]) + w[f"head.{i}.bias"])
+        return np.tanh(linear(y, w["out.weight"]) + w["out.bias"])[:, 0], h
 
     def q_of_actions(self, actions):
         """The env's action map: actions in [-1, 1] -> q (m/s^2)."""
