@@ -31,11 +31,11 @@ if str(REPO) not in sys.path:          # run as a script: import this checkout's
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from agents.training import backprop as bp  # noqa: E402
 from agents.training.runs import load_hyperparams  # noqa: E402
+from benchmarks.bench_torch_chain import cartpole_rate  # noqa: E402  (the same CartPole reference)
 
 FLIGHTS = ("training", "random")
 
@@ -48,21 +48,6 @@ def _positive_int(s):
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {s!r}")
     return v
-
-
-def _cartpole_rate(seconds):
-    import gymnasium as gym
-    env = gym.make("CartPole-v1")
-    env.reset(seed=0)
-    acts = np.random.default_rng(0).integers(0, 2, size=512)
-    n, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        for a in acts:
-            _, _, term, trunc, _ = env.step(int(a))
-            if term or trunc:
-                env.reset()
-        n += acts.size
-    return n / (time.perf_counter() - t0)
 
 
 class _Timed:
@@ -139,7 +124,7 @@ def main(argv=None):
               f"{r['row_looks_per_s']:9.0f} row-looks/s  {r['scored_looks_per_s']:9.0f} scored looks/s  "
               f"({r['mean_looks_per_episode']:.0f} looks/episode; numba Tracker + observation "
               f"{100 * r['numba_share']:.0f} % of the step)")
-    res["cartpole_steps_per_s"] = _cartpole_rate(1.0)
+    res["cartpole_steps_per_s"] = cartpole_rate(1.0)
     res["loadavg_1min_at_end"] = os.getloadavg()[0]
     for r in res["results"]:
         r["row_looks_per_cartpole_step"] = r["row_looks_per_s"] / res["cartpole_steps_per_s"]
