@@ -35,19 +35,9 @@ import torch  # noqa: E402
 
 from agents.training import backprop as bp  # noqa: E402
 from agents.training.runs import load_hyperparams  # noqa: E402
-from benchmarks.bench_torch_chain import cartpole_rate  # noqa: E402  (the same CartPole reference)
+from benchmarks.bench_torch_chain import _positive_int, cartpole_rate  # noqa: E402  (shared with it)
 
 FLIGHTS = ("training", "random")
-
-
-def _positive_int(s):
-    try:
-        v = int(s)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {s!r}")
-    return v
 
 
 class _Timed:
