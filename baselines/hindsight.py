@@ -58,12 +58,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numba
 import numpy as np
 
-from radar_env.numba_cache import drop_stale_kernels, package_sources
 from radar_env.observation import DEFAULT_Q_LEVELS_G
 from radar_env.units import DEG, G0_M_S2
 
@@ -267,8 +265,10 @@ def _ct_coeffs(dt, w):
 def _mse_grad_rows(x0, P0, dt, det, z, Rm, pos, n, lq, w, turn, want_grad):
     """Per-row position MSE after the track start and its gradient w.r.t. ``lq = log q`` (and ``w``, if ``turn``).
 
-    Forward: the chain's formulas (radar_env.filters: F x, F P F^T + q^2 G symmetrised, Joseph update with
-    H = [I 0] symmetrised). Reverse: the adjoint of the same steps (matrix calculus, written out below). Rows are
+    Forward: F x, F P F^T + q^2 G symmetrised, and the Joseph update with H = [I 0] symmetrised. The chain's
+    update (radar_env.kernels._gain_update) computes the same posterior in R's principal axes with a PD floor: the
+    two agree to rounding on ordinary looks and differ only where the floor acts (near-singular plots, long hard
+    coasts), so a schedule optimised here is scored by the chain itself (chain_forward). Reverse: the adjoint of the same steps (matrix calculus, written out below). Rows are
     independent: a row's numbers do not depend on the other rows of the batch."""
     Rn, J = dt.shape
     mse = np.zeros(Rn)
@@ -610,7 +610,3 @@ def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg=None, q_range_g=
     run = chain_forward(episodes, q2, w, name=name, cfg=cfg)
     return (run, (info, info_q)) if return_info else run
 
-
-# numba keys each cached kernel on its own file only, and these call radar_env.kernels: drop the cached kernels
-# of this folder when a source of radar_env or baselines changed (radar_env.numba_cache)
-drop_stale_kernels(_mm, package_sources(Path(__file__).parents[1] / "radar_env", Path(__file__).parent))

@@ -472,17 +472,13 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
     if args.workers < 1:
         raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
-    policy = args.policy
-    if policy is not None and not Path(policy).is_file():
-        raise SystemExit(f"error: --policy: file {policy!r} does not exist (or is not a file)")
-    if policy is None and BUNDLED_POLICY.is_file():
-        policy = str(BUNDLED_POLICY)
-    policy_bp = args.policy_bp
-    if policy_bp is not None and not Path(policy_bp).is_file():
-        raise SystemExit(f"error: --policy-bp: file {policy_bp!r} does not exist (or is not a file)")
-    if policy_bp is None and BUNDLED_BP_POLICY.is_file():
-        policy_bp = str(BUNDLED_BP_POLICY)
-    policy_files = {"policy": policy, "policy_bp": policy_bp}
+    policy_files = {}                   # learned tracker -> its file: the option's, else the bundled one if shipped
+    for t, given, bundled in (("policy", args.policy, BUNDLED_POLICY),
+                              ("policy_bp", args.policy_bp, BUNDLED_BP_POLICY)):
+        if given is not None and not Path(given).is_file():
+            raise SystemExit(f"error: --{t.replace('_', '-')}: file {given!r} does not exist (or is not a file)")
+        policy_files[t] = given if given is not None else (str(bundled) if bundled.is_file() else None)
+    policy, policy_bp = policy_files["policy"], policy_files["policy_bp"]
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)

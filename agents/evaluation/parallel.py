@@ -230,12 +230,15 @@ def _task_given(episodes, tracker, policy_blob):
 # ------------------------------------------------------------------------------------------------ driver side
 def _policy_blob(policy_path):
     """``{file name: bytes}`` of a policy file and the files it is loaded with (``env_config.json``; a recurrent
-    policy's ``policy.json``), the policy file first."""
+    policy's ``policy.json``; an SB3 zip's numpy export, so that the workers run it without torch, SB3 or
+    unpickling, as the serial evaluation does), the policy file first."""
     if policy_path is None:
         return None
+    from agents.policies.numpy_policy import export_path
     p = Path(policy_path)
     blob = {p.name: p.read_bytes()}
-    for f in (p.with_suffix(".json"), p.with_name("env_config.json")):
+    extra = (p.with_suffix(".json"), p.with_name("env_config.json")) + ((export_path(p),) if p.suffix == ".zip" else ())
+    for f in extra:
         if f.is_file() and f != p:
             blob[f.name] = f.read_bytes()
     return blob

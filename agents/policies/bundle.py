@@ -129,7 +129,7 @@ def ship_policy(policy_path, dest_dir):
     src = Path(policy_path)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
-    if src.suffix == ".npz":
+    if src.suffix == ".npz":     # a recurrent policy (its policy.json must be there; FileNotFoundError otherwise)
         for f in (src, src.with_suffix(".json"), src.with_name("env_config.json")):
             shutil.copy(f, dest / f.name)
         return dest / src.name

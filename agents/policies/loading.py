@@ -30,7 +30,7 @@ from radar_env.units import G0_M_S2
 
 from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
-from agents.policies.recurrent import is_recurrent_checkpoint, load_recurrent_policy
+from agents.policies.recurrent import load_recurrent_policy
 
 __all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q"]
 
@@ -51,7 +51,7 @@ def load_policy(path):
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
-    if is_recurrent_checkpoint(path):
+    if path.suffix == ".npz":       # a recurrent policy (load_recurrent_policy says what is missing if it is not)
         return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}

@@ -179,8 +179,10 @@ class RecurrentQPolicy:
 
 # ------------------------------------------------------------------------------------------------ checkpoints
 def is_recurrent_checkpoint(path):
-    """Whether ``path`` names a recurrent-policy checkpoint (by file type: ``.npz``)."""
-    return Path(path).suffix == ".npz"
+    """Whether ``path`` names a recurrent-policy checkpoint: an ``.npz`` with its ``policy.json`` beside it (the
+    ``policy.npz`` beside an SB3 zip, its numpy export, has none)."""
+    path = Path(path)
+    return path.suffix == ".npz" and path.with_suffix(".json").is_file()
 
 
 def save_recurrent_policy(directory, weights, config, env_kwargs):
@@ -210,7 +212,8 @@ def load_recurrent_policy(path):
     for f in (meta_file, env_file):
         if not f.is_file():
             raise ValueError(f"{path}: no {f.name} beside it (a recurrent policy is {POLICY_FILE}, policy.json and "
-                             "env_config.json in one folder)")
+                             "env_config.json in one folder; the policy.npz beside an SB3 zip is its numpy export: "
+                             "give the .zip)")
     try:
         meta, env_kw = json.loads(meta_file.read_text()), json.loads(env_file.read_text())
     except json.JSONDecodeError as e:

@@ -31,6 +31,7 @@ from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from agents.policies.loading import load_policy
+from agents.policies.recurrent import is_recurrent_checkpoint
 from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
 from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
@@ -146,7 +147,7 @@ def recipe_policies(recipe_dir=RECIPE_DIR):
     (``policy.npz`` with ``policy.json``; the ``policy.npz`` beside an SB3 zip is that zip's numpy export)."""
     found = [*Path(recipe_dir).glob("*/policy.zip"),
              *(p for p in Path(recipe_dir).glob("*/policy.npz")
-               if p.with_suffix(".json").is_file() and not p.with_suffix(".zip").is_file())]
+               if is_recurrent_checkpoint(p) and not p.with_suffix(".zip").is_file())]
     return {p.parent.name: p for p in sorted(found)}
 
 

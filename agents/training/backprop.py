@@ -310,7 +310,7 @@ def check_hp(hp):
                          f"got {env_kwargs['frame_stack']!r}")
     env_kwargs.setdefault("features", list(DEFAULT_FEATURES))   # pinned: the default list may grow
     try:
-        cfg = EnvConfig.from_kwargs(**{k: env_kwargs_from_json(v) for k, v in env_kwargs.items()})
+        cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kwargs))
     except (TypeError, ValueError) as e:
         raise ValueError(f"--env-kwargs: {e}") from None
     hp["env_kwargs"] = env_kwargs
@@ -340,7 +340,7 @@ class StreamingTrainer:
         self.rngs = (list(rngs) if rngs is not None else
                      [np.random.default_rng([int(seed), int(stream_start), r]) for r in range(self.B)])
         self.obs = np.zeros((self.B, len(cfg.features)), dtype=np.float32)
-        self.episodes_started = self.episodes_done = self.row_looks = self.scored_looks = 0
+        self.episodes_done = self.row_looks = self.scored_looks = 0
         model.reset_state(self.B)
         self._load(np.arange(self.B))
 
@@ -352,7 +352,6 @@ class StreamingTrainer:
         out = self.tracker.load(rows, [batch.episode(i) for i in range(rows.size)])
         self.obs[rows] = self.layout.encode(out, cfg.track_start.warmup_q_m_s2)
         self.model.start_rows(self.tracker, rows)
-        self.episodes_started += int(rows.size)
 
     def chunk(self):
         """One chunk of every row: returns ``(loss, looks)``, the chunk's loss (:data:`LOSSES`: pooled over its

@@ -21,7 +21,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from radar_env.env import EnvConfig
 
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import embed_env_config
+from agents.policies.bundle import embed_env_config, env_kwargs_from_json
 from agents.policies.loading import model_choose_q
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
@@ -48,8 +48,7 @@ class ImmRatioEvalCallback(BaseCallback):
         super().__init__(verbose)
         self.on_row = on_row
         self.env_kwargs = dict(env_kwargs)
-        self.cfg = EnvConfig.from_kwargs(**{k: tuple(v) if isinstance(v, list) else v
-                                            for k, v in self.env_kwargs.items()})
+        self.cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(self.env_kwargs))
         self.eval_freq = int(eval_freq)
         self.best_dir = None if best_dir is None else Path(best_dir)
         # the suites as the evaluation draws them (default generator settings), whatever the training used
