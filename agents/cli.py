@@ -13,7 +13,8 @@ USAGE = """usage: radar-track <command> [options]
 commands:
   evaluate   compare learned policies and classical trackers on identical measurement streams
   tune       re-tune the classical baselines (constant-q KF, 2-mode IMM, CV/CT IMM) on training seeds
-  train      train a q-choosing policy (PPO, DQN, SAC) on RadarTrack-v0 (random scenarios, training seeds)
+  train      train a q-choosing policy on RadarTrack-v0 (random scenarios, training seeds): PPO, DQN, SAC
+             (--method ppo --algo ...), or a GRU end to end through the filter (--method backprop)
   sweep      seed and hyperparameter sweeps of 'train' on Ray Tune, local or on a cluster (needs '.[scale]')
 
 'radar-track <command> --help' shows the options of a command."""

@@ -265,8 +265,10 @@ def _ct_coeffs(dt, w):
 def _mse_grad_rows(x0, P0, dt, det, z, Rm, pos, n, lq, w, turn, want_grad):
     """Per-row position MSE after the track start and its gradient w.r.t. ``lq = log q`` (and ``w``, if ``turn``).
 
-    Forward: the chain's formulas (radar_env.filters: F x, F P F^T + q^2 G symmetrised, Joseph update with
-    H = [I 0] symmetrised). Reverse: the adjoint of the same steps (matrix calculus, written out below). Rows are
+    Forward: F x, F P F^T + q^2 G symmetrised, and the Joseph update with H = [I 0] symmetrised. The chain's
+    update (radar_env.kernels._gain_update) computes the same posterior in R's principal axes with a PD floor: the
+    two agree to rounding on ordinary looks and differ only where the floor acts (near-singular plots, long hard
+    coasts), so a schedule optimised here is scored by the chain itself (chain_forward). Reverse: the adjoint of the same steps (matrix calculus, written out below). Rows are
     independent: a row's numbers do not depend on the other rows of the batch."""
     Rn, J = dt.shape
     mse = np.zeros(Rn)
@@ -383,12 +385,27 @@ def kernel_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg=None):
 
 
 # ------------------------------------------------------------------------------------------------ optimisation
+@numba.njit(cache=True)
+def _rowdot(A, B):
+    """Row-wise dot products, summed in column order: exactly the same for a row whatever the batch's width, since
+    a row's padding columns are exact zeros (numpy's einsum / sum group the terms by the array's length, so a row
+    padded to a longer batch would round differently and its L-BFGS path, hence its schedule, would change)."""
+    out = np.zeros(A.shape[0])
+    for r in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[r, j] * B[r, j]
+        out[r] = acc
+    return out
+
+
 def _lbfgs_rows(fg, s0, iterations, memory=10):
     """Minimise R independent objectives at once: row r of ``s0 (R, J)`` is one problem, ``fg(s, rows) ->
     (f (n,), g (n, J))`` evaluates the given rows. L-BFGS (two-loop recursion per row, ``memory`` pairs) with a
     backtracking Armijo line search per row; every array operation is row by row, so a row's path does not
-    depend on the other rows. Returns ``(s, f, g, nit, hist)`` with ``hist`` (iterations + 1, R) the objective
-    after each iteration (monotone non-increasing: a step is taken only if it decreases f)."""
+    depend on the other rows, nor on the batch's width (dot products by :func:`_rowdot`). Returns
+    ``(s, f, g, nit, hist)`` with ``hist`` (iterations + 1, R) the objective after each iteration (monotone
+    non-increasing: a step is taken only if it decreases f)."""
     R, J = s0.shape
     s = s0.copy()
     f, g = fg(s, np.arange(R))
@@ -410,22 +427,22 @@ def _lbfgs_rows(fg, s0, iterations, memory=10):
         np_r = n_pairs[rows]
         for i in range(memory):                       # newest pair first (index i = age)
             use = i < np_r
-            a = np.where(use, rho[i, rows] * np.einsum("rj,rj->r", S[i, rows], q), 0.0)
+            a = np.where(use, rho[i, rows] * _rowdot(S[i, rows], q), 0.0)
             alpha[i] = a
             q -= a[:, None] * Y[i, rows]
-        yy = np.einsum("rj,rj->r", Y[0, rows], Y[0, rows])
-        gamma = np.where(np_r > 0, np.einsum("rj,rj->r", S[0, rows], Y[0, rows]) / np.where(yy > 0, yy, 1.0), 1.0)
+        yy = _rowdot(Y[0, rows], Y[0, rows])
+        gamma = np.where(np_r > 0, _rowdot(S[0, rows], Y[0, rows]) / np.where(yy > 0, yy, 1.0), 1.0)
         q *= gamma[:, None]
         for i in range(memory - 1, -1, -1):
             use = i < np_r
-            bta = np.where(use, rho[i, rows] * np.einsum("rj,rj->r", Y[i, rows], q), 0.0)
+            bta = np.where(use, rho[i, rows] * _rowdot(Y[i, rows], q), 0.0)
             q += (alpha[i] - bta)[:, None] * S[i, rows]
         d = -q
-        gd = np.einsum("rj,rj->r", g[rows], d)
+        gd = _rowdot(g[rows], d)
         bad = ~(gd < 0)
         d[bad] = -g[rows][bad]                        # not a descent direction: steepest descent, forget history
         n_pairs[rows[bad]] = 0
-        gd = np.einsum("rj,rj->r", g[rows], d)
+        gd = _rowdot(g[rows], d)
         t = np.where(first[rows] | bad, 0.5 / np.maximum(np.abs(d).max(axis=1), 1e-300), 1.0)
         f_new, g_new = np.empty(rows.size), np.empty((rows.size, J))
         todo = np.arange(rows.size)
@@ -444,13 +461,13 @@ def _lbfgs_rows(fg, s0, iterations, memory=10):
         r_ok = rows[ok]
         step = t[ok, None] * d[ok]
         y = g_new[ok] - g[r_ok]
-        sy = np.einsum("rj,rj->r", step, y)
+        sy = _rowdot(step, y)
         f_old = f[r_ok]
         s[r_ok] += step
         f[r_ok], g[r_ok] = f_new[ok], g_new[ok]
         nit[r_ok] += 1
         first[r_ok] = False
-        keep = sy > 1e-12 * np.sqrt(np.einsum("rj,rj->r", step, step) * np.einsum("rj,rj->r", y, y))
+        keep = sy > 1e-12 * np.sqrt(_rowdot(step, step) * _rowdot(y, y))
         rk = r_ok[keep]
         S[:, rk] = np.roll(S[:, rk], 1, axis=0)
         Y[:, rk] = np.roll(Y[:, rk], 1, axis=0)
@@ -511,9 +528,11 @@ def _optimise(prob, starts_lq, starts_w, lq_bounds, w_max, iterations):
     # projected gradient of log MSE in (log q, omega / w_max): zero where a bound holds it
     gq, gw = gq / m_chk[:, None], gw * (w_max or 0.0) / m_chk[:, None]
     at = lambda y, lo, hi, g: ((y <= lo + 1e-9) & (g > 0)) | ((y >= hi - 1e-9) & (g < 0))  # noqa: E731
-    gn = np.sum(np.where(at(lq, *lq_bounds, gq) | ~mask, 0.0, gq) ** 2, axis=1)
+    gq_free = np.where(at(lq, *lq_bounds, gq) | ~mask, 0.0, gq)
+    gn = _rowdot(gq_free, gq_free)
     if turn:
-        gn += np.sum(np.where(at(w / (w_max or 1.0), -1.0, 1.0, gw) | ~mask, 0.0, gw) ** 2, axis=1)
+        gw_free = np.where(at(w / (w_max or 1.0), -1.0, 1.0, gw) | ~mask, 0.0, gw)
+        gn += _rowdot(gw_free, gw_free)
     k_tail = max(1, int(np.ceil(0.1 * iterations)))
     tail = (hist[-1 - min(k_tail, len(hist) - 1)] - hist[-1]) / hist[-1]
     best_s = np.minimum(m_end, m0).reshape(B, S).argmin(axis=1)   # m_end <= m0: L-BFGS only takes decreasing steps
@@ -590,3 +609,4 @@ def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg=None, q_range_g=
     info.starts, info.seconds = ("hindsight_q", "hindsight_q+true_turn_rate"), time.perf_counter() - t0
     run = chain_forward(episodes, q2, w, name=name, cfg=cfg)
     return (run, (info, info_q)) if return_info else run
+

@@ -45,7 +45,8 @@ The mixed mean and covariance into each mode are the usual moment-matched mixtur
 the CT mode takes all five components, a CV mode its 4-state marginal (its :math:`\omega` part is reset to the
 augmentation, so the 4-state CV arithmetic is exactly that of a 4-state KF: the zero cross-covariances make the fifth
 row inert). Mode probabilities are carried as logs (the log-space mixing of :func:`radar_env.filters.imm_mix`); the
-update is the Joseph form; NIS and the Gaussian log-likelihood are those of :func:`radar_env.filters.update` (a
+update is the chain's (:func:`radar_env.filters.update`'s covariance form and floor, positive definite); NIS and
+the Gaussian log-likelihood are those of :func:`radar_env.filters.update` (a
 missed look: posterior = prior, log-likelihood 0). The output per look is the moment-matched combination of the
 modes' 4-state marginals, the combined turn rate :math:`\sum_j \mu_j \omega_j` (a CV mode's turn rate is 0), and the
 maneuver probability :math:`1 - \mu_{cv}` (the CT mode's probability when there is no third mode; with a third mode,
@@ -100,12 +101,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
+from radar_env.numba_cache import drop_stale_kernels, package_sources
 from radar_env.episode import stack_episodes
+from radar_env.kernels import _gain_update, _pd_floor, _plot_nis
 from radar_env.units import DEG, G0_M_S2
 from radar_env.validate import check_known_keys, check_number
 
@@ -398,42 +402,13 @@ def _moments(w, xs, Ps, n, x_out, P_out):
 
 
 @numba.njit(cache=True)
-def _nis_2d(P, R, n0, n1):
-    """``(nis, det S)`` of innovation ``(n0, n1)`` with ``S = P[:2, :2] + R``, symmetrised."""
-    s00 = P[0, 0] + R[0, 0]
-    s11 = P[1, 1] + R[1, 1]
-    s01 = 0.5 * ((P[0, 1] + R[0, 1]) + (P[1, 0] + R[1, 0]))
-    d = s00 * s11 - s01 * s01
-    return (n0 * n0 * s11 - 2.0 * n0 * n1 * s01 + n1 * n1 * s00) / d, d
-
-
-@numba.njit(cache=True)
-def _joseph_update(x, P, z, R, x_out, P_out, K, A, tmp):
-    """Kalman update of the 5-state ``(x, P)`` with the position plot ``z`` (R), Joseph form. Returns the
-    log-likelihood ``-(NIS + log det(2 pi S)) / 2``."""
-    s00 = P[0, 0] + R[0, 0]
-    s11 = P[1, 1] + R[1, 1]
-    s01 = 0.5 * ((P[0, 1] + R[0, 1]) + (P[1, 0] + R[1, 0]))
-    d = s00 * s11 - s01 * s01
-    i00, i11, i01 = s11 / d, s00 / d, -s01 / d
-    n0, n1 = z[0] - x[0], z[1] - x[1]
-    for r in range(5):
-        K[r, 0] = P[r, 0] * i00 + P[r, 1] * i01
-        K[r, 1] = P[r, 0] * i01 + P[r, 1] * i11
-        x_out[r] = x[r] + K[r, 0] * n0 + K[r, 1] * n1
-    for r in range(5):           # A = I - K H
-        for c in range(5):
-            A[r, c] = (1.0 if r == c else 0.0) - (K[r, c] if c < 2 else 0.0)
-    _abat(A, P, tmp, P_out)
-    for r in range(5):
-        kr0 = K[r, 0] * R[0, 0] + K[r, 1] * R[1, 0]
-        kr1 = K[r, 0] * R[0, 1] + K[r, 1] * R[1, 1]
-        for c in range(5):
-            P_out[r, c] += kr0 * K[c, 0] + kr1 * K[c, 1]
-    _sym(P_out)
-    nis = n0 * n0 * i00 + 2.0 * n0 * n1 * i01 + n1 * n1 * i11
+def _plot_update(x, P, z, R, x_out, P_out):
+    """Kalman update of the 5-state ``(x, P)`` with the position plot ``z`` (R): the chain's update
+    (:func:`radar_env.kernels._gain_update`, positive definite by construction). Returns the log-likelihood
+    ``-(NIS + log det(2 pi S)) / 2``."""
+    nis, d = _gain_update(x, P, 5, z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
+                          P_out)
     return -0.5 * (nis + 2.0 * _LOG_2PI + math.log(d))
-
 
 
 @numba.njit(cache=True)
@@ -446,10 +421,10 @@ def _set_cv_augmentation(x, P, sig_w0_2):
 
 @numba.njit(cache=True)
 def _work(M):
-    """Scratch arrays of one row's looks: ``(x0, P0, xp, Pp, log_c, a, w, ll, J, K, A, tmp, xc, Pc)``."""
+    """Scratch arrays of one row's looks: ``(x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc)``."""
     return (np.empty((M, 5)), np.empty((M, 5, 5)), np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M),
-            np.empty((M, M)), np.empty(M), np.empty(M), np.empty((5, 5)), np.empty((5, 2)), np.empty((5, 5)),
-            np.empty((5, 5)), np.empty(5), np.empty((5, 5)))
+            np.empty((M, M)), np.empty(M), np.empty(M), np.empty((5, 5)), np.empty((5, 5)), np.empty(5),
+            np.empty((5, 5)))
 
 
 @numba.njit(cache=True)
@@ -470,7 +445,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     mode-matched prediction and update, mode probabilities. Updates ``xm, Pm, log_mu`` in place, writes the
     combination of the modes' 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``;
     returns ``(NIS of the combined prediction, combined turn rate, its variance)``."""
-    x0, P0, xp, Pp, log_c, a, w, ll, J, K, A, tmp, xc, Pc = work
+    x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
     # ---- mixing (log space): a[i, j] = log Pi_ij + log mu_i, log c_j = logsumexp_i a[i, j], in 5 states
     for i in range(M):
@@ -506,12 +481,13 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
     for j in range(M):
         if det:
-            ll[j] = _joseph_update(xp[j], Pp[j], z, R, xm[j], Pm[j], K, A, tmp)
+            ll[j] = _plot_update(xp[j], Pp[j], z, R, xm[j], Pm[j])
             if is_ct[j]:
                 _clip_omega(xm[j], omega_max, accel_max)
         else:
             xm[j] = xp[j]
             Pm[j] = Pp[j]
+            _pd_floor(Pm[j], 5, Pp[j])
             ll[j] = 0.0
     # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
     for j in range(M):
@@ -524,7 +500,8 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     for j in range(M):
         w[j] = math.exp(log_c[j] - lse)
     _moments(w, xp, Pp, 4, xc, Pc)
-    nis = _nis_2d(Pc, R, z[0] - xc[0], z[1] - xc[1])[0] if det else 0.0
+    nis = (_plot_nis(Pc[0, 0], 0.5 * (Pc[0, 1] + Pc[1, 0]), Pc[1, 1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1],
+                     z[0] - xc[0], z[1] - xc[1])[0] if det else 0.0)
     # ---- combination of the 4-state marginals; combined turn rate (a CV mode's is 0) and its variance
     om = 0.0
     for j in range(M):
@@ -848,3 +825,8 @@ def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", c
     declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
     return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared,
                     extra={"maneuver_probability": p_man, "turn_rate_deg_s": np.degrees(res.omega_rad_s)})
+
+
+# numba keys each cached kernel on its own file only, and these call radar_env.kernels: drop the cached kernels
+# of this folder when a source of radar_env or baselines changed (radar_env.numba_cache)
+drop_stale_kernels(_ct_coefficients, package_sources(Path(__file__).parents[1] / "radar_env", Path(__file__).parent))

@@ -5,7 +5,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
-in no default list). ``policy`` (a learned policy) is resolved by the evaluation, which owns the model loading. User
+in no default list). ``policy`` (a learned policy) and ``policy_bp`` (the bundled policy trained by backpropagation)
+are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
 trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
@@ -24,7 +25,8 @@ from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
-__all__ = ["TRACKER_NAMES", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",
+__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "POLICY_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters",
+           "tuned_imm2_spec", "TUNED_PATH",
            "register_tracker", "tracker_names"]
 
 
@@ -75,7 +77,10 @@ _RUNNERS = {
     "hindsight_q_turn": lambda eps, cfg: _hindsight().run_hindsight_q_turn(eps, cfg=cfg),
 }
 
-TRACKER_NAMES = ("policy",) + tuple(_RUNNERS)
+POLICY_TRACKERS = ("policy", "policy_bp")
+"""Tracker names of learned policies: run by the evaluation through :func:`baselines.trackers.run_q_policy`."""
+
+TRACKER_NAMES = POLICY_TRACKERS + tuple(_RUNNERS)
 """The built-in tracker names (user trackers: :func:`tracker_names`)."""
 
 _USER = set()
@@ -109,7 +114,12 @@ def register_tracker(name, fn, overwrite=False, batch=False):
 
 def tracker_names():
     """Every tracker name :func:`run_tracker` and ``--trackers`` accept: the built-ins, then user trackers."""
-    return ("policy",) + tuple(_RUNNERS)
+    return POLICY_TRACKERS + tuple(_RUNNERS)
+
+BOUND_TRACKERS = ("clairvoyant", "oracle_q", "hindsight_q", "hindsight_q_turn")
+"""Trackers that see the truth (its acceleration, or the whole episode): reference bounds, not causal trackers. A
+bound worse than a real tracker on a suite is flagged by the evaluation (it bounds nothing there: e.g. the known
+input of ``clairvoyant`` is no help when the track is lost on a radar far outside the filter's assumptions)."""
 
 DESIGN_ENVELOPES = {
     "alpha_beta": "Kalata gains assume a constant scan period; with irregular or two-site looks each gap gets the "

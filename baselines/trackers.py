@@ -147,7 +147,11 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
     (a rule), their names: ``obs_rows`` then holds just those, each with the value it has in the full observation
     (the scaling is per entry), and ``()`` gives an (n, 0) array (a constant q): the same q, without encoding
     the rest every look. ``declare(obs_rows) -> bool`` records maneuver declarations (optional). ``cfg`` also
-    gives the track start (:func:`_start`)."""
+    gives the track start (:func:`_start`).
+
+    A recurrent policy is a stateful ``choose_q``: an object with ``reset(rows)`` is reset for every row (each row
+    is one episode) before the first look and then called as ``choose_q(obs_rows, rows)``, so that it carries its
+    state per row (e.g. :class:`agents.policies.recurrent.RecurrentQPolicy`)."""
     tr, out = _tracker(episodes, cfg)
     layout = None if features is not None and not len(features) else observation_layout(cfg, features)[0]
     B, K = tr.B, int(tr.n_looks.max())
@@ -162,10 +166,14 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
         obs = frames.reset(rows0, obs)
     rec.put(rows0, out.look_index, out.x, out.P, out.q_m_s2, **_feature_extra(out))
     rec.run.start_index[:] = out.look_index + 1
+    stateful = callable(getattr(choose_q, "reset", None))
+    if stateful:
+        choose_q.reset(rows0)
 
     def step(rows):
         o_rows = obs[rows]
-        q = np.clip(np.asarray(choose_q(o_rows), dtype=np.float64).reshape(rows.size), 0.0, 100 * G0_M_S2)
+        q = choose_q(o_rows, rows) if stateful else choose_q(o_rows)
+        q = np.clip(np.asarray(q, dtype=np.float64).reshape(rows.size), 0.0, 100 * G0_M_S2)
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
         o = tr.step(q, rows=None if rows.size == B else rows)

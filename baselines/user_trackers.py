@@ -9,7 +9,8 @@ A user tracker is a function of one episode's looks (plots only, no truth)::
 registered by name with :func:`baselines.registry.register_tracker` (``register_tracker("mine", my_tracker)``),
 after which ``run_tracker("mine", episodes)`` and ``radar-track evaluate --tracker-module my_module --trackers
 mine,imm2`` run it on the same plots as every other tracker. ``--tracker-module`` takes a dotted module name
-(importable from the current directory) or a ``.py`` file; importing it must call ``register_tracker``.
+(looked up in the current directory, then among installed modules) or a ``.py`` file; importing it must call
+``register_tracker``. Importing a module runs its code: use only modules you trust.
 
 * ``looks`` (:class:`Looks`): per look ``t_s``, the site that looked (``site_index``, ``site_xy_m``), ``detected``,
   the converted plot ``z_m`` (NaN where missed) and its covariance ``R_m2``, the polar measurements and the sites'
@@ -27,6 +28,7 @@ A batch tracker ``fn(episodes, cfg) -> TrackRun`` (the built-ins' form) can be r
 from __future__ import annotations
 
 import importlib
+import importlib.machinery
 import importlib.util
 import sys
 from pathlib import Path
@@ -133,9 +135,15 @@ def batch_runner(name, fn):
 
 
 def import_tracker_module(spec):
-    """Import a user tracker module: a ``.py`` file path, or a dotted module name (the current directory is tried
-    first). Importing it is expected to call :func:`baselines.registry.register_tracker`. Returns the module;
-    ``ValueError`` (one line, naming the module) if it cannot be found or raises on import."""
+    """Import a user tracker module: a ``.py`` file path, or a dotted module name (looked up in the current
+    directory first, then among the installed modules). Importing it is expected to call
+    :func:`baselines.registry.register_tracker`. Returns the module; ``ValueError`` (one line, naming the module) if
+    it cannot be found or raises on import.
+
+    Only the named module is imported from the current directory (its top-level package, for a dotted name): the
+    directory is not put on ``sys.path``, so another file there (a stray ``tqdm.py``) cannot shadow a library
+    later; ``sys.path`` is restored to what it was, whatever the module did to it. (A module that imports its
+    siblings in the directory should be a package, or a file given by path that adds its own folder.)"""
     spec = str(spec)
     if spec.endswith(".py"):
         path = Path(spec)
@@ -144,23 +152,32 @@ def import_tracker_module(spec):
         name = f"_radar_track_user_{path.stem}"
         if name in sys.modules:
             return sys.modules[name]
+    saved_path = list(sys.path)
     try:
         if spec.endswith(".py"):
-            s = importlib.util.spec_from_file_location(name, path)
-            mod = importlib.util.module_from_spec(s)
-            sys.modules[name] = mod
-            try:
-                s.loader.exec_module(mod)
-            except BaseException:
-                del sys.modules[name]
-                raise
-            return mod
-        cwd = str(Path.cwd())
-        if cwd not in sys.path:
-            sys.path.insert(0, cwd)
+            return _exec_module(name, importlib.util.spec_from_file_location(name, path))
+        top = spec.split(".")[0]
+        if top not in sys.modules:
+            found = importlib.machinery.PathFinder.find_spec(top, [str(Path.cwd())])
+            if found is not None:
+                _exec_module(top, found)
         return importlib.import_module(spec)
     except ModuleNotFoundError as e:
         raise ValueError(f"tracker module {spec!r} cannot be imported: {e}") from None
     except Exception as e:  # noqa: BLE001 - the user's module raised on import: one line naming it
         msg = str(e).splitlines()[0] if str(e) else ""
         raise ValueError(f"tracker module {spec!r} raised on import: {type(e).__name__}: {msg}") from None
+    finally:
+        sys.path[:] = saved_path
+
+
+def _exec_module(name, found):
+    """Create, register and execute the module of spec ``found`` as ``sys.modules[name]`` (removed if it raises)."""
+    mod = importlib.util.module_from_spec(found)
+    sys.modules[name] = mod
+    try:
+        found.loader.exec_module(mod)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return mod

@@ -93,7 +93,9 @@ def _pass(mode, state, looks, chunk, lq, w):
     return total
 
 
-def _cartpole_rate(seconds):
+def cartpole_rate(seconds):
+    """CartPole-v1 steps/s through gym.make (random actions drawn beforehand): the reference a rate taken under
+    some load is compared with."""
     import gymnasium as gym
     env = gym.make("CartPole-v1")
     env.reset(seed=0)
@@ -160,7 +162,7 @@ def main(argv=None):
               f"{r['scored_looks_per_s']:10.0f} scored looks/s  {r['episodes_per_s']:8.1f} episodes/s  "
               f"(peak RSS so far {r['peak_rss_mb']:.0f} MB)")
     res["tracker_step_row_looks_per_s"] = _tracker_rate(B, a.seed, 1.0)
-    res["cartpole_steps_per_s"] = _cartpole_rate(1.0)
+    res["cartpole_steps_per_s"] = cartpole_rate(1.0)
     print(f"  reference: numba Tracker.step {res['tracker_step_row_looks_per_s']:.0f} row-looks/s at batch {B}; "
           f"CartPole-v1 {res['cartpole_steps_per_s']:.0f} steps/s")
     for mode, r in res["modes"].items():

@@ -33,6 +33,8 @@ import csv
 import gzip
 import io
 import math
+import warnings
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,6 +63,13 @@ DATA_DIR = Path(__file__).resolve().parent / "data" / "adsb"
 """Folder of the shipped flights."""
 
 COLUMNS = ("t_s", "lat_deg", "lon_deg", "alt_m", "groundspeed_m_s", "track_deg")
+SWAP_CHECK_RMS_M_S = 8.0
+"""Speed-check RMS (m/s) above which :func:`load_trajectory` also tries the file with latitude and longitude
+exchanged."""
+SWAP_RATIO = 1.2
+"""Factor by which the exchanged columns must fit the reported ground speed better for the file to be refused."""
+WARN_SPEED_RMS_M_S = 20.0
+"""Speed-check RMS (m/s) above which a flight loads with a warning (the shipped flights: at most 12.6)."""
 REQUIRED_COLUMNS = ("t_s", "lat_deg", "lon_deg")
 
 # WGS84
@@ -129,6 +138,26 @@ def flight_path(flight):
                      f"{list_flights()}")
 
 
+def _read_text(path):
+    """The text of a flight file (gzip-compressed if its name ends in ``.gz``, UTF-8 / ASCII); ``ValueError`` naming
+    the file and the reason for a truncated or corrupt gzip stream, a file that is not gzip, or bytes that are not
+    text."""
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read ({e.strerror or e})") from None
+    if path.name.endswith(".gz"):
+        try:
+            raw = gzip.decompress(raw)
+        except EOFError:
+            raise ValueError(f"{path}: truncated gzip file (the compressed stream ends early); copy or download it "
+                             "again") from None
+        except (gzip.BadGzipFile, zlib.error, OSError) as e:
+            raise ValueError(f"{path}: not a readable gzip file ({e}); a plain CSV must not end in '.gz'") from None
+    from .scenario import decode_utf8
+    return decode_utf8(raw, path)
+
+
 def load_raw(flight):
     """Read a flight file into float64 arrays, without cleaning.
 
@@ -150,9 +179,7 @@ def load_raw(flight):
     path = flight_path(flight)
     if not path.is_file():
         raise ValueError(f"ADS-B file {str(path)!r} does not exist")
-    opener = gzip.open if path.name.endswith(".gz") else open
-    with opener(path, "rt", newline="", encoding="ascii") as f:
-        text = f.read()
+    text = _read_text(path)
     reader = csv.reader(io.StringIO(text))
     try:
         header = [h.strip() for h in next(reader)]
@@ -503,17 +530,50 @@ def load_trajectory(flight, segment="longest", *, dt_s=1.0, max_gap_s=20.0, min_
     ------
     ValueError
         Bad file (see :func:`load_raw`, :func:`clean`), no segment long enough (the message lists the rejected
-        pieces), a segment index out of range, or a smoothed speed below ``min_speed_m_s``.
+        pieces), a segment index out of range, a smoothed speed below ``min_speed_m_s``, or latitude and longitude
+        swapped: where the speed from the positions differs from the reported ground speed by more than
+        ``SWAP_CHECK_RMS_M_S`` RMS (:func:`velocity_check`), the segment is rebuilt with the two columns exchanged,
+        and if that fits better by ``SWAP_RATIO`` (1.2x) the file is refused (the shipped flights: 2.8-12.6 m/s as
+        given, 1.4-15x worse exchanged; exchanged files: 8-104 m/s). A disagreement above ``WARN_SPEED_RMS_M_S``
+        that exchanging does not explain is a warning.
     """
     path = flight_path(flight)
     flight_id = path.name[: -len(".csv.gz")] if path.name.endswith(".csv.gz") else path.stem
     raw = load_raw(path)
+    kw = dict(dt_s=dt_s, max_gap_s=max_gap_s, min_duration_s=min_duration_s, min_groundspeed_m_s=min_groundspeed_m_s,
+              position_noise_m=position_noise_m, min_speed_m_s=min_speed_m_s)
+    traj = _trajectory_from_raw(raw, path, flight_id, segment, **kw)
+    rms = traj.check["speed_rms_m_s"]
+    if traj.check["n"] and rms > SWAP_CHECK_RMS_M_S:
+        swapped = raw.take(np.arange(len(raw)))
+        object.__setattr__(swapped, "lat_deg", raw.lon_deg)
+        object.__setattr__(swapped, "lon_deg", raw.lat_deg)
+        try:
+            rms_swapped = _trajectory_from_raw(swapped, path, flight_id, segment, **kw).check["speed_rms_m_s"]
+        except ValueError:
+            rms_swapped = math.inf
+        if rms_swapped * SWAP_RATIO < rms:
+            raise ValueError(f"{path}: lat_deg and lon_deg look swapped: the speed from the positions differs from "
+                             f"the reported ground speed by {rms:.1f} m/s RMS as given and by {rms_swapped:.1f} m/s "
+                             "with the two columns exchanged; exchange them in the file")
+        if rms > WARN_SPEED_RMS_M_S:
+            warnings.warn(f"{path}: the speed from the positions differs from the reported ground speed by "
+                          f"{rms:.1f} m/s RMS (the shipped flights: 2.8-12.6 m/s): a time or position problem in "
+                          "the file?", UserWarning, stacklevel=2)
+    return traj
+
+
+def _trajectory_from_raw(raw, path, flight_id, segment, *, dt_s, max_gap_s, min_duration_s, min_groundspeed_m_s,
+                         position_noise_m, min_speed_m_s):
+    """:func:`load_trajectory`'s pipeline on the rows of one file (without the swapped-columns check)."""
     rows = clean(raw, min_groundspeed_m_s=min_groundspeed_m_s)
     pieces, rejected = split_segments(rows, max_gap_s=max_gap_s, min_duration_s=min_duration_s)
     if not pieces:
         why = "; ".join(rejected[:5]) + (" ..." if len(rejected) > 5 else "")
+        n_bad_lat = int(np.sum(np.abs(raw.lat_deg) > 90.0))
+        hint = (f"; {n_bad_lat} rows have |lat_deg| > 90: latitude and longitude swapped?" if n_bad_lat else "")
         raise ValueError(f"{path}: no segment of at least {min_duration_s:g} s after cleaning "
-                         f"({len(raw)} rows read, {len(rows)} kept): {why}")
+                         f"({len(raw)} rows read, {len(rows)} kept){hint}: {why}")
     if isinstance(segment, str):
         if segment != "longest":
             raise ValueError(f"segment must be 'longest' or an int, got {segment!r}")

@@ -1,4 +1,5 @@
-"""Real ADS-B flights as scenarios: ``adsb:<flight>`` (or ``adsb:<flight>:<segment>``) and the pools
+"""Real ADS-B flights as scenarios: ``adsb:<flight>`` (or ``adsb:<flight>:<segment>``; ``<flight>`` a shipped id or
+a flight file ``<path>.csv[.gz]`` in :mod:`radar_env.adsb`'s format) and the pools
 ``adsb_calibration`` (all shipped calibration flights, one drawn per episode), ``adsb_dev`` and ``adsb_heldout``.
 
 The split (:data:`ADSB_SPLIT`), stated before any policy of issue 20 was trained: the shipped flights in
@@ -14,6 +15,7 @@ by :func:`radar_env.adsb.place_radar` (deterministic: south-west of the flight, 
 from __future__ import annotations
 
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -44,8 +46,9 @@ def _setup(flight, segment):
 
 
 def resolve_adsb(name):
-    """Setup (scenario + radar) for ``adsb:<flight>[:<segment>]``, or the :class:`AdsbPool` for
-    ``adsb_calibration``. Unknown flights raise ``ValueError`` listing the shipped ones."""
+    """Setup (scenario + radar) for ``adsb:<flight>[:<segment>]`` (a shipped flight id or a flight file path), or
+    the :class:`AdsbPool` for ``adsb_calibration``. Unknown flights raise ``ValueError`` listing the shipped ones;
+    a bad file, the loader's one-line error naming it (:func:`radar_env.adsb.load_trajectory`)."""
     if name == ADSB_SUITE or name in ADSB_SPLIT:
         return AdsbPool(name)
     parts = str(name).split(":")
@@ -53,7 +56,11 @@ def resolve_adsb(name):
         raise ValueError(f"ADS-B scenario names are 'adsb:<flight>' or 'adsb:<flight>:<segment>', got {name!r}")
     flights = adsb.list_flights()
     if parts[1] not in flights:
-        raise ValueError(f"unknown ADS-B flight {parts[1]!r}; shipped flights: {flights}")
+        if not parts[1].endswith((".csv", ".csv.gz")):
+            raise ValueError(f"unknown ADS-B flight {parts[1]!r}; shipped flights: {flights}, or a flight file "
+                             "'adsb:<path>.csv[.gz]'")
+        if not Path(parts[1]).is_file():
+            raise ValueError(f"ADS-B flight file {parts[1]!r} does not exist")
     segment = "longest" if len(parts) == 2 else int(parts[2])
     return _setup(parts[1], segment)
 

@@ -114,12 +114,18 @@ def resolve_scenario(scenario):
     scenario object. Returns a name (str), a Setup, or a scenario object."""
     if isinstance(scenario, (Setup, SegmentScenario, TrajectoryScenario)) or hasattr(scenario, "draw_setup"):
         return scenario
-    if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")):
+    if isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")
+                                      and not scenario.startswith("adsb:")):
         return TrajectoryScenario.from_csv(scenario)
     if isinstance(scenario, str):
         if scenario.startswith("adsb:") or scenario in ("adsb_calibration", "adsb_dev", "adsb_heldout"):
             from .adsb_scenarios import resolve_adsb
             return resolve_adsb(scenario)
+        if scenario.endswith((".gz", ".zip", ".json", ".txt", ".tsv")) or (
+                Path(scenario).suffix and Path(scenario).is_file()):
+            raise ValueError(f"RadarTrack-v0: scenario {scenario!r} names a file that is not a trajectory .csv "
+                             "(plain text, columns t_s,x_m,y_m,vx_m_s,vy_m_s); an ADS-B flight file "
+                             f"(t_s,lat_deg,lon_deg,..., .csv or .csv.gz) is given as 'adsb:{scenario}'")
         if scenario not in SCENARIO_NAMES:
             raise ValueError(f"RadarTrack-v0: unknown scenario {scenario!r}; valid: {list(SCENARIO_NAMES)}, "
                              "'adsb_calibration', 'adsb_dev', 'adsb_heldout', 'adsb:<flight>', a "

@@ -276,9 +276,14 @@ class _Core:
         truth = fo[:, _ek.FO_TRUTH:_ek.FO_TRUTH + 4]
         w, clip = self.cfg.reward_nees_weight, self.cfg.reward_clip
         # overconfidence: the position NEES beyond its 99 % bound, in units of the bound
-        d = x[:, :2] - truth[:, :2]
-        # a pivoted solve: the position block can be nearly singular (range vs cross-range at long range)
-        nees = np.einsum("ni,ni->n", d, np.linalg.solve(P[:, :2, :2], d[:, :, None])[:, :, 0])
+        d0, d1 = x[:, 0] - truth[:, 0], x[:, 1] - truth[:, 1]
+        a, b, c = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
+        det = a * c - b * b
+        # the 2 x 2 closed form, never a LinAlgError: the update keeps P positive definite on every radar the env
+        # accepts (radar_env.kernels._pd_floor); a block that is not (det <= 0) would count as maximally
+        # inconsistent (the clipped penalty), never as a number from a singular solve
+        ok = (det > 0.0) & (a > 0.0)
+        nees = np.divide(c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1, det, out=np.full(det.shape, np.inf), where=ok)
         return -w * np.minimum(np.maximum(nees / NEES_99_2DOF - 1.0, 0.0), clip)
 
 

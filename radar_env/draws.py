@@ -783,6 +783,34 @@ def _fixed_truth(scenario, radar, place):
     return val
 
 
+RADAR_RANGE_WARN_M = 463e3
+"""250 NM, the instrumented range of a long-range air-route radar: a user flight that goes beyond it from its radar
+(or beyond the placement annulus's outer radius, if that is larger) gets a warning. The radar model itself has no
+maximum range: every look keeps its detection probability."""
+
+_RANGE_WARNED = set()
+
+
+def _warn_if_out_of_range(scenario, radar, t, idx, truth, sites, place, hi):
+    """Warn (once per scenario, radar and placement) when a user flight goes far outside its radar's range (beyond
+    :data:`RADAR_RANGE_WARN_M`, or the placement annulus ``hi`` if larger): plausible data, unusual tracking. The
+    first row's sites are checked (a placed radar: the first episode's placement)."""
+    key = (id(scenario), id(radar), place, hi)
+    if key in _RANGE_WARNED:
+        return
+    _RANGE_WARNED.add(key)
+    limit = max(RADAR_RANGE_WARN_M, hi if place else 0.0)
+    r = np.hypot(truth[:, 0] - sites[0, idx, _SX], truth[:, 1] - sites[0, idx, _SY])
+    beyond = r > limit
+    if beyond.any():
+        import warnings
+        what = f"{limit / 1e3:g} km from its radar" + (" (250 NM)" if limit == RADAR_RANGE_WARN_M else "")
+        warnings.warn(f"scenario {scenario.name!r}: the flight goes beyond {what} on {beyond.mean():.0%} of its "
+                      f"looks, up to {r.max() / 1e3:,.0f} km (first at t = {t[np.argmax(beyond)]:.0f} s); the radar "
+                      "model has no maximum range, so those looks keep their detection probability: cut the flight "
+                      "or give a radar near it", UserWarning, stacklevel=4)
+
+
 def _refuse_too_short(scenario, t, warmup_scans):
     """ValueError when even every look detected is too few for the track start (then every draw is)."""
     K = t.size
@@ -791,14 +819,19 @@ def _refuse_too_short(scenario, t, warmup_scans):
         raise ValueError(f"RadarTrack-v0: scenario {scenario.name!r} has no two looks at different times for "
                          "the two-hit track start")
     if K < need:
+        fit = K - (need - warmup_scans)          # the largest warm-up this scenario leaves room for
+        fix = (f"lower warmup_scans (valid here: <= {fit})" if fit >= 1 else
+               f"no warm-up fits: even warmup_scans=1 needs {need - warmup_scans + 1} looks")
         raise ValueError(
             f"RadarTrack-v0: scenario {scenario.name!r} has {K} looks but warmup_scans={warmup_scans} needs "
-            f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); lower warmup_scans (valid "
-            f"here: <= {K - (need - warmup_scans)}) or use a longer scenario or faster radar")
+            f"{need} (two hits, {warmup_scans} warm-up looks, one look to act on); {fix}, or use a longer "
+            "scenario or a faster radar")
 
 
-def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse):
-    """The cached truth of a fixed scenario and, per key, its sites, look counter and status (:func:`_fixed_rows`)."""
+def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_range_m, refuse, warn=None):
+    """The cached truth of a fixed scenario and, per key, its sites, look counter and status (:func:`_fixed_rows`).
+    ``refuse``: refuse a scenario too short for the track start; ``warn`` (default: ``refuse``): warn if the first
+    row's flight goes far beyond its radar's range (:func:`_warn_if_out_of_range`)."""
     (t, idx, truth, accel, turn, man), grid = _fixed_truth(scenario, radar, place)
     if refuse:
         _refuse_too_short(scenario, t, warmup_scans)
@@ -810,6 +843,8 @@ def _fixed_phase1(scenario, radar, keys, warmup_scans, max_draws, place, radar_r
         grid_xy, n_grid, extra, dur, lo, hi, n_cand = np.zeros((1, 2)), 1, False, 0.0, 0.0, 0.0, 0
     sites, cdet, status = _fixed_rows(keys, t, idx, _site_table(radar), place, grid_xy, n_grid, extra, dur, lo, hi,
                                       n_cand, int(warmup_scans), int(max_draws))
+    if (refuse if warn is None else warn) and status[0] == 0:   # a user scenario (pools are not checked)
+        _warn_if_out_of_range(scenario, radar, t, idx, truth, sites, place, hi)
     return (t, idx, truth, accel, turn, man), sites, cdet, status
 
 
@@ -864,6 +899,7 @@ class LookDrawer:
         else:
             sc, rd, place = _fixed_args(scenario, radar)
             self.fixed = (sc, rd, place)
+            self._range_checked = False
             self.label = sc.name
             t = _fixed_truth(sc, rd, place)[0][0]
             _refuse_too_short(sc, t, self.warmup_scans)
@@ -889,7 +925,8 @@ class LookDrawer:
         else:
             sc, rd, place = self.fixed
             (t, idx, truth, accel, turn, man), sites, cdet, status = _fixed_phase1(
-                sc, rd, keys, w, self.max_draws, place, self.radar_range_m, False)
+                sc, rd, keys, w, self.max_draws, place, self.radar_range_m, False, warn=not self._range_checked)
+            self._range_checked = True       # refused at build (too short); warned once, at the first draw
             if np.any(status != 0):
                 raise _too_few_draws(sc.name, w, self.max_draws)
             tracker._ensure_capacity(t.size)

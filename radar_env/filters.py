@@ -32,8 +32,14 @@ Filter cycle
 ------------
 predict: :math:`x^- = F x + u`, :math:`P^- = F P F^T + Q` (``u`` an optional known input, used by the clairvoyant
 bound). update: :math:`\nu = z - H x^-`, :math:`S = H P^- H^T + R`, :math:`K = P^- H^T S^{-1}`,
-:math:`x^+ = x^- + K\nu`, and the Joseph form :math:`P^+ = (I-KH)P^-(I-KH)^T + K R K^T`, symmetrised, which keeps
-:math:`P^+` symmetric positive definite for any :math:`q \ge 0`. NIS :math:`= \nu^T S^{-1}\nu`; the Gaussian
+:math:`x^+ = x^- + K\nu`, :math:`P^+ = (I-KH)P^-`, written so that small posterior variances stay accurate after a
+large prior: the position rows and columns as :math:`P^+H^T = KR`, the rest as :math:`P^-_{vv} - K_v P^-_{pv}`
+(``P - KHP`` and the Joseph form subtract prior-sized numbers in the position block: a rounding error of
+``eps x prior``, above the posterior after a long or hard coast), symmetrised. Where rounding would still leave
+:math:`P^+` indefinite (a posterior variance below ``1.4e-14`` of its block's scale: a near-singular plot, a coast of
+minutes at 100 g), the smallest isotropic addition restores that level
+(:func:`radar_env.kernels._pd_floor`; nothing changes on ordinary looks), so :math:`P^+` is symmetric positive
+definite (Cholesky) for any :math:`q \ge 0` and every radar the env accepts. NIS :math:`= \nu^T S^{-1}\nu`; the Gaussian
 log-likelihood :math:`\ell = -\tfrac12(\mathrm{NIS} + \log\det(2\pi S))`. A missed detection skips the update
 (posterior = prior, NIS = 0, likelihood 0 in log space).
 
@@ -154,12 +160,13 @@ class UpdateResult(NamedTuple):
 
 
 def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, detected=None) -> UpdateResult:
-    """Kalman update with a converted position plot, Joseph form.
+    """Kalman update with a converted position plot (the module docstring's covariance form, positive definite).
 
     Args:
         x, P: prior state (...,4) and covariance (...,4,4).
         z, R: converted position (...,2) and its covariance (...,2,2). May hold NaN where ``detected`` is False.
-        detected: bool (...) or None (all detected). Where False the posterior equals the prior (bit for bit), the
+        detected: bool (...) or None (all detected). Where False the posterior equals the prior (bit for bit, unless the
+            prior is not positive definite to rounding: then floored as above), the
             innovation is 0 and ``S = P[:2,:2] + I`` (R is not read, so NaN there does no harm).
     """
     x, P, z, R = (np.asarray(a, dtype=np.float64) for a in (x, P, z, R))

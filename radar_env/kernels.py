@@ -24,9 +24,12 @@ can raise a ``ValueError`` naming the value.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from numba import njit
+
+from .numba_cache import drop_stale_kernels, package_sources
 
 TWO_PI = 2.0 * math.pi
 LOG_2PI = math.log(2.0 * math.pi)
@@ -200,6 +203,166 @@ def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
     _symmetrize(Po)
 
 
+PD_FLOOR_REL = 64.0 * np.finfo(np.float64).eps
+"""Relative margin of :func:`_pd_floor` (1.4e-14): each Cholesky pivot must exceed it times its diagonal entry."""
+
+
+@njit(cache=True)
+def _chol_ok(P, n):
+    """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) has a Cholesky factorisation whose every
+    pivot exceeds ``PD_FLOOR_REL`` x its diagonal entry (written out: no scratch array in the hot path)."""
+    m = PD_FLOOR_REL
+    p = P[0, 0]
+    if not p > m * abs(P[0, 0]) or not math.isfinite(p):
+        return False
+    l00 = math.sqrt(p)
+    l10, l20, l30 = P[1, 0] / l00, P[2, 0] / l00, P[3, 0] / l00
+    p = P[1, 1] - l10 * l10
+    if not p > m * abs(P[1, 1]):
+        return False
+    l11 = math.sqrt(p)
+    l21, l31 = (P[2, 1] - l20 * l10) / l11, (P[3, 1] - l30 * l10) / l11
+    p = P[2, 2] - l20 * l20 - l21 * l21
+    if not p > m * abs(P[2, 2]):
+        return False
+    l22 = math.sqrt(p)
+    l32 = (P[3, 2] - l30 * l20 - l31 * l21) / l22
+    p = P[3, 3] - l30 * l30 - l31 * l31 - l32 * l32
+    if not p > m * abs(P[3, 3]):
+        return False
+    if n == 4:
+        return True
+    l33 = math.sqrt(p)
+    l40 = P[4, 0] / l00
+    l41 = (P[4, 1] - l40 * l10) / l11
+    l42 = (P[4, 2] - l40 * l20 - l41 * l21) / l22
+    l43 = (P[4, 3] - l40 * l30 - l41 * l31 - l42 * l32) / l33
+    p = P[4, 4] - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43
+    return p > m * abs(P[4, 4])
+
+
+@njit(cache=True)
+def _pd_floor(Po, n, P):
+    """Keep the symmetric posterior ``Po`` (n x n, n = 4 or 5: position, velocity, [turn rate]) of the prior ``P``
+    positive definite as float64 can represent it. The update subtracts prior-sized numbers, so a posterior variance
+    is known only to about eps x the prior's; one that is tiny against the prior (a near-singular or perfect plot,
+    a coast of minutes at 100 g before the update, nanometre noise) can come out slightly negative. Then, and only
+    then (:func:`_chol_ok` fails), each block's diagonal gets ``tau`` x the block's largest prior (or posterior)
+    variance, ``tau`` from ``PD_FLOOR_REL`` up by factors of 16 until the Cholesky check passes: the least such
+    addition on that grid, in each block's units, at the rounding level of the computation. Changes nothing on
+    ordinary looks."""
+    if _chol_ok(Po, n):
+        return
+    sp = max(abs(Po[0, 0]), abs(Po[1, 1]), abs(P[0, 0]), abs(P[1, 1]))
+    sv = max(abs(Po[2, 2]), abs(Po[3, 3]), abs(P[2, 2]), abs(P[3, 3]))
+    sw = max(abs(Po[4, 4]), abs(P[4, 4])) if n == 5 else 0.0
+    if not (math.isfinite(sp) and math.isfinite(sv) and math.isfinite(sw)):
+        return      # a non-finite covariance: nothing a floor can mend (the trackers report it as failed)
+    if not sp > 0.0:    # degenerate (a zero position block): borrow the other block's scale
+        sp = max(sv, 1.0)
+    if not sv > 0.0:
+        sv = sp
+    if n == 5 and not sw > 0.0:
+        sw = sv
+    tau_done, tau = 0.0, PD_FLOOR_REL
+    while tau <= 1.0:
+        d = tau - tau_done
+        Po[0, 0] += d * sp
+        Po[1, 1] += d * sp
+        Po[2, 2] += d * sv
+        Po[3, 3] += d * sv
+        if n == 5:
+            Po[4, 4] += d * sw
+        tau_done = tau
+        if _chol_ok(Po, n):
+            return
+        tau *= 16.0
+
+
+@njit(cache=True)
+def _plot_frame(p00, p01, p11, r00, r01, r11):
+    """The frame of a plot covariance R's principal axes (its range and cross-range directions): the rotation
+    ``G = [[c, s], [-s, c]]`` onto them, ``R' = diag(l1, l2)``, the position block ``A' = G A G^T`` of the prior
+    ``A = [[p00, p01], [p01, p11]]`` and ``S'^-1 = (A' + R')^-1`` with ``det S'``; returns
+    ``(c, s, l1, l2, a0, a1, a01, i00, i01, i11, det_s)``. There R is diagonal and S' graded, so ``S'^-1`` stays
+    accurate for a near-singular R (a condition number up to 1/eps: 100 km range noise with a fine bearing, a
+    target passing the site), where the closed-form inverse of S itself cancels away; ``det S'`` is summed from
+    non-negative terms (``det A' + l1 a1 + l2 a0 + l1 l2``), positive for any R != 0 and A' with a positive
+    diagonal."""
+    th = 0.5 * math.atan2(2.0 * r01, r00 - r11)
+    c, s = math.cos(th), math.sin(th)
+    cs, cc, ss = c * s, c * c, s * s
+    l1 = max(r00 * cc + 2.0 * r01 * cs + r11 * ss, 0.0)
+    l2 = max(r00 * ss - 2.0 * r01 * cs + r11 * cc, 0.0)
+    a0 = p00 * cc + 2.0 * p01 * cs + p11 * ss
+    a1 = p00 * ss - 2.0 * p01 * cs + p11 * cc
+    a01 = (p11 - p00) * cs + p01 * (cc - ss)
+    det_s = max(a0 * a1 - a01 * a01, 0.0) + l1 * a1 + l2 * a0 + l1 * l2
+    s0, s1 = a0 + l1, a1 + l2
+    return c, s, l1, l2, a0, a1, a01, s1 / det_s, -a01 / det_s, s0 / det_s, det_s
+
+
+@njit(cache=True)
+def _plot_nis(p00, p01, p11, r00, r01, r11, nu0, nu1):
+    """``(NIS, det S)`` of the innovation ``nu`` with ``S = A + R`` (A = [[p00, p01], [p01, p11]]), computed in R's
+    principal axes (:func:`_plot_frame`)."""
+    c, s, _, _, _, _, _, i00, i01, i11, det_s = _plot_frame(p00, p01, p11, r00, r01, r11)
+    n0, n1 = c * nu0 + s * nu1, -s * nu0 + c * nu1
+    return n0 * n0 * i00 + 2.0 * n0 * n1 * i01 + n1 * n1 * i11, det_s
+
+
+@njit(cache=True)
+def _gain_update(x, P, n, nu0, nu1, r00, r01, r11, xo, Po):
+    """Posterior of an n-state (n = 4 or 5, position first) Kalman update with a position plot (H = [I 0],
+    innovation ``nu``, covariance ``R = [[r00, r01], [r01, r11]]``); returns ``(nis, det S)``.
+
+    Computed in the frame of R's principal axes (:func:`_plot_frame`: the position rotated by ``G``, R diagonal,
+    ``S'^-1`` accurate for a near-singular R): ``K' = P'H^T S'^-1``, ``x+ = x + K nu``; the covariance as
+    ``P+' H^T = K' R'`` (position rows and columns) and ``P+[2:, 2:] = P[2:, 2:] - K'[2:] P'[:2, 2:]`` (the other
+    states), rotated back, symmetrised and floored by :func:`_pd_floor`. (``P - K H P`` or the Joseph form subtract
+    prior-sized terms in the position block: a rounding error of eps x the prior, above the posterior itself after
+    a hard coast.) The same numbers as the textbook update to rounding. xo/Po must not alias x/P."""
+    c, s, l1, l2, a0, a1, a01, i00, i01, i11, det_s = _plot_frame(P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1],
+                                                                   r00, r01, r11)
+    cs, cc, ss = c * s, c * c, s * s
+    for j in range(2, n):                                # B' = G B, kept in Po's top-right block until the end
+        Po[0, j] = c * P[0, j] + s * P[1, j]
+        Po[1, j] = -s * P[0, j] + c * P[1, j]
+    n0, n1 = c * nu0 + s * nu1, -s * nu0 + c * nu1       # nu' = G nu
+    # position rows: K'_pos = A' S'^-1, A+' = K'_pos R'
+    k00, k01 = a0 * i00 + a01 * i01, a0 * i01 + a01 * i11
+    k10, k11 = a01 * i00 + a1 * i01, a01 * i01 + a1 * i11
+    d0, d1 = k00 * n0 + k01 * n1, k10 * n0 + k11 * n1
+    xo[0] = x[0] + (c * d0 - s * d1)                     # G^T (K'_pos nu')
+    xo[1] = x[1] + (s * d0 + c * d1)
+    q00, q11 = k00 * l1, k11 * l2
+    q01 = 0.5 * (k01 * l2 + k10 * l1)
+    # the other states: K'_i = B'_i^T S'^-1; their rows of P+ (position columns rotated back, then the block)
+    for i in range(2, n):
+        b0, b1 = Po[0, i], Po[1, i]
+        ki0, ki1 = b0 * i00 + b1 * i01, b0 * i01 + b1 * i11
+        xo[i] = x[i] + (ki0 * n0 + ki1 * n1)
+        for j in range(2, n):
+            Po[i, j] = P[i, j] - (ki0 * Po[0, j] + ki1 * Po[1, j])
+        e0, e1 = ki0 * l1, ki1 * l2
+        Po[i, 0] = c * e0 - s * e1
+        Po[i, 1] = s * e0 + c * e1
+    for i in range(2, n):
+        Po[0, i] = Po[i, 0]
+        Po[1, i] = Po[i, 1]
+        for j in range(i + 1, n):
+            v = 0.5 * (Po[i, j] + Po[j, i])
+            Po[i, j] = v
+            Po[j, i] = v
+    Po[0, 0] = q00 * cc - 2.0 * q01 * cs + q11 * ss      # A+ = G^T A+' G
+    Po[1, 1] = q00 * ss + 2.0 * q01 * cs + q11 * cc
+    v = (q00 - q11) * cs + q01 * (cc - ss)
+    Po[0, 1] = v
+    Po[1, 0] = v
+    _pd_floor(Po, n, P)
+    return n0 * n0 * i00 + 2.0 * n0 * n1 * i01 + n1 * n1 * i11, det_s
+
+
 @njit(cache=True)
 def _propagate_cv(x, P, dt, xo, FPF):
     """:func:`_propagate` for ``F = F_cv(dt)`` in closed form: the same products and sums in the same order, without
@@ -242,9 +405,10 @@ def _predict_cv(x, P, dt, q, u, has_u, xo, Po):
 
 @njit(cache=True)
 def _update(x, P, z, R, det, xo, Po, nu, S):
-    """Joseph-form update with a converted position plot (H = [I 0]). Writes the posterior into xo, Po, the
-    innovation and its covariance into nu, S; returns (nis, loglik). A missed look (``det`` False) leaves the prior
-    unchanged (S from R = I, nu = 0, NIS 0, loglik 0). xo/Po must not alias x/P."""
+    """Kalman update with a converted position plot (H = [I 0]) by :func:`_gain_update`. Writes the posterior into
+    xo, Po, the innovation and its covariance into nu, S; returns (nis, loglik). A missed look (``det`` False)
+    leaves the prior unchanged (S from R = I, nu = 0, NIS 0, loglik 0; :func:`_pd_floor` only where the prior is
+    not positive definite to rounding). xo/Po must not alias x/P."""
     if det:
         r00, r01, r10, r11 = R[0, 0], R[0, 1], R[1, 0], R[1, 1]
         nu0, nu1 = z[0] - x[0], z[1] - x[1]
@@ -261,24 +425,9 @@ def _update(x, P, z, R, det, xo, Po, nu, S):
             xo[i] = x[i]
             for j in range(4):
                 Po[i, j] = P[i, j]
+        _pd_floor(Po, 4, P)
         return 0.0, 0.0
-    det_s = s00 * s11 - s01 * s01
-    i00, i01, i11 = s11 / det_s, -s01 / det_s, s00 / det_s
-    # gain K = P H^T S^-1 (4,2), columns k0, k1
-    k0 = (P[0, 0] * i00 + P[0, 1] * i01, P[1, 0] * i00 + P[1, 1] * i01,
-          P[2, 0] * i00 + P[2, 1] * i01, P[3, 0] * i00 + P[3, 1] * i01)
-    k1 = (P[0, 0] * i01 + P[0, 1] * i11, P[1, 0] * i01 + P[1, 1] * i11,
-          P[2, 0] * i01 + P[2, 1] * i11, P[3, 0] * i01 + P[3, 1] * i11)
-    # Joseph form with H = [I 0]: M = P - K P[:2,:], MHt = P[:, :2] - K P[:2,:2], P+ = sym(M + (K R - MHt) K^T)
-    for i in range(4):
-        g0 = (k0[i] * r00 + k1[i] * r10) - (P[i, 0] - (k0[i] * P[0, 0] + k1[i] * P[1, 0]))
-        g1 = (k0[i] * r01 + k1[i] * r11) - (P[i, 1] - (k0[i] * P[0, 1] + k1[i] * P[1, 1]))
-        for j in range(4):
-            Po[i, j] = (P[i, j] - (k0[i] * P[0, j] + k1[i] * P[1, j])) + (g0 * k0[j] + g1 * k1[j])
-    for i in range(4):
-        xo[i] = x[i] + (k0[i] * nu0 + k1[i] * nu1)
-    _symmetrize(Po)
-    nis = nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11
+    nis, det_s = _gain_update(x, P, 4, nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
     return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
 
 
@@ -883,8 +1032,8 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x,
         o_S[b, 0, 0], o_S[b, 0, 1], o_S[b, 1, 0], o_S[b, 1, 1] = s00, s01, s01, s11
         o_nu[b, 0], o_nu[b, 1] = n0, n1
         if det[b]:
-            d = s00 * s11 - s01 * s01
-            o_nis[b] = (n0 * n0 * s11 - 2.0 * n0 * n1 * s01 + n1 * n1 * s00) / d
+            o_nis[b] = _plot_nis(Ppc[0, 0], 0.5 * (Ppc[0, 1] + Ppc[1, 0]), Ppc[1, 1], r00, 0.5 * (r01 + r10), r11,
+                                 n0, n1)[0]
         else:
             o_nis[b] = 0.0
 
@@ -932,3 +1081,8 @@ def k_imm_run(t, z, R, det, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, 
             o_P[b, k] = Pc[0]
             o_log_mu[b, k] = n_lm[0]
             t_last = t[b, k]
+
+
+# numba keys each cached kernel on its own file only: drop this package's cached kernels when any of its sources
+# changed (radar_env.numba_cache), before a kernel of this or another module here loads from the cache
+drop_stale_kernels(k_update, package_sources(Path(__file__).parent))

@@ -382,7 +382,12 @@ def _check_trajectory(t, p, v, prefix, where):
 def _read_utf8(path):
     """The text of ``path``, decoded as UTF-8 (a leading byte-order mark is dropped); ``ValueError`` naming the file
     (and the line of the first undecodable byte) otherwise."""
-    raw = path.read_bytes()
+    return decode_utf8(path.read_bytes(), path)
+
+
+def decode_utf8(raw, path):
+    """``raw`` (the bytes of file ``path``) decoded as UTF-8 (a leading byte-order mark is dropped); ``ValueError``
+    naming the file and the line of the first undecodable byte otherwise."""
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         raise ValueError(f"{path}: line 1: UTF-16 text (byte-order mark 0x{raw[:2].hex()}); save the file as UTF-8")
     try:

@@ -9,7 +9,7 @@ import radar_env  # noqa: F401
 from agents.evaluation.suites import draw_suite
 from baselines import trackers as T
 from baselines.policies import CKFPolicy, CminPolicy, POLICY_NAMES, make_policy
-from baselines.registry import TRACKER_NAMES, run_tracker
+from baselines.registry import POLICY_TRACKERS, TRACKER_NAMES, run_tracker
 from radar_env.catalog import SCENARIO_NAMES
 from radar_env.env import EnvConfig
 from radar_env.episode import stack_episodes
@@ -34,7 +34,7 @@ def suites():
 
 
 # the hindsight bounds take seconds per episode: tests/test_hindsight.py runs them on every scenario
-@pytest.mark.parametrize("tracker", [t for t in TRACKER_NAMES if t != "policy" and not t.startswith("hindsight")])
+@pytest.mark.parametrize("tracker", [t for t in TRACKER_NAMES if t not in POLICY_TRACKERS and not t.startswith("hindsight")])
 def test_every_tracker_runs_on_every_scenario(tracker, suites):
     for name, eps in suites.items():
         run = run_tracker(tracker, eps)

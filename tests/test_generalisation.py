@@ -74,3 +74,71 @@ def test_tables_render_from_the_json_shape():
     data["families"] = {}
     assert g.targets_table(data).count("\n") == len(g.targets(data)) + 1
     assert "random (50)" in g.spread_table(data)
+
+
+# ------------------------------------------------------------------------------------------------ issue 25 (policy_bp)
+def _bp_suite(r_cvct, r_strong, hi=None, loss=0.0, loss_imm2=0.0, seeds=("bp_s1", "bp_s2", "bp_s3"), fail=()):
+    """A suite where policy_bp and its seeds score ``r_cvct`` / imm_cv_ct and ``r_strong`` [.., hi] / strongest
+    (the seeds in ``fail`` score 1.05 / strongest instead)."""
+    hi = r_strong + 0.01 if hi is None else hi
+
+    def pol(bad):
+        rs = 1.05 if bad else r_strong
+        return {"ratio_vs_imm_cv_ct": [0.95 if bad else r_cvct, [r_cvct - 0.01, r_cvct + 0.01]],
+                "ratio_vs_strongest": [rs, [rs - 0.02, 1.06 if bad else hi]], "track_loss_rate": loss, "anees": 1.5}
+    pols = {"policy_bp": pol(False), **{s: pol(s in fail) for s in seeds}}
+    return {"runs": 50, "few_runs": False, "strongest_classical": "imm_cv_ct", "policies": pols,
+            "trackers": {"imm2": {"track_loss_rate": loss_imm2}, "imm_cv_ct": {"anees": 2.0}}}
+
+
+def _bp_spread(**over):
+    sp = {"random": _bp_suite(0.92, 0.92)}
+    for n in g.NAMED_SUITES + g.HELDOUT_FAMILY_SUITES:
+        sp[n] = _bp_suite(0.97, 0.98)
+    sp.update(over)
+    return sp
+
+
+def _bp_verdicts(spread):
+    return [ok for _, ok, _ in g.bp_targets(spread, "policy_bp", ["bp_s1", "bp_s2", "bp_s3"])]
+
+
+def test_bp_targets_reached_on_results_that_meet_them():
+    v = _bp_verdicts(_bp_spread())
+    assert v[0] is True and v[1] is True and v[3] is True and v[4] is True
+    # the long turns are reported but not bounded
+    assert _bp_verdicts(_bp_spread(slow_orbits=_bp_suite(0.97, 1.10)))[1] is True
+
+
+@pytest.mark.parametrize("over, index", [
+    ({"random": _bp_suite(0.94, 0.94)}, 0),                                   # random above 0.93 x imm_cv_ct
+    ({"sharp_turns": _bp_suite(0.97, 1.01)}, 1),                              # above 1.0 x the strongest
+    ({"adsb_heldout": _bp_suite(0.97, 0.99, hi=1.04)}, 1),                    # upper end above 1.03
+    ({"kim_lee_accel": _bp_suite(0.97, 0.98, loss=0.02, loss_imm2=0.01)}, 4),  # track loss above imm2's
+    ({"start_maneuver": _bp_suite(0.97, 0.98, fail=("bp_s1", "bp_s2"))}, 3),  # only 1 of 3 seeds meets both
+])
+def test_each_bp_target_fails_when_its_condition_does(over, index):
+    v = _bp_verdicts(_bp_spread(**over))
+    assert v[index] is False
+
+
+def test_bp_targets_join_the_targets_table_only_when_policy_bp_was_evaluated():
+    data = _data()
+    n = len(g.targets(data))
+    for s, res in data["spread"].items():
+        res["policies"]["policy_bp"] = _bp_suite(0.92, 0.92)["policies"]["policy_bp"]
+        res["trackers"]["imm_cv_ct"] = {"anees": 2.0}
+    assert len(g.targets(data)) > n and any(name.startswith("policy_bp") for name, _, _ in g.targets(data))
+
+
+def test_recipe_policies_take_a_zip_not_its_numpy_export(tmp_path):
+    from agents.reports.generalisation import RECIPE_DIR, recipe_policies
+    shipped = recipe_policies(RECIPE_DIR)
+    assert shipped and all(p.suffix == ".zip" for p in shipped.values())      # each has a policy.npz export beside it
+    (tmp_path / "bp_s1").mkdir()
+    for f in ("policy.npz", "policy.json"):
+        (tmp_path / "bp_s1" / f).write_bytes(b"")
+    (tmp_path / "ppo_s1").mkdir()
+    for f in ("policy.zip", "policy.npz"):
+        (tmp_path / "ppo_s1" / f).write_bytes(b"")
+    assert {n: p.name for n, p in recipe_policies(tmp_path).items()} == {"bp_s1": "policy.npz", "ppo_s1": "policy.zip"}

@@ -189,3 +189,12 @@ def test_bundled_policy_loads_without_torch_or_sb3():
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_ray_workers_get_the_numpy_export_with_the_zip():
+    """The blob shipped to Ray workers carries the export, so a worker runs the policy without torch or unpickling."""
+    from agents.evaluation.parallel import _policy_blob
+    from agents.policies.bundle import BUNDLED_POLICY
+    blob = _policy_blob(BUNDLED_POLICY)
+    assert list(blob)[0] == "policy.zip" and {"env_config.json", "policy.npz"} <= set(blob)
+    assert blob["policy.npz"] == BUNDLED_POLICY.with_name("policy.npz").read_bytes()

@@ -6,6 +6,7 @@ import functools
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -58,13 +59,21 @@ def _fail_on_run(i, episodes, cfg):
     return registry._RUNNERS["kf_tuned"](episodes, cfg)
 
 
+def _crash_worker(episodes, cfg):
+    """Kills the Ray worker process running it (every retry too)."""
+    import os
+    os._exit(3)
+
+
 FAILING_TRACKERS = {"fails_on_run0": functools.partial(_fail_on_run, 0),     # lands in chunk 0
                     "fails_on_run3": functools.partial(_fail_on_run, 3)}     # lands in chunk 1
+WORKER_ONLY_TRACKERS = {"crashes_worker": _crash_worker}     # registered in Ray workers only (it kills its process)
 
 
 def _register_failing_trackers():
     """Ray worker setup hook: the test trackers exist in every worker process (a monkeypatch stays in the driver)."""
     registry._RUNNERS.update(FAILING_TRACKERS)
+    registry._RUNNERS.update(WORKER_ONLY_TRACKERS)
 
 
 @pytest.fixture(scope="module")
@@ -243,6 +252,16 @@ def test_a_tracker_failing_on_some_runs_on_two_workers_equals_the_serial_run(loc
         assert par[t].error == serial.error and (serial.error is None) == (t == "kf_tuned")
 
 
+def test_a_worker_that_keeps_crashing_ends_in_one_line_naming_rays_logs(local_ray):
+    """Ray retries a task whose worker died; when every retry dies too, the user gets one line (the error type and
+    where Ray's logs are), not a Ray traceback."""
+    suites = [("bizup2002", draw_suite("bizup2002", 2, seed=FAIL_SEED))]
+    with pytest.raises(ValueError) as e:
+        run_suites_ray(suites, ["crashes_worker"], workers=2, seed=FAIL_SEED)
+    msg = str(e.value)
+    assert "\n" not in msg and "WorkerCrashedError" in msg and "Ray's logs: " in msg and "/logs" in msg
+
+
 def test_cli_workers_json_equals_serial(local_ray, tmp_path):
     common = ["--scenario", "kim_lee_accel", "--runs", "3", "--trackers", "imm2,kf_tuned", "--no-plots", "--quiet"]
     evaluate_main(common + ["--json", str(tmp_path / "serial.json")])
@@ -275,3 +294,32 @@ def test_sweep_of_two_trials_writes_its_table_and_resumes(local_ray, tmp_path):
     rows2, _ = run_sweep(cfg, tmp_path / "out", verbose=0)
     assert rows2 == rows
     assert mtimes == {r["trial"]: (exp / "runs" / r["trial"] / "summary.json").stat().st_mtime_ns for r in rows}
+
+
+TINY_BACKPROP_SWEEP = """
+[sweep]
+name = "tiny_bp"
+method = "backprop"
+[base]
+n_steps = 2
+eval_every = 1
+batch_episodes = 3
+chunk_looks = 6
+hidden_size = 4
+select_on = ["random"]
+[base.eval_scenarios]
+random = 3
+[space]
+seed = [0]
+"""
+
+
+def test_backprop_sweep_runs_a_trial_on_ray(local_ray, tmp_path):
+    cfg = tmp_path / "tiny_bp.toml"
+    cfg.write_text(TINY_BACKPROP_SWEEP)
+    rows, exp = run_sweep(cfg, tmp_path / "out", verbose=0)
+    (r,) = rows
+    hist = json.loads((exp / "runs" / r["trial"] / "summary.json").read_text())["selection_history"]
+    assert r["status"] == "done" and r["error"] is None and r["timesteps"] == 2 and r["evals"] == len(hist) == 3
+    assert r["best_selection_ratio"] == min(h["selection_ratio"] for h in hist)
+    assert r["best_policy"].endswith("policy.npz") and Path(r["best_policy"]).is_file()

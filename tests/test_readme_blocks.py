@@ -39,7 +39,8 @@ def _headline():
 
 def _downstream():
     res = _results()
-    return report.downstream_tables(res, (["policy"] if _has_policy(res) else []) + list(report.REPORT_TRACKERS))
+    learned = [t for t in ("policy", "policy_bp") if any(t in r["trackers"] for r in res.values())]
+    return report.downstream_tables(res, learned + list(report.REPORT_TRACKERS))
 
 
 def _adsb_flights():

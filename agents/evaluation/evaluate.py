@@ -4,7 +4,8 @@
 seeds, see :mod:`agents.evaluation.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
 writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.evaluation.metrics`).
 
-Defaults: the bundled learned policy if one exists (``agents/bundled/``), the tuned 2-mode IMM (``imm2``), the tuned
+Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, and ``policy_bp``, trained
+by backpropagation), the tuned 2-mode IMM (``imm2``), the tuned
 CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
 KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
 scenarios).
@@ -15,26 +16,30 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import DESIGN_ENVELOPES, tracker_names
+from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, POLICY_TRACKERS, tracker_names
 from baselines.user_trackers import import_tracker_module
 from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
 
-from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.metrics import (FEW_RUNS, common_runs, evaluate_run, failed_runs, jsonable, ratio_ci,
-                                       score_run)
-from agents.evaluation.options import DEFAULT_TRACKERS, LEARNED_TRACKERS, build_parser, default_trackers
+from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
+from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
+                                       jsonable, ratio_ci, score_run)
+from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
+from baselines.seeds import EVAL_SEED_BASE
 from agents.evaluation.suites import (DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EXTRA_SUITES, draw_suite, run_scenario,
                                       suite_key, trajectory_suite_names)
 
@@ -48,12 +53,14 @@ the ADS-B suites fly each of their flights once; the held-out families 200); oth
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None):
+             common_over=None, loaded_policy=None, policy_bp_path=None, loaded_policy_bp=None):
     """Run ``trackers`` on every suite.
 
     Args:
         suites: list of ``(name, episodes)``.
-        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``.
+        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``, ``policy_bp`` runs
+            ``policy_bp_path`` (default: the bundled backprop policy, :data:`BUNDLED_BP_POLICY`). Either file may be
+            an SB3 zip or a recurrent ``.npz`` (:func:`agents.policies.loading.load_policy`).
         reference: tracker the ratio column is taken against (if present).
         workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.evaluation.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
@@ -61,18 +68,24 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
             (:func:`agents.evaluation.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
-        loaded_policy: ``load_policy(policy_path)``'s result if the caller has it already (not loaded again).
+        loaded_policy, loaded_policy_bp: ``load_policy(policy_path)``'s (``policy_bp_path``'s) result if the caller
+            has it already (not loaded again).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
         ``"ratio_vs_" + reference + "_runs"``), ``..._common`` the same over the suite's ``common_runs``;
         ``runs[suite]`` = ``(batch, {name: TrackRun})``.
     """
-    choose_q = pol_cfg = None
-    if "policy" in trackers:
-        if policy_path is None:
-            raise ValueError("tracker 'policy' needs a policy file (--policy PATH); none bundled")
-        choose_q, pol_cfg = loaded_policy if loaded_policy is not None else load_policy(policy_path)
+    if policy_bp_path is None and BUNDLED_BP_POLICY.is_file():
+        policy_bp_path = BUNDLED_BP_POLICY
+    paths = {"policy": policy_path, "policy_bp": policy_bp_path}
+    given = {"policy": loaded_policy, "policy_bp": loaded_policy_bp}
+    policies = {}                           # tracker -> (choose_q, env config)
+    for t in POLICY_TRACKERS:
+        if t in trackers:
+            if paths[t] is None and given[t] is None:
+                raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
+            policies[t] = given[t] if given[t] is not None else load_policy(paths[t])
     default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
@@ -94,13 +107,13 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if i + 1 < len(jobs):
                 bar.start(i + 1)
         bar.start(0)
-        ray_runs = run_suites_ray(suites, trackers, policy_path, workers, address, seed, tick)
+        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
         suite_runs = {} if ray_runs is None else ray_runs[suite]
         for t in trackers if ray_runs is None else ():
             bar.start(jobs.index((suite, t)))
-            suite_runs[t] = run_one(t, episodes, choose_q, pol_cfg)
+            suite_runs[t] = run_one(t, episodes, *policies.get(t, (None, None)))
             bar.done()
         scores = {t: score_run(batch, r) for t, r in suite_runs.items()}     # errors, failed, lost: once per run
         # by default a tracker that failed every run does not empty the common set for all the others
@@ -118,6 +131,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
             _note_undefined(m)
             res["trackers"][t] = m
+        res["bounds_beaten"] = bounds_beaten(res["trackers"])
         if reference in suite_runs:
             ref = suite_runs[reference]
             ref_ok = ~scores[reference].failed
@@ -132,6 +146,20 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         runs[suite] = (batch, suite_runs)
     bar.close()
     return results, runs
+
+
+def bounds_beaten(trackers):
+    """``{bound: {"pos_rmse_m": .., "beaten_by": name, "beaten_by_pos_rmse_m": ..}}`` for each bound tracker
+    (:data:`baselines.registry.BOUND_TRACKERS`) whose pooled position RMSE is above that of the best real tracker
+    of the suite (``trackers``: name -> metrics): such a "bound" bounds nothing there, and the tables say so."""
+    real = {t: m["pos_rmse_m"] for t, m in trackers.items()
+            if t not in BOUND_TRACKERS and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"])}
+    if not real:
+        return {}
+    best = min(real, key=real.get)
+    return {t: {"pos_rmse_m": m["pos_rmse_m"], "beaten_by": best, "beaten_by_pos_rmse_m": real[best]}
+            for t, m in trackers.items() if t in BOUND_TRACKERS and m.get("pos_rmse_m") is not None
+            and np.isfinite(m["pos_rmse_m"]) and m["pos_rmse_m"] > real[best]}
 
 
 def _downstream(suite, episodes, batch, run, failed=None):
@@ -184,7 +212,9 @@ def format_table(results, reference="imm2"):
 
     ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``common`` over the suite's
     common runs (no compared tracker lost or failed them); the ratio columns are paired over the runs neither
-    tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs."""
+    tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs; ``*``
+    beside an ANEES one taken from under 90 % of the looks (:func:`table_notes` says how many, and names a bound
+    tracker that some real tracker beat)."""
     lines = []
     head = ("tracker", "pos RMSE m [95% CI]", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
             "in95", "lost", "failed", "common RMSE m [95% CI]", f"/{reference} all [95% CI]",
@@ -206,7 +236,7 @@ def format_table(results, reference="imm2"):
                 t,
                 _f_ci(m["pos_rmse_m"], m["pos_rmse_m_ci95"], m.get("runs_scored", res["runs"]), 1),
                 _f(m["pos_rmse_m_maneuver"], 9), _f(m["pos_rmse_m_after"], 8), _f(m["pos_rmse_m_straight"], 9),
-                _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _f(m["anees"], 6, 2),
+                _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _anees_cell(m, 6),
                 _f(m["nees_in_95"], 5, 2), _f(m["track_loss_rate"], 5, 2), str(m.get("failed_runs", "-")),
                 _f_ci(m["pos_rmse_m_common"], m["pos_rmse_m_common_ci95"], m["common_runs"], 1)
                 if "pos_rmse_m_common" in m else "-",
@@ -221,12 +251,28 @@ def table_notes(suite_result):
     """Notes printed under a suite's table: a tracker that raised (its error), and the design envelope of each
     tracker used outside the conditions its paper assumed (:data:`baselines.registry.DESIGN_ENVELOPES`)."""
     notes = []
+    beaten = suite_result.get("bounds_beaten", {})
     for t, m in suite_result["trackers"].items():
         if m.get("error"):
             notes.append(f"{t}: failed on every run: {m['error']}")
+        if t in beaten:
+            b = beaten[t]
+            notes.append(f"{t}: NOT A BOUND on this suite: a bound (it sees the truth), yet its position RMSE "
+                         f"{b['pos_rmse_m']:.1f} m is above {b['beaten_by']}'s {b['beaten_by_pos_rmse_m']:.1f} m")
+        if m.get("anees_few_valid_looks") and m.get("nees_valid_looks") is not None:
+            n_all = m["nees_valid_looks"] + m["nees_invalid_looks"]
+            notes.append(f"{t}: ANEES from only {m['nees_valid_looks']} of {n_all} scored looks (under "
+                         f"{MIN_VALID_NEES_SHARE:.0%}): the others' covariance is not positive definite")
         if t in DESIGN_ENVELOPES:
             notes.append(f"{t}: design envelope: {DESIGN_ENVELOPES[t]}")
     return notes
+
+
+def _anees_cell(m, w):
+    """The ANEES column: ``*`` beside a value taken from under MIN_VALID_NEES_SHARE of the looks (see the notes)."""
+    if m.get("anees_few_valid_looks") and m.get("anees") is not None and np.isfinite(m["anees"]):
+        return f"{m['anees']:.2f}*".rjust(w)
+    return _f(m["anees"], w, 2)
 
 
 def _f(v, w, nd=1):
@@ -243,14 +289,19 @@ def _f_ci(est, ci, n, nd):
     return txt + (f" (n<{FEW_RUNS})" if n is not None and n < FEW_RUNS else "")
 
 
-def write_plots(runs, out_dir, scenarios=None, progress=False):
+def write_plots(runs, out_dir, scenarios=None, progress=False, inputs=()):
     """PNG figures per suite (:mod:`agents.evaluation.plots`); returns the list of files written.
 
     Args:
         scenarios: ``{suite: run 0's truth model}`` (:func:`agents.evaluation.suites.run_scenario`) for the exact
             paths and maneuver times; a suite without one is drawn from its looks.
         progress: a bar over the figures on stderr.
-    One process: two forked plotting processes took longer than one on the shared 2-core machine (load 5)."""
+        inputs: the run's input files: one of them is never replaced (a warning instead).
+
+    The figures are drawn in a temporary folder inside ``out_dir`` and renamed into it
+    (:func:`agents.evaluation.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
+    suite name cannot lead outside ``out_dir``. One process: two forked plotting processes took longer than one on
+    the shared 2-core machine (load 5)."""
     import matplotlib
     matplotlib.use("Agg")
     from agents.evaluation import plots
@@ -260,11 +311,20 @@ def write_plots(runs, out_dir, scenarios=None, progress=False):
     items = [(s, k) for s in runs for k in plots.FIGURE_KINDS]
     bar = Progress("figures", [(f"{s}: {k}", 1, k) for s, k in items], enabled=progress)
     files = []
-    for i, (suite, kind) in enumerate(items):
-        bar.start(i)
-        batch, suite_runs = runs[suite]
-        files += plots.suite_figures(suite, batch, suite_runs, out_dir, scenario=scenarios.get(suite), kinds=(kind,))
-        bar.done()
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".plots-") as tmp:
+        for i, (suite, kind) in enumerate(items):
+            bar.start(i)
+            batch, suite_runs = runs[suite]
+            safe = re.sub(r"[/\\]", "_", suite) if suite not in (".", "..") else "_"
+            for f in plots.suite_figures(safe, batch, suite_runs, Path(tmp), scenario=scenarios.get(suite),
+                                         kinds=(kind,)):
+                dest = out_dir / Path(f).name
+                if any(same_file(dest, inp) for inp in inputs if inp is not None):
+                    print(f"warning: --out: not writing {dest}: it is an input of this run", file=sys.stderr)
+                    continue
+                move_replacing(f, dest)
+                files.append(dest)
+            bar.done()
     bar.close()
     return files
 
@@ -279,8 +339,8 @@ def _list_names():
     """``--list``: every suite and built-in tracker name."""
     print("suites:\n  " + "\n  ".join(list(SCENARIO_NAMES) + list(EXTRA_SUITES) + ["adsb:<flight>",
                                                                                "<file>.csv (--trajectory)"]))
-    print("trackers:\n  " + "\n  ".join(list(tracker_names()) + list(LEARNED_TRACKERS)))
-    print(f"defaults: --scenario {','.join(DEFAULT_SUITES)} --trackers {','.join(default_trackers(True))}")
+    print("trackers:\n  " + "\n  ".join(tracker_names()))
+    print(f"defaults: --scenario {','.join(DEFAULT_SUITES)} --trackers {','.join(DEFAULT_TRACKERS)}")
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -296,8 +356,9 @@ def _km_pair(option, text):
     return vals
 
 
-def _check_outputs(args):
-    """Fail before the evaluation runs if an output cannot be written (``--out`` for plots, ``--json``)."""
+def _check_outputs(args, inputs=()):
+    """Fail before the evaluation runs if an output cannot be written (``--out`` for plots, ``--json``), or if
+    ``--json`` is a symbolic link or one of the run's ``inputs`` (it would be overwritten)."""
     if not args.no_plots:
         out = Path(args.out)
         if out.exists() and not out.is_dir():
@@ -318,6 +379,79 @@ def _check_outputs(args):
                              "directory)")
         if not os.access(folder, os.W_OK | os.X_OK) or (js.exists() and not os.access(js, os.W_OK)):
             raise SystemExit(f"error: --json: {args.json!r} is not writable")
+        try:
+            check_output_file("--json", js, inputs)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
+
+
+BYTES_PER_LOOK = 1000
+"""Driver memory per look of a suite without trackers (the episodes, their padded batch, the chain's look rows)."""
+BYTES_PER_LOOK_TRACKER = 500
+"""Memory per look and tracker (its TrackRun: estimate, covariance, q, extras; the scoring's temporaries)."""
+SECONDS_PER_LOOK_TRACKER = {"hindsight_q": 5e-3, "hindsight_q_turn": 1e-2, "konle": 2e-4, "policy": 1e-4}
+"""Rough wall time per look and tracker, scoring included, on a shared 2-core machine (others:
+``SECONDS_PER_LOOK_DEFAULT``; measured: 5 trackers on 2000 random runs, 3.5e5 padded looks, 105 s and 1.1 GiB), for
+the up-front estimate of a long evaluation."""
+SECONDS_PER_LOOK_DEFAULT = 6e-5
+
+
+def _available_memory_bytes():
+    """MemAvailable from /proc/meminfo, else the physical memory."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def estimate_cost(plan, trackers, seed=EVAL_SEED_BASE):
+    """``(bytes, seconds, looks)``: the driver memory and the rough wall time of evaluating ``trackers`` on the
+    suites of ``plan`` (``(option, name, source, runs, draw_suite kwargs)``), from the looks per run of a pilot
+    draw of at most 4 runs per suite (:data:`BYTES_PER_LOOK`, :data:`BYTES_PER_LOOK_TRACKER`,
+    :data:`SECONDS_PER_LOOK_TRACKER`)."""
+    looks = 0.0
+    for option, name, source, runs, kw in plan:
+        try:
+            pilot = draw_suite(source, min(int(runs), 4), seed=seed, **kw)
+        except ValueError as e:
+            raise SystemExit(f"error: {option}: {e}") from None
+        per_run = len(pilot) / min(int(runs), 4)                 # encounters: two episodes per run
+        looks += runs * per_run * max(e.n_looks for e in pilot)   # padded to the longest run
+    mem = looks * (BYTES_PER_LOOK + BYTES_PER_LOOK_TRACKER * len(trackers))
+    sec = looks * sum(SECONDS_PER_LOOK_TRACKER.get(t, SECONDS_PER_LOOK_DEFAULT) for t in trackers)
+    return mem, sec, looks
+
+
+def _check_cost(plan, trackers, seed):
+    """Refuse a plan whose memory estimate exceeds the available memory (one line, naming --runs); print the
+    estimate to stderr when it is large (over 2 GB or 10 minutes)."""
+    mem, sec, looks = estimate_cost(plan, trackers, seed)
+    avail = _available_memory_bytes()
+    what = (f"{sum(p[3] for p in plan)} runs over {len(plan)} suite(s), about {looks:.3g} looks x "
+            f"{len(trackers)} trackers")
+    if avail is not None and mem > avail:
+        raise SystemExit(f"error: --runs: {what} need about {mem / 2**30:.3g} GiB of memory, more than the "
+                         f"{avail / 2**30:.3g} GiB available (and about {sec / 3600:.3g} h); lower --runs or split "
+                         "the suites")
+    if mem > 2 * 2**30 or sec > 600:
+        print(f"estimate: {what}: about {mem / 2**30:.2g} GiB of memory and {sec / 60:.3g} min (rough, 2-core "
+              "machine)", file=sys.stderr)
+
+
+def _input_files(args, policies=()):
+    """The files this run reads (outputs must not replace them): trajectory CSVs, ADS-B flight files given by path,
+    tracker-module files, the policy files and the policy.json / env_config.json beside them."""
+    files = list(args.trajectory or []) + [m for m in args.tracker_module or [] if m.endswith(".py")]
+    files += [n[len("adsb:"):] for n in args.scenario or [] if n.startswith("adsb:")]
+    for p in policies:
+        files += [p, str(Path(p).with_suffix(".json")), str(Path(p).with_name("env_config.json"))]
+    return [f for f in files if Path(f).is_file()]
 
 
 def main(argv=None, prog="radar-track evaluate"):
@@ -328,9 +462,9 @@ def main(argv=None, prog="radar-track evaluate"):
         _list_names()
         return {}
     # a CSV path given to --scenario is a trajectory suite (named by its stem, seeded by its content)
-    csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv")]
+    csv_scenarios = [n for n in (args.scenario or []) if n.endswith(".csv") and not n.startswith("adsb:")]
     if csv_scenarios:
-        args.scenario = [n for n in args.scenario if not n.endswith(".csv")]
+        args.scenario = [n for n in args.scenario if n not in csv_scenarios]
         args.trajectory = list(args.trajectory or []) + csv_scenarios
     if args.seed < 0:
         raise SystemExit(f"error: --seed must be an integer >= 0, got {args.seed}")
@@ -338,11 +472,13 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
     if args.workers < 1:
         raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
-    policy = args.policy
-    if policy is not None and not Path(policy).is_file():
-        raise SystemExit(f"error: --policy: file {policy!r} does not exist (or is not a file)")
-    if policy is None and BUNDLED_POLICY.is_file():
-        policy = str(BUNDLED_POLICY)
+    policy_files = {}                   # learned tracker -> its file: the option's, else the bundled one if shipped
+    for t, given, bundled in (("policy", args.policy, BUNDLED_POLICY),
+                              ("policy_bp", args.policy_bp, BUNDLED_BP_POLICY)):
+        if given is not None and not Path(given).is_file():
+            raise SystemExit(f"error: --{t.replace('_', '-')}: file {given!r} does not exist (or is not a file)")
+        policy_files[t] = given if given is not None else (str(bundled) if bundled.is_file() else None)
+    policy, policy_bp = policy_files["policy"], policy_files["policy_bp"]
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)
@@ -351,7 +487,7 @@ def main(argv=None, prog="radar-track evaluate"):
     if args.tracker_module and (args.workers > 1 or args.address):
         raise SystemExit("error: --tracker-module: user trackers are registered in this process only and cannot run "
                          f"on Ray workers; use --workers 1 without --address (got --workers {args.workers})")
-    known = tuple(tracker_names()) + tuple(LEARNED_TRACKERS)
+    known = tracker_names()
     if args.trackers is not None:
         trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
         if not trackers:
@@ -361,23 +497,21 @@ def main(argv=None, prog="radar-track evaluate"):
         if bad:
             raise SystemExit(f"error: --trackers: unknown tracker(s) {bad}; valid: {list(known)}"
                              + ("" if args.tracker_module else " (user trackers need --tracker-module)"))
-        if "policy" in trackers and policy is None:
-            raise SystemExit("error: tracker 'policy' needs --policy PATH (no bundled policy found)")
-        missing = [t for t in trackers if t in LEARNED_TRACKERS and not LEARNED_TRACKERS[t].is_file()]
-        if missing:
-            raise SystemExit(f"error: --trackers: {missing[0]!r} runs its bundled checkpoint, which is missing "
-                             f"({LEARNED_TRACKERS[missing[0]]})")
+        for t in POLICY_TRACKERS:
+            if t in trackers and policy_files[t] is None:
+                raise SystemExit(f"error: tracker {t!r} needs --{t.replace('_', '-')} PATH (no bundled policy found)")
         if len(set(trackers)) != len(trackers):
             raise SystemExit(f"error: --trackers: a tracker is named twice in {args.trackers!r}")
     else:
-        trackers = default_trackers(policy is not None)
-    loaded = None
-    if "policy" in trackers:        # load once, now: a file that is not a usable policy is a user error
-        _say(args, f"loading the policy {policy} (torch, stable-baselines3) ...")
-        try:
-            loaded = load_policy(policy)
-        except ValueError as e:
-            raise SystemExit(f"error: --policy: {e}") from None
+        trackers = [t for t in DEFAULT_TRACKERS if t not in POLICY_TRACKERS or policy_files[t] is not None]
+    loaded = {}
+    for t in POLICY_TRACKERS:       # load once, now: a file that is not a usable policy is a user error
+        if t in trackers:
+            _say(args, f"loading the policy {policy_files[t]} ({t}) ...")
+            try:
+                loaded[t] = load_policy(policy_files[t])
+            except ValueError as e:
+                raise SystemExit(f"error: --{t.replace('_', '-')}: {e}") from None
     radar, radar_range_m = None, None
     if args.radar_site is not None or args.radar_range_km is not None:
         if not args.trajectory:
@@ -394,7 +528,8 @@ def main(argv=None, prog="radar-track evaluate"):
         if not 0.0 < lo_km < hi_km:
             raise SystemExit(f"error: --radar-range-km: expected 0 < LO < HI (km), got {args.radar_range_km!r}")
         radar_range_m = (lo_km * 1e3, hi_km * 1e3)
-    _check_outputs(args)
+    inputs = _input_files(args, [policy_files[t] for t in POLICY_TRACKERS if t in trackers])
+    _check_outputs(args, inputs)
     names = list(args.scenario or ([] if args.trajectory else DEFAULT_SUITES))
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -405,45 +540,43 @@ def main(argv=None, prog="radar-track evaluate"):
         file_names = trajectory_suite_names(files, taken=names)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    n_runs = {n: args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50) for n in names}
-    _say(args, f"drawing the episodes: {sum(n_runs.values()) + len(files) * (args.runs or 50)} runs of "
-               f"{len(names) + len(files)} suite(s) ...")
-    for n in names:
-        runs = n_runs[n]
+    plan = [("--scenario", n, n, args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50), {})
+            for n in names]
+    plan += [("--trajectory", n, f, args.runs or 50, {"radar": radar, "radar_range_m": radar_range_m})
+             for n, f in zip(file_names, files)]
+    _check_cost(plan, trackers, args.seed)
+    _say(args, f"drawing the episodes: {sum(p[3] for p in plan)} runs of {len(plan)} suite(s) ...")
+    for option, n, source, runs, kw in plan:
         try:
-            suites.append((n, draw_suite(n, runs, seed=args.seed)))
+            suites.append((n, draw_suite(source, runs, seed=args.seed, **kw)))
         except ValueError as e:
-            raise SystemExit(f"error: --scenario: {e}") from None
-    for n, f in zip(file_names, files):
-        try:
-            suites.append((n, draw_suite(f, args.runs or 50, seed=args.seed, radar=radar,
-                                         radar_range_m=radar_range_m)))
-        except ValueError as e:
-            raise SystemExit(f"error: --trajectory: {e}") from None
+            raise SystemExit(f"error: {option}: {e}") from None
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed, loaded_policy=loaded)
+                                 address=args.address, seed=args.seed, loaded_policy=loaded.get("policy"),
+                                 policy_bp_path=policy_bp, loaded_policy_bp=loaded.get("policy_bp"))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
-                "policy": policy, "suites": [s for s, _ in suites],
+                "policy": policy, "policy_bp": policy_bp if "policy_bp" in trackers else None,
+                "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},
                 "radar_site_km": None if radar is None else [x_km, y_km],
                 "radar_range_km": (None if radar is not None or not files else
                                    [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
-        Path(args.json).write_text(json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
-                                              allow_nan=False))
+        write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
+                                                   allow_nan=False))
         print(f"metrics: {args.json}")
     if not args.no_plots:
         scenarios = {n: run_scenario(n, args.seed) for n in names}
         scenarios.update({n: run_scenario(f, args.seed) for n, f in zip(file_names, files)})
-        written = write_plots(runs, args.out, scenarios, progress=not args.quiet)
+        written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
         print(f"plots: {len(written)} files in {args.out}/")
     return results
 

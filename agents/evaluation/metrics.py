@@ -26,9 +26,11 @@ Per tracker (all computed here from the arrays, none typed in):
   bootstrap confidence interval over runs (runs resampled with replacement, ``n_boot`` = 2000, fixed seed);
 * ``peak_pos_err_m``: mean over scored runs of the largest position error of the run;
 * ``anees``: mean over looks of NEES / 4 (1 for a consistent filter), ``nees_in_95``: fraction of looks with
-  NEES <= chi2_4(0.95) = 9.49 (0.95 for a consistent filter). A look whose P is not positive definite (or whose NEES
-  is not finite) has no NEES: it is left out of ``anees``, counted as outside the bound in ``nees_in_95`` and
-  counted in ``nees_invalid_looks``; it never raises;
+  NEES <= chi2_4(0.95) = 9.49 (0.95 for a consistent filter). The NEES is taken by Cholesky (never negative); a look
+  whose P is not a covariance (not symmetric positive definite, :func:`nees_values`) has no NEES: it is left out of
+  ``anees``, counted as outside the bound in ``nees_in_95`` and counted in ``nees_invalid_looks``
+  (``nees_valid_looks`` the others); it never raises. Where fewer than ``MIN_VALID_NEES_SHARE`` (90 %) of the
+  scored looks are valid, ``anees_few_valid_looks`` is set and the tables flag the ANEES;
 * ``track_loss_rate`` (above);
 * ``npe``: Kim & Lee's normalised position error, RMS position error / RMS plot error (detected looks);
 * for trackers that declare maneuvers: ``detection_delay_looks`` (mean looks from a maneuver's first look to the
@@ -55,10 +57,14 @@ from scipy.special import chdtri
 from radar_env.observation import measurement_sigma_m
 
 __all__ = ["region_masks", "evaluate_run", "ratio_ci", "failed_runs", "lost_runs", "common_runs", "errors",
-           "RunScore", "score_run", "positive_definite", "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M"]
+           "RunScore", "score_run", "positive_definite", "nees_values", "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M",
+           "MIN_VALID_NEES_SHARE"]
 
 NEES_95_4DOF = float(chdtri(4, 1.0 - 0.95))   # chi2.ppf(0.95, 4), bit for bit, without importing scipy.stats
 FEW_RUNS = 20
+MIN_VALID_NEES_SHARE = 0.9
+"""``anees_few_valid_looks`` is set (and the tables say so) when fewer than this share of the scored looks have a
+positive-definite covariance to take the NEES from."""
 MAX_ERROR_M = 1e100
 
 
@@ -98,6 +104,38 @@ def errors(batch, run):
     """Position and velocity errors (B, K) of a run (NaN where the run produced nothing)."""
     d = run.x - batch.truth
     return np.hypot(d[..., 0], d[..., 1]), np.hypot(d[..., 2], d[..., 3])
+
+
+def nees_values(d, P):
+    """NEES ``d^T P^-1 d`` per look (``d`` (n, 4) errors, ``P`` (n, 4, 4)), by Cholesky (so never negative); NaN
+    where ``P`` is not a covariance: not finite, not symmetric (to 1e-9 of its largest entry) or not positive
+    definite (the Cholesky factorisation fails)."""
+    d, P = np.asarray(d, dtype=np.float64), np.asarray(P, dtype=np.float64)
+    out = np.full(d.shape[0], np.nan)
+    if not d.shape[0]:
+        return out
+    with np.errstate(invalid="ignore"):
+        scale = np.abs(P).max(axis=(1, 2))
+        ok = np.isfinite(P).all(axis=(1, 2)) & np.isfinite(d).all(axis=1) & (scale > 0)
+        ok &= (np.abs(P - np.swapaxes(P, 1, 2)).max(axis=(1, 2)) <= 1e-9 * scale)
+    idx = np.flatnonzero(ok)
+    if idx.size:
+        idx = idx[positive_definite(P[idx])]   # a cheap screen; Cholesky has the last word
+    try:
+        L = np.linalg.cholesky(P[idx])
+    except np.linalg.LinAlgError:   # a few matrices the screen passed: one by one
+        keep = []
+        for i in idx:
+            try:
+                np.linalg.cholesky(P[i])
+                keep.append(i)
+            except np.linalg.LinAlgError:
+                pass
+        idx = np.asarray(keep, dtype=np.int64)
+        L = np.linalg.cholesky(P[idx])
+    y = np.linalg.solve(L, d[idx][..., None])[..., 0]
+    out[idx] = np.einsum("ni,ni->n", y, y)
+    return out
 
 
 def failed_runs(batch, run, used=None):
@@ -220,16 +258,16 @@ def evaluate_run(batch, run, track_loss_gate_sigma=30.0, after_window_s=60.0, n_
                     no_runs if n_ok == 0 else f"no looks in region '{region}'")
     peak = np.max(np.where(used & ok[:, None], ep, 0.0), axis=1)[ok]
     out["peak_pos_err_m"] = float(np.mean(peak)) if n_ok else np.nan
-    # NEES (4 dof) at the used looks of the scored runs; a P that is not positive definite has none (no solve)
+    # NEES (4 dof) at the used looks of the scored runs, from the looks whose P is a covariance (nees_values)
     cand = used & ok[:, None]
-    d, P = (run.x - batch.truth)[cand], run.P[cand]
-    pd = positive_definite(P)
-    sol = np.linalg.solve(P[pd], d[pd][..., None])[..., 0]
-    nees = np.einsum("ni,ni->n", d[pd], sol)
+    nees = nees_values((run.x - batch.truth)[cand], run.P[cand])
     nees = nees[np.isfinite(nees)]
-    out["nees_invalid_looks"] = int(cand.sum() - nees.size)
+    n_cand = int(cand.sum())
+    out["nees_valid_looks"] = int(nees.size)
+    out["nees_invalid_looks"] = n_cand - int(nees.size)
     out["anees"] = float(nees.mean() / 4.0) if nees.size else np.nan
-    out["nees_in_95"] = float((nees <= NEES_95_4DOF).sum() / cand.sum()) if cand.any() else np.nan
+    out["anees_few_valid_looks"] = bool(nees.size < MIN_VALID_NEES_SHARE * n_cand)
+    out["nees_in_95"] = float((nees <= NEES_95_4DOF).sum() / n_cand) if n_cand else np.nan
     if not nees.size:
         undefined["anees"] = no_runs if n_ok == 0 else "no look with a positive-definite covariance"
     # track loss: failed, or normalised error beyond the env's gate at any used look

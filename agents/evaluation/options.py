@@ -10,26 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import BUNDLED_LEARNED_IMM, BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from baselines.seeds import EVAL_SEED_BASE
 
-__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "LEARNED_TRACKERS", "default_trackers", "build_parser",
-           "first_line"]
+__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
 
-DEFAULT_TRACKERS = ("policy", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-"""The main job's trackers (``policy`` only when a policy is bundled or given), then the bundled
-:data:`LEARNED_TRACKERS` that exist."""
-
-LEARNED_TRACKERS = {"policy_imm_bp": BUNDLED_LEARNED_IMM}
-"""Learned trackers run by name from their bundled checkpoint: ``policy_imm_bp``, the learned IMM
-(:mod:`agents.policies.learned_imm`)."""
-
-
-def default_trackers(has_policy):
-    """The main job's default tracker list: :data:`DEFAULT_TRACKERS` (``policy`` if ``has_policy``) and every
-    bundled learned tracker."""
-    return [t for t in DEFAULT_TRACKERS if t != "policy" or has_policy] + [
-        t for t, path in LEARNED_TRACKERS.items() if path.is_file()]
+DEFAULT_TRACKERS = ("policy", "policy_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+"""The main job's trackers (``policy``, PPO, and ``policy_bp``, trained by backpropagation, only when such a policy
+is bundled or given)."""
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
@@ -44,7 +32,10 @@ def build_parser(prog="radar-track evaluate"):
     """The ``radar-track evaluate`` argument parser (every option with its default and unit)."""
     lo_km, hi_km = RADAR_RANGE_HELP_KM
     ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
-                                 "measurement streams (common random numbers): a table per suite, figures in --out.")
+                                 "measurement streams (common random numbers): a table per suite, figures in --out.",
+                                 epilog="Security: --policy files (stable-baselines3 zips) and --tracker-module "
+                                        "files are code: loading them runs what their author wrote. Use only files "
+                                        "you trust.")
     ap.add_argument("--scenario", action="append", metavar="NAME",
                     help="suite to run, repeatable: random, random_radars, a paper's scenario (e.g. bizup2002), a "
                          "held-out family (e.g. sharp_turns), encounters (conflict warnings), adsb_calibration, "
@@ -73,16 +64,24 @@ def build_parser(prog="radar-track evaluate"):
                          f"the built-in ones (default: {','.join(DEFAULT_TRACKERS)}; 'policy' only if a policy exists)")
     ap.add_argument("--tracker-module", action="append", metavar="MODULE",
                     help="import a user tracker module before the trackers are resolved: a dotted module name "
-                         "(importable from the current directory) or a .py file; it registers its trackers with "
-                         "baselines.registry.register_tracker (repeatable; see docs/evaluation.md) (default: none)")
-    ap.add_argument("--policy", metavar="FILE.zip",
-                    help="saved stable-baselines3 model for the 'policy' tracker, with its env_config.json beside it "
-                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present)")
+                         "(found in the current directory, which is not left on sys.path, or installed) or a .py file; it "
+                         "registers its trackers with baselines.registry.register_tracker (repeatable; see "
+                         "docs/evaluation.md). It runs as code (default: none)")
+    ap.add_argument("--policy", metavar="FILE",
+                    help="saved policy for the 'policy' tracker: a stable-baselines3 model (.zip) or a recurrent "
+                         "policy trained by backpropagation (policy.npz), with its env_config.json beside it "
+                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present). A "
+                         "policy zip is a pickle: loading it runs the code inside; load only files you trust")
+    ap.add_argument("--policy-bp", metavar="FILE",
+                    help="saved policy for the 'policy_bp' tracker (policy.npz with policy.json and env_config.json "
+                         "beside it, or an SB3 .zip) (default: the bundled "
+                         f"{BUNDLED_BP_POLICY.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
-                    help="directory for the figures (PNG; created if missing) (default: ./results)")
+                    help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
+                         "followed) (default: ./results)")
     ap.add_argument("--json", metavar="FILE.json",
-                    help="write every metric per tracker per suite to this JSON file; its folder must exist "
-                         "(default: no JSON)")
+                    help="write every metric per tracker per suite to this JSON file; its folder must exist; not "
+                         "a symbolic link, not one of the run's input files (default: no JSON)")
     ap.add_argument("--no-plots", action="store_true", help="skip the figures (default: draw them)")
     ap.add_argument("--quiet", action="store_true",
                     help="no progress: no first line, no bars; the table only (default: progress on stderr)")
@@ -105,8 +104,9 @@ def first_line(args):
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
-                else len(default_trackers(bool(args.policy) or BUNDLED_POLICY.is_file())))
+                else len(DEFAULT_TRACKERS) - (not (args.policy or BUNDLED_POLICY.is_file()))
+                - (not (args.policy_bp or BUNDLED_BP_POLICY.is_file())))
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
-            + (" and the policy" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
+            + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
             + " ...")

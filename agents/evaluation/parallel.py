@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import socket
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -32,10 +35,66 @@ from agents.evaluation.runner import failed_track_run, run_one
 from agents.evaluation.suites import draw_suite
 from agents.policies.loading import load_policy
 
-__all__ = ["require_ray", "ray_session", "chunk_bounds", "concat_runs", "merge_chunk_runs", "episodes_digest",
-           "run_suites_ray", "SCALE_EXTRA_HINT"]
+__all__ = ["require_ray", "ray_session", "check_ray_address", "ray_error_line", "chunk_bounds", "concat_runs",
+           "merge_chunk_runs", "episodes_digest", "run_suites_ray", "SCALE_EXTRA_HINT", "ADDRESS_TIMEOUT_S"]
 
 SCALE_EXTRA_HINT = "pip install -e '.[scale]'"
+ADDRESS_TIMEOUT_S = 25.0
+"""How long :func:`check_ray_address` waits for a cluster to answer (ray.init itself retries for minutes)."""
+
+
+def check_ray_address(address, timeout_s=ADDRESS_TIMEOUT_S):
+    """``ValueError`` (one line, naming ``--address``) unless a Ray cluster answers at ``address`` within
+    ``timeout_s``: first a TCP connection to ``host:port`` (refused or filtered ports fail at once), then a
+    ``ray.init`` in a child process bounded by the timeout (a port that answers but is no Ray cluster). ``ray.init``
+    in this process would retry "Failed to connect to GCS" for minutes. ``"auto"`` and ``"local"`` are not
+    checked (Ray resolves them itself and fails quickly)."""
+    if address in (None, "", "auto", "local"):
+        return
+    hostport = address[len("ray://"):] if address.startswith("ray://") else address
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ValueError(f"--address: expected HOST:PORT (e.g. 127.0.0.1:6379) or ray://HOST:PORT, got {address!r}")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=min(5.0, timeout_s)):
+            pass
+    except OSError as e:
+        raise ValueError(f"--address: no Ray cluster at {address!r}: cannot connect to {host}:{port} "
+                         f"({e.strerror or type(e).__name__})") from None
+    probe = ("import sys, ray; ray.init(address=sys.argv[1], include_dashboard=False, log_to_driver=False, "
+             "logging_level='ERROR'); ray.shutdown()")
+    try:
+        r = subprocess.run([sys.executable, "-c", probe, address], capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise ValueError(f"--address: {address!r} accepts connections but no Ray cluster answered within "
+                         f"{timeout_s:.0f} s (is it a Ray head node's GCS port, default 6379?)") from None
+    if r.returncode != 0:
+        last = next((ln for ln in reversed(r.stderr.strip().splitlines()) if ln.strip()), f"exit {r.returncode}")
+        raise ValueError(f"--address: cannot connect to a Ray cluster at {address!r} ({last.strip()[:300]})")
+
+
+def _log_dir():
+    """The Ray session's log folder, if a session is connected."""
+    try:
+        import ray
+        node = ray._private.worker.global_worker.node      # no public API for the session's folder
+        return node.get_logs_dir_path() if node is not None else None
+    except Exception:  # noqa: BLE001 - best effort: the message names the default location instead
+        return None
+
+
+def ray_error_line(e, what="Ray"):
+    """One line for a Ray exception (a task's error, a worker that died, a lost node): its type, the first line
+    of its message (a task's own exception: its last line) and where Ray's logs are."""
+    text = str(e).strip()
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    cause = getattr(e, "cause", None)
+    if cause is not None:
+        first = f"{type(cause).__name__}: {str(cause).strip().splitlines()[0] if str(cause).strip() else ''}"
+    else:
+        first = lines[-1] if type(e).__name__ == "RayTaskError" and lines else (lines[0] if lines else "")
+    logs = _log_dir() or "/tmp/ray/session_latest/logs"
+    return f"{what} failed: {type(e).__name__}: {first[:300]} (Ray's logs: {logs})"
 
 
 def require_ray(what="this command"):
@@ -64,6 +123,8 @@ class ray_session:
             if address is None:
                 # "local": always a new embedded instance, never a cluster Ray happens to find on this machine
                 address, kw["num_cpus"] = "local", self.num_cpus
+            if address != "local":
+                check_ray_address(address)
             try:
                 ray.init(address=address, **kw)
             except ConnectionError as e:
@@ -136,21 +197,24 @@ _POLICY_CACHE = {}
 
 
 def _policy_in_worker(blob):
-    """Load the policy shipped as file contents (cached per worker process: Ray reuses workers)."""
-    zip_bytes, env_cfg = blob
-    key = hashlib.sha1(zip_bytes + (env_cfg or b"")).hexdigest()
+    """Load the policy shipped as file contents (``{file name: bytes}``, the policy file first; cached per worker
+    process: Ray reuses workers)."""
+    h = hashlib.sha1()
+    for name, data in blob.items():
+        h.update(name.encode() + b"\0" + data)
+    key = h.hexdigest()
     if key not in _POLICY_CACHE:
         with tempfile.TemporaryDirectory(prefix="radar_track_policy_") as tmp:   # the model is in memory after
             d = Path(tmp)
-            (d / "policy.zip").write_bytes(zip_bytes)
-            if env_cfg is not None:
-                (d / "env_config.json").write_bytes(env_cfg)
-            _POLICY_CACHE[key] = load_policy(d / "policy.zip")
+            for name, data in blob.items():
+                (d / name).write_bytes(data)
+            _POLICY_CACHE[key] = load_policy(d / next(iter(blob)))
     return _POLICY_CACHE[key]
 
 
-def _run_chunk(tracker, episodes, policy_blob):
-    choose_q, cfg = _policy_in_worker(policy_blob) if tracker == "policy" else (None, None)
+def _run_chunk(tracker, episodes, policy_blobs):
+    blob = (policy_blobs or {}).get(tracker)
+    choose_q, cfg = _policy_in_worker(blob) if blob is not None else (None, None)
     return run_one(tracker, episodes, choose_q, cfg)
 
 
@@ -165,11 +229,19 @@ def _task_given(episodes, tracker, policy_blob):
 
 # ------------------------------------------------------------------------------------------------ driver side
 def _policy_blob(policy_path):
+    """``{file name: bytes}`` of a policy file and the files it is loaded with (``env_config.json``; a recurrent
+    policy's ``policy.json``; an SB3 zip's numpy export, so that the workers run it without torch, SB3 or
+    unpickling, as the serial evaluation does), the policy file first."""
     if policy_path is None:
         return None
+    from agents.policies.numpy_policy import export_path
     p = Path(policy_path)
-    cfg = p.with_name("env_config.json")
-    return p.read_bytes(), cfg.read_bytes() if cfg.is_file() else None
+    blob = {p.name: p.read_bytes()}
+    extra = (p.with_suffix(".json"), p.with_name("env_config.json")) + ((export_path(p),) if p.suffix == ".zip" else ())
+    for f in extra:
+        if f.is_file() and f != p:
+            blob[f.name] = f.read_bytes()
+    return blob
 
 
 def _first_run_redraws(suite, episodes, seed):
@@ -184,6 +256,7 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
     Args:
         suites: list of ``(name, episodes)`` as drawn by the driver (:func:`agents.evaluation.suites.draw_suite`).
         trackers: tracker names; ``policy`` needs ``policy_path``.
+        policy_path: the ``policy`` tracker's file, or ``{policy tracker: file}`` (``policy``, ``policy_bp``).
         workers: chunks per suite (and local CPUs when Ray is started here).
         address: Ray cluster address (default ``RAY_ADDRESS``, else an embedded local Ray).
         seed: base seed the named suites were drawn with; None: send every suite's episodes.
@@ -193,7 +266,8 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     tick = tick or (lambda msg: None)
-    blob = _policy_blob(policy_path) if "policy" in trackers else None
+    paths = policy_path if isinstance(policy_path, dict) else {"policy": policy_path}
+    blob = {t: _policy_blob(p) for t, p in paths.items() if t in trackers}
     with ray_session(address, workers, "--workers/--address") as ray:
         draw = ray.remote(num_cpus=1)(_task_draw)
         given = ray.remote(num_cpus=1)(_task_given)
@@ -224,9 +298,11 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
                 parts.setdefault((suite, t), {})[c] = run
                 if len(parts[suite, t]) == n_chunks[suite]:
                     tick(f"{suite}: {t} ({n_chunks[suite]} chunks)")
-        except BaseException:
+        except BaseException as e:
             for ref in pending:
                 ray.cancel(ref, force=True)
+            if isinstance(e, ray.exceptions.RayError):    # a worker crash, a lost node, a task's own error
+                raise ValueError(ray_error_line(e, "a Ray task of the evaluation")) from None
             raise
     return {s: {t: merge_chunk_runs(t, [parts[s, t][c] for c in range(n_chunks[s])], eps) for t in trackers}
             for s, eps in suites}

@@ -10,23 +10,20 @@ import sys
 
 import numpy as np
 
-from baselines.registry import run_tracker
+from baselines.registry import POLICY_TRACKERS, run_tracker
 from baselines.trackers import TrackRun, run_q_policy
 
 __all__ = ["run_one", "failed_track_run"]
 
 
 def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
-    """Run one tracker (``policy``: through ``choose_q``; ``policy_imm_bp``: the bundled learned IMM) on a suite's
-    episodes. A tracker that raises does not stop
-    the evaluation: it gets a :class:`TrackRun` of NaN (so every run counts as failed) with the exception in
-    ``error``, reported in its metrics and on stderr; the other trackers are scored as usual."""
+    """Run one tracker (a learned policy, ``policy`` or ``policy_bp``: through ``choose_q`` with its env config
+    ``policy_cfg``) on a suite's episodes. A tracker that raises does not stop the evaluation: it gets a
+    :class:`TrackRun` of NaN (so every run counts as failed) with the exception in ``error``, reported in its metrics
+    and on stderr; the other trackers are scored as usual."""
     try:
-        if tracker == "policy":
-            return run_q_policy(episodes, choose_q, "policy", policy_cfg)
-        if tracker == "policy_imm_bp":          # the bundled learned IMM (agents.evaluation.options.LEARNED_TRACKERS)
-            from agents.policies.learned_imm import run_bundled_learned_imm
-            return run_bundled_learned_imm(episodes)
+        if tracker in POLICY_TRACKERS:
+            return run_q_policy(episodes, choose_q, tracker, policy_cfg)
         return run_tracker(tracker, episodes)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:
         return failed_track_run(tracker, episodes, f"{type(e).__name__}: {e}")

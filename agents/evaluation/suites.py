@@ -53,7 +53,8 @@ DEFAULT_RADAR_RANGE_M = RADAR_PLACEMENT_RANGE_M
 
 
 def _is_csv(scenario):
-    return isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv"))
+    return isinstance(scenario, Path) or (isinstance(scenario, str) and scenario.endswith(".csv")
+                                          and not scenario.startswith("adsb:"))
 
 
 def suite_key(scenario):

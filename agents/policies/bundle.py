@@ -20,22 +20,30 @@ vector env with the same arguments.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "BUNDLED_LEARNED_IMM", "policy_env_kwargs", "make_policy_env", "ship_policy"]
+__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+           "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
+
+ENV_CONFIG_ENTRY = "radar_track_env_config.json"
+"""Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
 BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
+BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop" / "policy.npz"
+"""The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
+:mod:`agents.policies.recurrent`, with ``policy.json`` and ``env_config.json`` beside it)."""
 BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / "policy.npz"
 """The bundled learned IMM (the tracker ``policy_imm_bp``; :mod:`agents.policies.learned_imm`)."""
 
 
-def _tuples(v):
+def env_kwargs_from_json(v):
     """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
     if isinstance(v, list):
-        return tuple(_tuples(x) for x in v)
+        return tuple(env_kwargs_from_json(x) for x in v)
     if isinstance(v, dict):
-        return {k: _tuples(x) for k, x in v.items()}
+        return {k: env_kwargs_from_json(x) for k, x in v.items()}
     return v
 
 
@@ -53,7 +61,46 @@ def policy_env_kwargs(policy_path=None):
         raise ValueError(f"{cfg}: not valid JSON ({e})") from e
     if not isinstance(kw, dict):
         raise ValueError(f"{cfg}: must hold a JSON object of RadarTrack-v0 arguments, got {type(kw).__name__}")
-    return _tuples(kw)
+    return env_kwargs_from_json(kw)
+
+
+def embed_env_config(zip_path, env_kwargs):
+    """Store the env arguments a model was trained with inside its zip (entry :data:`ENV_CONFIG_ENTRY`, plain JSON;
+    stable-baselines3 reads only its own entries), so that :func:`agents.policies.loading.load_policy` can refuse an
+    ``env_config.json`` edited or swapped since. Called by training and :func:`ship_policy` after each save."""
+    with zipfile.ZipFile(zip_path, "a") as z:
+        if ENV_CONFIG_ENTRY not in z.namelist():
+            z.writestr(ENV_CONFIG_ENTRY, json.dumps(env_kwargs, indent=1))
+
+
+def recorded_env_kwargs(policy_path):
+    """``(kwargs, where)``: the record of the env a policy was trained in, independent of the ``env_config.json``
+    beside it: the zip's embedded copy (:func:`embed_env_config`), else the run's hyperparameters (``config.json``
+    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``train_config.json``).
+    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled)."""
+    path = Path(policy_path)
+    try:
+        with zipfile.ZipFile(path) as z:
+            if ENV_CONFIG_ENTRY in z.namelist():
+                kw = json.loads(z.read(ENV_CONFIG_ENTRY).decode())
+                if isinstance(kw, dict):
+                    return env_kwargs_from_json(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
+    except (OSError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError):
+        pass
+    for cand, key in ((path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
+                      (path.with_name("config.json"), ("env_kwargs",)),
+                      (path.parent.with_name("config.json"), ("env_kwargs",))):
+        if not cand.is_file():
+            continue
+        try:
+            v = json.loads(cand.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            continue
+        for k in key:
+            v = v.get(k) if isinstance(v, dict) else None
+        if isinstance(v, dict):
+            return env_kwargs_from_json(v), str(cand)
+    return None, None
 
 
 def make_policy_env(policy_path=None, num_envs=None, **overrides):
@@ -72,23 +119,30 @@ def make_policy_env(policy_path=None, num_envs=None, **overrides):
 
 
 def ship_policy(policy_path, dest_dir):
-    """Copy a trained policy (its zip and the ``env_config.json`` beside it) into ``dest_dir`` for shipping, without
-    the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip acts exactly as
-    the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts the moments, as
-    it does for any saved model. Its numpy export (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written
-    beside it, so the evaluation runs it without torch. Returns the new zip's path."""
+    """Copy a trained policy into ``dest_dir`` for shipping. A PPO zip (and the ``env_config.json`` beside it) is
+    written without the optimizer's moments (a fresh optimizer state, about a third of the file): the shipped zip
+    acts exactly as the trained one and still loads with ``PPO.load``; fine-tuning from it (``init_from``) restarts
+    the moments, as it does for any saved model. A recurrent policy (``policy.npz``, trained by backpropagation) is
+    copied with its ``policy.json`` and ``env_config.json`` (it holds no optimizer state). A PPO zip's numpy export
+    (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written beside it, so the evaluation runs it without
+    torch. Returns the new policy file's path."""
     import shutil
 
-    from stable_baselines3 import PPO
     src = Path(policy_path)
     dest = Path(dest_dir)
     dest.mkdir(parents=True, exist_ok=True)
+    if src.suffix == ".npz":     # a recurrent policy (its policy.json must be there; FileNotFoundError otherwise)
+        for f in (src, src.with_suffix(".json"), src.with_name("env_config.json")):
+            shutil.copy(f, dest / f.name)
+        return dest / src.name
+    from stable_baselines3 import PPO
     model = PPO.load(str(src), device="cpu")
     opt = model.policy.optimizer
     model.policy.optimizer = type(opt)(model.policy.parameters(), **opt.defaults)
     model.save(str(dest / "policy.zip"))
     shutil.copy(src.with_name("env_config.json"), dest / "env_config.json")
+    embed_env_config(dest / "policy.zip", json.loads((dest / "env_config.json").read_text()))
     from agents.policies.numpy_policy import save_export
-    save_export(dest / "policy.zip", model)
+    save_export(dest / "policy.zip", model)      # after the embedding: the export records the final zip's SHA-256
     return dest / "policy.zip"
 

@@ -1,41 +1,63 @@
 """A saved policy as the evaluation uses it: ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2 and the env config it was
 trained with.
 
-Loading a stable-baselines3 zip unpickles Python objects from it: a policy file can run code. Load only files you
-trust. A zip with a current numpy export beside it (``policy.npz``, :mod:`agents.policies.numpy_policy`; the bundled
-policies have one) is not unpickled: the export holds arrays only, and the policy then runs without torch or SB3.
+**A policy file is a program.** A stable-baselines3 zip holds pickled Python objects, and unpickling runs whatever
+code the file's author put there (with your user's rights), before any check of this module can look at it; a torch
+checkpoint is the same. Load only files you trust (your own training runs, the bundled policy); the checks below
+catch mistakes, not malice. A zip with a current numpy export beside it (``policy.npz``,
+:mod:`agents.policies.numpy_policy`; the bundled policies have one) is not unpickled: the export holds arrays only,
+and the policy then runs without torch or SB3. A recurrent policy trained by backpropagation (``.npz`` with its
+``policy.json``, :mod:`agents.policies.recurrent`) is plain arrays and JSON, loaded without pickle.
+
+:func:`load_policy` refuses, naming the field, a model that does not fit the env config it is evaluated with: a
+different observation size or action space, observation bounds that differ entry by entry from the env's (other or
+reordered ``features``, another ``frame_stack``), and an ``env_config.json`` that disagrees with the record of the
+training env (the copy training embeds in the zip, or the run's ``config.json`` / the bundle's
+``train_config.json``: e.g. other ``q_levels_g`` with the same count).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from radar_env.env import EnvConfig, actions_to_q_m_s2
+from radar_env.observation import ObservationLayout
 from radar_env.units import G0_M_S2
 
-from agents.policies.bundle import policy_env_kwargs
+from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
+from agents.policies.recurrent import load_recurrent_policy
 
 __all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q"]
 
 
 def load_policy(path):
-    """Load a saved stable-baselines3 model (PPO, DQN, SAC, A2C or TD3 zip) and the env config it was trained
-    with (``env_config.json`` beside it, else the defaults with the model's action type).
+    """Load a saved policy and the env config it was trained with, by file type: a stable-baselines3 model (PPO,
+    DQN, SAC, A2C or TD3 ``.zip``; ``env_config.json`` beside it, else the defaults with the model's action type)
+    or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
+    ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle).
 
     Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2, evaluated in numpy wherever the
-    model's structure allows (:func:`load_model`). Raises ``ValueError`` for a file
-    that is not such a model, or a model whose observation or action space does not match its env config (the
-    message says which env kwargs it needs)."""
+    model's structure allows (:func:`load_model`; a recurrent policy is a stateful ``choose_q`` for
+    :func:`baselines.trackers.run_q_policy`: ``reset(rows)``, ``choose_q(obs, rows)``). Raises ``ValueError`` for a
+    file that is not such a policy, or one whose observation space (size or bounds), action space or recorded
+    training env does not match its env config (the message names the field; module docstring).
+
+    Without a current numpy export an SB3 zip is unpickled: it runs code. Load only files you trust."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
-    model = load_model(path)
+    if path.suffix == ".npz":       # a recurrent policy (load_recurrent_policy says what is missing if it is not)
+        return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}
+    where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"
+    _check_recorded_env(path, kw, where)     # JSON only, before anything is unpickled
+    model = load_model(path)
     from gymnasium import spaces
     discrete = isinstance(model.action_space, spaces.Discrete)
     kw.setdefault("action_type", "discrete" if discrete else "continuous")
@@ -43,7 +65,6 @@ def load_policy(path):
         cfg = EnvConfig.from_kwargs(**kw)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{cfg_file}: {e}") from None
-    where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"
     n_obs = int(np.prod(model.observation_space.shape))
     if n_obs != len(cfg.features) * cfg.frame_stack:
         raise ValueError(f"{path}: the model takes {n_obs} observation entries but the env config from {where} has "
@@ -59,6 +80,7 @@ def load_policy(path):
         raise ValueError(f"{path}: the model has {model.action_space} actions but the env config from {where} has "
                          f"{len(cfg.q_levels_g)} q levels; it needs 'q_levels_g' (the {model.action_space.n} levels "
                          f"it was trained with) in {cfg_file}")
+    _check_observation_bounds(path, model.observation_space, cfg, where)
     choose_q = model_choose_q(model, cfg)
     return choose_q, cfg
 
@@ -86,6 +108,52 @@ def load_model(path):
     pol = npp.NumpyPolicy(arrays)
     ok, _ = npp.check_export(pol, model)
     return pol if ok else model
+
+
+def _check_observation_bounds(path, space, cfg, where):
+    """The model's stored observation Box must be the env's, entry by entry (a reordered or renamed feature list of
+    the same length changes them); ``ValueError`` naming the first entry that differs otherwise."""
+    lo, hi = cfg.observation_bounds(ObservationLayout(cfg.features))
+    m_lo = np.asarray(space.low, dtype=np.float64).reshape(-1)
+    m_hi = np.asarray(space.high, dtype=np.float64).reshape(-1)
+    lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
+    bad = np.flatnonzero((m_lo != lo) | (m_hi != hi))
+    if bad.size:
+        i = int(bad[0])
+        F = len(cfg.features)
+        raise ValueError(f"{path}: the model's stored observation bounds differ from the env's in {bad.size} of "
+                         f"{lo.size} entries (first: entry {i}, frame {i // F + 1} feature {cfg.features[i % F]!r}: "
+                         f"model [{m_lo[i]:g}, {m_hi[i]:g}], env [{lo[i]:g}, {hi[i]:g}]): the env config from "
+                         f"{where} has other or reordered 'features' (or frame_stack) than the model was trained with")
+
+
+def _check_recorded_env(path, kw, where):
+    """Every argument the record of the training env names (:func:`agents.policies.bundle.recorded_env_kwargs`)
+    must have the same value in the env config in use (its own, or the env's default where it names none);
+    ``ValueError`` naming the first that does not."""
+    rec, rec_where = recorded_env_kwargs(path)
+    if rec is None:
+        return
+    defaults = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
+    for key in sorted(rec):
+        if key not in kw and key not in defaults:
+            continue
+        used = kw.get(key, defaults.get(key))
+        if not _same(rec[key], used):
+            raise ValueError(f"{path}: the env config from {where} has {key}={used!r}, but the model was trained "
+                             f"with {key}={rec[key]!r} (recorded in {rec_where}); give the training value")
+
+
+def _same(a, b):
+    """JSON-level equality with numbers compared as floats (1 == 1.0) and lists as tuples."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    num = (int, float)
+    if isinstance(a, num) and isinstance(b, num) and not isinstance(a, bool) and not isinstance(b, bool):
+        return float(a) == float(b)
+    return a == b
 
 
 def model_choose_q(model, cfg: EnvConfig):

@@ -2,9 +2,11 @@
 ``python -m agents.reports.generalisation``.
 
 Writes ``docs/generalisation.json`` and the README blocks ``families`` (per held-out family: the bundled policy,
-``imm2``, the strongest classical tracker, ``hindsight_q`` and ``clairvoyant``), ``seed-spread`` (every trained
-seed of the recipes in :data:`RECIPES` on every suite, held-out seeds) and ``targets`` (issue 20's targets,
-reached or not, with the numbers). Every number is computed here; nothing is typed in.
+the bundled backprop policy ``policy_bp`` when there is one, ``imm2``, the strongest classical tracker,
+``hindsight_q`` and ``clairvoyant``), ``seed-spread`` (every trained seed of the recipes in :data:`RECIPES` on every
+suite, held-out seeds) and ``targets`` (the targets set for the bundled policies, reached or not, with the
+numbers: :func:`targets` for the PPO policy, :func:`bp_targets` for ``policy_bp`` and its recipe's seeds). Every
+number is computed here; nothing is typed in.
 
 Seeds: every suite is drawn with the evaluation seeds ``EVAL_SEED_BASE + i`` (held out). The families
 (:data:`agents.evaluation.suites.HELDOUT_FAMILY_SUITES`) were never used for training, tuning or choosing a policy. The
@@ -27,15 +29,16 @@ from radar_env.episode import stack_episodes
 
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
 from agents.policies.loading import load_policy
+from agents.policies.recurrent import is_recurrent_checkpoint
 from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
 from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 
 __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spread_table", "targets_table",
-           "track_start_table", "NAMED_SUITES", "learned_imm_section", "learned_imm_targets",
-           "learned_imm_targets_table", "learned_imm_seeds"]
+           "track_start_table", "NAMED_SUITES", "bp_targets", "LONG_TURN_SUITES", "evaluate_suite", "BP_RECIPE",
+           "learned_imm_section", "learned_imm_targets", "learned_imm_targets_table", "learned_imm_seeds"]
 
 CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
 """The classical field the *strongest classical tracker* is taken from (tuned IMMs, Bizup's IMM, the tuned KF,
@@ -47,12 +50,21 @@ flies each of its 12 flights once."""
 NAMED_SUITES = ("bizup2002", "adrian_flower", "kim_lee_accel", "seed002_course_changes", "seed002_two_radars")
 RECIPE_DIR = Path(__file__).resolve().parents[1] / "bundled" / "recipe"
 """Every trained seed of this round's recipes: ``<recipe>_s<seed>/policy.zip`` with its ``env_config.json``."""
+BP_RECIPE_DIR = BUNDLED_BP_POLICY.parent / "seeds"
+"""Every trained seed of the backprop recipe: ``<recipe>_s<seed>/policy.npz`` with its ``policy.json`` and
+``env_config.json``."""
+BP_RECIPE = "bp_gru"
+LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
+"""Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
+follow a long turn as a turn model can)."""
 RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observations; zero weights for the older "
                         "three at the start)",
            "broad": "A: fine-tune of the previous bundle (3 M steps, lr 1e-4 -> 0) on the broad flight distribution "
                     "(maneuvers from the first look, 0.3-9 g, 10-540 deg turns, speed-only maneuvers)",
            "broad_nees": "C: as broad, with reward_nees_weight 0.1 (a reward term against an overconfident "
-                         "covariance)"}
+                         "covariance)",
+           BP_RECIPE: "backprop: a GRU choosing the CV filter's q, trained end to end by backpropagation through the "
+                      "filter (agents/training/hyperparams/backprop.toml; radar-track train --method backprop)"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
 rule chose (agents/bundled/train_config.json, final_choice)."""
 
@@ -135,8 +147,12 @@ def track_start_table(data):
 
 
 def recipe_policies(recipe_dir=RECIPE_DIR):
-    """``{name: path}`` of every recipe seed shipped in ``recipe_dir`` (sorted)."""
-    return {p.parent.name: p for p in sorted(Path(recipe_dir).glob("*/policy.zip"))}
+    """``{name: path}`` of every recipe seed shipped in ``recipe_dir`` (sorted): SB3 zips and recurrent policies
+    (``policy.npz`` with ``policy.json``; the ``policy.npz`` beside an SB3 zip is that zip's numpy export)."""
+    found = [*Path(recipe_dir).glob("*/policy.zip"),
+             *(p for p in Path(recipe_dir).glob("*/policy.npz")
+               if is_recurrent_checkpoint(p) and not p.with_suffix(".zip").is_file())]
+    return {p.parent.name: p for p in sorted(found)}
 
 
 LEARNED_IMM_SEEDS_DIR = RECIPE_DIR.parent / "learned_imm_seeds"
@@ -254,23 +270,29 @@ def _pct(h):
 
 
 def families_table(data):
-    """Markdown: one row per held-out family (bundled policy, imm2, the strongest classical tracker, hindsight_q,
-    clairvoyant; ratios to imm2 with paired 95 % intervals)."""
-    lines = ["| family (runs) | policy m (/ imm2) | imm2 m | strongest classical m (policy / it) | hindsight_q m "
-             "(/ imm2) | clairvoyant m (/ imm2) | track loss policy / imm2 | share of the imm2 -> hindsight_q "
-             "headroom |", "|---" * 8 + "|"]
+    """Markdown: one row per held-out family (bundled policy, ``policy_bp`` if evaluated, imm2, the strongest
+    classical tracker, hindsight_q, clairvoyant; ratios to imm2 with paired 95 % intervals)."""
+    bp = any("policy_bp" in r["policies"] for r in data["families"].values())
+    lines = ["| family (runs) | policy m (/ imm2) | " + ("policy_bp m (/ imm2) | " if bp else "")
+             + "imm2 m | strongest classical m (policy / it" + (", policy_bp / it" if bp else "")
+             + ") | hindsight_q m (/ imm2) | clairvoyant m (/ imm2) | track loss policy / "
+             + ("policy_bp / " if bp else "") + "imm2 | share of the imm2 -> hindsight_q headroom |",
+             "|---" * (8 + bp) + "|"]
     for suite, res in data["families"].items():
         few = res["few_runs"]
         p, tr, s = res["policies"]["policy"], res["trackers"], res["strongest_classical"]
+        b = res["policies"].get("policy_bp") if bp else None
         h = res.get("headroom_share")
         lines.append(
             f"| {suite} ({res['runs']}) | {p['pos_rmse_m']:.0f} ({_fmt_ratio(p['ratio_vs_imm2'], few)}) | "
-            f"{tr['imm2']['pos_rmse_m']:.0f} | {s} {tr[s]['pos_rmse_m']:.0f} "
-            f"({_fmt_ratio(p['ratio_vs_strongest'], few)})"
+            + (f"{b['pos_rmse_m']:.0f} ({_fmt_ratio(b['ratio_vs_imm2'], few)}) | " if bp else "")
+            + f"{tr['imm2']['pos_rmse_m']:.0f} | {s} {tr[s]['pos_rmse_m']:.0f} "
+            f"({_fmt_ratio(p['ratio_vs_strongest'], few)}" + (f", {_fmt_ratio(b['ratio_vs_strongest'], few)}" if bp
+                                                               else "") + ")"
             f" | {tr['hindsight_q']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['hindsight_q'], few)}) | "
             f"{tr['clairvoyant']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['clairvoyant'], few)}) | "
-            f"{100 * p['track_loss_rate']:.1f} % / {100 * tr['imm2']['track_loss_rate']:.1f} % | "
-            f"{_pct(h)} |")
+            f"{100 * p['track_loss_rate']:.1f} % / " + (f"{100 * b['track_loss_rate']:.1f} % / " if bp else "")
+            + f"{100 * tr['imm2']['track_loss_rate']:.1f} % | {_pct(h)} |")
     return "\n".join(lines)
 
 
@@ -280,14 +302,17 @@ def _seeds(data, recipe):
 
 def spread_table(data):
     """Markdown: per suite, each recipe's mean and worst ratio to imm2 over its seeds, and to the strongest
-    classical tracker; the bundle's own ratio beside them."""
+    classical tracker; the bundles' own ratios (``policy``, and ``policy_bp`` if evaluated) beside them."""
     recipes = list(data["recipes"])
-    head = "| suite (runs) | bundle / imm2 | " + " | ".join(
+    bp = any("policy_bp" in r["policies"] for r in data["spread"].values())
+    head = "| suite (runs) | bundle / imm2 | " + ("policy_bp / imm2 | " if bp else "") + " | ".join(
         f"{r}: mean / worst over {len(_seeds(data, r))} seeds, / imm2 | {r}: mean / worst, / strongest"
         for r in recipes)
-    lines = [head + " |", "|---" * (2 + 2 * len(recipes)) + "|"]
+    lines = [head + " |", "|---" * (2 + bp + 2 * len(recipes)) + "|"]
     for suite, res in data["spread"].items():
         cells = [f"{suite} ({res['runs']})", _fmt_ratio(res["policies"]["policy"]["ratio_vs_imm2"], res["few_runs"])]
+        if bp:
+            cells.append(_fmt_ratio(res["policies"]["policy_bp"]["ratio_vs_imm2"], res["few_runs"]))
         for r in recipes:
             for key in ("ratio_vs_imm2", "ratio_vs_strongest"):
                 v = [res["policies"][s][key][0] for s in _seeds(data, r)]
@@ -304,7 +329,8 @@ def _bound_ok(p):
 
 
 def targets(data):
-    """Issue 20's targets for the bundled policy (held-out seeds), each ``(target, reached, numbers)``."""
+    """Issue 20's targets for the bundled policy (held-out seeds), then issue 25's for ``policy_bp`` if it was
+    evaluated (:func:`bp_targets`), each ``(target, reached, numbers)``."""
     sp = data["spread"]
     pol = {s: r["policies"]["policy"] for s, r in sp.items()}
     out = []
@@ -339,6 +365,64 @@ def targets(data):
     shares = {s: r.get("headroom_share") for s, r in data["families"].items()}
     out.append(("share of the imm2 -> hindsight_q headroom captured (families)", None,
                 ", ".join(f"{s} {_pct(v)}" for s, v in shares.items())))
+    if "policy_bp" in sp["random"]["policies"]:
+        seeds = data["recipes"][BP_RECIPE]["seeds"] if BP_RECIPE in data["recipes"] else []
+        out += bp_targets(sp, "policy_bp", seeds)
+    return out
+
+
+def _f3(r):
+    est, (lo, hi) = r
+    return f"{est:.3f} [{lo:.3f}, {hi:.3f}]"
+
+
+def _bp_suite_ok(p):
+    """Issue 25's per-suite bound: at most 1.0 x the strongest classical tracker, the interval's upper end <= 1.03."""
+    r, (lo, hi) = p["ratio_vs_strongest"]
+    return bool(r <= 1.0 and hi <= 1.03)
+
+
+def bp_targets(spread, policy="policy_bp", seeds=()):
+    """Issue 25's targets (the backprop policy ``policy`` and its recipe's ``seeds``, held-out seeds) from a
+    seed-spread dict (``{suite: evaluate_suite(...)}``): each ``(target, reached, numbers)``."""
+    pol = {s: r["policies"][policy] for s, r in spread.items()}
+    bounded = [s for s in spread if (s in NAMED_SUITES or s in HELDOUT_FAMILY_SUITES) and s not in LONG_TURN_SUITES]
+    out = []
+
+    def random_ok(name):
+        return spread["random"]["policies"][name]["ratio_vs_imm_cv_ct"][0] <= 0.93
+
+    def suites_ok(name):
+        return [s for s in bounded if not _bp_suite_ok(spread[s]["policies"][name])]
+
+    out.append((f"{policy}: random <= 0.93 x imm_cv_ct", random_ok(policy),
+                _f3(pol["random"]["ratio_vs_imm_cv_ct"])))
+    bad = suites_ok(policy)
+    out.append((f"{policy}: every named scenario, family and adsb_heldout except the long turns "
+                f"({', '.join(LONG_TURN_SUITES)}): <= 1.0 x the strongest classical, upper end <= 1.03", not bad,
+                "fails on " + ", ".join(f"{s} ({_f3(pol[s]['ratio_vs_strongest'])} / "
+                                        f"{spread[s]['strongest_classical']})" for s in bad)
+                if bad else f"all {len(bounded)} suites"))
+    out.append((f"{policy}: the long turns against the strongest classical (no target)", None,
+                ", ".join(f"{s} {_f3(pol[s]['ratio_vs_strongest'])} / {spread[s]['strongest_classical']}"
+                          for s in LONG_TURN_SUITES if s in spread)))
+    if seeds:
+        both = [n for n in seeds if random_ok(n) and not suites_ok(n)]
+        out.append(("at least 2 of 3 seeds of the backprop recipe meet both", len(both) >= 2,
+                    f"{len(both)} of {len(seeds)} ({', '.join(both) or 'none'}); random / imm_cv_ct "
+                    + ", ".join(f"{n} {spread['random']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f} "
+                                f"({len(suites_ok(n))} suites fail)" for n in seeds)))
+    worse = [s for s in spread if pol[s]["track_loss_rate"] > spread[s]["trackers"]["imm2"]["track_loss_rate"]]
+    out.append((f"{policy}: track-loss rate <= imm2's on every suite", not worse,
+                "worse on " + ", ".join(f"{s} ({100 * pol[s]['track_loss_rate']:.1f} % vs "
+                                        f"{100 * spread[s]['trackers']['imm2']['track_loss_rate']:.1f} %)"
+                                        for s in worse) if worse else f"all {len(spread)} suites"))
+    out.append((f"{policy}: ANEES of its filter beside imm_cv_ct's (1 is consistent; no target)", None,
+                ", ".join(f"{s} {pol[s]['anees']:.2f} / {spread[s]['trackers']['imm_cv_ct']['anees']:.2f}"
+                          for s in spread)))
+    out.append(("the torch chain equals the numba chain to 1e-9; acting in the env equals the batched evaluation "
+                "to 1e-9", None, "tested: tests/test_torch_chain.py, tests/test_backprop.py (a failure fails the "
+                                 "test suite)"))
     return out
 
 
@@ -377,7 +461,9 @@ def main(argv=None):
         print(text)
         return
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
-    seeds = {n: load_policy(p) for n, p in recipe_policies().items()}
+    if BUNDLED_BP_POLICY.is_file():
+        bundle["policy_bp"] = load_policy(BUNDLED_BP_POLICY)
+    seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]

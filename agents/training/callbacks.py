@@ -18,31 +18,14 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from baselines.registry import run_tracker
-from baselines.trackers import run_q_policy
 from radar_env.env import EnvConfig
-from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
+from agents.policies.bundle import embed_env_config, env_kwargs_from_json
 from agents.policies.loading import model_choose_q
-from agents.evaluation.metrics import errors, failed_runs, region_masks
-from agents.evaluation.suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
+from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
-
-SELECTION_SEED_BASE = 900_000
-
-
-def pooled_rmse(batch, run):
-    """Pooled position RMSE (m) over runs and looks after the track start (as :func:`agents.evaluation.metrics.evaluate_run`);
-    ``inf`` if the run's estimate or covariance is non-finite at any of those looks (:func:`agents.evaluation.metrics.failed_runs`),
-    so a policy whose estimate went NaN never scores better than one that tracked."""
-    used = region_masks(batch, run.start_index)["used"]
-    if failed_runs(batch, run, used).any():
-        return np.inf
-    ep, _ = errors(batch, run)
-    return float(np.sqrt(np.mean(ep[used] ** 2)))
 
 
 class ImmRatioEvalCallback(BaseCallback):
@@ -64,26 +47,13 @@ class ImmRatioEvalCallback(BaseCallback):
                  verbose=1, select_on=None, on_row=None):
         super().__init__(verbose)
         self.on_row = on_row
-        scenarios = dict(scenarios or {"random": 100})
-        last = int(seed) + max(scenarios.values())
-        if int(seed) < TRAIN_SEEDS.start or last > TRAIN_SEEDS.stop or last > EVAL_SEED_BASE:
-            raise ValueError(f"selection seeds must lie in the training range {TRAIN_SEEDS}, got {seed}..{last}")
         self.env_kwargs = dict(env_kwargs)
-        self.cfg = EnvConfig.from_kwargs(**{k: tuple(v) if isinstance(v, list) else v
-                                            for k, v in self.env_kwargs.items()})
+        self.cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(self.env_kwargs))
         self.eval_freq = int(eval_freq)
         self.best_dir = None if best_dir is None else Path(best_dir)
-        self.primary = "random" if "random" in scenarios else next(iter(scenarios))
-        self.select_on = tuple(select_on) if select_on else (self.primary,)
-        bad = [n for n in self.select_on if n not in scenarios]
-        if bad:
-            raise ValueError(f"select_on names {bad}, which are not among the scored suites {list(scenarios)}")
-        self.suites = {}
-        for name, runs in scenarios.items():
-            # the suites as the evaluation draws them (default generator settings), whatever the training used
-            eps = draw_suite(name, runs, seed=int(seed))
-            batch = stack_episodes(eps)
-            self.suites[name] = (eps, batch, pooled_rmse(batch, run_tracker("imm2", eps)))
+        # the suites as the evaluation draws them (default generator settings), whatever the training used
+        self.selection = SelectionSuites(scenarios, seed, select_on)
+        self.primary, self.select_on = self.selection.primary, self.selection.select_on
         self.best_ratio = np.inf
         self.history = []
         self._next = self.eval_freq
@@ -103,33 +73,27 @@ class ImmRatioEvalCallback(BaseCallback):
             self.logger.dump(self.num_timesteps)
 
     def evaluate_now(self):
-        t0 = time.time()
-        choose_q = model_choose_q(self.model, self.cfg)
+        scored, _ = self.selection.score(model_choose_q(self.model, self.cfg), self.cfg)
         row = {"timesteps": int(self.num_timesteps)}
-        for name, (eps, batch, imm_rmse) in self.suites.items():
-            run = run_q_policy(eps, choose_q, "policy", self.cfg)
-            rmse = pooled_rmse(batch, run)
-            # inf if the policy (or imm2) failed on a run: never the best (rmse / inf would read as 0)
-            ratio = rmse / imm_rmse if np.isfinite(rmse) and np.isfinite(imm_rmse) else np.inf
-            row[f"{name}_failed_runs"] = int(failed_runs(batch, run).sum())
-            row[f"{name}_rmse_m"], row[f"{name}_ratio_imm2"] = rmse, ratio
+        for name in self.selection.suites:
+            for key in (f"{name}_failed_runs", f"{name}_rmse_m", f"{name}_ratio_imm2"):
+                row[key] = scored[key]
             tag = "" if name == self.primary else f"_{name}"
-            self.logger.record(f"eval/rmse_ratio_imm2{tag}", ratio)
+            self.logger.record(f"eval/rmse_ratio_imm2{tag}", row[f"{name}_ratio_imm2"])
             if name == self.primary:
-                self.logger.record("eval/pos_rmse_m", rmse)
-                self.logger.record("eval/imm2_pos_rmse_m", imm_rmse)
-                q = run.q_m_s2[np.isfinite(run.q_m_s2)] / G0_M_S2
-                if q.size:
-                    self.logger.record("eval/median_q_g", float(np.median(q)))
-        ratio = float(np.exp(np.mean([np.log(row[f"{n}_ratio_imm2"]) for n in self.select_on])))
-        row["selection_ratio"] = ratio
-        row["eval_s"] = time.time() - t0
+                self.logger.record("eval/pos_rmse_m", row[f"{name}_rmse_m"])
+                self.logger.record("eval/imm2_pos_rmse_m", scored[f"imm2_rmse_m_{name}"])
+                if np.isfinite(scored["median_q_g"]):
+                    self.logger.record("eval/median_q_g", scored["median_q_g"])
+        ratio = row["selection_ratio"] = scored["selection_ratio"]
+        row["eval_s"] = scored["eval_s"]
         improved = ratio < self.best_ratio
         if improved:
             self.best_ratio = ratio
             if self.best_dir is not None:
                 self.best_dir.mkdir(parents=True, exist_ok=True)
                 self.model.save(self.best_dir / "policy.zip")
+                embed_env_config(self.best_dir / "policy.zip", self.env_kwargs)
                 (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
                 (self.best_dir / "selection.json").write_text(json.dumps(jsonable(row), indent=1))
         row["best"] = bool(improved)

@@ -1,17 +1,22 @@
 """Seed and hyperparameter sweeps on Ray Tune: ``radar-track sweep CONFIG.toml [--out DIR] [--address ADDR]``.
 
-Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`) with its own run folder
+Each trial is one ``radar-track train`` run (:func:`agents.training.train.train`, or with ``method = "backprop"``
+:func:`agents.training.backprop.train_backprop`) with its own run folder
 ``<out>/<name>/runs/<trial>/``; the selection metric (``selection_ratio``: the geometric mean of the policy/imm2
 RMSE ratios on the selection suites, training-range seeds, :class:`agents.training.callbacks.ImmRatioEvalCallback`) is
 reported to Tune after every selection evaluation, so an ASHA scheduler can stop weak trials early. At the end a
 table (best selection ratio per trial, lower is better) is printed and written as ``results.csv`` and
 ``results.json`` in ``<out>/<name>/``. Running the same command again after an interruption resumes the sweep
 (finished trials are kept, unfinished ones start again from scratch: training has no mid-run checkpoint resume).
+Ctrl+C (SIGINT) stops the trials, saves the experiment, writes the table with the cut trials as ``unfinished``,
+prints the command that resumes and exits with status 1 (a second Ctrl+C skips Tune's last save). ``name`` must be
+a plain folder name (no ``/``, ``..``); Ray errors are one line naming Ray's log folder.
 
 The config (example: ``agents/training/sweeps/example.toml``)::
 
     [sweep]
     name = "ppo_lr_seeds"        # experiment folder under --out (default: the config file's stem)
+    method = "ppo"               # ppo (SB3, with algo) | backprop (hyperparams backprop.toml; budget n_steps)
     algo = "ppo"                 # ppo | dqn | sac
     hyperparams = "ppo.toml"     # base file (a path, or a name in agents/training/hyperparams/; default <algo>.toml)
     search = "grid"              # grid | random | optuna
@@ -37,13 +42,17 @@ from __future__ import annotations
 import argparse
 import copy
 import csv
+import io
 import json
+import logging
 import math
+import shlex
 import sys
 import tomllib
 from pathlib import Path
 
-from agents.training.train import ALGOS, HP_DIR, load_hyperparams
+from agents.evaluation.files import write_text_replacing
+from agents.training.train import ALGOS, HP_DIR, check_plain_name, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
 
@@ -52,7 +61,7 @@ METRIC = "selection_ratio"
 SEARCHES = ("grid", "random", "optuna")
 SCHEDULERS = ("fifo", "asha")
 DISTRIBUTIONS = ("uniform", "loguniform", "randint")
-_SWEEP_KEYS = {"name", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
+_SWEEP_KEYS = {"name", "method", "algo", "hyperparams", "search", "num_samples", "search_seed", "cpus_per_trial",
                "max_concurrent_trials", "scheduler", "grace_evals"}
 
 
@@ -108,8 +117,13 @@ def load_sweep_config(path):
     bad = set(sw) - _SWEEP_KEYS
     if bad:
         raise ValueError(f"{path}: unknown [sweep] key(s) {sorted(bad)}; valid: {sorted(_SWEEP_KEYS)}")
-    algo = sw.get("algo", "ppo")
-    if algo not in ALGOS:
+    method = sw.get("method", "ppo")
+    if method not in ("ppo", "backprop"):
+        raise ValueError(f"{path}: [sweep] method must be 'ppo' or 'backprop', got {method!r}")
+    if method == "backprop" and "algo" in sw:
+        raise ValueError(f"{path}: [sweep] algo applies to method = 'ppo' (SB3); method = 'backprop' has none")
+    algo = "backprop" if method == "backprop" else sw.get("algo", "ppo")
+    if algo not in ALGOS + ("backprop",):
         raise ValueError(f"{path}: [sweep] algo must be one of {ALGOS}, got {algo!r}")
     hp_file = sw.get("hyperparams")
     if hp_file is not None:
@@ -158,6 +172,10 @@ def load_sweep_config(path):
                          f"(eval_scenarios) {list(scored)}; set [base] select_on too")
     if hp.get("init_from"):
         hp["init_from"] = str(Path(hp["init_from"]).resolve())   # trials run in their own working directories
+    try:
+        check_plain_name("[sweep] name", sw.get("name", path.stem))
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
     return {"name": sw.get("name", path.stem), "algo": algo, "hp": hp, "space": space, "search": search,
             "num_samples": sw.get("num_samples", 1), "search_seed": sw.get("search_seed", 0),
             "cpus_per_trial": sw.get("cpus_per_trial", 1), "max_concurrent_trials": sw.get("max_concurrent_trials"),
@@ -202,9 +220,23 @@ def _trial(config, algo, hp, runs_dir):
             report(row)
         return
 
-    train(algo, trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
-          command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
-          on_selection=report)
+    if algo == "backprop":
+        from agents.training.backprop import train_backprop
+        fit = train_backprop
+    else:
+        def fit(hp, **kw):
+            return train(algo, hp, **kw)
+    fit(trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
+        command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
+        on_selection=report)
+
+
+def _budget(algo, hp):
+    """``(budget, between evaluations)`` of a trial, in the unit its selection rows count as ``timesteps``: env steps
+    for SB3, optimiser steps for backprop."""
+    if algo == "backprop":
+        return int(hp.get("n_steps", 1)), int(hp.get("eval_every", 1))
+    return int(hp.get("n_timesteps", 1_000_000)), int(hp.get("eval_freq", 100_000))
 
 
 def _trial_name(trial):
@@ -215,8 +247,8 @@ def _scheduler(cfg):
     if cfg["scheduler"] != "asha":
         return None
     from ray.tune.schedulers import ASHAScheduler
-    hp = cfg["hp"]
-    n_evals = max(1, math.ceil(int(hp.get("n_timesteps", 1_000_000)) / int(hp.get("eval_freq", 100_000))))
+    budget, every = _budget(cfg["algo"], cfg["hp"])
+    n_evals = max(1, math.ceil(budget / every))
     return ASHAScheduler(time_attr="training_iteration", max_t=n_evals + 1, grace_period=cfg["grace_evals"])
 
 
@@ -230,9 +262,14 @@ def _search_alg(cfg):
     return None
 
 
-def results_table(result_grid, space_keys, n_timesteps):
-    """One row per trial, best ``selection_ratio`` first (errored trials last, with their error)."""
-    # Tune's trial states tell an early stop (ASHA: TERMINATED short of n_timesteps) from an interruption
+def results_table(result_grid, space_keys, n_timesteps, early_stopping=True, interrupted=False,
+                  policy_file="policy.zip"):
+    """One row per trial, best ``selection_ratio`` first (errored trials last, with their error). ``status``:
+    ``done`` (reached ``n_timesteps``), ``error``, ``stopped early`` (stopped by an early-stopping scheduler:
+    ``early_stopping`` and not ``interrupted``) or ``unfinished`` (an interrupted sweep's trial: run the same
+    command again to resume it). ``best_policy`` is the trial's ``best/<policy_file>``."""
+    # a trial TERMINATED short of n_timesteps: an early stop only under an early-stopping scheduler and without
+    # an interrupt (Tune ends an interrupted trial TERMINATED too)
     trials = getattr(getattr(result_grid, "_experiment_analysis", None), "trials", None) or []
     states = [t.status for t in trials] if len(trials) == len(result_grid) else [None] * len(result_grid)
     rows = []
@@ -250,14 +287,14 @@ def results_table(result_grid, space_keys, n_timesteps):
             row.update(best_selection_ratio=None, best_at_timesteps=None, last_selection_ratio=None, timesteps=None,
                        evals=0)
         finished = (row["timesteps"] or 0) >= n_timesteps
-        row["status"] = ("error" if r.error else "done" if finished
-                         else "stopped early" if state == "TERMINATED" else "unfinished")
+        stopped = early_stopping and not interrupted and state == "TERMINATED"
+        row["status"] = ("error" if r.error else "done" if finished else "stopped early" if stopped else "unfinished")
         row["error"] = None if r.error is None else str(r.error).strip().splitlines()[-1][:200]
         row["best_policy"] = None
         if m.get("run_dir"):    # a trial stopped early or interrupted keeps its run in '<trial>.partial' (agents.training.train)
             d = Path(m["run_dir"])
             d = d if d.is_dir() or not d.with_name(d.name + ".partial").is_dir() else d.with_name(d.name + ".partial")
-            row["best_policy"] = str(d / "best" / "policy.zip")
+            row["best_policy"] = str(d / "best" / policy_file)
         rows.append(row)
     rows.sort(key=lambda r: (r["best_selection_ratio"] is None, r["best_selection_ratio"] or 0.0, r["trial"]))
     return rows
@@ -280,12 +317,50 @@ def format_results(rows):
     return "\n".join(lines)
 
 
-def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1):
-    """Run (or resume) the sweep of ``config_path``. Returns ``(rows, experiment_dir)``; the table is also written
-    as ``results.csv`` and ``results.json`` in ``experiment_dir``."""
+class _Interrupts(logging.Handler):
+    """Whether SIGINT (or SIGUSR1) stopped ``Tuner.fit``. Tune catches the first one itself: it stops the trials,
+    saves the experiment and returns normally, telling only its log ("Stop signal received ..."), which this
+    handler listens to on Tune's logger; a second SIGINT (skipping Tune's save) raises KeyboardInterrupt through
+    the handler in place before (Python's default). The trials' statuses alone cannot tell: Tune ends interrupted
+    trials as TERMINATED, the status an early-stopping scheduler gives."""
+
+    def __init__(self):
+        super().__init__(level=logging.WARNING)
+        self.seen = False
+        self.tune_logger = logging.getLogger("ray.tune.tune")
+
+    def emit(self, record):
+        if "Stop signal received" in record.getMessage() or "has been interrupted" in record.getMessage():
+            self.seen = True
+
+    def __enter__(self):
+        self.tune_logger.addHandler(self)
+        return self
+
+    def __exit__(self, *exc):
+        self.tune_logger.removeHandler(self)
+        return False
+
+
+def resume_command(config_path, out, address=None, num_cpus=None):
+    """The command line that resumes a sweep (the same command)."""
+    cmd = ["radar-track", "sweep", str(config_path), "--out", str(out)]
+    if address:
+        cmd += ["--address", address]
+    if num_cpus is not None:
+        cmd += ["--num-cpus", str(num_cpus)]
+    return " ".join(shlex.quote(c) for c in cmd)
+
+
+def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1, return_state=False):
+    """Run (or resume) the sweep of ``config_path``. Returns ``(rows, experiment_dir)`` (``return_state``: and
+    whether the sweep was interrupted by SIGINT); the table is also written as ``results.csv`` and
+    ``results.json`` in ``experiment_dir`` (by renaming: a link there is replaced, not followed). Ray errors are
+    a ``ValueError`` of one line naming Ray's log folder."""
     cfg = load_sweep_config(config_path)
-    from agents.evaluation.parallel import ray_session, require_ray   # here: --help answers without them
-    require_ray("radar-track sweep")
+    # here, not at the top: --help answers without Ray
+    from agents.evaluation.parallel import ray_error_line, ray_session, require_ray
+    ray = require_ray("radar-track sweep")
     from ray import tune
     exp_dir = Path(out).resolve() / cfg["name"]
     runs_dir = exp_dir / "runs"
@@ -305,16 +380,25 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1)
                                             max_concurrent_trials=cfg["max_concurrent_trials"],
                                             trial_name_creator=_trial_name, trial_dirname_creator=_trial_name),
                 run_config=tune.RunConfig(name=cfg["name"], storage_path=str(exp_dir.parent), verbose=verbose))
-        grid = tuner.fit()
-    rows = results_table(grid, list(cfg["space"]), int(cfg["hp"].get("n_timesteps", 1_000_000)))
+        with _Interrupts() as sigint:
+            try:
+                grid = tuner.fit()
+            except (ray.exceptions.RayError, tune.TuneError) as e:
+                raise ValueError(ray_error_line(e, "the sweep")) from None
+        interrupted = sigint.seen
+    rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0],
+                         early_stopping=cfg["scheduler"] == "asha", interrupted=interrupted,
+                         policy_file="policy.npz" if cfg["algo"] == "backprop" else "policy.zip")
     exp_dir.mkdir(parents=True, exist_ok=True)
-    (exp_dir / "results.json").write_text(json.dumps({"config": cfg["config_path"], "metric": METRIC, "mode": "min",
-                                                      "trials": rows}, indent=1))
-    with open(exp_dir / "results.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["trial"])
-        w.writeheader()
-        w.writerows(rows)
-    return rows, exp_dir
+    write_text_replacing(exp_dir / "results.json", json.dumps(
+        {"config": cfg["config_path"], "metric": METRIC, "mode": "min", "interrupted": interrupted, "trials": rows},
+        indent=1))
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["trial"])
+    w.writeheader()
+    w.writerows(rows)
+    write_text_replacing(exp_dir / "results.csv", buf.getvalue())
+    return (rows, exp_dir, interrupted) if return_state else (rows, exp_dir)
 
 
 def build_parser(prog="radar-track sweep"):
@@ -340,17 +424,25 @@ def main(argv=None, prog="radar-track sweep"):
     args = build_parser(prog).parse_args(argv)
     if args.num_cpus is not None and args.num_cpus < 1:
         raise SystemExit(f"error: --num-cpus must be >= 1, got {args.num_cpus}")
+    resume = resume_command(args.config, args.out, args.address, args.num_cpus)
     if not args.quiet:      # before Ray, torch and the env are imported
         print(f"radar-track sweep: {args.config}; starting Ray (the trials import torch and the env) ...",
               file=sys.stderr, flush=True)
     try:
-        rows, exp_dir = run_sweep(args.config, args.out, args.address, args.num_cpus, verbose=0 if args.quiet else 1)
+        rows, exp_dir, interrupted = run_sweep(args.config, args.out, args.address, args.num_cpus,
+                                               verbose=0 if args.quiet else 1, return_state=True)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except KeyboardInterrupt:      # a second SIGINT: Tune's last save was skipped, its periodic one is there
+        raise SystemExit(f"error: interrupted; resume with: {resume}") from None
     print(format_results(rows))
     print(f"\nresults: {exp_dir / 'results.csv'} and results.json; run folders in {exp_dir / 'runs'}/")
-    if any(r["status"] == "unfinished" for r in rows):
-        print("(unfinished trials: run the same command again to resume the sweep)")
+    unfinished = sum(r["status"] == "unfinished" for r in rows)
+    if interrupted:
+        raise SystemExit(f"error: interrupted: {unfinished} of {len(rows)} trials unfinished (finished ones are "
+                         f"kept); resume with: {resume}")
+    if unfinished:
+        print(f"({unfinished} unfinished trials: resume with: {resume})")
     failed = [r for r in rows if r["status"] == "error"]
     if failed:
         raise SystemExit(f"error: {len(failed)} of {len(rows)} trials failed (first: {failed[0]['trial']}: "

@@ -16,7 +16,9 @@ adapter (:mod:`agents.training.sb3_vec`), random scenarios only, row ``i`` seede
 ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only once the final model and ``summary.json`` are saved;
 a run that fails or is interrupted stays ``<name>.partial/`` with a ``FAILED`` file (the traceback; none if the
 process was killed) and no final ``policy.zip``; a later run under the same name replaces it, while a finished
-``<name>/`` is never overwritten (an error). A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
+``<name>/`` is never overwritten (an error), and a run under the name another run is writing now is refused (an
+exclusive lock on ``<out>/.<name>.lock``, held while the run writes; run and sweep names are plain folder names).
+A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that nothing is learned
 (``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
 ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
@@ -36,53 +38,28 @@ import inspect
 import json
 import math
 import shlex
-import shutil
 import sys
 import time
-import tomllib
-import traceback
 import warnings
-from importlib import resources
 from pathlib import Path
 
 # nothing slow at import (numpy, torch, stable-baselines3 and the env are imported where they are used):
 # `radar-track train` parses its options and says what it does first; the seed ranges come from the lowest layer
 from baselines.seeds import TRAIN_SEEDS
 
-__all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "ALGOS", "ENV_ID",
-           "TRAIN_SCENARIOS"]
+from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-TRAIN_SCENARIOS = ("random", "random_radars")
-"""The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
+                                  check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
+                                  run_paths, write_run_files)
 
-ENV_ID = "RadarTrack-v0"
+__all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
+           "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
+
 ALGOS = ("ppo", "dqn", "sac")
-HP_DIR = Path(__file__).with_name("hyperparams")
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu")
 _SPECIAL = ("n_envs", "n_timesteps", "policy", "normalize_reward", "env_kwargs", "policy_kwargs", "eval_freq",
             "eval_runs", "eval_scenarios", "checkpoint_freq", "select_on", "init_from")
-
-
-def load_hyperparams(algo, path=None):
-    """The ``RadarTrack-v0`` table of ``agents/training/hyperparams/<algo>.toml`` (package data, read through
-    ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``."""
-    if path:
-        path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"--hyperparams: file {str(path)!r} does not exist")
-        text, where = path.read_bytes(), str(path)
-    else:
-        if algo not in ALGOS:
-            raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
-        res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
-        text, where = res.read_bytes(), f"agents/training/hyperparams/{algo}.toml"
-    try:
-        table = tomllib.loads(text.decode())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"--hyperparams: {where} is not TOML ({e})") from None
-    if ENV_ID not in table:
-        raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
-    return table[ENV_ID]
 
 
 def _schedule(v):
@@ -103,19 +80,6 @@ def _policy_kwargs(pk):
         pk["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU,
                                "silu": nn.SiLU}[name]
     return pk
-
-
-def _parse_hp(items):
-    out = {}
-    for it in items or []:
-        if "=" not in it:
-            raise SystemExit(f"error: --hp expects KEY=VALUE, got {it!r}")
-        k, v = it.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
-    return out
 
 
 # types of the special keys: (check, what it must be)
@@ -297,16 +261,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
                           "no gradient update, the saved policy is its random initialisation", UserWarning,
                           stacklevel=2)
 
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    if run_name is not None and (not isinstance(run_name, str) or run_name in ("", ".", "..")
-                                 or Path(run_name).name != run_name or "\\" in run_name):
-        raise ValueError(f"--name: must be a plain folder name inside --out (no '/', '..'), got {run_name!r}")
-    run = Path(out) / (run_name or f"{algo}_{act}_s{seed}_{stamp}")
-    part = run.with_name(run.name + ".partial")
-    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, below)
-        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
-    if Path(out).exists() and not Path(out).is_dir():
-        raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
+    run, part = run_paths(out, run_name, f"{algo}_{act}_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
 
     try:
         env, adapter = make_sb3_vec_env(n_envs, env_kwargs, seed=seed)
@@ -348,22 +303,15 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
+    lock = open_run_folder(run, part)   # two runs with one name: the second stops here, before the first's files
     try:
-        if part.exists():   # an earlier attempt under this name that failed or was killed: start afresh
-            shutil.rmtree(part)
-        part.mkdir(parents=True)
-    except OSError as e:
-        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
-    try:
-        (part / "config.json").write_text(json.dumps({"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, indent=1))
-        (part / "args.json").write_text(json.dumps(args or {}, indent=1))
-        (part / "command.txt").write_text((command or "") + "\n")
-        (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+        write_run_files(part, {"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, args, command, env_kwargs)
         t0 = time.perf_counter()
         model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
                     tb_log_name=algo)
         wall = time.perf_counter() - t0
         model.save(part / "policy.zip")
+        embed_env_config(part / "policy.zip", env_kwargs)
         if isinstance(env, VecNormalize):
             env.save(str(part / "vecnormalize.pkl"))
         eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
@@ -379,9 +327,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         env.close()
     except BaseException:
-        (part / "FAILED").write_text(traceback.format_exc())
+        mark_failed(part, lock)
         raise
-    part.rename(run)
+    finish_run(part, run, lock)
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"
@@ -498,10 +446,21 @@ def _file_defaults(key):
 
 def build_parser(prog="radar-track train"):
     ap = argparse.ArgumentParser(prog=prog, description="Train a q-choosing policy on RadarTrack-v0 (random "
-                                 "scenarios, training seeds) with stable-baselines3.")
-    ap.add_argument("--algo", required=True, choices=ALGOS,
-                    help="the stable-baselines3 algorithm (required; its settings: "
-                         "agents/training/hyperparams/<algo>.toml)")
+                                 "scenarios, training seeds) with stable-baselines3 (--method ppo, the default) or "
+                                 "end to end by backpropagation through the filter (--method backprop).",
+                                 epilog="Security: the saved policy.zip (and a model given as --hp init_from=PATH) "
+                                        "is a pickle: loading it runs the code inside. Load only files you trust. "
+                                        "--method backprop saves policy.npz + policy.json: arrays and JSON, no "
+                                        "pickle.")
+    ap.add_argument("--method", choices=("ppo", "backprop"), default="ppo",
+                    help="ppo: reinforcement learning with stable-baselines3 (--algo); backprop: a GRU q-policy "
+                         "trained by backpropagation through the filter (agents/training/backprop.py; its settings: "
+                         "agents/training/hyperparams/backprop.toml) (default: ppo)")
+    ap.add_argument("--algo", choices=ALGOS,
+                    help="--method ppo: the stable-baselines3 algorithm (its settings: "
+                         "agents/training/hyperparams/<algo>.toml) (default: none; required with --method ppo)")
+    ap.add_argument("--tracker", help="--method backprop: the differentiable model (default: the hyperparameter "
+                                      "file's, 'cv': the CV filter with a GRU choosing q)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
                     help="q chosen from the env's discrete levels or continuously (default: the hyperparameter "
                          "file's: discrete for ppo and dqn, continuous for sac)")
@@ -519,8 +478,9 @@ def build_parser(prog="radar-track train"):
     ap.add_argument("--env-kwargs", default="{}", metavar="JSON",
                     help="JSON object of RadarTrack-v0 arguments, merged over the file's env_kwargs (default: {})")
     ap.add_argument("--hp", action="append", metavar="KEY=VALUE",
-                    help="override a hyperparameter, repeatable; VALUE parsed as JSON, else kept as a string "
-                         "(default: the file's values)")
+                    help="override a hyperparameter, repeatable; VALUE parsed as JSON, else kept as a string; "
+                         "init_from=PATH fine-tunes a saved model (a pickle: only one you trust) (default: the "
+                         "file's values)")
     ap.add_argument("--hyperparams", metavar="FILE.toml",
                     help="TOML file to read instead of agents/training/hyperparams/<algo>.toml (default: that file)")
     ap.add_argument("--no-progress", action="store_true",
@@ -535,6 +495,16 @@ def main(argv=None, prog="radar-track train"):
     with a one-line ``error: --option ...`` (``SystemExit``) before the run folder is made. Returns the run folder."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(prog).parse_args(argv)
+    if args.method == "backprop":
+        if not args.quiet:     # before torch and the env are imported
+            print("radar-track train: a GRU q-policy by backpropagation through the filter on RadarTrack-v0; loading "
+                  "torch and the env ...", file=sys.stderr, flush=True)
+        from agents.training.backprop import main_from_args
+        return main_from_args(args, argv)
+    if args.algo is None:
+        raise SystemExit("error: --algo is required with --method ppo (one of " + ", ".join(ALGOS) + ")")
+    if args.tracker is not None:
+        raise SystemExit("error: --tracker applies to --method backprop")
     if not args.quiet:     # before torch, stable-baselines3 and the env are imported (in train())
         print(f"radar-track train: {args.algo} on RadarTrack-v0; loading torch, stable-baselines3 and the env ...",
               file=sys.stderr, flush=True)
@@ -547,14 +517,7 @@ def main(argv=None, prog="radar-track train"):
         hp = load_hyperparams(args.algo, args.hyperparams)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    try:
-        ek = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
-    if not isinstance(ek, dict):
-        raise SystemExit("error: --env-kwargs must be a JSON object")
-    hp.update(_parse_hp(args.hp))
-    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    hp = apply_cli_overrides(hp, args.env_kwargs, args.hp)
     if args.action_type:
         hp["env_kwargs"]["action_type"] = args.action_type
     if args.timesteps is not None:

@@ -1,0 +1,266 @@
+"""Recurrent q-policies trained by backpropagation (:mod:`agents.training.backprop`), run in numpy, saved without
+pickle.
+
+A policy is a GRU over the env's observations (``RadarTrack-v0`` with ``action_type="continuous"``): at every look
+it reads the observation, updates its hidden state ``h`` and outputs the continuous action
+``a = tanh(head(h))`` in [-1, 1], which the env maps to ``q = q_min (q_max / q_min)^((a + 1) / 2)``
+(:func:`radar_env.core.actions_to_q_m_s2`). The GRU is torch's (``torch.nn.GRUCell``; gates in the order r, z, n)::
+
+    r = sigmoid(W_ir x + b_ir + W_hr h + b_hr)
+    z = sigmoid(W_iz x + b_iz + W_hz h + b_hz)
+    n = tanh(W_in x + b_in + r * (W_hn h + b_hn))
+    h' = (1 - z) * n + z * h
+
+evaluated here in float64 numpy (equal to the torch cell to 1e-12: tests/test_backprop.py), so evaluation and
+acting need no torch.
+
+A checkpoint is three files in one folder: ``policy.npz`` (the weights, float64 arrays; read with
+``np.load(allow_pickle=False)``: loading it runs no code, unlike an SB3 zip, which is a pickle), ``policy.json``
+(format, model kind, architecture, input features, action range) and ``env_config.json`` (the ``RadarTrack-v0``
+arguments it was trained with, as for SB3 policies: :func:`agents.policies.bundle.make_policy_env` reads it).
+
+Two ways to act:
+
+* in the evaluation, :class:`RecurrentQPolicy` is a *stateful* ``choose_q`` for
+  :func:`baselines.trackers.run_q_policy`: ``reset(rows)`` clears the hidden state of rows that start an episode
+  and ``policy(obs_rows, rows) -> q (n,)`` m/s^2 steps those rows;
+* in the env, :meth:`RecurrentQPolicy.predict` works like sb3-contrib's ``RecurrentPPO.predict``: it takes the
+  observation(s), the recurrent state it returned last time (None at the start) and ``episode_start`` (True where
+  an episode has just begun: the state is cleared there), and returns ``(actions, state)``::
+
+      policy, cfg = load_recurrent_policy("agents/bundled/backprop/policy.npz")
+      env = make_policy_env("agents/bundled/backprop/policy.npz")
+      obs, info = env.reset(seed=0)
+      state, start = None, True
+      while True:
+          action, state = policy.predict(obs, state, episode_start=start)
+          obs, reward, terminated, truncated, info = env.step(action)
+          if terminated or truncated:
+              break
+          start = False
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from radar_env.config import EnvConfig
+from radar_env.core import actions_to_q_m_s2
+from radar_env.units import G0_M_S2
+
+from agents.policies.bundle import env_kwargs_from_json
+
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "save_recurrent_policy",
+           "load_recurrent_policy", "is_recurrent_checkpoint", "weight_shapes"]
+
+FORMAT = "radar-track-recurrent-policy"
+VERSION = 1
+POLICY_FILE = "policy.npz"
+"""File name of the weights; ``policy.json`` and ``env_config.json`` sit beside it."""
+
+
+def _sigmoid(v):
+    return 1.0 / (1.0 + np.exp(-v))
+
+
+def linear(x, w):
+    """``x (n, F) @ w.T`` with every row's sums in an order that does not depend on ``n``: numpy's einsum loops
+    instead of BLAS, whose kernels for one row and for several round differently (a row's q would then depend on
+    the episodes that share its batch, which the evaluation's batch-independence test refuses)."""
+    return np.einsum("nf,hf->nh", x, w)
+
+
+def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
+    """One GRU step (torch's ``GRUCell`` equations, module docstring): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``."""
+    gi = linear(x, w_ih) + b_ih
+    gh = linear(h, w_hh) + b_hh
+    H = h.shape[1]
+    r = _sigmoid(gi[:, :H] + gh[:, :H])
+    z = _sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
+    n = np.tanh(gi[:, 2 * H:] + r * gh[:, 2 * H:])
+    return (1.0 - z) * n + z * h
+
+
+def weight_shapes(arch):
+    """``{name: shape}`` of a policy's weights for ``arch`` (``input_size``, ``hidden_size``, ``head``: sizes of
+    the tanh layers between the GRU and the output, may be empty)."""
+    F, H = int(arch["input_size"]), int(arch["hidden_size"])
+    shapes = {"gru.weight_ih": (3 * H, F), "gru.weight_hh": (3 * H, H), "gru.bias_ih": (3 * H,),
+              "gru.bias_hh": (3 * H,)}
+    prev = H
+    for i, n in enumerate(arch.get("head", [])):
+        shapes[f"head.{i}.weight"], shapes[f"head.{i}.bias"] = (int(n), prev), (int(n),)
+        prev = int(n)
+    shapes["out.weight"], shapes["out.bias"] = (1, prev), (1,)
+    return shapes
+
+
+class RecurrentQPolicy:
+    """A trained recurrent q-policy (module docstring), float64 numpy.
+
+    Args:
+        weights: ``{name: array}`` as :func:`weight_shapes` names them.
+        arch: the architecture (``input_size``, ``hidden_size``, ``head``).
+        q_levels_g: the env's q levels; their first and last bound the action (``RadarTrack-v0``'s action map).
+    """
+
+    def __init__(self, weights, arch, q_levels_g):
+        self.arch = dict(arch)
+        self.w = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in weights.items()}
+        self.n_head = len(self.arch.get("head", []))
+        self.input_size, self.hidden_size = int(arch["input_size"]), int(arch["hidden_size"])
+        self.levels_m_s2 = np.asarray(q_levels_g, dtype=np.float64) * G0_M_S2
+        self._h = np.zeros((0, self.hidden_size))
+
+    # ---- the network
+    def initial_state(self, n):
+        """The recurrent state of ``n`` rows at an episode start (zeros, ``(n, hidden_size)``)."""
+        return np.zeros((int(n), self.hidden_size))
+
+    def act(self, obs, h):
+        """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n,) in [-1, 1], new state (n, H))``."""
+        w = self.w
+        x = np.asarray(obs, dtype=np.float64).reshape(-1, self.input_size)
+        h = gru_cell(x, np.asarray(h, dtype=np.float64).reshape(x.shape[0], self.hidden_size), w["gru.weight_ih"],
+                     w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"])
+        y = h
+        for i in range(self.n_head):
+            y = np.tanh(linear(y, w[f"head.{i}.weight"]) + w[f"head.{i}.bias"])
+        return np.tanh(linear(y, w["out.weight"]) + w["out.bias"])[:, 0], h
+
+    def q_of_actions(self, actions):
+        """The env's action map: actions in [-1, 1] -> q (m/s^2)."""
+        return actions_to_q_m_s2(np.asarray(actions, dtype=np.float64).reshape(-1, 1), "continuous",
+                                 self.levels_m_s2)
+
+    # ---- the evaluation's stateful choose_q (baselines.trackers.run_q_policy)
+    def reset(self, rows):
+        """Rows ``rows`` (index array) start an episode: their hidden state is cleared."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        need = int(rows.max()) + 1 if rows.size else 0
+        if need > self._h.shape[0]:
+            self._h = np.concatenate([self._h, np.zeros((need - self._h.shape[0], self.hidden_size))])
+        self._h[rows] = 0.0
+
+    def __call__(self, obs, rows):
+        """q (m/s^2) for the next look of rows ``rows`` from their observations ``obs (n, F)``; advances their
+        state (``reset`` them first)."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        a, self._h[rows] = self.act(obs, self._h[rows])
+        return self.q_of_actions(a)
+
+    # ---- acting in the env (as sb3-contrib's RecurrentPPO.predict)
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        """The action(s) for ``observation`` (``(F,)`` from a single env or ``(n, F)`` from a vector env).
+
+        Args:
+            state: what the previous call returned (``(n, H)``), or None at the start (zeros).
+            episode_start: bool, scalar or ``(n,)``: True where the observation is an episode's first (after a reset);
+                the state of those rows is cleared first. None: no row starts (but a None ``state`` is zeros).
+            deterministic: accepted for compatibility; the policy is deterministic.
+        Returns:
+            ``(actions, state)``: float64 actions in [-1, 1], shape ``(1,)`` for a single observation or ``(n, 1)``,
+            for ``env.step``; the new state to pass next time.
+        """
+        obs = np.asarray(observation, dtype=np.float64)
+        single = obs.ndim == 1
+        obs = obs.reshape(-1, self.input_size)
+        n = obs.shape[0]
+        h = self.initial_state(n) if state is None else np.array(state, dtype=np.float64).reshape(n, self.hidden_size)
+        if episode_start is not None:
+            h[np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (n,))] = 0.0
+        a, h = self.act(obs, h)
+        return (a.reshape(1) if single else a.reshape(n, 1)), h
+
+
+# ------------------------------------------------------------------------------------------------ checkpoints
+def is_recurrent_checkpoint(path):
+    """Whether ``path`` names a recurrent-policy checkpoint: an ``.npz`` with its ``policy.json`` beside it (the
+    ``policy.npz`` beside an SB3 zip, its numpy export, has none)."""
+    path = Path(path)
+    return path.suffix == ".npz" and path.with_suffix(".json").is_file()
+
+
+def save_recurrent_policy(directory, weights, config, env_kwargs):
+    """Write a checkpoint into ``directory``: ``policy.npz`` (``weights``), ``policy.json`` (``config``: must hold
+    ``model`` and ``architecture``; the format and version are added) and ``env_config.json`` (``env_kwargs``).
+    Returns the path of ``policy.npz``."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
+    np.savez(d / POLICY_FILE, **arrays)
+    meta = {"format": FORMAT, "version": VERSION, **config}
+    (d / "policy.json").write_text(json.dumps(meta, indent=1))
+    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+    return d / POLICY_FILE
+
+
+def load_recurrent_policy(path):
+    """Load a checkpoint (``policy.npz`` with ``policy.json`` and ``env_config.json`` beside it).
+
+    Returns ``(RecurrentQPolicy, EnvConfig)``. Raises ``ValueError`` naming the file for a missing file, another
+    format or version, a model kind this version cannot run, weights of the wrong shapes or not finite, or an env
+    config that does not match the policy's input (features x frame_stack) or is not continuous."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
+    meta_file, env_file = path.with_suffix(".json"), path.with_name("env_config.json")
+    for f in (meta_file, env_file):
+        if not f.is_file():
+            raise ValueError(f"{path}: no {f.name} beside it (a recurrent policy is {POLICY_FILE}, policy.json and "
+                             "env_config.json in one folder; the policy.npz beside an SB3 zip is its numpy export: "
+                             "give the .zip)")
+    try:
+        meta, env_kw = json.loads(meta_file.read_text()), json.loads(env_file.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: policy.json or env_config.json is not valid JSON ({e})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{meta_file}: not a recurrent-policy config (format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {FORMAT!r})")
+    if meta.get("version") != VERSION:
+        raise ValueError(f"{meta_file}: version {meta.get('version')!r}; this package reads version {VERSION}")
+    if meta.get("model") != "cv":
+        raise ValueError(f"{meta_file}: model {meta.get('model')!r}; this loader runs the 'cv' model (a GRU choosing "
+                         "the CV filter's q)")
+    arch = meta.get("architecture")
+    try:
+        shapes = weight_shapes(arch)
+    except (TypeError, KeyError, ValueError):
+        raise ValueError(f"{meta_file}: architecture must give input_size, hidden_size and head, got {arch!r}") from None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            weights = {k: z[k] for k in z.files}
+    except (ValueError, OSError) as e:
+        raise ValueError(f"{path}: not a numpy .npz of plain arrays ({e})") from None
+    if set(weights) != set(shapes):
+        raise ValueError(f"{path}: weights {sorted(weights)} do not match the architecture's {sorted(shapes)}")
+    for k, s in shapes.items():
+        if weights[k].shape != s or weights[k].dtype.kind != "f" or not np.all(np.isfinite(weights[k])):
+            raise ValueError(f"{path}: weight {k!r} must be finite floats of shape {s}, got {weights[k].dtype} "
+                             f"{weights[k].shape}")
+    if not isinstance(env_kw, dict):
+        raise ValueError(f"{env_file}: must hold a JSON object of RadarTrack-v0 arguments")
+    try:
+        cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kw))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{env_file}: {e}") from None
+    if cfg.action_type != "continuous":
+        raise ValueError(f"{env_file}: a recurrent policy acts with action_type='continuous', got {cfg.action_type!r}")
+    n_in = len(cfg.features) * cfg.frame_stack
+    if n_in != shapes["gru.weight_ih"][1] or list(meta.get("input_features", cfg.features)) != list(cfg.features):
+        raise ValueError(f"{path}: the policy reads {shapes['gru.weight_ih'][1]} inputs "
+                         f"({meta.get('input_features')}) but {env_file.name} gives {len(cfg.features)} features x "
+                         f"frame_stack {cfg.frame_stack} ({list(cfg.features)})")
+    if not all(math.isfinite(float(v)) for v in cfg.q_levels_g):
+        raise ValueError(f"{env_file}: q_levels_g must be finite")
+    rng = meta.get("q_range_m_s2")      # the action -> q map it was trained with (first and last q level)
+    if rng is not None:
+        levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+        if not np.allclose([levels[0], levels[-1]], np.asarray(rng, dtype=np.float64), rtol=1e-9, atol=0.0):
+            raise ValueError(f"{env_file}: q_levels_g span {levels[0]:.6g}-{levels[-1]:.6g} m/s^2, but the policy was "
+                             f"trained with q from {float(rng[0]):.6g} to {float(rng[1]):.6g} m/s^2 (recorded in "
+                             f"{meta_file.name}); give its training q_levels_g")
+    return RecurrentQPolicy(weights, arch, cfg.q_levels_g), cfg

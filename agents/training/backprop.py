@@ -1,0 +1,650 @@
+r"""End-to-end training by backpropagation through the project's own filter: ``radar-track train --method backprop``.
+
+RadarTrack-v0's loss, the position error after the track start, is a differentiable function of every q the
+policy chose, through the Kalman filter. This trainer minimises it by gradient descent: a causal recurrent policy
+(a GRU over the env's observation) outputs q at every look, the differentiable chain
+(:mod:`radar_env.torch_chain`) filters with it, and the pooled position MSE is backpropagated through the filter's
+states into the network. The trained network is a policy like any other: a numpy GRU runs it in the evaluation and
+in the env (:mod:`agents.policies.recurrent`), with no torch.
+
+One look of one training row (the *lockstep*)::
+
+    obs_{j-1}  --(GRU, detached input)-->  a_j = tanh(head(h_j))  -->  q_j = q_min (q_max/q_min)^((a_j+1)/2)
+    torch chain:  x_j, P_j = step(x_{j-1}, P_{j-1}, plot j; q_j)            (gradient flows through q_j, x, P)
+    numba chain:  Tracker.step(q_j.detach()) -> StepOutput -> ObservationLayout.encode -> obs_j   (as the env)
+
+The numba :class:`radar_env.tracking.Tracker` and :meth:`radar_env.observation.ObservationLayout.encode` compute the
+observation exactly as ``RadarTrack-v0`` does (the env's own code, so the network reads in training what it reads
+when acting; tested bit for bit against the env), and the torch chain carries the gradient.
+
+Streaming truncated backpropagation. ``batch_episodes`` rows (>= 1,000 episodes side by side) each play one episode
+after another, drawn by the batched drawer (:func:`radar_env.draws.draw_episodes`, one call per chunk for every row
+that needs a new episode) from the training flights (``env_kwargs``: the bundled PPO policy's last-stage
+distribution by default). One optimiser step per chunk of ``chunk_looks`` looks of every row: the loss is the
+pooled position MSE over the chunk's looks after the track start (those :mod:`agents.evaluation.metrics` scores),
+backpropagated, the gradient norm clipped, an Adam step taken; then the graph is cut (the filter state and the GRU
+state are detached; the CV model re-reads its filter state from the numba Tracker, an exact copy). A row whose
+episode ended mid-chunk pads until the chunk ends (about half a chunk per episode); no row waits for the batch's
+longest episode. So every optimiser step's gradient comes from one chunk of ``batch_episodes`` episodes, and the
+looks are weighted as the pooled RMSE weights them.
+
+Seeds. Row ``r`` of a run with training seed ``S`` plays the episodes of ``numpy.random.default_rng([S, s0, r])``
+(``s0`` = 0, or the step a resumed run restarted from), a stream inside the training seed range
+(``S < 900_000``: disjoint from the selection suites ``900_000 + i`` and from the held-out evaluation seeds
+``10_000_000 + i``). Validation: :class:`agents.training.selection.SelectionSuites` (the SB3 callback's scorer:
+training-range seeds ``900_000 + i``, the policy / imm2 RMSE ratio, geometric mean over ``select_on``), every
+``eval_every`` steps and at the end; the best checkpoint is kept.
+
+The model interface (:class:`ChainModel`): a second differentiable tracker (e.g. a learned CV/CT IMM,
+``--tracker imm_cv_ct``) plugs in by subclassing it and adding itself to :data:`MODELS`; the trainer (drawing,
+lockstep, chunks, loss, optimiser, validation, checkpoints, run folder) is shared.
+
+The run folder (``<out>/<name>.partial/`` until complete, then ``<out>/<name>/``), as ``radar-track train``'s:
+``config.json``, ``args.json``, ``command.txt``, ``env_config.json``, ``policy.npz`` + ``policy.json`` (final
+weights), ``best/`` (the best validation checkpoint and its ``selection.json``), ``checkpoints/last.npz`` +
+``last.json`` (weights, Adam moments, step, history: what a resume needs), ``tb/`` (TensorBoard scalars),
+``summary.json``. A run that fails or is killed stays ``<name>.partial/``; running the same command again resumes it
+from its last checkpoint (the same configuration is required, else a one-line refusal); a finished ``<name>/`` is
+never overwritten.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from radar_env import torch_chain as tc
+from radar_env.config import EnvConfig
+from radar_env.core import actions_to_q_m_s2
+from radar_env.draws import draw_episodes
+from radar_env.observation import DEFAULT_FEATURES, ObservationLayout, measurement_sigma_m
+from radar_env.units import G0_M_S2
+
+from agents.evaluation.metrics import jsonable
+from agents.policies.bundle import env_kwargs_from_json
+from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
+from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
+from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, finish_run, load_hyperparams, mark_failed,
+                                  open_run_folder, run_paths, write_run_files)
+
+__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_SPEC", "LOSSES", "check_hp", "train_backprop", "make_model",
+           "StreamingTrainer", "optimiser_step", "MAX_TRAIN_SEED"]
+
+DTYPE = torch.float64
+LOSSES = ("position_mse", "normalised")
+"""``position_mse``: the pooled position MSE (m^2, divided by ``loss_scale_m^2``), what the evaluation's pooled RMSE
+squares; ``normalised``: the squared position error in units of the plot noise (the env's ``reward_type="squared"``:
+``|e|^2 / sigma^2`` with ``sigma`` the per-axis RMS plot noise at the true range), pooled over the same looks, which
+weighs a look on a precise radar as much as one on a coarse radar."""
+MAX_TRAIN_SEED = SELECTION_SEED_BASE
+"""Training seeds ``S`` lie in ``[0, 900_000)``: below the selection suites' seeds."""
+
+
+# ================================================================================================= the models
+class ChainModel(torch.nn.Module):
+    """What the trainer needs of a differentiable tracker model. Subclass it, name it in :data:`MODELS`.
+
+    The trainer owns the rows' episodes, the numba :class:`radar_env.tracking.Tracker` stepped in lockstep (it gives
+    the env's observation), the chunks, the loss and the optimiser. A model keeps, per row, its network's recurrent
+    state and its own torch filter state, and implements:
+
+    * :meth:`reset_state` ``(n_rows)``: allocate that state for ``n_rows`` rows;
+    * :meth:`start_rows` ``(tracker, rows)``: rows ``rows`` have just been loaded (the common track start is done;
+      ``tracker.x[rows]``, ``tracker.P[rows]`` is the start state): clear their recurrent state, start their filter;
+    * :meth:`begin_chunk` ``(tracker)``: cut the autograd graph before a chunk (detach every carried tensor);
+    * :meth:`step` ``(looks, j, obs) -> (x (4, B), tracker_q (B,))``: one look ``j`` of the chunk's
+      :class:`radar_env.torch_chain.ChainLooks` for every row, reading the observation ``obs (B, F)`` (float64,
+      detached) of the look before: returns the position estimate the loss scores (components first, see
+      torch_chain) and the q (m/s^2, numpy) the trainer steps the numba Tracker with, for the next observation;
+    * :meth:`architecture` (JSON-able dict), :meth:`policy_weights` (``{name: numpy array}``) and
+      :meth:`policy_config` (the ``policy.json`` entries): the checkpoint its inference code loads.
+
+    Rows whose episode has ended are still passed to :meth:`step` until the chunk ends (padding columns of
+    ``looks``: ``dt = 0``, not detected, not scored), so a model may compute anything there.
+    """
+
+    kind = ""
+
+    def reset_state(self, n_rows):
+        raise NotImplementedError
+
+    def start_rows(self, tracker, rows):
+        raise NotImplementedError
+
+    def begin_chunk(self, tracker):
+        raise NotImplementedError
+
+    def step(self, looks, j, obs):
+        raise NotImplementedError
+
+    def architecture(self):
+        raise NotImplementedError
+
+    def policy_weights(self):
+        raise NotImplementedError
+
+    def policy_config(self, cfg):
+        raise NotImplementedError
+
+
+class CVQModel(ChainModel):
+    """The CV Kalman filter of RadarTrack-v0 with q chosen per look by a GRU over the env's observation
+    (``--tracker cv``): the policy :class:`agents.policies.recurrent.RecurrentQPolicy` runs.
+
+    Args:
+        input_size: entries of the observation. hidden_size: GRU width. head: widths of tanh layers between the
+            GRU and the output (may be empty).
+        q_levels_m_s2: the env's q levels; the action ``a = tanh(.)`` maps to ``q`` as the env maps continuous
+            actions (:func:`radar_env.core.actions_to_q_m_s2`).
+        q_init_m_s2: the q the untrained network outputs at every look (its output layer is zero, its bias gives
+            this q): kf_tuned's, so training starts from the tuned constant-q filter.
+    """
+
+    kind = "cv"
+
+    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2):
+        super().__init__()
+        self.levels_m_s2 = np.asarray(q_levels_m_s2, dtype=np.float64)
+        self.l0, self.l1 = math.log10(self.levels_m_s2[0]), math.log10(self.levels_m_s2[-1])
+        if not self.levels_m_s2[0] < q_init_m_s2 < self.levels_m_s2[-1]:
+            raise ValueError(f"q_init_m_s2 {q_init_m_s2!r} must lie inside the action range "
+                             f"({self.levels_m_s2[0]!r}, {self.levels_m_s2[-1]!r}) m/s^2")
+        self.input_size, self.hidden_size, self.head_sizes = int(input_size), int(hidden_size), [int(n) for n in head]
+        self.gru = torch.nn.GRUCell(self.input_size, self.hidden_size, dtype=DTYPE)
+        layers, prev = [], self.hidden_size
+        for n in self.head_sizes:
+            layers.append(torch.nn.Linear(prev, n, dtype=DTYPE))
+            prev = n
+        self.head = torch.nn.ModuleList(layers)
+        self.out = torch.nn.Linear(prev, 1, dtype=DTYPE)
+        a0 = 2.0 * (math.log10(q_init_m_s2) - self.l0) / (self.l1 - self.l0) - 1.0
+        with torch.no_grad():
+            self.out.weight.zero_()
+            self.out.bias.fill_(math.atanh(a0))
+        self.h = self.state = None
+
+    # ---- the network
+    def action(self, obs, h):
+        """``(a (B,), h' (B, H))`` for observations ``obs (B, F)`` and state ``h``."""
+        h = self.gru(obs, h)
+        y = h
+        for layer in self.head:
+            y = torch.tanh(layer(y))
+        return torch.tanh(self.out(y))[:, 0], h
+
+    def q_of_action(self, a):
+        """The env's action map in torch (differentiable)."""
+        return torch.pow(10.0, self.l0 + 0.5 * (a + 1.0) * (self.l1 - self.l0))
+
+    # ---- the ChainModel interface
+    def reset_state(self, n_rows):
+        self.h = torch.zeros((n_rows, self.hidden_size), dtype=DTYPE)
+        self.state = tc.ChainState(torch.zeros((4, n_rows), dtype=DTYPE),
+                                   torch.eye(4, dtype=DTYPE)[:, :, None].repeat(1, 1, n_rows))
+
+    def start_rows(self, tracker, rows):
+        self.h = self.h.detach().clone()
+        self.h[torch.as_tensor(rows)] = 0.0
+
+    def begin_chunk(self, tracker):
+        # the filter state from the numba chain, exactly (the torch chain equals it to ~1e-11 anyway): detached
+        self.h = self.h.detach()
+        self.state = tc.ChainState.from_xP(tracker.x, tracker.P)
+
+    def step(self, looks, j, obs):
+        a, self.h = self.action(obs, self.h)
+        self.state, rec = tc.step(self.state, looks, j, self.q_of_action(a))
+        # the numba Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
+        q_np = actions_to_q_m_s2(a.detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
+        return rec.x, q_np
+
+    def architecture(self):
+        return {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
+
+    def policy_weights(self):
+        w = {"gru.weight_ih": self.gru.weight_ih, "gru.weight_hh": self.gru.weight_hh, "gru.bias_ih": self.gru.bias_ih,
+             "gru.bias_hh": self.gru.bias_hh, "out.weight": self.out.weight, "out.bias": self.out.bias}
+        for i, layer in enumerate(self.head):
+            w[f"head.{i}.weight"], w[f"head.{i}.bias"] = layer.weight, layer.bias
+        out = {k: v.detach().numpy().copy() for k, v in w.items()}
+        assert {k: v.shape for k, v in out.items()} == weight_shapes(self.architecture())
+        return out
+
+    def policy_config(self, cfg):
+        return {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
+                "q_range_m_s2": [float(self.levels_m_s2[0]), float(self.levels_m_s2[-1])],
+                "action": "a = tanh(out(head(h))) in [-1, 1]; q = q_min (q_max / q_min)^((a + 1) / 2)"}
+
+    def inference_policy(self, cfg):
+        """The numpy policy of the current weights (for validation)."""
+        return RecurrentQPolicy(self.policy_weights(), self.architecture(), cfg.q_levels_g)
+
+
+MODELS = {"cv": CVQModel}
+"""``--tracker`` name -> :class:`ChainModel` subclass. A model class is built by :func:`make_model`."""
+
+
+def make_model(hp, cfg):
+    """The model of ``hp["tracker"]`` for the env config ``cfg`` (its observation size and action range)."""
+    name = hp["tracker"]
+    if name == "cv":
+        from baselines.tuned_params import tuned_parameters
+        levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+        return CVQModel(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
+                        tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+    raise ValueError(f"--tracker: unknown model {name!r}; valid: {sorted(MODELS)}")
+
+
+# ============================================================================================ hyperparameters
+def _int(lo, hi=None):
+    return (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= lo and (hi is None or v <= hi),
+            f"an integer >= {lo}" + ("" if hi is None else f" and <= {hi}"))
+
+
+def _num(lo, hi=None, open_lo=False):
+    def ok(v):
+        return (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and (v > lo if open_lo else v >= lo) and (hi is None or v <= hi))
+    return ok, f"a number {'>' if open_lo else '>='} {lo}" + ("" if hi is None else f" and <= {hi}")
+
+
+HP_SPEC = {
+    "tracker": ((lambda v: v in MODELS), f"one of {sorted(MODELS)}"),
+    "n_steps": _int(1),
+    "batch_episodes": _int(1),
+    "chunk_looks": _int(1, 10_000),
+    "learning_rate": _num(0.0, 1.0, open_lo=True),
+    "lr_final_fraction": _num(0.0, 1.0),
+    "max_grad_norm": _num(0.0, None, open_lo=True),
+    "loss": ((lambda v: v in LOSSES), f"one of {list(LOSSES)}"),
+    "loss_scale_m": _num(0.0, None, open_lo=True),
+    "hidden_size": _int(1, 4096),
+    "head": ((lambda v: isinstance(v, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
+                                                     for n in v)), "a list of layer widths >= 1"),
+    "eval_every": _int(1),
+    "eval_scenarios": ((lambda v: isinstance(v, dict) and v and all(isinstance(r, int) and not isinstance(r, bool)
+                                                                     and r >= 1 for r in v.values())),
+                       "a JSON object {suite: runs >= 1}"),
+    "select_on": ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names"),
+    "env_kwargs": ((lambda v: isinstance(v, dict)), "a JSON object of RadarTrack-v0 arguments"),
+}
+"""Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
+``{key: (check, what it must be)}``."""
+
+
+def check_hp(hp):
+    """Validate ``hp`` (``ValueError`` naming ``--hp KEY``, what it must be and the value given); returns ``(hp,
+    env_kwargs, cfg)`` with the env arguments completed (continuous actions, the features pinned) and checked."""
+    hp = dict(hp)
+    for k, v in hp.items():
+        if k not in HP_SPEC:
+            raise ValueError(f"--hp {k}: unknown hyperparameter for --method backprop; valid: {sorted(HP_SPEC)}")
+        ok, what = HP_SPEC[k]
+        if not ok(v):
+            raise ValueError(f"--hp {k}: must be {what}, got {v!r}")
+    missing = [k for k in HP_SPEC if k not in hp]
+    if missing:
+        raise ValueError(f"--hp: missing hyperparameter(s) {missing} (agents/training/hyperparams/backprop.toml "
+                         "gives every one)")
+    bad = [n for n in hp["select_on"] if n not in hp["eval_scenarios"]]
+    if bad:
+        raise ValueError(f"--hp select_on: {bad} are not among the validation suites (eval_scenarios) "
+                         f"{list(hp['eval_scenarios'])}")
+    env_kwargs = dict(hp["env_kwargs"])
+    if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
+        raise ValueError(f"--env-kwargs: training uses the random scenario generators only (scenario must be one of "
+                         f"{list(TRAIN_SCENARIOS)}, got {env_kwargs['scenario']!r})")
+    if env_kwargs.setdefault("action_type", "continuous") != "continuous":
+        raise ValueError(f"--env-kwargs: action_type must be 'continuous' for --method backprop (the network outputs "
+                         f"a continuous action), got {env_kwargs['action_type']!r}")
+    if env_kwargs.get("frame_stack", 1) != 1:
+        raise ValueError(f"--env-kwargs: frame_stack must be 1 for --method backprop (the GRU carries the history), "
+                         f"got {env_kwargs['frame_stack']!r}")
+    env_kwargs.setdefault("features", list(DEFAULT_FEATURES))   # pinned: the default list may grow
+    try:
+        cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kwargs))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"--env-kwargs: {e}") from None
+    hp["env_kwargs"] = env_kwargs
+    return hp, env_kwargs, cfg
+
+
+# ================================================================================================ the trainer
+class StreamingTrainer:
+    """The lockstep, streaming truncated backpropagation of the module docstring, for one model.
+
+    Args:
+        model: a :class:`ChainModel`. cfg: the env config (observation, track start, training flights).
+        batch_episodes: rows. chunk_looks: looks per optimiser step. seed: training seed ``S``. loss: one of
+            :data:`LOSSES`.
+        stream_start: ``s0`` of the rows' streams (0 for a fresh run; the resumed step otherwise).
+        rngs: the rows' generators instead (tests: a row seeded like a single env's ``reset(seed=...)`` plays the
+            env's episodes).
+    """
+
+    def __init__(self, model, cfg, batch_episodes, chunk_looks, seed, stream_start=0, rngs=None,
+                 loss="position_mse"):
+        self.model, self.cfg, self.loss = model, cfg, loss
+        self.B, self.C = int(batch_episodes), int(chunk_looks)
+        lv = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+        self.layout = ObservationLayout(cfg.features, lv[0], lv[-1])
+        self.tracker = cfg.track_start.tracker(self.B)
+        self.rngs = (list(rngs) if rngs is not None else
+                     [np.random.default_rng([int(seed), int(stream_start), r]) for r in range(self.B)])
+        self.obs = np.zeros((self.B, len(cfg.features)), dtype=np.float32)
+        self.episodes_done = self.row_looks = self.scored_looks = 0
+        model.reset_state(self.B)
+        self._load(np.arange(self.B))
+
+    def _load(self, rows):
+        """New episodes into ``rows``: one batched draw, the track start, the first observation (as env.reset)."""
+        cfg = self.cfg
+        batch = draw_episodes(cfg.scenario, cfg.radar, cfg.random_scenario_config, [self.rngs[r] for r in rows],
+                              cfg.warmup_scans)
+        out = self.tracker.load(rows, [batch.episode(i) for i in range(rows.size)])
+        self.obs[rows] = self.layout.encode(out, cfg.track_start.warmup_q_m_s2)
+        self.model.start_rows(self.tracker, rows)
+
+    def chunk(self):
+        """One chunk of every row: returns ``(loss, looks)``, the chunk's loss (:data:`LOSSES`: pooled over its
+        scored looks; a graph to backpropagate) and its :class:`radar_env.torch_chain.ChainLooks`."""
+        tr = self.tracker
+        ended = np.flatnonzero(tr.k >= tr.n_looks)
+        if ended.size:
+            self.episodes_done += int(ended.size)
+            self._load(ended)
+        self.model.begin_chunk(tr)
+        k0 = tr.k.copy()
+        cut = np.minimum(tr.n_looks, k0 + self.C)
+        get = tr.look_data
+        looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
+                                     tr.t_last)
+        active = looks.scored.numpy()                              # (J, B): the row has a look at column j
+        xs = []
+        for j in range(looks.J):
+            x, q = self.model.step(looks, j, torch.from_numpy(self.obs.astype(np.float64)))
+            xs.append(x)
+            rows = np.flatnonzero(active[j])
+            if rows.size == self.B:
+                o = tr.step(q)
+                self.obs[:] = self.layout.encode(o, q)
+            else:
+                q = q[rows]
+                o = tr.step(q, rows=rows)
+                self.obs[rows] = self.layout.encode(o, q)
+        self.row_looks += self.B * looks.J
+        self.scored_looks += int(active.sum())
+        x = torch.stack(xs).permute(2, 0, 1)                       # (J, 4, B) -> (B, J, 4)
+        if self.loss == "position_mse":
+            return tc.pooled_position_mse(x, looks), looks
+        at = lambda f: get(f)[np.arange(self.B)[:, None], looks.cols]   # noqa: E731 - (B, J) at the columns
+        truth, site = at("truth"), at("site_xy_m")
+        sig = measurement_sigma_m(np.hypot(*(truth[..., :2] - site).transpose(2, 0, 1)), at("range_noise_std_m"),
+                                  at("bearing_noise_std_rad"))
+        w = torch.from_numpy(np.where(active.T, 1.0 / sig ** 2, 0.0))
+        return (tc.position_sq_error(x, looks) * w).sum() / looks.scored.sum(), looks
+
+
+# ================================================================================================ checkpoints
+def _save_resume(part, model, opt, meta, best_weights):
+    """``checkpoints/last.npz`` (weights, Adam moments, the best checkpoint's policy weights) + ``last.json``
+    (``meta``), each written then renamed (a kill leaves the previous pair or the new one)."""
+    d = part / "checkpoints"
+    d.mkdir(exist_ok=True)
+    arrays = {f"model/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
+    arrays.update({f"best/{k}": v for k, v in (best_weights or {}).items()})
+    for i, st in opt.state_dict()["state"].items():
+        for k, v in st.items():
+            arrays[f"adam/{i}/{k}"] = v.detach().numpy() if torch.is_tensor(v) else np.asarray(v)
+    tmp = d / "last.tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, d / "last.npz")
+    (d / "last.tmp.json").write_text(json.dumps(jsonable(meta), indent=1, allow_nan=False))
+    os.replace(d / "last.tmp.json", d / "last.json")
+
+
+def _load_resume(part, model, opt):
+    """Restore ``model`` and ``opt`` from ``checkpoints/last.*``; returns ``(meta, best policy weights or None)``."""
+    d = part / "checkpoints"
+    meta = json.loads((d / "last.json").read_text())
+    with np.load(d / "last.npz", allow_pickle=False) as z:
+        model.load_state_dict({k[len("model/"):]: torch.from_numpy(z[k].copy()) for k in z.files
+                               if k.startswith("model/")})
+        best = {k[len("best/"):]: z[k].copy() for k in z.files if k.startswith("best/")} or None
+        state = {}
+        for k in z.files:
+            if k.startswith("adam/"):
+                _, i, name = k.split("/")
+                state.setdefault(int(i), {})[name] = torch.from_numpy(z[k].copy())
+    sd = opt.state_dict()
+    sd["state"] = state
+    opt.load_state_dict(sd)
+    return meta, best
+
+
+def _save_policy(directory, model, cfg, env_kwargs, extra=None, weights=None):
+    """The policy checkpoint of ``model`` (its current weights, or ``weights``) in ``directory``; ``extra`` as
+    ``selection.json``."""
+    path = save_recurrent_policy(directory, model.policy_weights() if weights is None else weights,
+                                 model.policy_config(cfg), env_kwargs)
+    if extra is not None:
+        (Path(directory) / "selection.json").write_text(json.dumps(jsonable(extra), indent=1, allow_nan=False))
+    return path
+
+
+def _resumable(part, config):
+    """Whether ``part`` holds a checkpoint of a run with this ``config`` (``ValueError`` if of another config)."""
+    if not (part / "checkpoints" / "last.json").is_file():
+        return False
+    try:
+        old = json.loads((part / "config.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        old = None
+    new = json.loads(json.dumps(config))
+    if old != new:
+        keys = sorted(k for k in set(old or {}) | set(new) if (old or {}).get(k) != new.get(k))
+        raise ValueError(f"--name: {str(part)!r} holds an unfinished run with another configuration (differs in "
+                         f"{keys}); rerun its own command to resume it, or remove it, or choose another --name")
+    return True
+
+
+# =================================================================================================== training
+def _lr_at(hp, step):
+    """Cosine decay from ``learning_rate`` to ``lr_final_fraction`` of it over ``n_steps``."""
+    f = hp["lr_final_fraction"]
+    c = 0.5 * (1.0 + math.cos(math.pi * min(step / max(hp["n_steps"], 1), 1.0)))
+    return hp["learning_rate"] * (f + (1.0 - f) * c)
+
+
+def optimiser_step(trainer, opt, hp):
+    """One optimiser step: a chunk of every row, its loss backpropagated (divided by ``loss_scale_m^2`` for
+    ``position_mse``), the gradient norm clipped at ``max_grad_norm``, an Adam step. Returns ``(loss, grad norm
+    before clipping)``; ``FloatingPointError`` if the gradient is not finite."""
+    loss, _ = trainer.chunk()
+    scale = hp["loss_scale_m"] ** 2 if hp["loss"] == "position_mse" else 1.0
+    opt.zero_grad(set_to_none=True)
+    (loss / scale).backward()
+    grad_norm = float(torch.nn.utils.clip_grad_norm_(trainer.model.parameters(), hp["max_grad_norm"]))
+    if not math.isfinite(grad_norm):
+        raise FloatingPointError(f"the gradient is not finite (loss {float(loss.detach())!r})")
+    opt.step()
+    return float(loss.detach()), grad_norm
+
+
+def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None,
+                   on_selection=None):
+    """Train a model by backpropagation (module docstring) with hyperparameters ``hp`` (a dict as in
+    ``agents/training/hyperparams/backprop.toml``; every key required, see :data:`HP_SPEC`). Returns the run folder.
+
+    ``on_selection(row)`` (optional) is called after each validation (``row`` as in ``summary.json``'s
+    ``selection_history``; ``timesteps`` there counts optimiser steps); the sweeps report it to Ray Tune.
+    Everything is checked (``ValueError``) before the run folder is made."""
+    torch.set_num_threads(1)
+    hp, env_kwargs, cfg = check_hp(hp)
+    seed = int(seed)
+    if not 0 <= seed < MAX_TRAIN_SEED:
+        raise ValueError(f"--seed: training seeds for --method backprop must lie in [0, {MAX_TRAIN_SEED}) (below the "
+                         f"selection suites' seeds), got {seed}")
+    run, part = run_paths(out, run_name, f"backprop_{hp['tracker']}_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
+    config = {"method": "backprop", "env_id": "RadarTrack-v0", "seed": seed, **hp}
+    resume = part.exists() and _resumable(part, config)
+    torch.manual_seed(seed)
+    model = make_model(hp, cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=hp["learning_rate"])
+    try:
+        selection = SelectionSuites(hp["eval_scenarios"], SELECTION_SEED_BASE, hp["select_on"])
+    except ValueError as e:
+        raise ValueError(f"--hp eval_scenarios / select_on: {e}") from None
+    lock = open_run_folder(run, part, keep=resume)
+    try:
+        best = None
+        if resume:
+            (part / "FAILED").unlink(missing_ok=True)
+            meta, best = _load_resume(part, model, opt)
+            if best is not None:        # best/ as the checkpoint knows it (a kill may have left a newer one)
+                row = next(r for r in meta["history"] if r["timesteps"] == meta["best_step"])
+                _save_policy(part / "best", model, cfg, env_kwargs, row, weights=best)
+            if verbose:
+                print(f"resuming {part} from step {meta['step']}", file=sys.stderr, flush=True)
+        else:
+            write_run_files(part, config, args, command, env_kwargs)
+            meta = {"step": 0, "best_ratio": None, "best_step": None, "history": [], "episodes_done": 0,
+                    "row_looks": 0, "scored_looks": 0, "train_s": 0.0, "wall_s": 0.0, "resumed_at": []}
+        summary = _run(model, opt, hp, cfg, env_kwargs, seed, part, selection, meta, best, resume, progress,
+                       verbose, on_selection)
+        _save_policy(part, model, cfg, env_kwargs)
+        (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
+    except BaseException:
+        mark_failed(part, lock)
+        raise
+    finish_run(part, run, lock)
+    if verbose:
+        print(f"run: {run}\n{summary['steps']} steps, {summary['episodes_done']} episodes in {summary['wall_s']:.0f} s "
+              f"({summary['episodes_per_s']:.0f} training episodes/s, {summary['row_looks_per_s']:.0f} row-looks/s "
+              f"excluding validation); best selection ratio policy/imm2 {summary['best_selection_ratio']:.3f} at step "
+              f"{summary['best_step']} ({summary['best_wall_s']:.0f} s)")
+    return run
+
+
+def _run(model, opt, hp, cfg, env_kwargs, seed, part, selection, meta, best_weights, resume, progress, verbose,
+         on_selection):
+    from torch.utils.tensorboard import SummaryWriter
+    start = int(meta["step"])
+    if resume:
+        meta["resumed_at"].append(start)
+    trainer = StreamingTrainer(model, cfg, hp["batch_episodes"], hp["chunk_looks"], seed, stream_start=start,
+                               loss=hp["loss"])
+    writer = SummaryWriter(str(part / "tb"))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=hp["n_steps"], initial=start, desc="backprop", unit="step", file=sys.stderr)
+    wall0, train0 = float(meta["wall_s"]), float(meta["train_s"])
+    t_start = time.perf_counter()
+    train_s = 0.0
+    base = {k: int(meta[k]) for k in ("episodes_done", "row_looks", "scored_looks")}
+    best_w = [best_weights]
+
+    def checkpoint(step):
+        meta.update(step=step, wall_s=wall0 + time.perf_counter() - t_start, train_s=train0 + train_s,
+                    **{k: base[k] + getattr(trainer, k) for k in base})
+        _save_resume(part, model, opt, meta, best_w[0])
+
+    def validate(step):
+        """Score the current weights, keep them if best, checkpoint, then report (a callback that raises, e.g. a
+        sweep stopping the trial, leaves a consistent checkpoint)."""
+        row, _ = selection.score(model.inference_policy(cfg), cfg)
+        row = {"timesteps": step, **row, "wall_s": wall0 + time.perf_counter() - t_start,
+               "episodes_done": base["episodes_done"] + trainer.episodes_done}
+        best = meta["best_ratio"]
+        improved = math.isfinite(row["selection_ratio"]) and (best is None or row["selection_ratio"] < best)
+        row["best"] = bool(improved)
+        if improved:
+            meta["best_ratio"], meta["best_step"], meta["best_wall_s"] = row["selection_ratio"], step, row["wall_s"]
+            best_w[0] = model.policy_weights()
+            _save_policy(part / "best", model, cfg, env_kwargs, row)
+        meta["history"].append(row)
+        for k, v in row.items():
+            if k.endswith("_ratio_imm2") or k == "selection_ratio":
+                writer.add_scalar(f"eval/{k}", v if math.isfinite(v) else float("nan"), step)
+        writer.add_scalar("eval/best_selection_ratio", meta["best_ratio"] or float("nan"), step)
+        writer.flush()
+        checkpoint(step)
+        if on_selection is not None:
+            on_selection(dict(row))
+        if verbose and bar is None:
+            print(f"[eval @ step {step}] selection ratio {row['selection_ratio']:.4f}"
+                  f"{' *best*' if improved else ''} ({row['eval_s']:.1f} s)", file=sys.stderr, flush=True)
+        return row
+
+    if not meta["history"] or meta["history"][-1]["timesteps"] != start:
+        validate(start)
+    step = start
+    while step < hp["n_steps"]:
+        t0 = time.perf_counter()
+        for g in opt.param_groups:
+            g["lr"] = _lr_at(hp, step)
+        loss, grad_norm = optimiser_step(trainer, opt, hp)
+        step += 1
+        dt = time.perf_counter() - t0
+        train_s += dt
+        rmse = math.sqrt(loss)           # m, or plot sigmas (loss "normalised")
+        writer.add_scalar("train/chunk_rms_error", rmse, step)
+        writer.add_scalar("train/grad_norm", grad_norm, step)
+        writer.add_scalar("train/learning_rate", opt.param_groups[0]["lr"], step)
+        writer.add_scalar("train/episodes_per_s", trainer.episodes_done / max(train_s, 1e-9), step)
+        writer.add_scalar("train/row_looks_per_s", trainer.row_looks / max(train_s, 1e-9), step)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(rms=f"{rmse:.3g}", best=f"{meta['best_ratio'] or float('nan'):.4f}")
+        if step % hp["eval_every"] == 0 or step == hp["n_steps"]:
+            validate(step)
+    if bar is not None:
+        bar.close()
+    writer.close()
+    train_total = train0 + train_s
+    done = {k: base[k] + getattr(trainer, k) for k in base}
+    hist = meta["history"]
+    return {"method": "backprop", "tracker": hp["tracker"], "steps": step, "episodes_done": done["episodes_done"],
+            "row_looks": done["row_looks"], "scored_looks": done["scored_looks"],
+            "wall_s": wall0 + time.perf_counter() - t_start, "train_s": train_total,
+            "validation_s": float(sum(r["eval_s"] for r in hist)),
+            "episodes_per_s": done["episodes_done"] / max(train_total, 1e-9),
+            "row_looks_per_s": done["row_looks"] / max(train_total, 1e-9),
+            "scored_looks_per_s": done["scored_looks"] / max(train_total, 1e-9),
+            "best_selection_ratio": meta["best_ratio"], "best_step": meta["best_step"],
+            "best_wall_s": meta.get("best_wall_s"), "resumed_at": meta["resumed_at"],
+            "loadavg_1min_at_end": os.getloadavg()[0], "torch_threads": torch.get_num_threads(),
+            "selection_history": hist}
+
+
+# ======================================================================================================= CLI
+def main_from_args(args, argv):
+    """``radar-track train --method backprop`` (called by :func:`agents.training.train.main` with its parsed
+    arguments). Returns the run folder."""
+    for opt, v in (("--algo", args.algo), ("--action-type", args.action_type), ("--timesteps", args.timesteps),
+                   ("--n-envs", args.n_envs)):
+        if v is not None:
+            raise SystemExit(f"error: {opt} applies to --method ppo; --method backprop takes --hp n_steps=N, "
+                             "--hp batch_episodes=N (agents/training/hyperparams/backprop.toml)")
+    try:
+        hp = load_hyperparams("backprop", args.hyperparams)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+    hp = apply_cli_overrides(hp, args.env_kwargs, args.hp)
+    if args.tracker is not None:
+        hp["tracker"] = args.tracker
+    command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
+    try:
+        return train_backprop(hp, seed=args.seed, out=args.out, progress=not args.no_progress,
+                              verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None

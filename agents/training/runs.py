@@ -1,0 +1,188 @@
+"""What every trainer shares (``radar-track train --method ppo`` in :mod:`agents.training.train`, ``--method
+backprop`` in :mod:`agents.training.backprop`): the hyperparameter files, ``--hp`` parsing, the training scenarios
+and the run folder.
+
+A run is written into ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only when complete
+(:func:`run_paths`, :func:`open_run_folder`, :func:`write_run_files`, :func:`mark_failed`, :func:`finish_run`); a
+finished ``<out>/<name>/`` is never overwritten, and while a run writes, it holds an exclusive lock on its name
+(:class:`RunLock`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tomllib
+import traceback
+from importlib import resources
+from pathlib import Path
+
+__all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
+           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed",
+           "finish_run"]
+
+ENV_ID = "RadarTrack-v0"
+TRAIN_SCENARIOS = ("random", "random_radars")
+"""The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
+HP_DIR = Path(__file__).with_name("hyperparams")
+HP_NAMES = ("ppo", "dqn", "sac", "backprop")
+"""The hyperparameter files shipped in ``agents/training/hyperparams/``."""
+
+
+def load_hyperparams(algo, path=None):
+    """The ``RadarTrack-v0`` table of ``agents/training/hyperparams/<algo>.toml`` (package data, read through
+    ``importlib.resources`` so it works from a wheel install) or of the TOML file ``path``; ``algo`` ``"backprop"``
+    reads ``backprop.toml`` (``--method backprop``)."""
+    if path:
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"--hyperparams: file {str(path)!r} does not exist")
+        text, where = path.read_bytes(), str(path)
+    else:
+        if algo not in HP_NAMES:
+            raise ValueError(f"algo must be one of {HP_NAMES}, got {algo!r}")
+        res = resources.files(__package__).joinpath("hyperparams", f"{algo}.toml")
+        text, where = res.read_bytes(), f"agents/training/hyperparams/{algo}.toml"
+    try:
+        table = tomllib.loads(text.decode())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"--hyperparams: {where} is not TOML ({e})") from None
+    if ENV_ID not in table:
+        raise ValueError(f"--hyperparams: {where}: no [\"{ENV_ID}\"] table")
+    return table[ENV_ID]
+
+
+def parse_hp(items):
+    """``--hp KEY=VALUE`` items -> ``{KEY: value}`` (the value parsed as JSON, else kept as a string); a one-line
+    ``SystemExit`` for an item without ``=``."""
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise SystemExit(f"error: --hp expects KEY=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+def apply_cli_overrides(hp, env_kwargs_json, hp_items):
+    """``hp`` (a hyperparameter table) with the command line's overrides: ``--hp KEY=VALUE`` items and the
+    ``--env-kwargs`` JSON object merged over the table's ``env_kwargs``; a one-line ``SystemExit`` for JSON that is
+    not an object."""
+    try:
+        ek = json.loads(env_kwargs_json)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"error: --env-kwargs is not JSON: {e}") from None
+    if not isinstance(ek, dict):
+        raise SystemExit("error: --env-kwargs must be a JSON object")
+    hp.update(parse_hp(hp_items))
+    hp["env_kwargs"] = {**dict(hp.get("env_kwargs") or {}), **ek}
+    return hp
+
+
+# ------------------------------------------------------------------------------------------------ run folders
+def check_plain_name(option, name):
+    """``name`` if it is a plain folder name (one path component: no ``/`` or ``\\``, not ``.``/``..``, not empty, no
+    NUL), so that a run or sweep folder stays inside its ``--out``; ``ValueError`` naming ``option`` otherwise."""
+    if (not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name or "\\" in name
+            or "/" in name or "\0" in name):
+        raise ValueError(f"{option}: must be a plain folder name inside --out (no '/', '..'), got {name!r}")
+    return name
+
+
+class RunLock:
+    """An exclusive lock on the run name ``<out>/<name>`` for as long as a run writes it: the ``flock`` of
+    ``<out>/.<name>.lock`` (released by the kernel if the process dies, so a killed run's ``.partial`` can be
+    replaced later). A second run under the same name while the first runs is refused (``ValueError`` naming
+    ``--name``) instead of deleting the first's ``.partial`` and mixing its files into the first's folder."""
+
+    def __init__(self, run):
+        import fcntl
+        self.path = run.with_name(f".{run.name}.lock")
+        run.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise ValueError(f"--name: another run is writing {str(run)!r} now (it holds {str(self.path)!r}); "
+                                 "choose another name or wait for it to end") from None
+            try:     # the previous holder may have removed the file between our open and our lock: lock it anew
+                if os.stat(self.path).st_ino == os.fstat(fd).st_ino:
+                    break
+            except FileNotFoundError:
+                pass
+            os.close(fd)
+        self.fd = fd
+        os.write(fd, f"{os.getpid()}\n".encode())
+
+    def release(self):
+        if self.fd is not None:
+            self.path.unlink(missing_ok=True)      # while still holding it (see the check above)
+            os.close(self.fd)
+            self.fd = None
+
+
+def run_paths(out, run_name, default_name):
+    """``(run, part)``: the run folder ``<out>/<name>`` and its ``<name>.partial`` (``name`` = ``run_name`` or
+    ``default_name``). ``ValueError`` naming ``--name`` / ``--out`` for a name that is not a plain folder name, a
+    finished run of that name (never overwritten) or an ``--out`` that is not a directory."""
+    if run_name is not None:
+        check_plain_name("--name", run_name)
+    run = Path(out) / (run_name or default_name)
+    part = run.with_name(run.name + ".partial")
+    if run.exists():        # a finished run is never overwritten (an unfinished <name>.partial is, in open_run_folder)
+        raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"--out: {str(out)!r} exists and is not a directory")
+    return run, part
+
+
+def open_run_folder(run, part, keep=False):
+    """Lock the run name (:class:`RunLock`: a second run with this name stops here, before touching the first's
+    files), then create ``part`` (``<name>.partial``); an earlier attempt under this name that failed or was killed
+    is removed first, unless ``keep`` (a resumed run). Returns the lock, which :func:`mark_failed` or
+    :func:`finish_run` releases."""
+    lock = RunLock(run)
+    try:
+        if run.exists():
+            raise ValueError(f"--name: run folder {str(run)!r} already exists; choose another name (or remove it)")
+        if part.exists() and not keep:
+            shutil.rmtree(part)
+        part.mkdir(parents=True, exist_ok=keep)
+    except OSError as e:
+        lock.release()
+        raise ValueError(f"--out: cannot create the run folder {str(part)!r} ({e.strerror or e})") from None
+    except BaseException:
+        lock.release()
+        raise
+    return lock
+
+
+def write_run_files(part, config, args, command, env_kwargs):
+    """``config.json``, ``args.json``, ``command.txt`` and ``env_config.json`` of a run."""
+    (part / "config.json").write_text(json.dumps(config, indent=1))
+    (part / "args.json").write_text(json.dumps(args or {}, indent=1))
+    (part / "command.txt").write_text((command or "") + "\n")
+    (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+
+
+def mark_failed(part, lock):
+    """Write the current exception's traceback to ``<part>/FAILED`` (call it in an ``except`` block) and release the
+    run's lock."""
+    try:
+        (part / "FAILED").write_text(traceback.format_exc())
+    finally:
+        lock.release()
+
+
+def finish_run(part, run, lock):
+    """The run is complete: ``<name>.partial`` becomes ``<name>``; the run's lock is released."""
+    try:
+        part.rename(run)
+    finally:
+        lock.release()

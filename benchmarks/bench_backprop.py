@@ -1,0 +1,130 @@
+"""Training throughput of ``radar-track train --method backprop`` (agents/training/backprop.py), single thread.
+
+Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--batch 1000] [--chunk 40]
+[--steps 10] [--hidden 64] [--flights training,random] [--json PATH]``. With ``torch.set_num_threads(1)`` it builds
+the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
+and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
+and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
+distribution of ``--flights``: ``training`` (the recipe's: 70 % random radars, the broad flights, about 370 looks
+per episode) and ``random`` (the evaluation's random suite generator: ATC radar, about 165 looks).
+
+Reported per distribution: training episodes/s (episodes completed per second of training, in the steady state of
+the stream), row-looks/s (rows x looks processed, padding included), scored looks/s, seconds per optimiser step,
+the share of the step spent in the numba Tracker and observation, and CartPole-v1 steps/s measured in the same
+process (``gym.make``, random actions), so that a number taken on a loaded machine can be compared with one taken on
+an idle one; and the 1-minute load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:          # run as a script: import this checkout's packages, not installed ones
+    sys.path.insert(0, str(REPO))
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import torch  # noqa: E402
+
+from agents.training import backprop as bp  # noqa: E402
+from agents.training.runs import load_hyperparams  # noqa: E402
+from benchmarks.bench_torch_chain import _positive_int, cartpole_rate  # noqa: E402  (shared with it)
+
+FLIGHTS = ("training", "random")
+
+
+class _Timed:
+    """Wraps the trainer's Tracker.step and ObservationLayout.encode to time the numba side of the lockstep."""
+
+    def __init__(self, obj, name):
+        self.fn, self.seconds = getattr(obj, name), 0.0
+        setattr(obj, name, self)
+
+    def __call__(self, *a, **kw):
+        t0 = time.perf_counter()
+        try:
+            return self.fn(*a, **kw)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+
+def measure(flights, batch, chunk, hidden, steps, seed=0):
+    """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
+    hp = load_hyperparams("backprop")
+    hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden)
+    if flights == "random":
+        hp["env_kwargs"] = {k: v for k, v in hp["env_kwargs"].items() if k not in ("scenario", "random_config")}
+    hp, _, cfg = bp.check_hp(hp)
+    torch.manual_seed(seed)
+    model = bp.make_model(hp, cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=hp["learning_rate"])
+    trainer = bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"])
+
+    def one_step():
+        bp.optimiser_step(trainer, opt, hp)
+
+    # warm-up, then run until the stream is steady: rows start episodes at different times after a few episodes
+    for _ in range(2):
+        one_step()
+    ts, te = _Timed(trainer.tracker, "step"), _Timed(trainer.layout, "encode")
+    e0, r0, s0 = trainer.episodes_done, trainer.row_looks, trainer.scored_looks
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        one_step()
+    dt = time.perf_counter() - t0
+    n_ep = trainer.episodes_done - e0
+    return {"flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden, "steps": steps, "seconds": dt,
+            "seconds_per_step": dt / steps, "episodes_per_s": n_ep / dt, "episodes": n_ep,
+            "row_looks_per_s": (trainer.row_looks - r0) / dt, "scored_looks_per_s": (trainer.scored_looks - s0) / dt,
+            "numba_share": (ts.seconds + te.seconds) / dt,
+            "mean_looks_per_episode": (trainer.scored_looks - s0) / max(n_ep, 1)}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--batch", type=_positive_int, default=1000, help="episodes side by side (default 1000)")
+    p.add_argument("--chunk", type=_positive_int, default=None, help="looks per optimiser step (default: the recipe's)")
+    p.add_argument("--hidden", type=_positive_int, default=None, help="GRU width (default: the recipe's)")
+    p.add_argument("--steps", type=_positive_int, default=10, help="timed optimiser steps per distribution (10)")
+    p.add_argument("--flights", default=",".join(FLIGHTS), help=f"comma-separated subset of {','.join(FLIGHTS)}")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default=None, help="also write the results here")
+    a = p.parse_args(argv)
+    flights = [f for f in a.flights.split(",") if f]
+    if not flights or any(f not in FLIGHTS for f in flights):
+        p.error(f"--flights must be a comma-separated subset of {','.join(FLIGHTS)}, got {a.flights!r}")
+    torch.set_num_threads(1)
+    rec = load_hyperparams("backprop")
+    chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
+    res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "loadavg_1min": os.getloadavg()[0],
+           "results": []}
+    print(f"batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.steps} timed steps, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} thread(s), load average {os.getloadavg()[0]:.2f}")
+    for f in flights:
+        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed)
+        res["results"].append(r)
+        print(f"  {f:9s} {r['seconds_per_step']:6.3f} s/step  {r['episodes_per_s']:7.1f} episodes/s  "
+              f"{r['row_looks_per_s']:9.0f} row-looks/s  {r['scored_looks_per_s']:9.0f} scored looks/s  "
+              f"({r['mean_looks_per_episode']:.0f} looks/episode; numba Tracker + observation "
+              f"{100 * r['numba_share']:.0f} % of the step)")
+    res["cartpole_steps_per_s"] = cartpole_rate(1.0)
+    res["loadavg_1min_at_end"] = os.getloadavg()[0]
+    for r in res["results"]:
+        r["row_looks_per_cartpole_step"] = r["row_looks_per_s"] / res["cartpole_steps_per_s"]
+    print(f"  reference: CartPole-v1 {res['cartpole_steps_per_s']:.0f} steps/s; row-looks per CartPole step: "
+          + ", ".join(f"{r['flights']} {r['row_looks_per_cartpole_step']:.2f}" for r in res["results"])
+          + f"; load average at the end {res['loadavg_1min_at_end']:.2f}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=2))
+    return res
+
+
+if __name__ == "__main__":
+    main()
