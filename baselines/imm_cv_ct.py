@@ -558,18 +558,19 @@ def _kernel(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, si
              out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _step_kernel(rows, t, z, R, det, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm, log_mu, k,
                  t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
     """The next look ``k[r]`` of each row ``r = rows[i]`` with that row's parameters ``q[i]``, ``sig_w2[i]``,
-    ``log_Pi[i]``; the modes ``xm, Pm, log_mu (B, ...)`` and cursors ``k, t_last (B,)`` are updated in place."""
-    M = is_ct.shape[0]
-    for i in numba.prange(rows.shape[0]):
+    ``log_Pi[i]``; the modes ``xm, Pm, log_mu (B, ...)`` and cursors ``k, t_last (B,)`` are updated in place.
+    Serial, one scratch set per call: a look is microseconds per row, less than a thread pool's start."""
+    work = _work(is_ct.shape[0])
+    for i in range(rows.shape[0]):
         r = rows[i]
         kk = k[r]
         out_nis[i], out_omega[i], out_omega_var[i] = _look(
             t[r, kk] - t_last[r], z[r, kk], R[r, kk], det[r, kk], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2,
-            omega_max, accel_max, xm[r], Pm[r], log_mu[r], _work(M), out_x[i], out_P[i], out_mu[i])
+            omega_max, accel_max, xm[r], Pm[r], log_mu[r], work, out_x[i], out_P[i], out_mu[i])
         t_last[r] = t[r, kk]
         k[r] = kk + 1
 

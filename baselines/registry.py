@@ -5,8 +5,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
-in no default list). ``policy`` (a learned policy) and ``policy_bp`` (the bundled policy trained by backpropagation)
-are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
+in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
+and ``policy_imm_bp`` (the bundled learned IMM) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
 trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
@@ -77,8 +77,9 @@ _RUNNERS = {
     "hindsight_q_turn": lambda eps, cfg: _hindsight().run_hindsight_q_turn(eps, cfg=cfg),
 }
 
-POLICY_TRACKERS = ("policy", "policy_bp")
-"""Tracker names of learned policies: run by the evaluation through :func:`baselines.trackers.run_q_policy`."""
+POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp")
+"""Tracker names of learned policies, each run by the evaluation from its file: a q-policy through
+:func:`baselines.trackers.run_q_policy`, a learned IMM by its own ``run``."""
 
 TRACKER_NAMES = POLICY_TRACKERS + tuple(_RUNNERS)
 """The built-in tracker names (user trackers: :func:`tracker_names`)."""

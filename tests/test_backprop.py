@@ -279,7 +279,7 @@ def test_check_hp_refusals():
     with pytest.raises(ValueError, match="--hp chunk_looks"):
         bp.check_hp(_hp(chunk_looks=0))
     with pytest.raises(ValueError, match="--hp tracker"):
-        bp.check_hp(_hp(tracker="imm_cv_ct"))
+        bp.check_hp(_hp(tracker="nope"))
     with pytest.raises(ValueError, match="select_on"):
         bp.check_hp(_hp(select_on=["bizup2002"]))
     for ek, msg in (({"scenario": "bizup2002"}, "random scenario generators"),
@@ -353,7 +353,7 @@ def test_train_cli_method_backprop(tmp_path, capsys):
     for argv, msg in ((["--method", "backprop", "--algo", "ppo"], "--algo applies to --method ppo"),
                       (["--method", "backprop", "--timesteps", "5"], "--timesteps applies"),
                       (["--method", "backprop", "--hp", "hidden_size=0"], "--hp hidden_size"),
-                      (["--method", "backprop", "--tracker", "nope"], "--hp tracker"),
+                      (["--method", "backprop", "--tracker", "nope"], "--tracker: unknown model"),
                       (["--method", "backprop", "--seed", "950000"], "--seed"),
                       (["--algo", "ppo", "--tracker", "cv"], "--tracker applies"),
                       ([], "--algo is required")):

@@ -13,7 +13,8 @@ torch = pytest.importorskip("torch")
 
 from agents.evaluation.suites import draw_suite  # noqa: E402
 from agents.policies import learned_imm as LI  # noqa: E402
-from agents.training import learned_imm as LT  # noqa: E402
+from agents.training import backprop as bp  # noqa: E402
+from agents.training.runs import load_hyperparams  # noqa: E402
 from baselines import imm_cv_ct as I  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
 
@@ -27,9 +28,8 @@ def _short(eps, n):
 
 @pytest.fixture(scope="module")
 def setup():
-    hp = LT.load_hp(overrides={"compile": False, "hidden_size": 16})
-    env_kwargs, cfg = LT._env_config(hp)
-    return hp, env_kwargs, cfg
+    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16)
+    return bp.check_hp(hp)
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +53,9 @@ def _rel_P(a, b):
 
 
 def _torch_run(model, eps, cfg):
+    rec = []
     with torch.no_grad():
-        x, looks, rec = LT.forward_episodes(model, eps, cfg)
+        x, looks = bp.forward_episodes(model, eps, cfg, lambda j: rec.append((model.record, model.delta)))
     m = looks.scored_mask.numpy()
     P = torch.stack([r.P for r, _ in rec]).permute(3, 0, 1, 2).numpy()
     mu = torch.stack([torch.exp(r.modes.log_mu[model._inverse]) for r, _ in rec]).permute(2, 0, 1).numpy()
@@ -64,7 +65,7 @@ def _torch_run(model, eps, cfg):
 
 def test_initial_weights_are_imm_cv_ct(setup, episodes):
     hp, env_kwargs, cfg = setup
-    model = LT.make_model(hp, cfg)
+    model = bp.make_model(hp, cfg)
     ref = run_tracker("imm_cv_ct", episodes)
     got = model.inference(cfg, env_kwargs).run(episodes)
     assert _rel(got.x, ref.x) < TOL and _rel_P(got.P, ref.P) < TOL
@@ -82,7 +83,7 @@ def test_initial_weights_are_imm_cv_ct(setup, episodes):
 def test_numpy_inference_equals_the_torch_forward(setup, episodes):
     hp, env_kwargs, cfg = setup
     torch.manual_seed(3)
-    model = LT.make_model(hp, cfg)
+    model = bp.make_model(hp, cfg)
     with torch.no_grad():
         for p in model.parameters():
             p.add_(0.4 * torch.randn_like(p))
@@ -121,23 +122,13 @@ def test_outputs_stay_inside_the_documented_ranges():
     assert np.all(np.diff(pm.physical(d)[:, 2]) > 0)
 
 
-def test_numpy_gru_equals_torch():
-    torch.manual_seed(0)
-    cell = torch.nn.GRUCell(7, 5, dtype=torch.float64)
-    x, h = torch.randn(11, 7, dtype=torch.float64), torch.randn(11, 5, dtype=torch.float64)
-    ref = cell(x, h).detach().numpy()
-    got = LI.gru_cell(x.numpy(), h.numpy(), *(getattr(cell, n).detach().numpy() for n in
-                                              ("weight_ih", "weight_hh", "bias_ih", "bias_hh")))
-    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
-
-
 def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
     hp, env_kwargs, cfg = setup
     torch.manual_seed(1)
-    model = LT.make_model(hp, cfg)
+    model = bp.make_model(hp, cfg)
     with torch.no_grad():
         model.out.weight.add_(0.1 * torch.randn_like(model.out.weight))
-    path = model.save_checkpoint(tmp_path / "ck", cfg, env_kwargs)
+    path = model.save_policy(tmp_path / "ck", cfg, env_kwargs)
     assert LI.is_learned_imm_checkpoint(path) and not LI.is_learned_imm_checkpoint(tmp_path)
     with np.load(path, allow_pickle=False) as z:
         assert set(z.files) == set(LI.weight_shapes(model.architecture()))
@@ -155,19 +146,23 @@ def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
 
 
 def test_tiny_training_run(tmp_path, setup):
-    hp, _, _ = setup
-    hp = dict(hp, n_steps=2, batch_episodes=6, chunk_looks=8, eval_every=1, eval_scenarios={"random": 3},
-              select_on=["random"])
-    run = LT.train_learned_imm(hp, seed=5, out=tmp_path, name="t", progress=False, verbose=0)
+    """``train --method backprop --tracker imm_cv_ct`` end to end: the shared trainer runs the learned IMM; at step 0
+    it is imm_cv_ct (the validation's ratio is imm_cv_ct's); the output layer moves; the checkpoints are the learned
+    IMM's format."""
+    from agents.training.train import main
+    run = main(["--method", "backprop", "--tracker", "imm_cv_ct", "--out", str(tmp_path), "--name", "t", "--seed", "5",
+                "--no-progress", "--quiet", "--hp", "n_steps=2", "--hp", "batch_episodes=6", "--hp", "chunk_looks=8",
+                "--hp", "eval_every=1", "--hp", "hidden_size=16", "--hp", 'eval_scenarios={"random": 3}',
+                "--hp", 'select_on=["random"]'])
     s = json.loads((run / "summary.json").read_text())
-    assert s["steps"] == 2 and len(s["selection_history"]) == 3
-    assert s["selection_history"][0]["selection_ratio"] == pytest.approx(1.0, abs=1e-9)   # it starts as imm_cv_ct
-    assert LI.is_learned_imm_checkpoint(run / "best" / "policy.npz")
+    assert s["tracker"] == "imm_cv_ct" and s["steps"] == 2 and len(s["selection_history"]) == 3
+    first = s["selection_history"][0]
+    from agents.training.selection import pooled_rmse
+    from radar_env.episode import stack_episodes
+    eps = draw_suite("random", 3, seed=900_000)
+    ref = pooled_rmse(stack_episodes(eps), run_tracker("imm_cv_ct", eps))
+    assert first["random_rmse_m"] == pytest.approx(ref, rel=1e-9)            # it starts as imm_cv_ct
+    assert LI.is_learned_imm_checkpoint(run / "best" / "policy.npz") and LI.is_learned_imm_checkpoint(run)
     w = np.load(run / "policy.npz", allow_pickle=False)["out.weight"]
     assert np.any(w != 0.0)                                                   # the output layer moved
-    with pytest.raises(ValueError, match="already exists"):
-        LT.train_learned_imm(hp, seed=5, out=tmp_path, name="t", progress=False, verbose=0)
-    with pytest.raises(ValueError, match="--seed"):
-        LT.train_learned_imm(hp, seed=900_000, out=tmp_path, progress=False, verbose=0)
-    with pytest.raises(ValueError, match="--hp hidden_size"):
-        LT.load_hp(overrides={"hidden_size": 0})
+    assert json.loads((run / "config.json").read_text())["tracker"] == "imm_cv_ct"

@@ -4,8 +4,8 @@
 seeds, see :mod:`agents.evaluation.suites`), runs every tracker on the same episodes, batched over runs, and prints a table,
 writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.evaluation.metrics`).
 
-Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, and ``policy_bp``, trained
-by backpropagation), the tuned 2-mode IMM (``imm2``), the tuned
+Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, ``policy_bp``, a q-policy
+trained by backpropagation, and ``policy_imm_bp``, the learned IMM trained by backpropagation), the tuned 2-mode IMM (``imm2``), the tuned
 CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
 KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
 scenarios).
@@ -30,7 +30,7 @@ from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
 
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_POLICIES
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
@@ -53,14 +53,16 @@ the ADS-B suites fly each of their flights once; the held-out families 200); oth
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None, policy_bp_path=None, loaded_policy_bp=None):
+             common_over=None, loaded_policy=None, policy_bp_path=None, loaded_policy_bp=None,
+             policy_imm_bp_path=None, loaded_policy_imm_bp=None):
     """Run ``trackers`` on every suite.
 
     Args:
         suites: list of ``(name, episodes)``.
         trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``, ``policy_bp`` runs
-            ``policy_bp_path`` (default: the bundled backprop policy, :data:`BUNDLED_BP_POLICY`). Either file may be
-            an SB3 zip or a recurrent ``.npz`` (:func:`agents.policies.loading.load_policy`).
+            ``policy_bp_path`` and ``policy_imm_bp`` ``policy_imm_bp_path`` (default: the bundled ones,
+            :data:`agents.policies.bundle.BUNDLED_POLICIES`). Each file may be an SB3 zip, a recurrent ``.npz`` or a
+            learned IMM (:func:`agents.policies.loading.load_policy`).
         reference: tracker the ratio column is taken against (if present).
         workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.evaluation.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
@@ -68,18 +70,19 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
             (:func:`agents.evaluation.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
-        loaded_policy, loaded_policy_bp: ``load_policy(policy_path)``'s (``policy_bp_path``'s) result if the caller
-            has it already (not loaded again).
+        loaded_policy, loaded_policy_bp, loaded_policy_imm_bp: ``load_policy(policy_path)``'s (``policy_bp_path``'s,
+            ``policy_imm_bp_path``'s) result if the caller has it already (not loaded again).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
         ``"ratio_vs_" + reference + "_runs"``), ``..._common`` the same over the suite's ``common_runs``;
         ``runs[suite]`` = ``(batch, {name: TrackRun})``.
     """
-    if policy_bp_path is None and BUNDLED_BP_POLICY.is_file():
-        policy_bp_path = BUNDLED_BP_POLICY
-    paths = {"policy": policy_path, "policy_bp": policy_bp_path}
-    given = {"policy": loaded_policy, "policy_bp": loaded_policy_bp}
+    paths = {"policy": policy_path, "policy_bp": policy_bp_path, "policy_imm_bp": policy_imm_bp_path}
+    for t in ("policy_bp", "policy_imm_bp"):
+        if paths[t] is None and BUNDLED_POLICIES[t].is_file():
+            paths[t] = BUNDLED_POLICIES[t]
+    given = {"policy": loaded_policy, "policy_bp": loaded_policy_bp, "policy_imm_bp": loaded_policy_imm_bp}
     policies = {}                           # tracker -> (choose_q, env config)
     for t in POLICY_TRACKERS:
         if t in trackers:
@@ -473,12 +476,12 @@ def main(argv=None, prog="radar-track evaluate"):
     if args.workers < 1:
         raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
     policy_files = {}                   # learned tracker -> its file: the option's, else the bundled one if shipped
-    for t, given, bundled in (("policy", args.policy, BUNDLED_POLICY),
-                              ("policy_bp", args.policy_bp, BUNDLED_BP_POLICY)):
+    for t, bundled in BUNDLED_POLICIES.items():
+        given = getattr(args, t)
         if given is not None and not Path(given).is_file():
             raise SystemExit(f"error: --{t.replace('_', '-')}: file {given!r} does not exist (or is not a file)")
         policy_files[t] = given if given is not None else (str(bundled) if bundled.is_file() else None)
-    policy, policy_bp = policy_files["policy"], policy_files["policy_bp"]
+    policy, policy_bp, policy_imm_bp = policy_files["policy"], policy_files["policy_bp"], policy_files["policy_imm_bp"]
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)
@@ -555,7 +558,8 @@ def main(argv=None, prog="radar-track evaluate"):
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
                                  address=args.address, seed=args.seed, loaded_policy=loaded.get("policy"),
-                                 policy_bp_path=policy_bp, loaded_policy_bp=loaded.get("policy_bp"))
+                                 policy_bp_path=policy_bp, loaded_policy_bp=loaded.get("policy_bp"),
+                                 policy_imm_bp_path=policy_imm_bp, loaded_policy_imm_bp=loaded.get("policy_imm_bp"))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
@@ -563,6 +567,7 @@ def main(argv=None, prog="radar-track evaluate"):
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
                 "policy": policy, "policy_bp": policy_bp if "policy_bp" in trackers else None,
+                "policy_imm_bp": policy_imm_bp if "policy_imm_bp" in trackers else None,
                 "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},

@@ -10,14 +10,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_LEARNED_IMM, BUNDLED_POLICIES, BUNDLED_POLICY
 from baselines.seeds import EVAL_SEED_BASE
 
 __all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
 
-DEFAULT_TRACKERS = ("policy", "policy_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
-"""The main job's trackers (``policy``, PPO, and ``policy_bp``, trained by backpropagation, only when such a policy
-is bundled or given)."""
+DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin",
+                    "clairvoyant")
+"""The main job's trackers (the learned ones, ``policy``, PPO, ``policy_bp``, a q-policy trained by backpropagation,
+and ``policy_imm_bp``, the learned IMM trained by backpropagation, only when such a file is bundled or given)."""
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
@@ -76,6 +77,11 @@ def build_parser(prog="radar-track evaluate"):
                     help="saved policy for the 'policy_bp' tracker (policy.npz with policy.json and env_config.json "
                          "beside it, or an SB3 .zip) (default: the bundled "
                          f"{BUNDLED_BP_POLICY.relative_to(Path(__file__).parents[2])} if present)")
+    ap.add_argument("--policy-imm-bp", metavar="FILE",
+                    help="saved learned IMM for the 'policy_imm_bp' tracker (policy.npz with policy.json and "
+                         "env_config.json beside it, as radar-track train --method backprop --tracker imm_cv_ct "
+                         "writes) (default: the bundled "
+                         f"{BUNDLED_LEARNED_IMM.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
                     help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
                          "followed) (default: ./results)")
@@ -104,8 +110,8 @@ def first_line(args):
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
-                else len(DEFAULT_TRACKERS) - (not (args.policy or BUNDLED_POLICY.is_file()))
-                - (not (args.policy_bp or BUNDLED_BP_POLICY.is_file())))
+                else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t) or BUNDLED_POLICIES[t].is_file())
+                                                 for t in BUNDLED_POLICIES))
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
             + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers) else "")

@@ -17,12 +17,14 @@ __all__ = ["run_one", "failed_track_run"]
 
 
 def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
-    """Run one tracker (a learned policy, ``policy`` or ``policy_bp``: through ``choose_q`` with its env config
-    ``policy_cfg``) on a suite's episodes. A tracker that raises does not stop the evaluation: it gets a
+    """Run one tracker (a learned policy, ``policy``, ``policy_bp`` or ``policy_imm_bp``: through ``choose_q`` with
+    its env config ``policy_cfg``, or, for a learned IMM, ``choose_q.run``) on a suite's episodes. A tracker that raises does not stop the evaluation: it gets a
     :class:`TrackRun` of NaN (so every run counts as failed) with the exception in ``error``, reported in its metrics
     and on stderr; the other trackers are scored as usual."""
     try:
         if tracker in POLICY_TRACKERS:
+            if getattr(choose_q, "is_tracker", False):      # a learned IMM: a tracker, not a q-policy
+                return choose_q.run(episodes, tracker)
             return run_q_policy(episodes, choose_q, tracker, policy_cfg)
         return run_tracker(tracker, episodes)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:

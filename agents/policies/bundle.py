@@ -23,7 +23,7 @@ import json
 import zipfile
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
            "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
@@ -35,7 +35,10 @@ BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop"
 """The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
 :mod:`agents.policies.recurrent`, with ``policy.json`` and ``env_config.json`` beside it)."""
 BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / "policy.npz"
-"""The bundled learned IMM (the tracker ``policy_imm_bp``; :mod:`agents.policies.learned_imm`)."""
+"""The bundled learned IMM trained by backpropagation (the tracker ``policy_imm_bp``;
+:mod:`agents.policies.learned_imm`, with ``policy.json`` and ``env_config.json`` beside it)."""
+BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM}
+"""Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 
 def env_kwargs_from_json(v):

@@ -49,10 +49,11 @@ from radar_env.config import EnvConfig
 from radar_env.episode import stack_episodes
 from radar_env.units import DEG, G0_M_S2
 
-from agents.policies.bundle import BUNDLED_LEARNED_IMM, _tuples
+from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
+from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",
-           "detector_names", "initial_detectors", "gru_cell", "weight_shapes", "LearnedIMM", "save_learned_imm", "load_learned_imm",
+           "detector_names", "initial_detectors", "weight_shapes", "LearnedIMM", "save_learned_imm", "load_learned_imm",
            "is_learned_imm_checkpoint", "run_learned_imm", "run_bundled_learned_imm"]
 
 FORMAT = "radar-track-learned-imm"
@@ -132,36 +133,10 @@ def initial_detectors(spec, n):
 
 
 # ------------------------------------------------------------------------------------------------ the network
-def _sigmoid(v):
-    return 0.5 + 0.5 * np.tanh(0.5 * v)
-
-
-def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
-    """One step of torch's ``GRUCell`` (gates r, z, n): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``::
-
-        r = sigmoid(W_ir x + b_ir + W_hr h + b_hr);  z = sigmoid(W_iz x + b_iz + W_hz h + b_hz)
-        n = tanh(W_in x + b_in + r * (W_hn h + b_hn));  h' = (1 - z) * n + z * h
-    """
-    gi = x @ w_ih.T + b_ih
-    gh = h @ w_hh.T + b_hh
-    H = h.shape[1]
-    r = _sigmoid(gi[:, :H] + gh[:, :H])
-    z = _sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
-    n = np.tanh(gi[:, 2 * H:] + r * gh[:, 2 * H:])
-    return (1.0 - z) * n + z * h
-
-
 def weight_shapes(arch):
     """``{name: shape}`` of the weights for ``arch`` (``input_size``: observation + detectors, ``hidden_size``,
-    ``head``: tanh layer widths, ``n_par``)."""
-    F, H = arch["input_size"], arch["hidden_size"]
-    s = {"gru.weight_ih": (3 * H, F), "gru.weight_hh": (3 * H, H), "gru.bias_ih": (3 * H,), "gru.bias_hh": (3 * H,)}
-    prev = H
-    for i, n in enumerate(arch["head"]):
-        s[f"head.{i}.weight"], s[f"head.{i}.bias"] = (n, prev), (n,)
-        prev = n
-    s["out.weight"], s["out.bias"] = (arch["n_par"], prev), (arch["n_par"],)
-    return s
+    ``head``: tanh layer widths, ``n_par``): the recurrent q-policy's network with ``n_par`` outputs."""
+    return recurrent_shapes({**arch, "n_out": arch["n_par"]})
 
 
 class LearnedIMM:
@@ -171,6 +146,9 @@ class LearnedIMM:
         weights: ``{name: array}`` (:func:`weight_shapes`). config: the ``policy.json`` dict. env_kwargs: the
             ``RadarTrack-v0`` arguments (its observation's features, q levels and track start).
     """
+
+    is_tracker = True
+    """It runs episodes itself (:meth:`run`), unlike a q-policy (the evaluation's runner asks)."""
 
     def __init__(self, weights, config, env_kwargs):
         self.config, self.env_kwargs = config, dict(env_kwargs)
@@ -185,7 +163,7 @@ class LearnedIMM:
         if tuple(config["parameters"]) != self.names:
             raise ValueError(f"policy.json parameters {config['parameters']} != {list(self.names)}")
         self.pmap = ParamMap(config["base_parameters"], self.names)
-        self.cfg = EnvConfig.from_kwargs(**_env_kwargs(self.env_kwargs))
+        self.cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(self.env_kwargs))
         self.feature_q_m_s2 = float(config["feature_q_g"]) * G0_M_S2
         self.layout, _ = observation_layout(self.cfg)
         n_in = len(self.cfg.features) + len(detector_names(self.spec.n_modes))
@@ -199,8 +177,8 @@ class LearnedIMM:
         h = gru_cell(inputs, h, w["gru.weight_ih"], w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"])
         y = h
         for i in range(len(self.arch["head"])):
-            y = np.tanh(y @ w[f"head.{i}.weight"].T + w[f"head.{i}.bias"])
-        return y @ w["out.weight"].T + w["out.bias"], h
+            y = np.tanh(linear(y, w[f"head.{i}.weight"]) + w[f"head.{i}.bias"])
+        return linear(y, w["out.weight"]) + w["out.bias"], h
 
     def run(self, episodes, name="policy_imm_bp"):
         """The learned IMM on ``episodes`` from the common track start: a :class:`baselines.trackers.TrackRun`
@@ -249,10 +227,6 @@ class LearnedIMM:
         declared = np.zeros((B, K), dtype=bool)
         declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
         return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared, extra=extra)
-
-
-def _env_kwargs(kw):
-    return _tuples(json.loads(json.dumps(kw)))
 
 
 def save_learned_imm(directory, weights, config, env_kwargs):

@@ -39,7 +39,9 @@ def load_policy(path):
     """Load a saved policy and the env config it was trained with, by file type: a stable-baselines3 model (PPO,
     DQN, SAC, A2C or TD3 ``.zip``; ``env_config.json`` beside it, else the defaults with the model's action type)
     or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
-    ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle).
+    ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle), or a learned IMM
+    (the same three files, :func:`agents.policies.learned_imm.load_learned_imm`: returned as ``(LearnedIMM, cfg)``,
+    a tracker with ``is_tracker`` and ``run(episodes, name)`` in place of ``choose_q``).
 
     Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2, evaluated in numpy wherever the
     model's structure allows (:func:`load_model`; a recurrent policy is a stateful ``choose_q`` for
@@ -52,6 +54,10 @@ def load_policy(path):
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
     if path.suffix == ".npz":       # a recurrent policy (load_recurrent_policy says what is missing if it is not)
+        from agents.policies.learned_imm import is_learned_imm_checkpoint, load_learned_imm
+        if is_learned_imm_checkpoint(path):
+            imm = load_learned_imm(path)
+            return imm, imm.cfg
         return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}

@@ -87,7 +87,7 @@ def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
 
 def weight_shapes(arch):
     """``{name: shape}`` of a policy's weights for ``arch`` (``input_size``, ``hidden_size``, ``head``: sizes of
-    the tanh layers between the GRU and the output, may be empty)."""
+    the tanh layers between the GRU and the output, may be empty; ``n_out``: outputs, 1 unless given)."""
     F, H = int(arch["input_size"]), int(arch["hidden_size"])
     shapes = {"gru.weight_ih": (3 * H, F), "gru.weight_hh": (3 * H, H), "gru.bias_ih": (3 * H,),
               "gru.bias_hh": (3 * H,)}
@@ -95,7 +95,8 @@ def weight_shapes(arch):
     for i, n in enumerate(arch.get("head", [])):
         shapes[f"head.{i}.weight"], shapes[f"head.{i}.bias"] = (int(n), prev), (int(n),)
         prev = int(n)
-    shapes["out.weight"], shapes["out.bias"] = (1, prev), (1,)
+    n_out = int(arch.get("n_out", 1))
+    shapes["out.weight"], shapes["out.bias"] = (n_out, prev), (n_out,)
     return shapes
 
 

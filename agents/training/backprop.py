@@ -35,9 +35,11 @@ Seeds. Row ``r`` of a run with training seed ``S`` plays the episodes of ``numpy
 training-range seeds ``900_000 + i``, the policy / imm2 RMSE ratio, geometric mean over ``select_on``), every
 ``eval_every`` steps and at the end; the best checkpoint is kept.
 
-The model interface (:class:`ChainModel`): a second differentiable tracker (e.g. a learned CV/CT IMM,
-``--tracker imm_cv_ct``) plugs in by subclassing it and adding itself to :data:`MODELS`; the trainer (drawing,
-lockstep, chunks, loss, optimiser, validation, checkpoints, run folder) is shared.
+The model interface (:class:`ChainModel`): ``--tracker cv`` (default) is the q-policy above; ``--tracker
+imm_cv_ct`` the learned IMM (:mod:`agents.training.learned_imm`: imm_cv_ct whose per-look parameters a GRU sets,
+through the torch IMM). A model plugs in by subclassing it and naming itself in :data:`MODELS`; the trainer
+(drawing, lockstep, chunks, loss, optimiser, validation, checkpoints, run folder) is shared. Each model has its
+default hyperparameter file (:data:`HP_FILES`).
 
 The run folder (``<out>/<name>.partial/`` until complete, then ``<out>/<name>/``), as ``radar-track train``'s:
 ``config.json``, ``args.json``, ``command.txt``, ``env_config.json``, ``policy.npz`` + ``policy.json`` (final
@@ -75,8 +77,8 @@ from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, finish_run, load_hyperparams, mark_failed,
                                   open_run_folder, run_paths, write_run_files)
 
-__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_SPEC", "LOSSES", "check_hp", "train_backprop", "make_model",
-           "StreamingTrainer", "optimiser_step", "MAX_TRAIN_SEED"]
+__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "LOSSES", "check_hp", "train_backprop",
+           "make_model", "StreamingTrainer", "lockstep", "forward_episodes", "optimiser_step", "MAX_TRAIN_SEED"]
 
 DTYPE = torch.float64
 LOSSES = ("position_mse", "normalised")
@@ -105,7 +107,11 @@ class ChainModel(torch.nn.Module):
       detached) of the look before: returns the position estimate the loss scores (components first, see
       torch_chain) and the q (m/s^2, numpy) the trainer steps the numba Tracker with, for the next observation;
     * :meth:`architecture` (JSON-able dict), :meth:`policy_weights` (``{name: numpy array}``) and
-      :meth:`policy_config` (the ``policy.json`` entries): the checkpoint its inference code loads.
+      :meth:`policy_config` (the ``policy.json`` entries): the checkpoint its inference code loads;
+    * :meth:`save_policy` ``(directory, cfg, env_kwargs, weights=None)``: write that checkpoint (its format);
+    * :meth:`validation_row` ``(selection, cfg, env_kwargs)``: the current weights scored by the numpy inference on
+      the :class:`agents.training.selection.SelectionSuites` (its ``score`` or ``score_runs`` row);
+    * :meth:`build` ``(hp, cfg)`` (class method): the untrained model for the hyperparameters and the env config.
 
     Rows whose episode has ended are still passed to :meth:`step` until the chunk ends (padding columns of
     ``looks``: ``dt = 0``, not detected, not scored), so a model may compute anything there.
@@ -132,6 +138,16 @@ class ChainModel(torch.nn.Module):
         raise NotImplementedError
 
     def policy_config(self, cfg):
+        raise NotImplementedError
+
+    def save_policy(self, directory, cfg, env_kwargs, weights=None):
+        raise NotImplementedError
+
+    def validation_row(self, selection, cfg, env_kwargs):
+        raise NotImplementedError
+
+    @classmethod
+    def build(cls, hp, cfg):
         raise NotImplementedError
 
 
@@ -224,23 +240,42 @@ class CVQModel(ChainModel):
                 "action": "a = tanh(out(head(h))) in [-1, 1]; q = q_min (q_max / q_min)^((a + 1) / 2)"}
 
     def inference_policy(self, cfg):
-        """The numpy policy of the current weights (for validation)."""
+        """The numpy policy of the current weights."""
         return RecurrentQPolicy(self.policy_weights(), self.architecture(), cfg.q_levels_g)
 
+    def save_policy(self, directory, cfg, env_kwargs, weights=None):
+        return save_recurrent_policy(directory, self.policy_weights() if weights is None else weights,
+                                     self.policy_config(cfg), env_kwargs)
 
-MODELS = {"cv": CVQModel}
-"""``--tracker`` name -> :class:`ChainModel` subclass. A model class is built by :func:`make_model`."""
+    def validation_row(self, selection, cfg, env_kwargs):
+        return selection.score(self.inference_policy(cfg), cfg)[0]
+
+    @classmethod
+    def build(cls, hp, cfg):
+        """Over the env's observation, starting at kf_tuned's q."""
+        from baselines.tuned_params import tuned_parameters
+        levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+        return cls(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
+                   tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+
+
+MODELS = {"cv": ("agents.training.backprop", "CVQModel"),
+          "imm_cv_ct": ("agents.training.learned_imm", "LearnedIMMModel")}
+"""``--tracker`` name -> the (module, class) of its :class:`ChainModel` (imported when built): ``cv``, the CV
+filter's q per look (the policy ``policy_bp``); ``imm_cv_ct``, the learned IMM (``policy_imm_bp``)."""
+
+HP_FILES = {"cv": "backprop", "imm_cv_ct": "backprop_imm_cv_ct"}
+"""``--tracker`` name -> its default hyperparameter file ``agents/training/hyperparams/<name>.toml``."""
 
 
 def make_model(hp, cfg):
-    """The model of ``hp["tracker"]`` for the env config ``cfg`` (its observation size and action range)."""
+    """The model of ``hp["tracker"]`` (:data:`MODELS`) for the env config ``cfg``."""
+    import importlib
     name = hp["tracker"]
-    if name == "cv":
-        from baselines.tuned_params import tuned_parameters
-        levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
-        return CVQModel(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
-                        tuned_parameters()["kf"]["q_g"] * G0_M_S2)
-    raise ValueError(f"--tracker: unknown model {name!r}; valid: {sorted(MODELS)}")
+    if name not in MODELS:
+        raise ValueError(f"--tracker: unknown model {name!r}; valid: {sorted(MODELS)}")
+    module, cls = MODELS[name]
+    return getattr(importlib.import_module(module), cls).build(hp, cfg)
 
 
 # ============================================================================================ hyperparameters
@@ -368,21 +403,9 @@ class StreamingTrainer:
         looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
                                      tr.t_last)
         active = looks.scored.numpy()                              # (J, B): the row has a look at column j
-        xs = []
-        for j in range(looks.J):
-            x, q = self.model.step(looks, j, torch.from_numpy(self.obs.astype(np.float64)))
-            xs.append(x)
-            rows = np.flatnonzero(active[j])
-            if rows.size == self.B:
-                o = tr.step(q)
-                self.obs[:] = self.layout.encode(o, q)
-            else:
-                q = q[rows]
-                o = tr.step(q, rows=rows)
-                self.obs[rows] = self.layout.encode(o, q)
+        x = lockstep(self.model, tr, self.layout, self.obs, looks)
         self.row_looks += self.B * looks.J
         self.scored_looks += int(active.sum())
-        x = torch.stack(xs).permute(2, 0, 1)                       # (J, 4, B) -> (B, J, 4)
         if self.loss == "position_mse":
             return tc.pooled_position_mse(x, looks), looks
         at = lambda f: get(f)[np.arange(self.B)[:, None], looks.cols]   # noqa: E731 - (B, J) at the columns
@@ -391,6 +414,47 @@ class StreamingTrainer:
                                   at("bearing_noise_std_rad"))
         w = torch.from_numpy(np.where(active.T, 1.0 / sig ** 2, 0.0))
         return (tc.position_sq_error(x, looks) * w).sum() / looks.scored.sum(), looks
+
+
+def lockstep(model, tracker, layout, obs, looks, on_look=None):
+    """The columns of ``looks`` (the next looks of every row of ``tracker``): the model steps each, reading ``obs
+    (B, F)`` (float32, the env's observation; updated in place with the next ones), and the numba ``tracker`` steps
+    the rows that have the look with the model's q, whose output the env's ``layout`` encodes. Returns the model's
+    position estimates ``x (B, J, 4)`` (a graph); ``on_look(j)`` (optional) is called after each model step."""
+    active = looks.scored.numpy()
+    B, xs = looks.B, []
+    for j in range(looks.J):
+        x, q = model.step(looks, j, torch.from_numpy(obs.astype(np.float64)))
+        xs.append(x)
+        if on_look is not None:
+            on_look(j)
+        rows = np.flatnonzero(active[j])
+        if rows.size == B:
+            obs[:] = layout.encode(tracker.step(q), q)
+        elif rows.size:
+            q = q[rows]
+            obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+    return torch.stack(xs).permute(2, 0, 1)                      # (J, 4, B) -> (B, J, 4)
+
+
+def forward_episodes(model, episodes, cfg, on_look=None):
+    """``model`` over whole ``episodes`` from the common track start of ``cfg``, in one chunk and without chunking
+    the graph (tests and diagnostics): ``(x (B, J, 4), looks)``, the looks after the start as
+    :class:`radar_env.torch_chain.ChainLooks`."""
+    episodes = list(episodes)
+    B = len(episodes)
+    lv = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
+    layout = ObservationLayout(cfg.features, lv[0], lv[-1])
+    tr = cfg.track_start.tracker(B)
+    out = tr.load(np.arange(B), episodes)
+    obs = np.asarray(layout.encode(out, cfg.track_start.warmup_q_m_s2), dtype=np.float32)
+    model.reset_state(B)
+    model.start_rows(tr, np.arange(B))
+    model.begin_chunk(tr)
+    get = tr.look_data
+    looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), tr.n_looks,
+                                 tr.k.copy(), tr.t_last)
+    return lockstep(model, tr, layout, obs, looks, on_look), looks
 
 
 # ================================================================================================ checkpoints
@@ -433,8 +497,7 @@ def _load_resume(part, model, opt):
 def _save_policy(directory, model, cfg, env_kwargs, extra=None, weights=None):
     """The policy checkpoint of ``model`` (its current weights, or ``weights``) in ``directory``; ``extra`` as
     ``selection.json``."""
-    path = save_recurrent_policy(directory, model.policy_weights() if weights is None else weights,
-                                 model.policy_config(cfg), env_kwargs)
+    path = model.save_policy(directory, cfg, env_kwargs, weights)
     if extra is not None:
         (Path(directory) / "selection.json").write_text(json.dumps(jsonable(extra), indent=1, allow_nan=False))
     return path
@@ -488,6 +551,10 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
     ``selection_history``; ``timesteps`` there counts optimiser steps); the sweeps report it to Ray Tune.
     Everything is checked (``ValueError``) before the run folder is made."""
     torch.set_num_threads(1)
+    # numba's thread pool too: the lockstep kernels gain little from it, and two runs side by side on a small
+    # machine, each with a pool of every core, ran 8x slower per step (spinning threads), not 2x
+    import numba
+    numba.set_num_threads(1)
     hp, env_kwargs, cfg = check_hp(hp)
     seed = int(seed)
     if not 0 <= seed < MAX_TRAIN_SEED:
@@ -561,7 +628,7 @@ def _run(model, opt, hp, cfg, env_kwargs, seed, part, selection, meta, best_weig
     def validate(step):
         """Score the current weights, keep them if best, checkpoint, then report (a callback that raises, e.g. a
         sweep stopping the trial, leaves a consistent checkpoint)."""
-        row, _ = selection.score(model.inference_policy(cfg), cfg)
+        row = model.validation_row(selection, cfg, env_kwargs)
         row = {"timesteps": step, **row, "wall_s": wall0 + time.perf_counter() - t_start,
                "episodes_done": base["episodes_done"] + trainer.episodes_done}
         best = meta["best_ratio"]
@@ -635,8 +702,10 @@ def main_from_args(args, argv):
         if v is not None:
             raise SystemExit(f"error: {opt} applies to --method ppo; --method backprop takes --hp n_steps=N, "
                              "--hp batch_episodes=N (agents/training/hyperparams/backprop.toml)")
-    try:
-        hp = load_hyperparams("backprop", args.hyperparams)
+    if args.tracker is not None and args.tracker not in MODELS:
+        raise SystemExit(f"error: --tracker: unknown model {args.tracker!r}; valid: {sorted(MODELS)}")
+    try:   # each model's own defaults, unless a file is given
+        hp = load_hyperparams(HP_FILES[args.tracker or "cv"], args.hyperparams)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     hp = apply_cli_overrides(hp, args.env_kwargs, args.hp)

@@ -68,22 +68,27 @@ class SelectionSuites:
 
     def score(self, choose_q, cfg):
         """Run ``choose_q`` (a q-policy for :func:`baselines.trackers.run_q_policy`, stateful or not) with the env
-        config ``cfg`` on every suite. Returns ``(row, primary_run)``: ``row`` has per suite ``<name>_rmse_m``,
-        ``<name>_ratio_imm2`` (inf if either failed a run), ``<name>_failed_runs`` and ``imm2_rmse_m_<name>``,
-        ``median_q_g`` (primary suite), ``selection_ratio`` (geometric mean over ``select_on``) and ``eval_s``."""
+        config ``cfg`` on every suite: :meth:`score_runs` of it."""
+        return self.score_runs(lambda eps: run_q_policy(eps, choose_q, "policy", cfg))
+
+    def score_runs(self, run):
+        """Score a tracker, ``run(episodes) -> TrackRun``, on every suite. Returns ``(row, primary_run)``: ``row``
+        has per suite ``<name>_rmse_m``, ``<name>_ratio_imm2`` (inf if either failed a run), ``<name>_failed_runs``
+        and ``imm2_rmse_m_<name>``, ``median_q_g`` (primary suite; NaN for a tracker without q), ``selection_ratio``
+        (geometric mean over ``select_on``) and ``eval_s``."""
         t0 = time.time()
         row, primary = {}, None
         for name, (eps, batch, imm_rmse) in self.suites.items():
-            run = run_q_policy(eps, choose_q, "policy", cfg)
-            rmse = pooled_rmse(batch, run)
+            tr = run(eps)
+            rmse = pooled_rmse(batch, tr)
             # inf if the policy (or imm2) failed on a run: never the best (rmse / inf would read as 0)
             ratio = rmse / imm_rmse if np.isfinite(rmse) and np.isfinite(imm_rmse) else np.inf
-            row[f"{name}_failed_runs"] = int(failed_runs(batch, run).sum())
+            row[f"{name}_failed_runs"] = int(failed_runs(batch, tr).sum())
             row[f"{name}_rmse_m"], row[f"{name}_ratio_imm2"] = rmse, ratio
             row[f"imm2_rmse_m_{name}"] = imm_rmse
             if name == self.primary:
-                primary = run
-                q = run.q_m_s2[np.isfinite(run.q_m_s2)] / G0_M_S2
+                primary = tr
+                q = tr.q_m_s2[np.isfinite(tr.q_m_s2)] / G0_M_S2
                 row["median_q_g"] = float(np.median(q)) if q.size else np.nan
         row["selection_ratio"] = float(np.exp(np.mean([np.log(row[f"{n}_ratio_imm2"]) for n in self.select_on])))
         row["eval_s"] = time.time() - t0

@@ -459,8 +459,11 @@ def build_parser(prog="radar-track train"):
     ap.add_argument("--algo", choices=ALGOS,
                     help="--method ppo: the stable-baselines3 algorithm (its settings: "
                          "agents/training/hyperparams/<algo>.toml) (default: none; required with --method ppo)")
-    ap.add_argument("--tracker", help="--method backprop: the differentiable model (default: the hyperparameter "
-                                      "file's, 'cv': the CV filter with a GRU choosing q)")
+    ap.add_argument("--tracker",
+                    help="--method backprop: the differentiable model: 'cv', the CV filter with a GRU choosing q "
+                         "(settings: hyperparams/backprop.toml); 'imm_cv_ct', the learned IMM: imm_cv_ct whose "
+                         "mode-switch probabilities and noises a GRU sets per look (hyperparams/"
+                         "backprop_imm_cv_ct.toml) (default: the hyperparameter file's, cv)")
     ap.add_argument("--action-type", choices=("discrete", "continuous"),
                     help="q chosen from the env's discrete levels or continuously (default: the hyperparameter "
                          "file's: discrete for ppo and dqn, continuous for sac)")
@@ -497,7 +500,9 @@ def main(argv=None, prog="radar-track train"):
     args = build_parser(prog).parse_args(argv)
     if args.method == "backprop":
         if not args.quiet:     # before torch and the env are imported
-            print("radar-track train: a GRU q-policy by backpropagation through the filter on RadarTrack-v0; loading "
+            what = ("a learned IMM (imm_cv_ct's parameters from a GRU)" if args.tracker == "imm_cv_ct"
+                    else "a GRU q-policy")
+            print(f"radar-track train: {what} by backpropagation through the filter on RadarTrack-v0; loading "
                   "torch and the env ...", file=sys.stderr, flush=True)
         from agents.training.backprop import main_from_args
         return main_from_args(args, argv)
