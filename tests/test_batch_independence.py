@@ -14,7 +14,7 @@ import pytest
 
 from agents.evaluation.runner import run_one
 from agents.evaluation.suites import draw_suite
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_POLICIES
 from agents.policies.loading import load_policy
 from baselines import hindsight
 from baselines.registry import tracker_names
@@ -45,8 +45,8 @@ def _assert_same_row(alone, padded, row, K):
 def test_episode_alone_equals_the_same_episode_padded_with_longer_ones(episodes, tracker):
     short, batch = episodes
     loaded = (None, None)
-    if tracker in ("policy", "policy_bp"):     # the learned ones: the bundled PPO and backprop policies
-        path = BUNDLED_POLICY if tracker == "policy" else BUNDLED_BP_POLICY
+    if tracker in BUNDLED_POLICIES:            # the learned ones: the bundled PPO, backprop and learned IMM
+        path = BUNDLED_POLICIES[tracker]
         if not path.is_file():
             pytest.skip(f"no bundled {tracker}")
         loaded = load_policy(path)

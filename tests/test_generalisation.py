@@ -142,3 +142,44 @@ def test_recipe_policies_take_a_zip_not_its_numpy_export(tmp_path):
     for f in ("policy.zip", "policy.npz"):
         (tmp_path / "ppo_s1" / f).write_bytes(b"")
     assert {n: p.name for n, p in recipe_policies(tmp_path).items()} == {"bp_s1": "policy.npz", "ppo_s1": "policy.zip"}
+
+
+# ------------------------------------------------------------------------------------------------ the learned IMM
+def _imm_suite(r_cvct, r_strong, hi=None, loss=0.0, loss_cvct=0.0, anees=1.5, fail=()):
+    """A suite where policy_imm_bp and its seeds score ``r_cvct`` / imm_cv_ct and ``r_strong`` [.., hi] / strongest
+    (the seeds in ``fail`` score 1.05 / strongest instead)."""
+    hi = r_strong + 0.01 if hi is None else hi
+
+    def pol(bad):
+        rs = 1.05 if bad else r_strong
+        return {"ratio_vs_imm_cv_ct": [0.99 if bad else r_cvct, [r_cvct - 0.01, r_cvct + 0.01]],
+                "ratio_vs_strongest": [rs, [rs - 0.02, 1.06 if bad else hi]], "track_loss_rate": loss, "anees": anees}
+    pols = {"policy_imm_bp": pol(False), **{s: pol(s in fail) for s in ("imm_s1", "imm_s2", "imm_s3")}}
+    return {"runs": 50, "few_runs": False, "strongest_classical": "imm_cv_ct", "policies": pols,
+            "trackers": {"imm_cv_ct": {"track_loss_rate": loss_cvct, "anees": 2.0}}}
+
+
+def _imm_verdicts(**over):
+    sp = {"random": _imm_suite(0.88, 0.88), "bizup2002": _imm_suite(0.93, 0.93)}
+    for n in g.NAMED_SUITES + g.HELDOUT_FAMILY_SUITES:
+        sp.setdefault(n, _imm_suite(0.97, 0.98))
+    sp.update(over)
+    return [ok for _, ok, _ in g.imm_targets(sp, "policy_imm_bp", ["imm_s1", "imm_s2", "imm_s3"])]
+
+
+def test_imm_targets_reached_on_results_that_meet_them():
+    v = _imm_verdicts()
+    assert v[:6] == [True] * 6
+
+
+@pytest.mark.parametrize("over, index", [
+    ({"random": _imm_suite(0.91, 0.91)}, 0),                                     # random above 0.90 x imm_cv_ct
+    ({"bizup2002": _imm_suite(0.96, 0.96)}, 1),                                  # bizup2002 above 0.95 x
+    ({"slow_orbits": _imm_suite(0.97, 1.01)}, 2),                                # above 1.0 x the strongest
+    ({"adsb_heldout": _imm_suite(0.97, 0.99, hi=1.03)}, 2),                      # upper end above 1.02
+    ({"sharp_turns": _imm_suite(0.97, 0.98, fail=("imm_s1", "imm_s2"))}, 3),     # 1 of 3 seeds meets them
+    ({"kim_lee_accel": _imm_suite(0.97, 0.98, loss=0.02, loss_cvct=0.01)}, 4),   # track loss above imm_cv_ct's
+    ({"random": _imm_suite(0.88, 0.88, anees=2.5)}, 5),                          # ANEES above imm_cv_ct's
+])
+def test_each_imm_target_fails_when_its_condition_does(over, index):
+    assert _imm_verdicts(**over)[index] is False

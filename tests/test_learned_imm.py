@@ -166,3 +166,37 @@ def test_tiny_training_run(tmp_path, setup):
     w = np.load(run / "policy.npz", allow_pickle=False)["out.weight"]
     assert np.any(w != 0.0)                                                   # the output layer moved
     assert json.loads((run / "config.json").read_text())["tracker"] == "imm_cv_ct"
+
+
+def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
+    """``--policy-imm-bp``: the evaluation, the generalisation's scorer and a Ray worker's blob run the learned IMM
+    as its own ``run`` does (load_policy returns it as a tracker)."""
+    from agents.evaluation.evaluate import main
+    from agents.evaluation.parallel import _policy_blob, _policy_in_worker
+    from agents.evaluation.runner import run_one
+    from agents.policies.loading import load_policy
+    hp, env_kwargs, cfg = setup
+    torch.manual_seed(2)
+    model = bp.make_model(hp, cfg)
+    with torch.no_grad():
+        model.out.weight.add_(0.2 * torch.randn_like(model.out.weight))
+    path = model.save_policy(tmp_path / "imm", cfg, env_kwargs)
+    imm, cfg2 = load_policy(path)
+    assert imm.is_tracker and cfg2 == imm.cfg
+    eps = draw_suite("random", 3, seed=10_000_000)
+    ref = imm.run(eps, "policy_imm_bp")
+    got = run_one("policy_imm_bp", eps, imm, cfg2)
+    np.testing.assert_array_equal(got.x, ref.x)
+    blob = _policy_blob(path)
+    assert list(blob) == ["policy.npz", "policy.json", "env_config.json"]
+    w_imm, _ = _policy_in_worker(blob)
+    np.testing.assert_array_equal(run_one("policy_imm_bp", eps, w_imm, None).x, ref.x)
+    out = tmp_path / "r.json"
+    res = main(["--policy-imm-bp", str(path), "--trackers", "policy_imm_bp,imm_cv_ct", "--scenario", "random",
+                "--runs", "3", "--no-plots", "--quiet", "--json", str(out)])
+    t = res["random"]["trackers"]
+    from agents.evaluation.metrics import evaluate_run
+    from radar_env.episode import stack_episodes
+    assert t["policy_imm_bp"]["pos_rmse_m"] == evaluate_run(stack_episodes(eps), ref)["pos_rmse_m"]
+    assert t["policy_imm_bp"]["pos_rmse_m"] != t["imm_cv_ct"]["pos_rmse_m"]
+    assert json.loads(out.read_text())["meta"]["policy_imm_bp"] == str(path)

@@ -43,16 +43,8 @@ def _torch_params(spec, looks, params=None):
 
 
 def _drawn_params(spec, shape, seed):
-    """Per-look parameters around the spec's constants (noises x/÷ e, stay probabilities -0.05 .. +0.005)."""
-    rng = np.random.default_rng(seed)
-    names = I.look_parameter_names(spec)
-    p = np.broadcast_to(I.look_parameter_vector(spec), shape + (len(names),)).copy()
-    for i, n in enumerate(names):
-        lo, hi = next((lo, hi) for m, _, lo, hi, _ in I.IMM_CV_CT_PARAMS if m == n)
-        p[..., i] = p[..., i] + rng.uniform(-0.05, 0.005, shape) if n.startswith("p_") else \
-            p[..., i] * np.exp(rng.uniform(-1.0, 1.0, shape))
-        p[..., i] = np.clip(p[..., i], lo, hi)
-    return p
+    from test_imm_cv_ct import _drawn_params as drawn     # per-look parameters around the spec's constants
+    return drawn(spec, shape, seed)
 
 
 def _compare(out, res, looks):

@@ -13,7 +13,7 @@ import numpy as np
 from baselines.registry import POLICY_TRACKERS, run_tracker
 from baselines.trackers import TrackRun, run_q_policy
 
-__all__ = ["run_one", "failed_track_run"]
+__all__ = ["run_one", "run_policy", "failed_track_run"]
 
 
 def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
@@ -23,12 +23,19 @@ def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
     and on stderr; the other trackers are scored as usual."""
     try:
         if tracker in POLICY_TRACKERS:
-            if getattr(choose_q, "is_tracker", False):      # a learned IMM: a tracker, not a q-policy
-                return choose_q.run(episodes, tracker)
-            return run_q_policy(episodes, choose_q, tracker, policy_cfg)
+            return run_policy(tracker, episodes, choose_q, policy_cfg)
         return run_tracker(tracker, episodes)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:
         return failed_track_run(tracker, episodes, f"{type(e).__name__}: {e}")
+
+
+def run_policy(name, episodes, choose_q, cfg):
+    """A loaded policy (:func:`agents.policies.loading.load_policy`'s ``(choose_q, cfg)``) on ``episodes`` as the
+    tracker ``name``: a q-policy through :func:`baselines.trackers.run_q_policy`, a learned IMM (``is_tracker``) by its
+    own ``run``."""
+    if getattr(choose_q, "is_tracker", False):
+        return choose_q.run(episodes, name)
+    return run_q_policy(episodes, choose_q, name, cfg)
 
 
 def failed_track_run(tracker, episodes, msg):

@@ -24,21 +24,22 @@ from pathlib import Path
 import numpy as np
 
 from baselines.registry import run_tracker
-from baselines.trackers import run_q_policy
 from radar_env.episode import stack_episodes
 
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_POLICY
+from agents.evaluation.runner import run_policy
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_LEARNED_IMM, BUNDLED_POLICY
 from agents.policies.loading import load_policy
+from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
 from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
 from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 
 __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spread_table", "targets_table",
-           "track_start_table", "NAMED_SUITES", "bp_targets", "LONG_TURN_SUITES", "evaluate_suite", "BP_RECIPE",
-           "learned_imm_section", "learned_imm_targets", "learned_imm_targets_table", "learned_imm_seeds"]
+           "track_start_table", "NAMED_SUITES", "bp_targets", "imm_targets", "LONG_TURN_SUITES", "evaluate_suite",
+           "BP_RECIPE", "IMM_RECIPE"]
 
 CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
 """The classical field the *strongest classical tracker* is taken from (tuned IMMs, Bizup's IMM, the tuned KF,
@@ -54,6 +55,10 @@ BP_RECIPE_DIR = BUNDLED_BP_POLICY.parent / "seeds"
 """Every trained seed of the backprop recipe: ``<recipe>_s<seed>/policy.npz`` with its ``policy.json`` and
 ``env_config.json``."""
 BP_RECIPE = "bp_gru"
+IMM_RECIPE_DIR = BUNDLED_LEARNED_IMM.parent / "seeds"
+"""Every trained seed of the learned IMM's recipe: ``imm_bp_s<seed>/policy.npz`` with its ``policy.json`` and
+``env_config.json``."""
+IMM_RECIPE = "imm_bp"
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -64,7 +69,10 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            "broad_nees": "C: as broad, with reward_nees_weight 0.1 (a reward term against an overconfident "
                          "covariance)",
            BP_RECIPE: "backprop: a GRU choosing the CV filter's q, trained end to end by backpropagation through the "
-                      "filter (agents/training/hyperparams/backprop.toml; radar-track train --method backprop)"}
+                      "filter (agents/training/hyperparams/backprop.toml; radar-track train --method backprop)",
+           IMM_RECIPE: "learned IMM: imm_cv_ct whose per-look mode-switch probabilities and noises a GRU sets, "
+                       "trained end to end by backpropagation (agents/training/hyperparams/backprop_imm_cv_ct.toml; "
+                       "radar-track train --method backprop --tracker imm_cv_ct)"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
 rule chose (agents/bundled/train_config.json, final_choice)."""
 
@@ -89,9 +97,9 @@ def _score(batch, policy_run, classical_runs, strongest):
             "ratio_vs_strongest": _ratio(batch, policy_run, classical_runs[strongest])}
 
 
-def evaluate_suite(suite, episodes, policies, bounds=(), trackers=None):
-    """Classical field, ``bounds``, every policy of ``policies`` (``{name: (choose_q, cfg)}``) and every learned
-    tracker of ``trackers`` (``{name: run(episodes) -> TrackRun}``, scored like the policies) on one suite.
+def evaluate_suite(suite, episodes, policies, bounds=()):
+    """Classical field, ``bounds`` and every policy of ``policies`` (``{name: load_policy(...)}``'s ``(choose_q,
+    cfg)``: a q-policy or a learned IMM) on one suite.
     Returns the suite's JSON-able result."""
     batch = stack_episodes(episodes)
     runs = {t: run_tracker(t, episodes) for t in CLASSICAL + tuple(bounds)}
@@ -105,9 +113,7 @@ def evaluate_suite(suite, episodes, policies, bounds=(), trackers=None):
            "ratio_vs_imm2": {t: _ratio(batch, r, runs["imm2"]) for t, r in runs.items()},
            "policies": {}}
     for name, (choose_q, cfg) in policies.items():
-        res["policies"][name] = _score(batch, run_q_policy(episodes, choose_q, name, cfg), runs, strongest)
-    for name, run in (trackers or {}).items():
-        res["policies"][name] = _score(batch, run(episodes), runs, strongest)
+        res["policies"][name] = _score(batch, run_policy(name, episodes, choose_q, cfg), runs, strongest)
     if "hindsight_q" in runs and "policy" in res["policies"]:
         fake = {"trackers": {"policy": res["policies"]["policy"], **metrics}}
         res["headroom_share"] = headroom_share(fake)
@@ -151,110 +157,8 @@ def recipe_policies(recipe_dir=RECIPE_DIR):
     (``policy.npz`` with ``policy.json``; the ``policy.npz`` beside an SB3 zip is that zip's numpy export)."""
     found = [*Path(recipe_dir).glob("*/policy.zip"),
              *(p for p in Path(recipe_dir).glob("*/policy.npz")
-               if is_recurrent_checkpoint(p) and not p.with_suffix(".zip").is_file())]
+               if (is_recurrent_checkpoint(p) or is_learned_imm_checkpoint(p)) and not p.with_suffix(".zip").is_file())]
     return {p.parent.name: p for p in sorted(found)}
-
-
-LEARNED_IMM_SEEDS_DIR = RECIPE_DIR.parent / "learned_imm_seeds"
-"""Every trained seed of the learned IMM's recipe: ``<name>/policy.npz`` (the bundled one, ``policy_imm_bp``, is
-``agents/bundled/learned_imm/``, a copy of the seed its ``train_config.json`` names)."""
-
-
-def learned_imm_seeds(seeds_dir=LEARNED_IMM_SEEDS_DIR):
-    """``{name: path}`` of every learned IMM seed shipped in ``seeds_dir`` (sorted)."""
-    return {p.parent.name: p for p in sorted(Path(seeds_dir).glob("*/policy.npz"))}
-
-
-def learned_imm_section(seed, seeds_dir=LEARNED_IMM_SEEDS_DIR, runs=200, progress=print):
-    """The learned IMM's seeds on every suite of the seed-spread table (held-out seeds ``seed + i``, the same runs):
-    ``{"seeds": [...], "bundled": name or None, "suites": {suite: evaluate_suite(...)}}``."""
-    from agents.policies.bundle import BUNDLED_LEARNED_IMM
-    from agents.policies.learned_imm import load_learned_imm
-    paths = learned_imm_seeds(seeds_dir)
-    models = {n: load_learned_imm(p) for n, p in paths.items()}
-    bundled = None
-    cfg_file = BUNDLED_LEARNED_IMM.with_name("train_config.json")
-    if cfg_file.is_file():
-        bundled = json.loads(cfg_file.read_text()).get("chosen_seed")
-    out = {"seeds": list(models), "bundled": bundled, "suites": {}}
-    if not models:
-        return out
-    t0 = time.time()
-    for suite in DEFAULT_SUITES + HELDOUT_FAMILY_SUITES:
-        eps = draw_suite(suite, _runs(suite, runs), seed=seed)
-        out["suites"][suite] = evaluate_suite(suite, eps, {}, (), {n: (lambda e, m=m, n=n: m.run(e, n))
-                                                                  for n, m in models.items()})
-        progress(f"{suite}: learned IMM seeds ({time.time() - t0:.0f} s)")
-    return out
-
-
-LEARNED_IMM_BOUNDED = NAMED_SUITES + HELDOUT_FAMILY_SUITES
-"""Where the learned IMM must be at most 1.0 x the strongest classical tracker (upper end <= 1.02): every named
-scenario, family and adsb_heldout."""
-
-
-def learned_imm_targets(li):
-    """Issue 26's targets for each learned IMM seed (held-out seeds): ``[(target, {seed: (reached, numbers)},
-    reached by >= 2 of the seeds)]``; ``li`` is :func:`learned_imm_section`'s result."""
-    su, seeds = li["suites"], li["seeds"]
-    pol = lambda s, n: su[s]["policies"][n]   # noqa: E731
-
-    def r_ci(r):
-        return f"{r[0]:.3f} [{r[1][0]:.3f}, {r[1][1]:.3f}]"
-
-    rows = []
-
-    def add(name, per_seed):
-        res = {n: per_seed(n) for n in seeds}
-        rows.append((name, res, sum(bool(v[0]) for v in res.values()) >= 2))
-
-    if "random" in su:
-        add("random <= 0.90 x imm_cv_ct (stretch 0.85)",
-            lambda n: (pol("random", n)["ratio_vs_imm_cv_ct"][0] <= 0.90, r_ci(pol("random", n)["ratio_vs_imm_cv_ct"])))
-    if "bizup2002" in su:
-        add("bizup2002 <= 0.95 x imm_cv_ct",
-            lambda n: (pol("bizup2002", n)["ratio_vs_imm_cv_ct"][0] <= 0.95,
-                       r_ci(pol("bizup2002", n)["ratio_vs_imm_cv_ct"])))
-    bounded = [s for s in LEARNED_IMM_BOUNDED if s in su]
-
-    def bound(n):
-        bad = [s for s in bounded if not (pol(s, n)["ratio_vs_strongest"][0] <= 1.0
-                                          and pol(s, n)["ratio_vs_strongest"][1][1] <= 1.02)]
-        return not bad, ("fails on " + ", ".join(f"{s} {r_ci(pol(s, n)['ratio_vs_strongest'])} / "
-                                                  f"{su[s]['strongest_classical']}" for s in bad)
-                         if bad else f"all {len(bounded)} suites")
-    add("every named scenario, family and adsb_heldout: <= 1.0 x the strongest classical, upper end <= 1.02", bound)
-
-    def loss(n):
-        worse = [s for s in su if pol(s, n)["track_loss_rate"] > su[s]["trackers"]["imm_cv_ct"]["track_loss_rate"]]
-        return not worse, ("worse on " + ", ".join(
-            f"{s} ({100 * pol(s, n)['track_loss_rate']:.1f} % vs "
-            f"{100 * su[s]['trackers']['imm_cv_ct']['track_loss_rate']:.1f} %)" for s in worse)
-            if worse else f"all {len(su)} suites")
-    add("track loss <= imm_cv_ct's on every suite", loss)
-    if "random" in su:
-        ref = su["random"]["trackers"]["imm_cv_ct"]["anees"]
-        add("ANEES on random <= imm_cv_ct's",
-            lambda n: (pol("random", n)["anees"] <= ref, f"{pol('random', n)['anees']:.2f} vs {ref:.2f}"))
-    return rows
-
-
-def learned_imm_targets_table(data):
-    """Markdown: issue 26's targets, one column per learned IMM seed, and whether 2 of them reach each."""
-    li = data.get("learned_imm") or {"seeds": [], "suites": {}}
-    if not li["seeds"]:
-        return "No learned IMM seeds are shipped (agents/bundled/learned_imm_seeds/)."
-    seeds = li["seeds"]
-    mark = lambda n: n + (" (bundled)" if n == li.get("bundled") else "")   # noqa: E731
-    lines = ["| target (learned IMM, held-out seeds) | " + " | ".join(mark(n) for n in seeds)
-             + " | reached by >= 2 seeds |", "|---" * (2 + len(seeds)) + "|"]
-    for name, res, two in learned_imm_targets(li):
-        cells = [f"{'yes' if ok else '**no**'}: {nums}" for ok, nums in (res[n] for n in seeds)]
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {'yes' if two else '**no**'} |")
-    allm = [n for n in seeds if all(res[n][0] for _, res, _ in learned_imm_targets(li))]
-    lines.append(f"| all of the above | " + " | ".join("yes" if n in allm else "**no**" for n in seeds)
-                 + f" | {'yes' if len(allm) >= 2 else '**no**'} ({len(allm)} of {len(seeds)}) |")
-    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------------------ tables
@@ -302,17 +206,18 @@ def _seeds(data, recipe):
 
 def spread_table(data):
     """Markdown: per suite, each recipe's mean and worst ratio to imm2 over its seeds, and to the strongest
-    classical tracker; the bundles' own ratios (``policy``, and ``policy_bp`` if evaluated) beside them."""
+    classical tracker; the bundles' own ratios (``policy``, and ``policy_bp``, ``policy_imm_bp`` if evaluated)
+    beside them."""
     recipes = list(data["recipes"])
-    bp = any("policy_bp" in r["policies"] for r in data["spread"].values())
-    head = "| suite (runs) | bundle / imm2 | " + ("policy_bp / imm2 | " if bp else "") + " | ".join(
+    extra = [b for b in ("policy_bp", "policy_imm_bp") if any(b in r["policies"] for r in data["spread"].values())]
+    head = "| suite (runs) | bundle / imm2 | " + "".join(f"{b} / imm2 | " for b in extra) + " | ".join(
         f"{r}: mean / worst over {len(_seeds(data, r))} seeds, / imm2 | {r}: mean / worst, / strongest"
         for r in recipes)
-    lines = [head + " |", "|---" * (2 + bp + 2 * len(recipes)) + "|"]
+    lines = [head + " |", "|---" * (2 + len(extra) + 2 * len(recipes)) + "|"]
     for suite, res in data["spread"].items():
         cells = [f"{suite} ({res['runs']})", _fmt_ratio(res["policies"]["policy"]["ratio_vs_imm2"], res["few_runs"])]
-        if bp:
-            cells.append(_fmt_ratio(res["policies"]["policy_bp"]["ratio_vs_imm2"], res["few_runs"]))
+        for b in extra:
+            cells.append(_fmt_ratio(res["policies"][b]["ratio_vs_imm2"], res["few_runs"]))
         for r in recipes:
             for key in ("ratio_vs_imm2", "ratio_vs_strongest"):
                 v = [res["policies"][s][key][0] for s in _seeds(data, r)]
@@ -368,6 +273,77 @@ def targets(data):
     if "policy_bp" in sp["random"]["policies"]:
         seeds = data["recipes"][BP_RECIPE]["seeds"] if BP_RECIPE in data["recipes"] else []
         out += bp_targets(sp, "policy_bp", seeds)
+    if "policy_imm_bp" in sp["random"]["policies"]:
+        seeds = data["recipes"][IMM_RECIPE]["seeds"] if IMM_RECIPE in data["recipes"] else []
+        out += imm_targets(sp, "policy_imm_bp", seeds, _train_minutes(IMM_RECIPE_DIR, seeds))
+    return out
+
+
+def _train_minutes(recipe_dir, seeds):
+    """``{seed: (wall minutes to the best checkpoint, to the end, 1-min load at the end)}`` from the shipped
+    ``summary.json`` files."""
+    out = {}
+    for n in seeds:
+        f = Path(recipe_dir) / n / "summary.json"
+        if f.is_file():
+            sm = json.loads(f.read_text())
+            out[n] = ((sm.get("best_wall_s") or float("nan")) / 60, sm["wall_s"] / 60, sm.get("loadavg_1min_at_end"))
+    return out
+
+
+def _imm_suite_ok(p):
+    """The learned IMM's per-suite bound: at most 1.0 x the strongest classical tracker, upper end <= 1.02."""
+    r, (lo, hi) = p["ratio_vs_strongest"]
+    return bool(r <= 1.0 and hi <= 1.02)
+
+
+def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
+    """The learned IMM's targets (``policy`` and its recipe's ``seeds``, held-out seeds) from a seed-spread dict:
+    each ``(target, reached, numbers)``. ``minutes``: :func:`_train_minutes` of the seeds."""
+    pol = {s: r["policies"][policy] for s, r in spread.items()}
+    bounded = [s for s in spread if s in NAMED_SUITES or s in HELDOUT_FAMILY_SUITES]
+
+    def vs_cv_ct(name, suite, limit):
+        return spread[suite]["policies"][name]["ratio_vs_imm_cv_ct"][0] <= limit
+
+    def bad_suites(name):
+        return [s for s in bounded if not _imm_suite_ok(spread[s]["policies"][name])]
+
+    def all_ok(name):
+        return vs_cv_ct(name, "random", 0.90) and vs_cv_ct(name, "bizup2002", 0.95) and not bad_suites(name)
+
+    out = [(f"{policy}: random <= 0.90 x imm_cv_ct (stretch 0.85)", vs_cv_ct(policy, "random", 0.90),
+            _f3(pol["random"]["ratio_vs_imm_cv_ct"])),
+           (f"{policy}: bizup2002 <= 0.95 x imm_cv_ct", vs_cv_ct(policy, "bizup2002", 0.95),
+            _f3(pol["bizup2002"]["ratio_vs_imm_cv_ct"]))]
+    bad = bad_suites(policy)
+    out.append((f"{policy}: every named scenario, family and adsb_heldout: <= 1.0 x the strongest classical, upper "
+                "end <= 1.02", not bad,
+                "fails on " + ", ".join(f"{s} ({_f3(pol[s]['ratio_vs_strongest'])} / "
+                                        f"{spread[s]['strongest_classical']})" for s in bad)
+                if bad else f"all {len(bounded)} suites"))
+    if seeds:
+        good = [n for n in seeds if all_ok(n)]
+        out.append(("at least 2 of 3 seeds of the learned IMM's recipe meet these three", len(good) >= 2,
+                    f"{len(good)} of {len(seeds)} ({', '.join(good) or 'none'}); random / imm_cv_ct, bizup2002 / "
+                    "imm_cv_ct: " + ", ".join(
+                        f"{n} {spread['random']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f}, "
+                        f"{spread['bizup2002']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f} "
+                        f"({len(bad_suites(n))} suites fail the bound)" for n in seeds)))
+    worse = [s for s in spread if pol[s]["track_loss_rate"] > spread[s]["trackers"]["imm_cv_ct"]["track_loss_rate"]]
+    out.append((f"{policy}: track-loss rate <= imm_cv_ct's on every suite", not worse,
+                "worse on " + ", ".join(f"{s} ({100 * pol[s]['track_loss_rate']:.1f} % vs "
+                                        f"{100 * spread[s]['trackers']['imm_cv_ct']['track_loss_rate']:.1f} %)"
+                                        for s in worse) if worse else f"all {len(spread)} suites"))
+    a, ref = pol["random"]["anees"], spread["random"]["trackers"]["imm_cv_ct"]["anees"]
+    out.append((f"{policy}: ANEES on random <= imm_cv_ct's", bool(a <= ref), f"{a:.2f} vs {ref:.2f}"))
+    if minutes:
+        out.append(("backprop training: a seed in at most 30 minutes on the idle 2-core machine",
+                    None, "not timed idle: " + ", ".join(
+                        f"{n} best at {b:.0f} min, end at {e:.0f} min (load {ld:.1f})" for n, (b, e, ld)
+                        in minutes.items())))
+    out.append(("at its initial weights it is imm_cv_ct; its torch forward equals the numba IMM (1e-9)", None,
+                "tested: tests/test_learned_imm.py, tests/test_torch_imm.py (a failure fails the test suite)"))
     return out
 
 
@@ -440,30 +416,21 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
     ap.add_argument("--family-runs", type=int, default=FAMILY_RUNS)
     ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update the generated blocks of docs/*.md")
-    ap.add_argument("--learned-imm-only", action="store_true",
-                    help="compute only the learned IMM's section (its seeds against the classical field on every "
-                         "suite) into docs/generalisation.json and its targets block; the rest is kept")
+    ap.add_argument("--add-recipe", metavar="RECIPE", choices=sorted(RECIPES),
+                    help="add one recipe's seeds (and its bundle, policy_imm_bp for imm_bp) to the seed spread of the "
+                         "existing docs/generalisation.json (same --seed; the classical field is recomputed on the same "
+                         "episodes, every other number is kept) and rewrite the blocks (default: compute everything)")
     args = ap.parse_args(argv)
     t0 = time.time()
     docs = Path(args.docs)
-    if args.learned_imm_only:
-        data = json.loads((docs / "generalisation.json").read_text())
-        if data.get("seed") != args.seed:
-            raise SystemExit(f"error: docs/generalisation.json was computed with --seed {data.get('seed')}, not "
-                             f"{args.seed}")
-        data["learned_imm"] = learned_imm_section(args.seed, progress=lambda m: print(m, flush=True))
-        data["learned_imm"]["seconds"] = time.time() - t0
-        (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
-        text = learned_imm_targets_table(data)
-        if args.readme:
-            from agents.reports.readme_blocks import replace_block
-            replace_block("learned-imm-targets", text)
-        print(text)
-        return
+    if args.add_recipe:
+        return _add_recipe(args, docs, t0)
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
-    if BUNDLED_BP_POLICY.is_file():
-        bundle["policy_bp"] = load_policy(BUNDLED_BP_POLICY)
-    seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR)}.items()}
+    for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM)):
+        if path.is_file():
+            bundle[name] = load_policy(path)
+    seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
+                                             **recipe_policies(IMM_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -481,11 +448,42 @@ def main(argv=None):
         data["spread"][suite] = evaluate_suite(suite, eps, {**bundle, **seeds})
         print(f"{suite}: seed spread ({time.time() - t0:.0f} s)", flush=True)
     data["track_start"] = track_start_study(args.seed, 200)
-    data["learned_imm"] = learned_imm_section(args.seed, progress=lambda m: print(m, flush=True))
     data["seconds"] = time.time() - t0
+    _write(args, docs, data)
+
+
+def _add_recipe(args, docs, t0):
+    """``--add-recipe``: one recipe's seeds (and its bundle) into the seed spread of the existing JSON."""
+    data = json.loads((docs / "generalisation.json").read_text())
+    if data.get("seed") != args.seed:
+        raise SystemExit(f"error: --add-recipe: docs/generalisation.json was computed with --seed "
+                         f"{data.get('seed')}, not {args.seed}")
+    r = args.add_recipe
+    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR) for n, p in recipe_policies(d).items()
+             if n.rsplit("_s", 1)[0] == r}
+    if not paths:
+        raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
+    pols = {n: load_policy(p) for n, p in paths.items()}
+    if r == IMM_RECIPE and BUNDLED_LEARNED_IMM.is_file():
+        pols["policy_imm_bp"] = load_policy(BUNDLED_LEARNED_IMM)
+    data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
+    for suite, old in data["spread"].items():
+        eps = draw_suite(suite, old["runs"], seed=args.seed)
+        new = evaluate_suite(suite, eps, pols)
+        for t, m in new["trackers"].items():     # the same episodes: the classical field must come out the same
+            if m["pos_rmse_m"] != old["trackers"][t]["pos_rmse_m"]:
+                raise SystemExit(f"error: --add-recipe: {suite}/{t} now scores {m['pos_rmse_m']!r} m, the JSON "
+                                 f"{old['trackers'][t]['pos_rmse_m']!r}: recompute everything (no --add-recipe)")
+        old["policies"].update(new["policies"])
+        print(f"{suite}: {r} seeds ({time.time() - t0:.0f} s)", flush=True)
+    data.setdefault("added_recipes_seconds", {})[r] = time.time() - t0
+    _write(args, docs, data)
+
+
+def _write(args, docs, data):
     (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"families": families_table(data), "seed-spread": spread_table(data), "targets": targets_table(data),
-              "track-start": track_start_table(data), "learned-imm-targets": learned_imm_targets_table(data)}
+              "track-start": track_start_table(data)}
     if args.readme:
         from agents.reports.readme_blocks import replace_block
         for name, text in blocks.items():

@@ -226,13 +226,7 @@ class CVQModel(ChainModel):
         return {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
 
     def policy_weights(self):
-        w = {"gru.weight_ih": self.gru.weight_ih, "gru.weight_hh": self.gru.weight_hh, "gru.bias_ih": self.gru.bias_ih,
-             "gru.bias_hh": self.gru.bias_hh, "out.weight": self.out.weight, "out.bias": self.out.bias}
-        for i, layer in enumerate(self.head):
-            w[f"head.{i}.weight"], w[f"head.{i}.bias"] = layer.weight, layer.bias
-        out = {k: v.detach().numpy().copy() for k, v in w.items()}
-        assert {k: v.shape for k, v in out.items()} == weight_shapes(self.architecture())
-        return out
+        return gru_weights(self, weight_shapes(self.architecture()))
 
     def policy_config(self, cfg):
         return {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
@@ -257,6 +251,18 @@ class CVQModel(ChainModel):
         levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         return cls(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
                    tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+
+
+def gru_weights(model, shapes):
+    """``{name: numpy array}`` of a model's ``gru``, ``head`` layers and ``out`` layer under the names the numpy
+    inference reads (:func:`agents.policies.recurrent.weight_shapes`), checked against ``shapes``."""
+    w = {"gru.weight_ih": model.gru.weight_ih, "gru.weight_hh": model.gru.weight_hh, "gru.bias_ih": model.gru.bias_ih,
+         "gru.bias_hh": model.gru.bias_hh, "out.weight": model.out.weight, "out.bias": model.out.bias}
+    for i, layer in enumerate(model.head):
+        w[f"head.{i}.weight"], w[f"head.{i}.bias"] = layer.weight, layer.bias
+    out = {k: v.detach().numpy().copy() for k, v in w.items()}
+    assert {k: v.shape for k, v in out.items()} == {k: tuple(v) for k, v in shapes.items()}
+    return out
 
 
 MODELS = {"cv": ("agents.training.backprop", "CVQModel"),

@@ -25,7 +25,7 @@ from radar_env.units import DEG, G0_M_S2
 
 from agents.policies.learned_imm import (LearnedIMM, ParamMap, detector_inputs, detector_names, initial_detectors,
                                          save_learned_imm, weight_shapes)
-from agents.training.backprop import DTYPE, ChainModel
+from agents.training.backprop import DTYPE, ChainModel, gru_weights
 
 __all__ = ["LearnedIMMModel"]
 
@@ -138,13 +138,7 @@ class LearnedIMMModel(ChainModel):
                 "head": list(self.head_sizes), "n_par": len(self.names)}
 
     def policy_weights(self):
-        w = {"gru.weight_ih": self.gru.weight_ih, "gru.weight_hh": self.gru.weight_hh, "gru.bias_ih": self.gru.bias_ih,
-             "gru.bias_hh": self.gru.bias_hh, "out.weight": self.out.weight, "out.bias": self.out.bias}
-        for i, layer in enumerate(self.head):
-            w[f"head.{i}.weight"], w[f"head.{i}.bias"] = layer.weight, layer.bias
-        out = {k: v.detach().numpy().copy() for k, v in w.items()}
-        assert {k: v.shape for k, v in out.items()} == weight_shapes(self.architecture())
-        return out
+        return gru_weights(self, weight_shapes(self.architecture()))
 
     def policy_config(self, cfg):
         return {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
