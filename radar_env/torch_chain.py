@@ -52,9 +52,9 @@ import torch
 from .tracking import MAX_Q_M_S2, TrackStart
 
 __all__ = ["ChainState", "ChainLooks", "StepRecord", "ChainRun", "handover", "start_tracks", "looks_from_arrays",
-           "run", "step", "collect", "transition", "ct_entries", "process_noise", "gamma_gamma_t", "predict", "predict_cv", "propagate",
-           "ct_omega_partials", "update",
-           "nis", "log_likelihood", "two_point_init", "position_sq_error", "pooled_position_mse", "SERIES_THETA"]
+           "run", "step", "collect", "transition", "ct_entries", "process_noise", "gamma_gamma_t", "predict",
+           "predict_cv", "propagate", "ct_omega_partials", "update", "nis", "log_likelihood", "two_point_init",
+           "position_sq_error", "pooled_position_mse", "SERIES_THETA", "SERIES_THETA_PARTIALS"]
 
 DTYPE = torch.float64
 LOG_2PI = math.log(2.0 * math.pi)
