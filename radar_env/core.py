@@ -20,7 +20,7 @@ from .observation import FrameStack, ObservationLayout
 from .scenario import RADAR_PLACEMENT_RANGE_M
 from .units import G0_M_S2
 
-__all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
+__all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "make_core", "MAX_EPISODE_DRAWS"]
 
 
 def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
@@ -56,6 +56,15 @@ def actions_to_q_m_s2(actions, action_type, levels_m_s2):
 
 _NO_ROWS = np.zeros(0, dtype=np.int64)
 _NO_ACTIONS = np.zeros(0)
+
+
+def make_core(n, cfg: EnvConfig, autoreset=False, max_episode_steps=None):
+    """The batched core of ``cfg``'s tracker: :class:`_Core` (``tracker="cv"``) or
+    :class:`radar_env.imm_env._IMMCore` (``tracker="imm_cv_ct"``)."""
+    if cfg.tracker == "imm_cv_ct":
+        from .imm_env import _IMMCore   # lazy: the IMM's kernels compile only when used
+        return _IMMCore(n, cfg, autoreset, max_episode_steps)
+    return _Core(n, cfg, autoreset, max_episode_steps)
 
 
 # ---------------------------------------------------------------------------------------------------- batched core
@@ -95,6 +104,13 @@ class _Core:
         self._ready = np.zeros(n, dtype=bool)          # rows whose next draw is prepared (autoreset)
         self._keys = np.zeros(n, dtype=np.uint64)      # ... as the drawer's key
         self._prepared = [None] * n                    # ... or, for a pool, as an episode
+
+    action_shape = ()
+    """The shape of one row's action."""
+
+    def observation_bounds(self):
+        """``(low, high)`` of one row's observation."""
+        return self.cfg.observation_bounds(self.layout)
 
     def _env_parameters(self, max_episode_steps):
         cfg, lay = self.cfg, self.layout
@@ -245,9 +261,7 @@ class _Core:
         the rows that ended (their last step's outputs; the blocks then hold their new episodes' first)."""
         a = self._actions(action)
         blocks = obs, fo, fs, bo = self._blocks()
-        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
-        if status != _ek.ST_OK:
-            self._refuse(status, action)
+        self._advance(a, action, blocks)
         inc = self._inconsistency(fo) if self.cfg.reward_nees_weight > 0 else None
         if not self.autoreset or not bo[_ek.BO_DONE].any():
             rew = fs[_ek.FS_REWARD] if inc is None else fs[_ek.FS_REWARD] + inc
@@ -264,6 +278,12 @@ class _Core:
             inc = inc.copy()
             inc[rows] = self._inconsistency(fo[rows])
         return blocks, rew, fbo[_ek.BO_LOST], fbo[_ek.BO_TRUNC], inc, final
+
+    def _advance(self, a, action, blocks):
+        """Every row's next look with the checked actions ``a`` into ``blocks`` (``ValueError`` for a refused one)."""
+        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
+        if status != _ek.ST_OK:
+            self._refuse(status, action)
 
     # ---- reward
     def _inconsistency(self, fo):

@@ -47,6 +47,7 @@ from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, IMMCVCTStepper, imm_cv_ct_spec
 from baselines.trackers import TrackRun, observation_layout
 from radar_env.config import EnvConfig
 from radar_env.episode import stack_episodes
+from radar_env.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
 from radar_env.units import DEG, G0_M_S2
 
 from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
@@ -60,9 +61,6 @@ FORMAT = "radar-track-learned-imm"
 VERSION = 1
 POLICY_FILE = "policy.npz"
 
-OMEGA_SCALE_DEG_S = 20.0
-"""Scale of the turn-rate detector (imm_cv_ct's default turn-rate bound)."""
-STD_FLOOR_DEG_S = 1e-3
 
 
 # ------------------------------------------------------------------------------------------------ outputs
@@ -108,28 +106,6 @@ class ParamMap:
         s = self.transformed(np.asarray(delta, dtype=np.float64))
         p = np.where(self.log_space, np.exp(s), 0.5 + 0.5 * np.tanh(0.5 * s))
         return np.clip(p, self.lo, self.hi)
-
-
-def detector_names(n_modes):
-    """Names of :func:`detector_inputs`' columns."""
-    return tuple(f"mu_{m}" for m in ("cv", "ct", "high")[:n_modes]) + ("omega_over_20deg_s", "log10_omega_std_deg_s_over_3")
-
-
-def detector_inputs(mu, omega_rad_s, omega_std_rad_s, xp=np):
-    """The IMM's own detectors as network inputs ``(n, M + 2)``: the mode probabilities ``mu (n, M)``, the combined
-    turn rate over 20 deg/s, and ``log10`` of its standard deviation in deg/s (floored at 1e-3 deg/s) over 3
-    (``xp``: ``numpy`` or ``torch``, the arrays' kind)."""
-    sd = omega_std_rad_s / DEG
-    sd = xp.log10(xp.maximum(sd, xp.full_like(sd, STD_FLOOR_DEG_S))) / 3.0
-    return xp.concatenate([mu, (omega_rad_s / (OMEGA_SCALE_DEG_S * DEG))[:, None], sd[:, None]], 1)
-
-
-def initial_detectors(spec, n):
-    """The detectors at the track start: ``mu0``, turn rate 0, its std ``sqrt(mu0_ct) sigma_omega0``."""
-    is_ct, _, _, log_mu0 = spec.mode_arrays()
-    mu0 = np.exp(log_mu0)
-    std = math.sqrt(float(mu0[is_ct].sum())) * spec.sigma_omega0_deg_s * DEG
-    return detector_inputs(np.tile(mu0, (n, 1)), np.zeros(n), np.full(n, std))
 
 
 # ------------------------------------------------------------------------------------------------ the network
