@@ -30,16 +30,16 @@ import numpy as np
 from radar_env.episode import stack_episodes
 from radar_env.imm_cv_ct import (DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S,  # noqa: F401
                                  SERIES_THETA, IMMCVCTSpec, _init_modes, _kernel, _step_kernel, check_look_parameters,
-                                 ct_jacobian, ct_motion, imm_cv_ct_spec_from_params, kernel_parameters,
-                                 look_parameter_names, look_parameter_vector)
+                                 ct_jacobian, ct_motion, detector_inputs, imm_cv_ct_spec_from_params,
+                                 initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector)
 from radar_env.units import DEG, G0_M_S2
 
-from .trackers import TrackRun, _tracker
+from .trackers import TrackRun, _tracker, observation_layout
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "IMMCVCTStepper", "IMMCVCTStep",
            "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
-           "run_imm_cv_ct", "ct_motion", "ct_jacobian"]
+           "run_imm_cv_ct", "run_imm_lockstep", "ct_motion", "ct_jacobian"]
 
 
 def tuned_imm_cv_ct_spec() -> IMMCVCTSpec:
@@ -243,3 +243,58 @@ def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", c
     declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
     return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared,
                     extra={"maneuver_probability": p_man, "turn_rate_deg_s": np.degrees(res.omega_rad_s)})
+
+
+def run_imm_lockstep(episodes, choose, cfg, spec, feature_q_m_s2, name):
+    """The IMM whose parameters ``choose`` sets at every look, from the common track start, beside the env's CV
+    feature chain (the lockstep of a learned IMM: ``RadarTrack-v0`` with ``tracker="imm_cv_ct"`` computes the same).
+
+    Per look of the active rows: ``params = choose(obs, detectors, rows)`` from the env's observation after the
+    previous look (``cfg``'s features of :class:`radar_env.tracking.Tracker` stepped at the constant
+    ``feature_q_m_s2``, encoded as the env does; after the start at the warm-up q) and the IMM's detectors after it
+    (:func:`radar_env.imm_cv_ct.detector_inputs`; at the start :func:`~radar_env.imm_cv_ct.initial_detectors`);
+    then the IMM's look with ``params (n, n_par)`` (:class:`IMMCVCTStepper`), then the feature chain's.
+
+    Returns a :class:`baselines.trackers.TrackRun` (x, P combined; extra series ``maneuver_probability``,
+    ``turn_rate_deg_s`` and each parameter as ``param_<name>``; declared = maneuver probability > 0.5)."""
+    episodes = list(episodes)
+    B = len(episodes)
+    names = look_parameter_names(spec)
+    layout, _ = observation_layout(cfg)
+    tr = cfg.track_start.tracker(B)
+    out = tr.load(np.arange(B), episodes)
+    batch = stack_episodes(episodes)
+    K = batch.t_s.shape[1]
+    k0 = np.asarray(out.look_index, dtype=np.int64)
+    x5 = np.concatenate([tr.x, np.zeros((B, 1))], axis=1)
+    P5 = np.zeros((B, 5, 5))
+    P5[:, :4, :4] = tr.P
+    P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+    imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
+    x, P = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan)
+    rows0 = np.arange(B)
+    x[rows0, k0], P[rows0, k0] = tr.x, tr.P          # the start look, as every tracker records it
+    extra = {k: np.full((B, K), np.nan) for k in ["maneuver_probability", "turn_rate_deg_s"] +
+             [f"param_{n}" for n in names]}
+    # the observation after the start, as the env's reset gives it (q_prev: the warm-up q)
+    obs = layout.encode(out, np.full(B, cfg.track_start.warmup_q_m_s2))
+    det = initial_detectors(spec, B)
+    active = imm.k < imm.n_looks
+    while active.any():
+        rows = np.flatnonzero(active)
+        params = choose(obs[rows], det[rows], rows)
+        o = imm.step(params, rows)
+        k = o.look_index
+        x[rows, k], P[rows, k] = o.x, o.P
+        extra["maneuver_probability"][rows, k] = 1.0 - o.mu[:, 0]
+        extra["turn_rate_deg_s"][rows, k] = np.degrees(o.omega_rad_s)
+        for i, n in enumerate(names):
+            extra[f"param_{n}"][rows, k] = params[:, i]
+        det[rows] = detector_inputs(o.mu, o.omega_rad_s, o.omega_std_rad_s)
+        f = tr.step(np.full(rows.size, feature_q_m_s2), rows=None if rows.size == B else rows)
+        obs[rows] = layout.encode(f, np.full(rows.size, feature_q_m_s2))
+        active[rows] = ~o.done
+    p_man = extra["maneuver_probability"]
+    declared = np.zeros((B, K), dtype=bool)
+    declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
+    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared, extra=extra)

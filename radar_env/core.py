@@ -20,7 +20,7 @@ from .observation import FrameStack, ObservationLayout
 from .scenario import RADAR_PLACEMENT_RANGE_M
 from .units import G0_M_S2
 
-__all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "make_core", "MAX_EPISODE_DRAWS"]
+__all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
 
 
 def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
@@ -56,15 +56,6 @@ def actions_to_q_m_s2(actions, action_type, levels_m_s2):
 
 _NO_ROWS = np.zeros(0, dtype=np.int64)
 _NO_ACTIONS = np.zeros(0)
-
-
-def make_core(n, cfg: EnvConfig, autoreset=False, max_episode_steps=None):
-    """The batched core of ``cfg``'s tracker: :class:`_Core` (``tracker="cv"``) or
-    :class:`radar_env.imm_env._IMMCore` (``tracker="imm_cv_ct"``)."""
-    if cfg.tracker == "imm_cv_ct":
-        from .imm_env import _IMMCore   # lazy: the IMM's kernels compile only when used
-        return _IMMCore(n, cfg, autoreset, max_episode_steps)
-    return _Core(n, cfg, autoreset, max_episode_steps)
 
 
 # ---------------------------------------------------------------------------------------------------- batched core

@@ -1,5 +1,6 @@
 r"""RadarTrack-v0 with ``tracker="imm_cv_ct"``: the agent sets the CV / CT-EKF IMM's per-look parameters (no
-Gymnasium needed).
+Gymnasium needed). This module: the arguments, the action map, the detectors' observation and the compiled step;
+the batched core that runs them beside the env's chain is :mod:`radar_env.imm_core`.
 
 The filter is :mod:`radar_env.imm_cv_ct`'s IMM (a CV mode, a CT-EKF mode with the turn rate in its state, a
 high-noise CV mode); the action is its per-look parameter vector (:func:`radar_env.imm_cv_ct.look_parameter_names`:
@@ -35,23 +36,32 @@ from numba import njit
 
 from . import env_kernels as _ek
 from . import kernels as _k
-from .core import _NO_ROWS, _Core
-from .imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _work, detector_inputs, detector_names,
-                        imm_cv_ct_spec_from_params, initial_detectors, look_parameter_names, look_parameter_vector)
+from .imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _work, imm_cv_ct_spec_from_params, look_parameter_names,
+                        look_parameter_vector)
 from .units import DEG, G0_M_S2
 from .validate import check_number
 
-__all__ = ["IMM_ENV_DEFAULTS_PATH", "DEFAULT_IMM_ACTION_LEVELS", "imm_env_defaults", "imm_spec", "IMMActionMap",
-           "check_imm_config"]
+__all__ = ["IMM_ENV_DEFAULTS_PATH", "DEFAULT_IMM_ACTION_LEVELS", "imm_env_defaults", "imm_spec", "feature_q_m_s2",
+           "imm_action_map", "IMMActionMap", "detector_bounds", "detector_observation", "check_imm_config"]
 
 IMM_ENV_DEFAULTS_PATH = Path(__file__).parent / "data" / "imm_cv_ct_env.json"
 DEFAULT_IMM_ACTION_LEVELS = 5
 """Levels per parameter of ``action_type="discrete"`` (``imm_action_levels``)."""
 
-DETECTOR_LOW = {"mu": 0.0, "omega": -1.0, "std": -1.0}
-DETECTOR_HIGH = {"mu": 1.0, "omega": 1.0, "std": 1.0}
-"""Bounds of the detector entries (clipped there): mode probabilities in [0, 1], turn rate / 20 deg/s in [-1, 1]
-(the IMM bounds it at 20 deg/s), log10(its std in deg/s) / 3 in [-1, 1] (1e-3 to 1e3 deg/s)."""
+
+
+def detector_bounds(n_modes):
+    """``(low, high)`` float32 of the detector entries: mode probabilities in [0, 1], turn rate / 20 deg/s in
+    [-1, 1] (the IMM bounds it at 20 deg/s), log10(its std in deg/s) / 3 in [-1, 1] (1e-3 to 1e3 deg/s)."""
+    return (np.array([0.0] * n_modes + [-1.0, -1.0], dtype=np.float32),
+            np.array([1.0] * n_modes + [1.0, 1.0], dtype=np.float32))
+
+
+def detector_observation(detectors):
+    """The observation's detector entries: :func:`radar_env.imm_cv_ct.detector_inputs` ``(n, M + 2)`` clipped to
+    :func:`detector_bounds`, float32."""
+    lo, hi = detector_bounds(detectors.shape[1] - 2)
+    return np.clip(detectors, lo, hi).astype(np.float32)
 
 M_LOG, M_BASE, M_NEG, M_POS, M_LO, M_HI = range(6)
 W_MAP = 6
@@ -73,6 +83,12 @@ def feature_q_m_s2(cfg):
     """The q (m/s^2) of the feature chain: ``cfg.feature_q_g`` or the default's."""
     q = imm_env_defaults()["feature_q_g"] if cfg.feature_q_g is None else cfg.feature_q_g
     return float(q) * G0_M_S2
+
+
+def imm_action_map(cfg, spec=None):
+    """The :class:`IMMActionMap` of an env config (``spec``: its :func:`imm_spec`, if already built)."""
+    return IMMActionMap(spec or imm_spec(cfg), cfg.action_type == "discrete",
+                        cfg.imm_action_levels or DEFAULT_IMM_ACTION_LEVELS)
 
 
 def check_imm_config(cfg, p="RadarTrack-v0: "):
@@ -267,92 +283,3 @@ def k_imm_emit(ep, looks, it, elapsed_before, x, P, fo, fs, bo):
         bo[_ek.BO_LOST, r] = lost
         bo[_ek.BO_TRUNC, r] = trunc
         bo[_ek.BO_DONE, r] = lost or trunc
-
-
-# ---------------------------------------------------------------------------------------------------- batched core
-class _IMMCore(_Core):
-    """:class:`radar_env.core._Core` whose filter is the IMM: the same rows, draws, autoreset, feature chain and
-    reward code, with the IMM's look before the chain's and its estimate in the info, reward and end flags.
-
-    Attributes: ``spec`` (the IMM's), ``action_map`` (:class:`IMMActionMap`), ``feature_q_m_s2``, ``n_features``
-    (the env's features; the detectors follow them in the observation)."""
-
-    def __init__(self, n, cfg, autoreset=False, max_episode_steps=None):
-        super().__init__(n, cfg, autoreset, max_episode_steps)
-        self.spec = spec = imm_spec(cfg)
-        self.action_map = IMMActionMap(spec, cfg.action_type == "discrete",
-                                       cfg.imm_action_levels or DEFAULT_IMM_ACTION_LEVELS)
-        self.action_shape = (self.action_map.n_par,)
-        self.feature_q_m_s2 = feature_q_m_s2(cfg)
-        # the chain's parameters: every step at level 0 = feature q, never lost (the IMM's estimate decides)
-        ep = self.ep.copy()
-        ep[_ek.EP_ACT_CONT], ep[_ek.EP_GATE] = 0.0, math.inf
-        ep[int(ep[_ek.EP_LEVELS])] = self.feature_q_m_s2
-        self._ep_chain, self._level0 = ep, np.zeros(n)
-        M = spec.n_modes
-        self.n_features = self.obs_width
-        self.detector_names = detector_names(M)
-        self.obs_width += len(self.detector_names)
-        is_ct, _, _, log_mu0 = spec.mode_arrays()
-        self._is_ct, self._log_mu0 = np.ascontiguousarray(is_ct), np.ascontiguousarray(log_mu0)
-        sig_w0 = spec.sigma_omega0_deg_s * DEG
-        self._sig_w0_2, self._p_w0 = sig_w0 * sig_w0, (spec.sigma_omega0_deg_s * DEG) ** 2
-        self._bounds = spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
-        self.xm, self.Pm, self.log_mu = np.zeros((n, M, 5)), np.zeros((n, M, 5, 5)), np.zeros((n, M))
-        kinds = ["mu"] * M + ["omega", "std"]
-        self._det_low = np.array([DETECTOR_LOW[k] for k in kinds], dtype=np.float32)
-        self._det_high = np.array([DETECTOR_HIGH[k] for k in kinds], dtype=np.float32)
-        self._det0 = self._detectors(initial_detectors(spec, 1))[0]
-
-    def observation_bounds(self):
-        lo, hi = super().observation_bounds()
-        return np.concatenate([lo, self._det_low]), np.concatenate([hi, self._det_high])
-
-    def _detectors(self, d):
-        return np.clip(d, self._det_low, self._det_high).astype(np.float32)
-
-    def _kernel_args(self):
-        return (self._ep_chain,) + super()._kernel_args()[1:]
-
-    def _actions(self, action):
-        a = np.asarray(action)
-        if a.dtype.kind not in "iuf":
-            raise ValueError(f"action must be {'integer' if self.action_map.discrete else 'real'} number(s), got "
-                             f"{action!r} (dtype {a.dtype})")
-        if a.shape != (self.n, self.action_map.n_par):
-            self._refuse(_ek.ST_ACTION_SHAPE, action)
-        return np.ascontiguousarray(a, dtype=np.float64)
-
-    def _refuse(self, status, action):
-        if status == _ek.ST_ENDED:
-            super()._refuse(status, action)
-        m = self.action_map
-        raise ValueError(f"action must be {self.n} row(s) of {m._what()[:-len(' per row')]} (the IMM's "
-                         f"{', '.join(m.names)}), got {action!r}")
-
-    def action_to_parameters(self, action):
-        """Validated actions -> the IMM's parameters ``(n, n_par)`` (:class:`IMMActionMap`)."""
-        return self.action_map.parameters(self._actions(action))
-
-    def _start(self, rows, blocks, scenario=None, prepared=False):
-        super()._start(rows, blocks, scenario, prepared)
-        k_imm_start(rows, self.tracker._st, self._is_ct, self._sig_w0_2, self._p_w0, self._log_mu0, self.xm, self.Pm,
-                    self.log_mu)
-        blocks[0][rows, self.n_features:] = self._det0
-
-    def _advance(self, a, action, blocks):
-        obs, fo, fs, bo = blocks
-        n, m, tr = self.n, self.action_map, self.tracker
-        M = self._is_ct.size
-        par, x, P, mu = np.empty((n, m.n_par)), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M))
-        om, om_var = np.empty(n), np.empty(n)
-        status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._sig_w0_2, *self._bounds, tr._looks,
-                            tr._it, self.xm, self.Pm, self.log_mu, par, x, P, mu, om, om_var)
-        if status != _ek.ST_OK:
-            self._refuse(status, action)
-        elapsed = self.elapsed.copy()
-        if _ek.k_env(_NO_ROWS, self._level0, *self._kernel_args(), *blocks) != _ek.ST_OK:
-            raise RuntimeError("the feature chain refused a step the IMM took")   # a bug: the same rows and looks
-        k_imm_emit(self.ep, tr._looks, tr._it, elapsed, x, P, fo, fs, bo)
-        obs[:, self.n_features:] = self._detectors(detector_inputs(mu, om, np.sqrt(om_var)))
-        self.last_parameters = par

@@ -7,7 +7,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .config import RENDER_MODES, EnvConfig
-from .core import make_core
+from .imm_core import make_core
 from .env_kernels import BO_TRUNC
 from .validate import check_known_keys
 

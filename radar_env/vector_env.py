@@ -10,7 +10,7 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from .config import EnvConfig
-from .core import make_core
+from .imm_core import make_core
 from .env_kernels import BO_DONE
 from .single_env import row_spaces
 from .validate import check_known_keys
