@@ -55,6 +55,8 @@ class _IMMCore(_Core):
         self._bounds = spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
         self.xm, self.Pm, self.log_mu = np.zeros((n, M, 5)), np.zeros((n, M, 5, 5)), np.zeros((n, M))
         self._det0 = detector_observation(initial_detectors(spec, 1))[0]
+        self._scratch = (np.empty((n, self.action_map.n_par)), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M)),
+                         np.empty(n), np.empty(n), np.empty(n, dtype=np.int64))
 
     def observation_bounds(self):
         lo, hi = super().observation_bounds()
@@ -92,17 +94,14 @@ class _IMMCore(_Core):
 
     def _advance(self, a, action, blocks):
         obs, fo, fs, bo = blocks
-        n, m, tr = self.n, self.action_map, self.tracker
-        M = self._is_ct.size
-        par, x, P, mu = np.empty((n, m.n_par)), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M))
-        om, om_var = np.empty(n), np.empty(n)
+        m, tr = self.action_map, self.tracker
+        par, x, P, mu, om, om_var, elapsed = self._scratch   # the IMM's look, copied into the blocks below
         status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._sig_w0_2, *self._bounds, tr._looks,
                             tr._it, self.xm, self.Pm, self.log_mu, par, x, P, mu, om, om_var)
         if status != _ek.ST_OK:
             self._refuse(status, action)
-        elapsed = self.elapsed.copy()
+        elapsed[:] = self.elapsed
         if _ek.k_env(_NO_ROWS, self._level0, *self._kernel_args(), *blocks) != _ek.ST_OK:
             raise RuntimeError("the feature chain refused a step the IMM took")   # a bug: the same rows and looks
         k_imm_emit(self.ep, tr._looks, tr._it, elapsed, x, P, fo, fs, bo)
         obs[:, self.n_features:] = detector_observation(detector_inputs(mu, om, np.sqrt(om_var)))
-        self.last_parameters = par

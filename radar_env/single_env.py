@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -218,7 +220,7 @@ class RadarTrackEnv(gym.Env):
             raise RuntimeError("RadarTrack-v0: call reset() before step() (and after an episode ends)")
         a = np.asarray(action)
         core = self._core
-        size = int(np.prod(core.action_shape))
+        size = math.prod(core.action_shape)
         if a.size != size:
             what = "a single value" if size == 1 else f"{size} values"
             raise ValueError(f"action must be {what} ({self.action_space}), got {action!r}")
