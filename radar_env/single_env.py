@@ -156,6 +156,14 @@ class RadarTrackEnv(gym.Env):
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``reward_nees_weight`` (0, in [0, 1000]),
       ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+    * ``tracker``: ``"cv"`` (default: this env) or ``"imm_cv_ct"``: the filter is the CV / CT-EKF IMM of the
+      ``imm_cv_ct`` tracker and the action its per-look parameters, ``Box(-1, 1, (7,))`` or
+      ``MultiDiscrete([imm_action_levels] * 7)`` (a = 0: the tuned ``imm_cv_ct``); the observation appends the IMM's
+      mode probabilities, turn rate and its std to the features (computed by this env's chain at the constant q
+      ``feature_q_g``); info estimate / covariance, reward and track loss are the IMM's. With it:
+      ``imm_action_levels`` (odd, default 5), ``imm_parameters`` (dict, default the tuned values), ``feature_q_g``
+      (default ``kf``'s tuned q); ``frame_stack`` must be 1. Reference: :mod:`radar_env.imm_env`,
+      docs/environment.md.
     * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
       ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a
       ``ValueError`` when matplotlib has no interactive backend, e.g. on a machine without a display).
@@ -173,7 +181,7 @@ class RadarTrackEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
+    * v0 (``tracker="imm_cv_ct"`` added later, off by default: the default env is unchanged): initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
       renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
     """
 

@@ -33,8 +33,8 @@ class RadarTrackVectorEnv(VectorEnv):
     rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
 
-    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
-    raise ``ValueError``.
+    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous), with
+    ``tracker="imm_cv_ct"`` ``(num_envs, n_par)``; other shapes raise ``ValueError``.
 
     Gymnasium's vector wrappers: the observation wrappers of ``gymnasium.wrappers.vector``
     (``NormalizeObservation``, ``FlattenObservation``, ...) accept only next-step autoreset and refuse this env

@@ -313,3 +313,28 @@ def test_the_training_selection_runs_an_sb3_model_as_the_env_does():
     assert np.isfinite(run.x[0, k0:k0 + len(est)]).all()
     np.testing.assert_allclose(np.array(est), run.x[0, k0:k0 + len(est)], rtol=1e-9, atol=1e-9)
     assert np.nanmax(np.abs(run.extra["param_q_ct_g"][0] - tuned_imm_cv_ct_spec().q_ct_g)) > 0.1
+
+
+def test_two_modes_and_other_imm_parameters():
+    """imm_parameters moves the a = 0 point: without the third mode (q_high_g None) the action has 5 entries and the
+    observation 4 detectors, and the zero action is imm_cv_ct with those parameters."""
+    from baselines.imm_cv_ct import run_imm_cv_ct
+    from radar_env.imm_cv_ct import imm_cv_ct_spec_from_params
+    params = {**imm_env_defaults()["imm_parameters"], "q_high_g": None, "p_stay_cv": 0.95}
+    env = gym.make("RadarTrack-v0", action_type="continuous", imm_parameters={"q_high_g": None, "p_stay_cv": 0.95},
+                   **IMM)
+    assert env.action_space.shape == (5,) and env.observation_space.shape == (27 + 4,)
+    steps = _run_env(env, 3)
+    run = run_imm_cv_ct([_episode(3)], imm_cv_ct_spec_from_params(params))
+    k0 = _start_look(run)
+    est = np.array([i["estimate"] for _, _, i in steps])
+    np.testing.assert_allclose(est, run.x[0, k0:k0 + len(est)], rtol=1e-9, atol=1e-9)
+
+
+def test_max_episode_steps_truncates_as_in_the_default_env():
+    venv = gym.make_vec("RadarTrack-v0", num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=5,
+                        **IMM)
+    venv.reset(seed=0)
+    for t in range(5):
+        _, _, term, trunc, _ = venv.step(np.full((2, 7), 2))
+        assert not term.any() and trunc.all() == (t == 4)
