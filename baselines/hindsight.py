@@ -58,10 +58,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numba
 import numpy as np
 
+from radar_env.numba_cache import drop_stale_kernels, package_sources
 from radar_env.observation import DEFAULT_Q_LEVELS_G
 from radar_env.units import DEG, G0_M_S2
 
@@ -610,3 +612,7 @@ def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg=None, q_range_g=
     run = chain_forward(episodes, q2, w, name=name, cfg=cfg)
     return (run, (info, info_q)) if return_info else run
 
+
+# numba keys each cached kernel on its own file only, and these read radar_env's constants: drop the cached kernels
+# of this folder when a source of radar_env or baselines changed (radar_env.numba_cache)
+drop_stale_kernels(_mm, package_sources(Path(__file__).parents[1] / "radar_env", Path(__file__).parent))

@@ -87,9 +87,9 @@ def _timed(step, seconds, min_resets=0):
             return Rate(n / dt, n, dt, r)
 
 
-def bench_single(env_id, seconds, min_resets=1):
-    """Steps/s of ``gym.make(env_id)`` with random actions, resets included."""
-    env = gym.make(env_id)
+def bench_single(env_id, seconds, min_resets=1, **env_kwargs):
+    """Steps/s of ``gym.make(env_id, **env_kwargs)`` with random actions, resets included."""
+    env = gym.make(env_id, **env_kwargs)
     env.reset(seed=0)
     env.action_space.seed(0)
     acts = [env.action_space.sample() for _ in range(_ACTION_POOL)]
@@ -130,9 +130,9 @@ def bench_cartpole_vector(num_envs, seconds, min_resets_per_env=1.0):
     return _bench_vec(venv, num_envs, seconds, int(np.ceil(min_resets_per_env * num_envs)))
 
 
-def bench_vector(num_envs, seconds, min_resets_per_env=1.0):
-    """RadarTrack's native vector env (same-step autoreset)."""
-    return _bench_vec(RadarTrackVectorEnv(num_envs=num_envs), num_envs, seconds,
+def bench_vector(num_envs, seconds, min_resets_per_env=1.0, **env_kwargs):
+    """RadarTrack's native vector env (same-step autoreset; ``env_kwargs``: its arguments)."""
+    return _bench_vec(RadarTrackVectorEnv(num_envs=num_envs, **env_kwargs), num_envs, seconds,
                       int(np.ceil(min_resets_per_env * num_envs)))
 
 

@@ -19,12 +19,17 @@ from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario
 from .tracking import TrackStart
 from .validate import check_choice, check_known_keys, check_number, is_real_number
 
-__all__ = ["EnvConfig", "DEFAULT_Q_LEVELS_G", "RENDER_MODES", "REWARD_TYPES", "REWARD_SCALE_M", "resolve_scenario"]
+__all__ = ["EnvConfig", "DEFAULT_Q_LEVELS_G", "RENDER_MODES", "REWARD_TYPES", "REWARD_SCALE_M", "TRACKERS",
+           "resolve_scenario"]
 
 RENDER_MODES = ("rgb_array", "human")
 """Render modes of the single env: a radar-scope picture (radar_env/render.py, needs matplotlib)."""
 
 REWARD_TYPES = ("squared", "absolute", "squared_m")
+TRACKERS = ("cv", "imm_cv_ct")
+"""The env's filter: ``"cv"`` (the CV Kalman filter whose q is the action) or ``"imm_cv_ct"`` (the CV / CT-EKF IMM
+whose per-look parameters are the action, :mod:`radar_env.imm_env`)."""
+IMM_ONLY_ARGUMENTS = ("imm_action_levels", "imm_parameters", "feature_q_g")
 REWARD_SCALE_M = 100.0
 """Error scale of ``reward_type="squared_m"``: the reward is ``-min((error / 100 m)^2, reward_clip)``."""
 NEES_99_2DOF = -2.0 * math.log(0.01)
@@ -54,6 +59,10 @@ class EnvConfig:
     window_kim_lee: int = 12
     fma_weight: float = 0.1
     render_mode: object = None
+    tracker: str = "cv"
+    imm_action_levels: object = None
+    imm_parameters: object = None
+    feature_q_g: object = None
 
     @classmethod
     def from_kwargs(cls, **kwargs):
@@ -92,6 +101,15 @@ class EnvConfig:
                              f"{type(self.random_config).__name__}")
         self.random_scenario_config  # noqa: B018 - builds (validates) a dict's RandomScenarioConfig
         resolve_scenario(self.scenario)  # raises for unknown names / bad files
+        check_choice(p + "tracker", self.tracker, TRACKERS)
+        if self.tracker == "cv":
+            for name in IMM_ONLY_ARGUMENTS:
+                if getattr(self, name) is not None:
+                    raise ValueError(f"{p}{name} applies only with tracker='imm_cv_ct' (the IMM's action map and "
+                                     f"feature chain), got {name}={getattr(self, name)!r} with tracker='cv'")
+        else:
+            from .imm_env import check_imm_config   # the IMM env's own arguments and refusals
+            check_imm_config(self, p)
 
     @property
     def track_start(self):

@@ -96,6 +96,13 @@ class _Core:
         self._keys = np.zeros(n, dtype=np.uint64)      # ... as the drawer's key
         self._prepared = [None] * n                    # ... or, for a pool, as an episode
 
+    action_shape = ()
+    """The shape of one row's action."""
+
+    def observation_bounds(self):
+        """``(low, high)`` of one row's observation."""
+        return self.cfg.observation_bounds(self.layout)
+
     def _env_parameters(self, max_episode_steps):
         cfg, lay = self.cfg, self.layout
         plan = lay.env_plan
@@ -245,9 +252,7 @@ class _Core:
         the rows that ended (their last step's outputs; the blocks then hold their new episodes' first)."""
         a = self._actions(action)
         blocks = obs, fo, fs, bo = self._blocks()
-        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
-        if status != _ek.ST_OK:
-            self._refuse(status, action)
+        self._advance(a, action, blocks)
         inc = self._inconsistency(fo) if self.cfg.reward_nees_weight > 0 else None
         if not self.autoreset or not bo[_ek.BO_DONE].any():
             rew = fs[_ek.FS_REWARD] if inc is None else fs[_ek.FS_REWARD] + inc
@@ -264,6 +269,12 @@ class _Core:
             inc = inc.copy()
             inc[rows] = self._inconsistency(fo[rows])
         return blocks, rew, fbo[_ek.BO_LOST], fbo[_ek.BO_TRUNC], inc, final
+
+    def _advance(self, a, action, blocks):
+        """Every row's next look with the checked actions ``a`` into ``blocks`` (``ValueError`` for a refused one)."""
+        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
+        if status != _ek.ST_OK:
+            self._refuse(status, action)
 
     # ---- reward
     def _inconsistency(self, fo):

@@ -150,6 +150,26 @@ def _plan(ep):
 
 
 @njit(cache=True)
+def _reward_terms(x0, x1, lk, remaining, lost_gate, ep):
+    """The reward's position and track-loss terms of the estimated position ``(x0, x1)`` at look ``lk``, with
+    ``remaining`` looks after it; returns ``(position_error, track_lost, lost)`` (its NEES term:
+    core._Core._inconsistency). The error over the plot noise at the true range (observation.measurement_sigma_m),
+    or in units of REWARD_SCALE_M; lost (only if ``lost_gate``) when that error exceeds the gate."""
+    tx, ty = lk[_k.L_TRUTH], lk[_k.L_TRUTH + 1]
+    r_true = math.hypot(tx - lk[_k.L_SITE], ty - lk[_k.L_SITE + 1])
+    err_m = math.hypot(x0 - tx, x1 - ty)
+    e = err_m / _meas_sigma(r_true, lk[_k.L_RSTD], lk[_k.L_BSTD])
+    lost = lost_gate and e > ep[EP_GATE]
+    kind = int(ep[EP_RKIND])
+    clip = ep[EP_CLIP]
+    if kind == RK_SQUARED_M:
+        e = err_m / ep[EP_SCALE_M]
+    pos = -_np_min(e if kind == RK_ABSOLUTE else e * e, clip)
+    tl = -clip * remaining if lost else 0.0
+    return pos, tl, lost
+
+
+@njit(cache=True)
 def _emit(i, r, q, t_prev, lost_gate, ep, plan, st, it, looks, of, frames, new_episode, obs, fo, fs, bo):
     """Outputs of row ``r`` (output index ``i``) after a step or a track start: observation (stacked), the info's
     vectors and scalars, the reward's position and track-loss terms; returns (lost, done)."""
@@ -188,20 +208,7 @@ def _emit(i, r, q, t_prev, lost_gate, ep, plan, st, it, looks, of, frames, new_e
         f[FO_P + a] = P[a]
     f[FO_Z], f[FO_Z + 1] = lk[_k.L_Z], lk[_k.L_Z + 1]
     f[FO_POLAR], f[FO_POLAR + 1], f[FO_POLAR + 2] = lk[_k.L_RANGE], lk[_k.L_BEAR], lk[_k.L_RDOT]
-    # the reward's position and track-loss terms (its NEES term: core._Core._inconsistency): the error over the
-    # plot noise at the true range (observation.measurement_sigma_m), or in units of REWARD_SCALE_M
-    tx, ty = lk[_k.L_TRUTH], lk[_k.L_TRUTH + 1]
-    r_true = math.hypot(tx - lk[_k.L_SITE], ty - lk[_k.L_SITE + 1])
-    err_m = math.hypot(x[0] - tx, x[1] - ty)
-    e = err_m / _meas_sigma(r_true, lk[_k.L_RSTD], lk[_k.L_BSTD])
-    lost = lost_gate and e > ep[EP_GATE]
-    kind = int(ep[EP_RKIND])
-    clip = ep[EP_CLIP]
-    if kind == RK_SQUARED_M:
-        e = err_m / ep[EP_SCALE_M]
-    pos = -_np_min(e if kind == RK_ABSOLUTE else e * e, clip)
-    remaining = float(it[r, _k.I_N] - it[r, _k.I_K])
-    tl = -clip * remaining if lost else 0.0
+    pos, tl, lost = _reward_terms(x[0], x[1], lk, float(it[r, _k.I_N] - it[r, _k.I_K]), lost_gate, ep)
     fs[FS_POS, i] = pos
     fs[FS_LOST, i] = tl
     fs[FS_REWARD, i] = pos + tl

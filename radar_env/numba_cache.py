@@ -1,10 +1,10 @@
 """numba's on-disk kernel cache kept consistent with the sources it was compiled from.
 
 numba (``@njit(cache=True)``) keys a function's cache entry on its own source file's time stamp and size only. A
-kernel that calls a function of another module (``env_kernels`` and ``draws`` call ``kernels``; the baselines' IMM
-kernels call ``radar_env.kernels``), or reads a module constant, therefore keeps running the *old* compiled callee
-after that other module changed, e.g. after an update of the package: silently wrong numbers, not an error. (Seen:
-an update of the covariance update in ``kernels.py`` left the env's cached step kernel on the previous update.)
+kernel that calls a function of another module (``env_kernels``, ``draws`` and ``imm_cv_ct`` call ``kernels``), or
+reads a module constant, therefore keeps running the *old* compiled callee after that other module changed, e.g.
+after an update of the package: silently wrong numbers, not an error. (Seen: an update of the covariance update in
+``kernels.py`` left the env's cached step kernel on the previous update.)
 
 :func:`drop_stale_kernels` stamps a package's cache folder with a digest of the sources its kernels depend on and,
 when the digest differs, deletes that package's cached kernels first, so that they recompile once (the cold-cache

@@ -2,16 +2,33 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from .config import RENDER_MODES, EnvConfig
-from .core import _Core
+from .imm_core import make_core
 from .env_kernels import BO_TRUNC
 from .validate import check_known_keys
 
-__all__ = ["RadarTrackEnv"]
+__all__ = ["RadarTrackEnv", "row_spaces"]
+
+
+def row_spaces(core):
+    """``(action_space, observation_space)`` of one row of ``core``: the q action (``Discrete(len(q_levels_g))`` or
+    ``Box(-1, 1, (1,))``), or with ``tracker="imm_cv_ct"`` the IMM's parameters (``MultiDiscrete([L] * n_par)`` or
+    ``Box(-1, 1, (n_par,))``)."""
+    cfg = core.cfg
+    discrete = cfg.action_type == "discrete"
+    if cfg.tracker == "imm_cv_ct":
+        m = core.action_map
+        act = (spaces.MultiDiscrete([m.levels] * m.n_par) if discrete
+               else spaces.Box(-1.0, 1.0, (m.n_par,), dtype=np.float32))
+    else:
+        act = spaces.Discrete(len(cfg.q_levels_g)) if discrete else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+    return act, spaces.Box(*core.observation_bounds(), dtype=np.float32)
 
 
 # ---------------------------------------------------------------------------------------------------- single env
@@ -139,6 +156,14 @@ class RadarTrackEnv(gym.Env):
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``reward_nees_weight`` (0, in [0, 1000]),
       ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+    * ``tracker``: ``"cv"`` (default: this env) or ``"imm_cv_ct"``: the filter is the CV / CT-EKF IMM of the
+      ``imm_cv_ct`` tracker and the action its per-look parameters, ``Box(-1, 1, (7,))`` or
+      ``MultiDiscrete([imm_action_levels] * 7)`` (a = 0: the tuned ``imm_cv_ct``); the observation appends the IMM's
+      mode probabilities, turn rate and its std to the features (computed by this env's chain at the constant q
+      ``feature_q_g``); info estimate / covariance, reward and track loss are the IMM's. With it:
+      ``imm_action_levels`` (odd, default 5), ``imm_parameters`` (dict, default the tuned values), ``feature_q_g``
+      (default ``kf``'s tuned q); ``frame_stack`` must be 1. Reference: :mod:`radar_env.imm_env`,
+      docs/environment.md.
     * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
       ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a
       ``ValueError`` when matplotlib has no interactive backend, e.g. on a machine without a display).
@@ -156,7 +181,7 @@ class RadarTrackEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
+    * v0 (``tracker="imm_cv_ct"`` added later, off by default: the default env is unchanged): initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
       renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
     """
 
@@ -171,12 +196,8 @@ class RadarTrackEnv(gym.Env):
             if problem is not None:
                 raise ValueError(f"RadarTrack-v0: render_mode='human' needs a window, but {problem}; use "
                                  "render_mode='rgb_array' (frames as arrays, e.g. for gymnasium.wrappers.RecordVideo)")
-        self._core = _Core(1, self.config)
-        n_act = len(self.config.q_levels_g)
-        self.action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
-                             else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
-        lay = self._core.layout
-        self.observation_space = spaces.Box(*self.config.observation_bounds(lay), dtype=np.float32)
+        self._core = make_core(1, self.config)
+        self.action_space, self.observation_space = row_spaces(self._core)
         self.q_levels_m_s2 = self._core.levels_m_s2.copy()
         self._needs_reset = True
 
@@ -206,10 +227,12 @@ class RadarTrackEnv(gym.Env):
         if self._needs_reset:
             raise RuntimeError("RadarTrack-v0: call reset() before step() (and after an episode ends)")
         a = np.asarray(action)
-        if a.size != 1:
-            raise ValueError(f"action must be a single value ({self.action_space}), got {action!r}")
         core = self._core
-        (obs, fo, fs, bo), rew, _, _, inc, _ = core.step(a.reshape(1))
+        size = math.prod(core.action_shape)
+        if a.size != size:
+            what = "a single value" if size == 1 else f"{size} values"
+            raise ValueError(f"action must be {what} ({self.action_space}), got {action!r}")
+        (obs, fo, fs, bo), rew, _, _, inc, _ = core.step(a.reshape((1,) + core.action_shape))
         info = core.info_row(fo, fs, bo, inc)
         term, trunc = info["track_lost"], bool(bo[BO_TRUNC, 0])
         self._needs_reset = term or trunc

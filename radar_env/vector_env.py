@@ -4,15 +4,15 @@ autoreset."""
 from __future__ import annotations
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from .config import EnvConfig
-from .core import _Core
+from .imm_core import make_core
 from .env_kernels import BO_DONE
+from .single_env import row_spaces
 from .validate import check_known_keys
 
 __all__ = ["RadarTrackVectorEnv"]
@@ -33,8 +33,8 @@ class RadarTrackVectorEnv(VectorEnv):
     rows continue from their generators' advanced state.
     All other arguments as :class:`RadarTrackEnv`.
 
-    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous); other shapes
-    raise ``ValueError``.
+    Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous), with
+    ``tracker="imm_cv_ct"`` ``(num_envs, n_par)``; other shapes raise ``ValueError``.
 
     Gymnasium's vector wrappers: the observation wrappers of ``gymnasium.wrappers.vector``
     (``NormalizeObservation``, ``FlattenObservation``, ...) accept only next-step autoreset and refuse this env
@@ -60,12 +60,8 @@ class RadarTrackVectorEnv(VectorEnv):
         if self.config.render_mode is not None:
             raise ValueError("RadarTrackVectorEnv does not render; use the single env")
         self.num_envs = int(num_envs)
-        self._core = _Core(self.num_envs, self.config, autoreset=True, max_episode_steps=self.max_episode_steps)
-        n_act = len(self.config.q_levels_g)
-        self.single_action_space = (spaces.Discrete(n_act) if self.config.action_type == "discrete"
-                                    else spaces.Box(-1.0, 1.0, (1,), dtype=np.float32))
-        lay = self._core.layout
-        self.single_observation_space = spaces.Box(*self.config.observation_bounds(lay), dtype=np.float32)
+        self._core = make_core(self.num_envs, self.config, autoreset=True, max_episode_steps=self.max_episode_steps)
+        self.single_action_space, self.single_observation_space = row_spaces(self._core)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._started = False
@@ -102,11 +98,14 @@ class RadarTrackVectorEnv(VectorEnv):
         core = self._core
         a = np.asarray(actions)
         n = self.num_envs
-        shapes = [(n,)] if self.config.action_type == "discrete" else [(n, 1), (n,)]
+        if core.action_shape:
+            shapes = [(n,) + core.action_shape]
+        else:
+            shapes = [(n,)] if self.config.action_type == "discrete" else [(n, 1), (n,)]
         if a.shape not in shapes:
             raise ValueError(f"actions must have shape {' or '.join(map(str, shapes))} ({self.action_space}), got "
                              f"shape {a.shape}: {actions!r}")
-        (obs, fo, fs, bo), rew, term, trunc, inc, final = core.step(a.reshape(n))
+        (obs, fo, fs, bo), rew, term, trunc, inc, final = core.step(a.reshape((n,) + core.action_shape))
         info = core.info(fo, fs, bo, inc)
         if final is not None:   # rows that ended were restarted in this step (same-step autoreset)
             rows, fobs, ffo, ffs, fbo, finc = final

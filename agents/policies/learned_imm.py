@@ -43,11 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, IMMCVCTStepper, imm_cv_ct_spec_from_params, look_parameter_names
-from baselines.trackers import TrackRun, observation_layout
+from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, imm_cv_ct_spec_from_params, look_parameter_names, run_imm_lockstep
+from baselines.trackers import observation_layout
 from radar_env.config import EnvConfig
-from radar_env.episode import stack_episodes
-from radar_env.units import DEG, G0_M_S2
+from radar_env.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
+from radar_env.units import G0_M_S2
 
 from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
 from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
@@ -60,9 +60,6 @@ FORMAT = "radar-track-learned-imm"
 VERSION = 1
 POLICY_FILE = "policy.npz"
 
-OMEGA_SCALE_DEG_S = 20.0
-"""Scale of the turn-rate detector (imm_cv_ct's default turn-rate bound)."""
-STD_FLOOR_DEG_S = 1e-3
 
 
 # ------------------------------------------------------------------------------------------------ outputs
@@ -108,28 +105,6 @@ class ParamMap:
         s = self.transformed(np.asarray(delta, dtype=np.float64))
         p = np.where(self.log_space, np.exp(s), 0.5 + 0.5 * np.tanh(0.5 * s))
         return np.clip(p, self.lo, self.hi)
-
-
-def detector_names(n_modes):
-    """Names of :func:`detector_inputs`' columns."""
-    return tuple(f"mu_{m}" for m in ("cv", "ct", "high")[:n_modes]) + ("omega_over_20deg_s", "log10_omega_std_deg_s_over_3")
-
-
-def detector_inputs(mu, omega_rad_s, omega_std_rad_s, xp=np):
-    """The IMM's own detectors as network inputs ``(n, M + 2)``: the mode probabilities ``mu (n, M)``, the combined
-    turn rate over 20 deg/s, and ``log10`` of its standard deviation in deg/s (floored at 1e-3 deg/s) over 3
-    (``xp``: ``numpy`` or ``torch``, the arrays' kind)."""
-    sd = omega_std_rad_s / DEG
-    sd = xp.log10(xp.maximum(sd, xp.full_like(sd, STD_FLOOR_DEG_S))) / 3.0
-    return xp.concatenate([mu, (omega_rad_s / (OMEGA_SCALE_DEG_S * DEG))[:, None], sd[:, None]], 1)
-
-
-def initial_detectors(spec, n):
-    """The detectors at the track start: ``mu0``, turn rate 0, its std ``sqrt(mu0_ct) sigma_omega0``."""
-    is_ct, _, _, log_mu0 = spec.mode_arrays()
-    mu0 = np.exp(log_mu0)
-    std = math.sqrt(float(mu0[is_ct].sum())) * spec.sigma_omega0_deg_s * DEG
-    return detector_inputs(np.tile(mu0, (n, 1)), np.zeros(n), np.full(n, std))
 
 
 # ------------------------------------------------------------------------------------------------ the network
@@ -183,50 +158,16 @@ class LearnedIMM:
     def run(self, episodes, name="policy_imm_bp"):
         """The learned IMM on ``episodes`` from the common track start: a :class:`baselines.trackers.TrackRun`
         (x, P combined; extra series ``maneuver_probability``, ``turn_rate_deg_s`` and each parameter as
-        ``param_<name>``; declared = maneuver probability > 0.5)."""
+        ``param_<name>``; declared = maneuver probability > 0.5), through
+        :func:`baselines.imm_cv_ct.run_imm_lockstep` with the GRU choosing the parameters."""
         episodes = list(episodes)
-        B = len(episodes)
-        tr = self.cfg.track_start.tracker(B)
-        out = tr.load(np.arange(B), episodes)
-        batch = stack_episodes(episodes)
-        K = batch.t_s.shape[1]
-        k0 = np.asarray(out.look_index, dtype=np.int64)
-        spec = self.spec
-        x5 = np.concatenate([tr.x, np.zeros((B, 1))], axis=1)
-        P5 = np.zeros((B, 5, 5))
-        P5[:, :4, :4] = tr.P
-        P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
-        imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
-        x, P = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan)
-        rows0 = np.arange(B)
-        x[rows0, k0], P[rows0, k0] = tr.x, tr.P          # the start look, as every tracker records it
-        extra = {k: np.full((B, K), np.nan) for k in ["maneuver_probability", "turn_rate_deg_s"] +
-                 [f"param_{n}" for n in self.names]}
-        q_feat = self.feature_q_m_s2
-        # the observation after the start, as the env's reset gives it (q_prev: the warm-up q)
-        obs = self.layout.encode(out, np.full(B, self.cfg.track_start.warmup_q_m_s2)).astype(np.float64)
-        det = initial_detectors(spec, B)
-        h = np.zeros((B, self.arch["hidden_size"]))
-        active = imm.k < imm.n_looks
-        while active.any():
-            rows = np.flatnonzero(active)
-            delta, h[rows] = self.offsets(np.concatenate([obs[rows], det[rows]], 1), h[rows])
-            params = self.pmap.physical(delta)
-            o = imm.step(params, rows)
-            k = o.look_index
-            x[rows, k], P[rows, k] = o.x, o.P
-            extra["maneuver_probability"][rows, k] = 1.0 - o.mu[:, 0]
-            extra["turn_rate_deg_s"][rows, k] = np.degrees(o.omega_rad_s)
-            for i, n in enumerate(self.names):
-                extra[f"param_{n}"][rows, k] = params[:, i]
-            det[rows] = detector_inputs(o.mu, o.omega_rad_s, o.omega_std_rad_s)
-            f = tr.step(np.full(rows.size, q_feat), rows=None if rows.size == B else rows)
-            obs[rows] = self.layout.encode(f, np.full(rows.size, q_feat))
-            active[rows] = ~o.done
-        p_man = extra["maneuver_probability"]
-        declared = np.zeros((B, K), dtype=bool)
-        declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
-        return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared, extra=extra)
+        h = np.zeros((len(episodes), self.arch["hidden_size"]))
+
+        def choose(obs, det, rows):
+            delta, h[rows] = self.offsets(np.concatenate([obs.astype(np.float64), det], 1), h[rows])
+            return self.pmap.physical(delta)
+
+        return run_imm_lockstep(episodes, choose, self.cfg, self.spec, self.feature_q_m_s2, name)
 
 
 def save_learned_imm(directory, weights, config, env_kwargs):

@@ -32,7 +32,7 @@ from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
 from agents.policies.recurrent import load_recurrent_policy
 
-__all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q"]
+__all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q", "model_run_imm"]
 
 
 def load_policy(path):
@@ -172,3 +172,21 @@ def model_choose_q(model, cfg: EnvConfig):
         return actions_to_q_m_s2(np.asarray(act).reshape(obs.shape[0], -1), cfg.action_type, levels)
 
     return choose_q
+
+
+def model_run_imm(model, cfg: EnvConfig, name="policy_imm_ppo"):
+    """``run(episodes) -> TrackRun`` of a stable-baselines3 model trained on ``RadarTrack-v0`` with
+    ``tracker="imm_cv_ct"`` (deterministic actions): the env's lockstep
+    (:func:`baselines.imm_cv_ct.run_imm_lockstep`) with the model choosing the IMM's parameters from the env's
+    observation (features + :func:`radar_env.imm_env.detector_observation`) through the env's action map."""
+    from baselines.imm_cv_ct import run_imm_lockstep
+    from radar_env.imm_env import detector_observation, feature_q_m_s2, imm_action_map, imm_spec
+
+    spec = imm_spec(cfg)
+    amap, q = imm_action_map(cfg, spec), feature_q_m_s2(cfg)
+
+    def choose(obs, det, rows):
+        act, _ = model.predict(np.concatenate([obs, detector_observation(det)], 1), deterministic=True)
+        return amap.parameters(np.asarray(act).reshape(obs.shape[0], amap.n_par))
+
+    return lambda episodes: run_imm_lockstep(episodes, choose, cfg, spec, q, name)

@@ -22,7 +22,7 @@ from radar_env.env import EnvConfig
 
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import embed_env_config, env_kwargs_from_json
-from agents.policies.loading import model_choose_q
+from agents.policies.loading import model_choose_q, model_run_imm
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
@@ -73,7 +73,10 @@ class ImmRatioEvalCallback(BaseCallback):
             self.logger.dump(self.num_timesteps)
 
     def evaluate_now(self):
-        scored, _ = self.selection.score(model_choose_q(self.model, self.cfg), self.cfg)
+        if self.cfg.tracker == "imm_cv_ct":     # the IMM's parameters as the action: the model runs the IMM
+            scored, _ = self.selection.score_runs(model_run_imm(self.model, self.cfg))
+        else:
+            scored, _ = self.selection.score(model_choose_q(self.model, self.cfg), self.cfg)
         row = {"timesteps": int(self.num_timesteps)}
         for name in self.selection.suites:
             for key in (f"{name}_failed_runs", f"{name}_rmse_m", f"{name}_ratio_imm2"):
