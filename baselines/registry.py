@@ -6,7 +6,7 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
 in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
-and ``policy_imm_bp`` (the bundled learned IMM) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
+``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
 trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
@@ -77,7 +77,7 @@ _RUNNERS = {
     "hindsight_q_turn": lambda eps, cfg: _hindsight().run_hindsight_q_turn(eps, cfg=cfg),
 }
 
-POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp")
+POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo")
 """Tracker names of learned policies, each run by the evaluation from its file: a q-policy through
 :func:`baselines.trackers.run_q_policy`, a learned IMM by its own ``run``."""
 

@@ -53,16 +53,15 @@ the ADS-B suites fly each of their flights once; the held-out families 200); oth
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None, policy_bp_path=None, loaded_policy_bp=None,
-             policy_imm_bp_path=None, loaded_policy_imm_bp=None):
+             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None):
     """Run ``trackers`` on every suite.
 
     Args:
         suites: list of ``(name, episodes)``.
-        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``, ``policy_bp`` runs
-            ``policy_bp_path`` and ``policy_imm_bp`` ``policy_imm_bp_path`` (default: the bundled ones,
-            :data:`agents.policies.bundle.BUNDLED_POLICIES`). Each file may be an SB3 zip, a recurrent ``.npz`` or a
-            learned IMM (:func:`agents.policies.loading.load_policy`).
+        trackers: tracker names (``TRACKER_NAMES``); ``policy`` needs ``policy_path``; the other learned trackers
+            (``policy_bp``, ``policy_imm_bp``, ``policy_imm_ppo``) run ``policy_paths[name]`` (default: the bundled
+            ones, :data:`agents.policies.bundle.BUNDLED_POLICIES`). Each file may be an SB3 zip, a recurrent ``.npz``
+            or a learned IMM (:func:`agents.policies.loading.load_policy`).
         reference: tracker the ratio column is taken against (if present).
         workers, address, seed: ``workers > 1`` runs the trackers on Ray (:func:`agents.evaluation.parallel.run_suites_ray`,
             same numbers as the serial run); ``seed``: the base seed the suites were drawn with (lets the tasks draw
@@ -70,19 +69,21 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         common_over: tracker names whose lost or failed runs are left out of every tracker's common-run metrics
             (:func:`agents.evaluation.metrics.common_runs`); default: all ``trackers`` except, per suite, those that failed
             every run (named in ``common_excluded_failed_everywhere``).
-        loaded_policy, loaded_policy_bp, loaded_policy_imm_bp: ``load_policy(policy_path)``'s (``policy_bp_path``'s,
-            ``policy_imm_bp_path``'s) result if the caller has it already (not loaded again).
+        loaded_policy, loaded_policies: ``load_policy(policy_path)``'s result (``{name: load_policy(
+            policy_paths[name])}``) if the caller has it already (not loaded again).
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
         ``"ratio_vs_" + reference + "_runs"``), ``..._common`` the same over the suite's ``common_runs``;
         ``runs[suite]`` = ``(batch, {name: TrackRun})``.
     """
-    paths = {"policy": policy_path, "policy_bp": policy_bp_path, "policy_imm_bp": policy_imm_bp_path}
-    for t in ("policy_bp", "policy_imm_bp"):
-        if paths[t] is None and BUNDLED_POLICIES[t].is_file():
+    paths = {t: (policy_paths or {}).get(t) for t in POLICY_TRACKERS}
+    paths["policy"] = policy_path
+    for t in POLICY_TRACKERS:
+        if t != "policy" and paths[t] is None and BUNDLED_POLICIES[t].is_file():
             paths[t] = BUNDLED_POLICIES[t]
-    given = {"policy": loaded_policy, "policy_bp": loaded_policy_bp, "policy_imm_bp": loaded_policy_imm_bp}
+    given = {t: (loaded_policies or {}).get(t) for t in POLICY_TRACKERS}
+    given["policy"] = loaded_policy
     policies = {}                           # tracker -> (choose_q, env config)
     for t in POLICY_TRACKERS:
         if t in trackers:
@@ -481,7 +482,7 @@ def main(argv=None, prog="radar-track evaluate"):
         if given is not None and not Path(given).is_file():
             raise SystemExit(f"error: --{t.replace('_', '-')}: file {given!r} does not exist (or is not a file)")
         policy_files[t] = given if given is not None else (str(bundled) if bundled.is_file() else None)
-    policy, policy_bp, policy_imm_bp = policy_files["policy"], policy_files["policy_bp"], policy_files["policy_imm_bp"]
+    policy = policy_files["policy"]
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)
@@ -558,16 +559,15 @@ def main(argv=None, prog="radar-track evaluate"):
     try:
         results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
                                  address=args.address, seed=args.seed, loaded_policy=loaded.get("policy"),
-                                 policy_bp_path=policy_bp, loaded_policy_bp=loaded.get("policy_bp"),
-                                 policy_imm_bp_path=policy_imm_bp, loaded_policy_imm_bp=loaded.get("policy_imm_bp"))
+                                 policy_paths=policy_files, loaded_policies=loaded)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
-                "policy": policy, "policy_bp": policy_bp if "policy_bp" in trackers else None,
-                "policy_imm_bp": policy_imm_bp if "policy_imm_bp" in trackers else None,
+                "policy": policy, **{t: policy_files[t] if t in trackers else None for t in POLICY_TRACKERS
+                                     if t != "policy"},
                 "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},

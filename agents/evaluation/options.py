@@ -10,15 +10,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_LEARNED_IMM, BUNDLED_POLICIES, BUNDLED_POLICY
+from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_POLICIES,
+                                    BUNDLED_POLICY)
 from baselines.seeds import EVAL_SEED_BASE
 
 __all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
 
-DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin",
-                    "clairvoyant")
+DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "imm2_bizup",
+                    "kf_tuned", "cmin", "clairvoyant")
 """The main job's trackers (the learned ones, ``policy``, PPO, ``policy_bp``, a q-policy trained by backpropagation,
-and ``policy_imm_bp``, the learned IMM trained by backpropagation, only when such a file is bundled or given)."""
+``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and by PPO, only when such a
+file is bundled or given)."""
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
@@ -82,6 +84,11 @@ def build_parser(prog="radar-track evaluate"):
                          "env_config.json beside it, as radar-track train --method backprop --tracker imm_cv_ct "
                          "writes) (default: the bundled "
                          f"{BUNDLED_LEARNED_IMM.relative_to(Path(__file__).parents[2])} if present)")
+    ap.add_argument("--policy-imm-ppo", metavar="FILE",
+                    help="saved learned IMM for the 'policy_imm_ppo' tracker: an SB3 zip trained on RadarTrack-v0 "
+                         "with tracker='imm_cv_ct' (its env_config.json beside it says so; a pickle: load only files "
+                         "you trust) (default: the bundled "
+                         f"{BUNDLED_IMM_PPO.relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
                     help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
                          "followed) (default: ./results)")

@@ -23,7 +23,7 @@ import json
 import zipfile
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
            "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
@@ -37,7 +37,11 @@ BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop"
 BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / "policy.npz"
 """The bundled learned IMM trained by backpropagation (the tracker ``policy_imm_bp``;
 :mod:`agents.policies.learned_imm`, with ``policy.json`` and ``env_config.json`` beside it)."""
-BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM}
+BUNDLED_IMM_PPO = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm_ppo" / "policy.zip"
+"""The bundled learned IMM trained with PPO on ``RadarTrack-v0`` with ``tracker="imm_cv_ct"`` (the tracker
+``policy_imm_ppo``; its ``env_config.json`` and numpy export ``policy.npz`` beside it)."""
+BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
+                    "policy_imm_ppo": BUNDLED_IMM_PPO}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 

@@ -32,7 +32,7 @@ from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
 from agents.policies.recurrent import load_recurrent_policy
 
-__all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q", "model_run_imm"]
+__all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q", "model_run_imm", "SB3LearnedIMM"]
 
 
 def load_policy(path):
@@ -41,7 +41,8 @@ def load_policy(path):
     or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
     ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle), or a learned IMM
     (the same three files, :func:`agents.policies.learned_imm.load_learned_imm`: returned as ``(LearnedIMM, cfg)``,
-    a tracker with ``is_tracker`` and ``run(episodes, name)`` in place of ``choose_q``).
+    a tracker with ``is_tracker`` and ``run(episodes, name)`` in place of ``choose_q``). An SB3 model trained on the
+    IMM env (``tracker="imm_cv_ct"`` in its env config) is returned likewise, as :class:`SB3LearnedIMM`.
 
     Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2, evaluated in numpy wherever the
     model's structure allows (:func:`load_model`; a recurrent policy is a stateful ``choose_q`` for
@@ -72,6 +73,18 @@ def load_policy(path):
     except (TypeError, ValueError) as e:
         raise ValueError(f"{cfg_file}: {e}") from None
     n_obs = int(np.prod(model.observation_space.shape))
+    imm = cfg.tracker == "imm_cv_ct"           # trained on the IMM env: the IMM's parameters are the action
+    if imm:
+        from radar_env.imm_core import make_core
+        core = make_core(1, cfg)
+        lo, hi = core.observation_bounds()
+        n_act = core.action_map.n_par
+        if n_obs != lo.size or int(np.prod(model.action_space.shape or (1,))) != n_act:
+            raise ValueError(f"{path}: the model has {model.observation_space} observations and "
+                             f"{model.action_space} actions, but the IMM env of {where} has {lo.size} observation "
+                             f"entries and {n_act} parameters per action")
+        _check_observation_bounds(path, model.observation_space, cfg, where, (lo, hi))
+        return SB3LearnedIMM(model, cfg), cfg
     if n_obs != len(cfg.features) * cfg.frame_stack:
         raise ValueError(f"{path}: the model takes {n_obs} observation entries but the env config from {where} has "
                          f"{len(cfg.features)} features x frame_stack {cfg.frame_stack}; it was trained with other "
@@ -116,10 +129,11 @@ def load_model(path):
     return pol if ok else model
 
 
-def _check_observation_bounds(path, space, cfg, where):
-    """The model's stored observation Box must be the env's, entry by entry (a reordered or renamed feature list of
-    the same length changes them); ``ValueError`` naming the first entry that differs otherwise."""
-    lo, hi = cfg.observation_bounds(ObservationLayout(cfg.features))
+def _check_observation_bounds(path, space, cfg, where, bounds=None):
+    """The model's stored observation Box must be the env's (``bounds``, default the CV env's), entry by entry (a
+    reordered or renamed feature list of the same length changes them); ``ValueError`` naming the first entry that
+    differs otherwise."""
+    lo, hi = cfg.observation_bounds(ObservationLayout(cfg.features)) if bounds is None else bounds
     m_lo = np.asarray(space.low, dtype=np.float64).reshape(-1)
     m_hi = np.asarray(space.high, dtype=np.float64).reshape(-1)
     lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
@@ -127,8 +141,10 @@ def _check_observation_bounds(path, space, cfg, where):
     if bad.size:
         i = int(bad[0])
         F = len(cfg.features)
+        what = (f"frame {i // F + 1} feature {cfg.features[i % F]!r}" if i < F * cfg.frame_stack
+                else f"IMM detector {i - F * cfg.frame_stack}")
         raise ValueError(f"{path}: the model's stored observation bounds differ from the env's in {bad.size} of "
-                         f"{lo.size} entries (first: entry {i}, frame {i // F + 1} feature {cfg.features[i % F]!r}: "
+                         f"{lo.size} entries (first: entry {i}, {what}: "
                          f"model [{m_lo[i]:g}, {m_hi[i]:g}], env [{lo[i]:g}, {hi[i]:g}]): the env config from "
                          f"{where} has other or reordered 'features' (or frame_stack) than the model was trained with")
 
@@ -172,6 +188,19 @@ def model_choose_q(model, cfg: EnvConfig):
         return actions_to_q_m_s2(np.asarray(act).reshape(obs.shape[0], -1), cfg.action_type, levels)
 
     return choose_q
+
+
+class SB3LearnedIMM:
+    """A stable-baselines3 model trained on ``RadarTrack-v0`` with ``tracker="imm_cv_ct"``, as a tracker (what
+    :func:`load_policy` returns for one): ``run(episodes, name)`` runs :func:`model_run_imm`."""
+
+    is_tracker = True
+
+    def __init__(self, model, cfg):
+        self.model, self.cfg = model, cfg
+
+    def run(self, episodes, name="policy_imm_ppo"):
+        return model_run_imm(self.model, self.cfg, name)(list(episodes))
 
 
 def model_run_imm(model, cfg: EnvConfig, name="policy_imm_ppo"):

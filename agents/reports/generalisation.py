@@ -29,7 +29,7 @@ from radar_env.episode import stack_episodes
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.evaluation.runner import run_policy
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_LEARNED_IMM, BUNDLED_POLICY
+from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_POLICY
 from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
@@ -59,6 +59,10 @@ IMM_RECIPE_DIR = BUNDLED_LEARNED_IMM.parent / "seeds"
 """Every trained seed of the learned IMM's recipe: ``imm_bp_s<seed>/policy.npz`` with its ``policy.json`` and
 ``env_config.json``."""
 IMM_RECIPE = "imm_bp"
+IMM_PPO_RECIPE_DIR = BUNDLED_IMM_PPO.parent / "seeds"
+"""Every trained seed of the PPO learned IMM's recipe: ``imm_ppo_s<seed>/policy.zip`` with its ``env_config.json``
+(``tracker="imm_cv_ct"``) and numpy export."""
+IMM_PPO_RECIPE = "imm_ppo"
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -72,7 +76,9 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
                       "filter (agents/training/hyperparams/backprop.toml; radar-track train --method backprop)",
            IMM_RECIPE: "learned IMM: imm_cv_ct whose per-look mode-switch probabilities and noises a GRU sets, "
                        "trained end to end by backpropagation (agents/training/hyperparams/backprop_imm_cv_ct.toml; "
-                       "radar-track train --method backprop --tracker imm_cv_ct)"}
+                       "radar-track train --method backprop --tracker imm_cv_ct)",
+           IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
+                           "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
 rule chose (agents/bundled/train_config.json, final_choice)."""
 
@@ -209,7 +215,7 @@ def spread_table(data):
     classical tracker; the bundles' own ratios (``policy``, and ``policy_bp``, ``policy_imm_bp`` if evaluated)
     beside them."""
     recipes = list(data["recipes"])
-    extra = [b for b in ("policy_bp", "policy_imm_bp") if any(b in r["policies"] for r in data["spread"].values())]
+    extra = [b for b in ("policy_bp", "policy_imm_bp", "policy_imm_ppo") if any(b in r["policies"] for r in data["spread"].values())]
     head = "| suite (runs) | bundle / imm2 | " + "".join(f"{b} / imm2 | " for b in extra) + " | ".join(
         f"{r}: mean / worst over {len(_seeds(data, r))} seeds, / imm2 | {r}: mean / worst, / strongest"
         for r in recipes)
@@ -276,6 +282,9 @@ def targets(data):
     if "policy_imm_bp" in sp["random"]["policies"]:
         seeds = data["recipes"][IMM_RECIPE]["seeds"] if IMM_RECIPE in data["recipes"] else []
         out += imm_targets(sp, "policy_imm_bp", seeds, _train_minutes(IMM_RECIPE_DIR, seeds))
+    if "policy_imm_ppo" in sp["random"]["policies"]:
+        seeds = data["recipes"][IMM_PPO_RECIPE]["seeds"] if IMM_PPO_RECIPE in data["recipes"] else []
+        out += imm_targets(sp, "policy_imm_ppo", seeds)
     return out
 
 
@@ -324,7 +333,7 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
                 if bad else f"all {len(bounded)} suites"))
     if seeds:
         good = [n for n in seeds if all_ok(n)]
-        out.append(("at least 2 of 3 seeds of the learned IMM's recipe meet these three", len(good) >= 2,
+        out.append((f"at least 2 of 3 seeds of {policy}'s recipe meet these three", len(good) >= 2,
                     f"{len(good)} of {len(seeds)} ({', '.join(good) or 'none'}); random / imm_cv_ct, bizup2002 / "
                     "imm_cv_ct: " + ", ".join(
                         f"{n} {spread['random']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f}, "
@@ -342,8 +351,8 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
                     None, "not timed idle: " + ", ".join(
                         f"{n} best at {b:.0f} min, end at {e:.0f} min (load {ld:.1f})" for n, (b, e, ld)
                         in minutes.items())))
-    out.append(("at its initial weights it is imm_cv_ct; its torch forward equals the numba IMM (1e-9)", None,
-                "tested: tests/test_learned_imm.py, tests/test_torch_imm.py (a failure fails the test suite)"))
+        out.append(("at its initial weights it is imm_cv_ct; its torch forward equals the numba IMM (1e-9)", None,
+                    "tested: tests/test_learned_imm.py, tests/test_torch_imm.py (a failure fails the test suite)"))
     return out
 
 
@@ -426,11 +435,13 @@ def main(argv=None):
     if args.add_recipe:
         return _add_recipe(args, docs, t0)
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
-    for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM)):
+    for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM),
+                       ("policy_imm_ppo", BUNDLED_IMM_PPO)):
         if path.is_file():
             bundle[name] = load_policy(path)
     seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
-                                             **recipe_policies(IMM_RECIPE_DIR)}.items()}
+                                             **recipe_policies(IMM_RECIPE_DIR),
+                                             **recipe_policies(IMM_PPO_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -459,13 +470,14 @@ def _add_recipe(args, docs, t0):
         raise SystemExit(f"error: --add-recipe: docs/generalisation.json was computed with --seed "
                          f"{data.get('seed')}, not {args.seed}")
     r = args.add_recipe
-    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR) for n, p in recipe_policies(d).items()
-             if n.rsplit("_s", 1)[0] == r}
+    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR)
+             for n, p in recipe_policies(d).items() if n.rsplit("_s", 1)[0] == r}
     if not paths:
         raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
     pols = {n: load_policy(p) for n, p in paths.items()}
-    if r == IMM_RECIPE and BUNDLED_LEARNED_IMM.is_file():
-        pols["policy_imm_bp"] = load_policy(BUNDLED_LEARNED_IMM)
+    bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO)}
+    if r in bundled and bundled[r][1].is_file():
+        pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
     for suite, old in data["spread"].items():
         eps = draw_suite(suite, old["runs"], seed=args.seed)

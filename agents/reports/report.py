@@ -25,9 +25,9 @@ __all__ = ["main", "markdown_tables"]
 REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
                    "oracle_q", "clairvoyant")
-FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 """The trackers of the figures: the main job's (the strongest classical tracker, imm_cv_ct, included)."""
-PER_FLIGHT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")
+PER_FLIGHT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")
 """The columns of the ADS-B per-flight table."""
 
 
@@ -79,7 +79,7 @@ def markdown_tables(results, reference="imm2"):
     return "\n".join(out)
 
 
-HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "imm2", "imm2_grid", "imm_cv_ct", "kf_tuned", "cmin",
+HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "kf_tuned", "cmin",
                      "hindsight_q", "hindsight_q_turn", "clairvoyant")
 
 
@@ -260,7 +260,8 @@ def main(argv=None):
     docs = Path(args.docs)
     t0 = time.time()
     policy = str(BUNDLED_POLICY) if BUNDLED_POLICY.is_file() else None
-    learned = (["policy"] if policy else []) + [t for t in ("policy_bp", "policy_imm_bp") if BUNDLED_POLICIES[t].is_file()]
+    learned = (["policy"] if policy else []) + [t for t in ("policy_bp", "policy_imm_bp", "policy_imm_ppo")
+                                                  if BUNDLED_POLICIES[t].is_file()]
     trackers = learned + list(REPORT_TRACKERS)
     suites = [(n, draw_suite(n, DEFAULT_RUNS.get(n, 50), seed=args.seed))
               for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
@@ -284,7 +285,8 @@ def main(argv=None):
         f"after = within 60 s after a maneuver, straight = the rest. Policy: "
         f"{'the bundled policy `agents/bundled/policy.zip`' if policy else 'none bundled'}"
         f"{'; policy_bp: `agents/bundled/backprop/policy.npz` (trained by backpropagation)' if 'policy_bp' in learned else ''}"
-        f"{'; policy_imm_bp: `agents/bundled/learned_imm/policy.npz` (the learned IMM)' if 'policy_imm_bp' in learned else ''}. "
+        f"{'; policy_imm_bp: `agents/bundled/learned_imm/policy.npz` (the learned IMM)' if 'policy_imm_bp' in learned else ''}"
+        f"{'; policy_imm_ppo: `agents/bundled/learned_imm_ppo/policy.zip` (the learned IMM, PPO)' if 'policy_imm_ppo' in learned else ''}. "
         f"Computed in {seconds:.0f} s.",
         "",
         markdown_tables(results),
