@@ -30,7 +30,7 @@ from radar_env.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.radar import atc_radar
 from radar_env.episode import stack_episodes
 
-from agents.policies.bundle import BUNDLED_POLICIES
+from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F401 (BUNDLED_POLICY: part of this API)
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
