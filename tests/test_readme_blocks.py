@@ -39,7 +39,8 @@ def _headline():
 
 def _downstream():
     res = _results()
-    learned = [t for t in ("policy", "policy_bp") if any(t in r["trackers"] for r in res.values())]
+    learned = [t for t in ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo")
+               if any(t in r["trackers"] for r in res.values())]
     return report.downstream_tables(res, learned + list(report.REPORT_TRACKERS))
 
 
