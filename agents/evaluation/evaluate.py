@@ -5,8 +5,8 @@ seeds, see :mod:`agents.evaluation.suites`), runs every tracker on the same epis
 writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.evaluation.metrics`).
 
 Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, ``policy_bp``, a q-policy
-trained by backpropagation, and ``policy_imm_bp``, the learned IMM trained by backpropagation), the tuned 2-mode IMM (``imm2``), the tuned
-CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
+trained by backpropagation, ``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and
+by PPO), the tuned 2-mode IMM (``imm2``), the tuned CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
 KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
 scenarios).
 """
