@@ -214,6 +214,25 @@ class IMMCVCTStepper:
 
 
 # ------------------------------------------------------------------------------------------------ on episodes
+def _start_state(spec, x4, P4):
+    """Every mode's 5-state start from the common track start ``x4 (B, 4)``, ``P4 (B, 4, 4)``: turn rate 0 with
+    variance ``sigma_omega0^2``."""
+    B = x4.shape[0]
+    x5 = np.concatenate([x4, np.zeros((B, 1))], axis=1)
+    P5 = np.zeros((B, 5, 5))
+    P5[:, :4, :4] = P4
+    P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+    return x5, P5
+
+
+def _declared(p_man):
+    """Maneuver declared where the maneuver probability (finite) exceeds 0.5."""
+    declared = np.zeros(p_man.shape, dtype=bool)
+    ok = np.isfinite(p_man)
+    declared[ok] = p_man[ok] > 0.5
+    return declared
+
+
 def common_start(episodes, cfg=None):
     """The common track start of ``episodes`` (two-hit start + warm-up through :class:`Tracker`):
     ``(batch, look_index (B,), x (B, 4), P (B, 4, 4))`` with ``look_index`` the last warm-up look."""
@@ -230,18 +249,13 @@ def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", c
     spec = spec or DEFAULT_IMM_CV_CT
     batch, k0, x4, P4 = start if start is not None else common_start(episodes, cfg)
     B, K = batch.t_s.shape
-    x5 = np.concatenate([x4, np.zeros((B, 1))], axis=1)
-    P5 = np.zeros((B, 5, 5))
-    P5[:, :4, :4] = P4
-    P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+    x5, P5 = _start_state(spec, x4, P4)
     res = imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
     rows = np.arange(B)
     x, P = res.x, res.P
     x[rows, k0], P[rows, k0] = x4, P4      # the start look, as every tracker records it
     p_man = 1.0 - res.mu[..., 0]
-    declared = np.zeros((B, K), dtype=bool)
-    declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
-    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared,
+    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=_declared(p_man),
                     extra={"maneuver_probability": p_man, "turn_rate_deg_s": np.degrees(res.omega_rad_s)})
 
 
@@ -266,10 +280,7 @@ def run_imm_lockstep(episodes, choose, cfg, spec, feature_q_m_s2, name):
     batch = stack_episodes(episodes)
     K = batch.t_s.shape[1]
     k0 = np.asarray(out.look_index, dtype=np.int64)
-    x5 = np.concatenate([tr.x, np.zeros((B, 1))], axis=1)
-    P5 = np.zeros((B, 5, 5))
-    P5[:, :4, :4] = tr.P
-    P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+    x5, P5 = _start_state(spec, tr.x, tr.P)
     imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
     x, P = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan)
     rows0 = np.arange(B)
@@ -294,7 +305,5 @@ def run_imm_lockstep(episodes, choose, cfg, spec, feature_q_m_s2, name):
         f = tr.step(np.full(rows.size, feature_q_m_s2), rows=None if rows.size == B else rows)
         obs[rows] = layout.encode(f, np.full(rows.size, feature_q_m_s2))
         active[rows] = ~o.done
-    p_man = extra["maneuver_probability"]
-    declared = np.zeros((B, K), dtype=bool)
-    declared[np.isfinite(p_man)] = p_man[np.isfinite(p_man)] > 0.5
-    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=declared, extra=extra)
+    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=_declared(extra["maneuver_probability"]),
+                    extra=extra)

@@ -122,13 +122,19 @@ def test_outputs_stay_inside_the_documented_ranges():
     assert np.all(np.diff(pm.physical(d)[:, 2]) > 0)
 
 
-def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
+def _saved_model(setup, directory, seed, scale):
+    """A model whose output layer is moved by ``scale`` x N(0, 1), saved in ``directory``: ``(model, path)``."""
     hp, env_kwargs, cfg = setup
-    torch.manual_seed(1)
+    torch.manual_seed(seed)
     model = bp.make_model(hp, cfg)
     with torch.no_grad():
-        model.out.weight.add_(0.1 * torch.randn_like(model.out.weight))
-    path = model.save_policy(tmp_path / "ck", cfg, env_kwargs)
+        model.out.weight.add_(scale * torch.randn_like(model.out.weight))
+    return model, model.save_policy(directory, cfg, env_kwargs)
+
+
+def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
+    hp, env_kwargs, cfg = setup
+    model, path = _saved_model(setup, tmp_path / "ck", 1, 0.1)
     assert LI.is_learned_imm_checkpoint(path) and not LI.is_learned_imm_checkpoint(tmp_path)
     with np.load(path, allow_pickle=False) as z:
         assert set(z.files) == set(LI.weight_shapes(model.architecture()))
@@ -175,12 +181,7 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
     from agents.evaluation.parallel import _policy_blob, _policy_in_worker
     from agents.evaluation.runner import run_one
     from agents.policies.loading import load_policy
-    hp, env_kwargs, cfg = setup
-    torch.manual_seed(2)
-    model = bp.make_model(hp, cfg)
-    with torch.no_grad():
-        model.out.weight.add_(0.2 * torch.randn_like(model.out.weight))
-    path = model.save_policy(tmp_path / "imm", cfg, env_kwargs)
+    _, path = _saved_model(setup, tmp_path / "imm", 2, 0.2)
     imm, cfg2 = load_policy(path)
     assert imm.is_tracker and cfg2 == imm.cfg
     eps = draw_suite("random", 3, seed=10_000_000)
