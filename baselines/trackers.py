@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from radar_env.detectors import DetectorBank
 from radar_env.filters import imm_filter, two_point_init
 from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
 from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
@@ -158,8 +159,13 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
     rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
     declared = np.zeros((B, K), dtype=bool) if declare is not None else None
     q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
-    obs = layout.encode(out, q_prev) if layout is not None else np.zeros((B, 0), np.float32)
     rows0 = np.arange(B)
+    det = None
+    if layout is not None and layout.uses_detectors:   # the env's detector features: the same IMMs, same looks
+        det = DetectorBank(B)
+        det.start(rows0, tr._st)
+    obs = (layout.encode(out, q_prev, None if det is None else det.values) if layout is not None
+           else np.zeros((B, 0), np.float32))
     k = int(getattr(cfg, "frame_stack", 1)) if features is None else 1
     frames = FrameStack(B, k, obs.shape[1]) if k > 1 else None   # as the env stacks them (frame_stack)
     if frames is not None:
@@ -176,9 +182,11 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
         q = np.clip(np.asarray(q, dtype=np.float64).reshape(rows.size), 0.0, 100 * G0_M_S2)
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
+        if det is not None and det.step(tr._looks, tr._it, rows) != 0:   # before the chain: the look it takes
+            raise RuntimeError("the detectors' IMMs refused a look the chain takes")   # a bug: same rows, looks
         o = tr.step(q, rows=None if rows.size == B else rows)
         if layout is not None:
-            enc = layout.encode(o, q)
+            enc = layout.encode(o, q, None if det is None else det.values[rows])
             obs[rows] = enc if frames is None else frames.push(rows, enc)
         rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
         return o

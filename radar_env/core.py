@@ -15,6 +15,7 @@ import numpy as np
 from . import env_kernels as _ek
 from . import kernels as _k
 from .config import NEES_99_2DOF, REWARD_SCALE_M, EnvConfig, resolve_scenario
+from .detectors import DetectorBank
 from .draws import MAX_EPISODE_DRAWS, LookDrawer, _keys, draw_episodes
 from .observation import FrameStack, ObservationLayout
 from .scenario import RADAR_PLACEMENT_RANGE_M
@@ -76,6 +77,10 @@ class _Core:
         self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
         self.frames = FrameStack(n, cfg.frame_stack, len(cfg.features))   # the kernels stack into frames.buf
         self.tracker = cfg.track_start.tracker(n)
+        # the optional detector features (radar_env.detectors): their IMMs step before the chain, and the kernel
+        # reads their values from ``_ext`` (no columns without them)
+        self.detectors = DetectorBank(n) if self.layout.uses_detectors else None
+        self._ext = self.detectors.values if self.detectors is not None else np.zeros((n, 0))
         self.rngs = [None] * n
         # resolved once: a CSV trajectory is read here, not at every reset
         self.scenario = resolve_scenario(cfg.scenario)
@@ -162,7 +167,8 @@ class _Core:
 
     def _kernel_args(self):
         tr, b = self.tracker, self.tracker.bank
-        return (self.ep, tr._st, tr._it, tr._looks, b._f, b._i, b._b, b._par, self.frames.buf, self.elapsed)
+        return (self.ep, tr._st, tr._it, tr._looks, b._f, b._i, b._b, b._par, self.frames.buf, self.elapsed,
+                self._ext)
 
     def info(self, fo, fs, bo, inconsistency=None):
         """The batched info dict: views of the output blocks."""
@@ -225,9 +231,14 @@ class _Core:
         else:
             eps = [self._prepared[r] for r in rows] if prepared else self._draw(rows, scenario)
             self.tracker._put(rows, eps)
+        det = self.detectors
+        if det is not None:
+            det.values[rows] = det.initial    # the first observation's detector values (before any IMM look)
         status = _ek.k_env(rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:   # drawn episodes always start (the draws check it); a bug otherwise
             raise RuntimeError(f"track start failed for row {rows[-1 - status]}")
+        if det is not None:
+            det.start(rows, self.tracker._st)  # the IMMs start where the chain's track starts
 
     def _prepare(self, rows):
         """Take the next draw of ``rows`` from their generators now (the draw of their next reset)."""
@@ -272,6 +283,10 @@ class _Core:
 
     def _advance(self, a, action, blocks):
         """Every row's next look with the checked actions ``a`` into ``blocks`` (``ValueError`` for a refused one)."""
+        if self.detectors is not None:   # the detectors' IMMs take the look the chain takes next (actions checked)
+            status = self.detectors.step(self.tracker._looks, self.tracker._it, self._all, a, self.ep)
+            if status != _ek.ST_OK:
+                self._refuse(status, action)
         status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:
             self._refuse(status, action)

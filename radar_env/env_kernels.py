@@ -291,7 +291,7 @@ def _init_looks(looks, r, K):
 
 
 @njit(cache=True)
-def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, obs, fo, fs, bo):
+def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, obs, fo, fs, bo):
     """The env's one kernel (one compilation of the chain for both uses):
 
     * ``rows`` empty: one step of every row: action ``act[i]`` -> q (validated), the chain's look
@@ -302,6 +302,9 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, obs, f
       warm-up q) and write their first observation (stack) and info at output index ``rows[j]``. Returns
       ``-1 - j`` if row ``rows[j]`` has no two hits at different times or too few looks for the warm-up (nothing
       is started then), else ST_OK.
+
+    ``ext (n, W)`` holds row r's values of features computed outside the chain (:mod:`radar_env.detectors`),
+    appended to its feature row as columns ``W_FEAT ..`` for the observation plan (W = 0: none).
     """
     start = rows.shape[0] > 0
     nw = int(ep[EP_WARM_N])
@@ -323,7 +326,7 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, obs, f
     F, Q, FP, u, R, zz, xh = _scratch()
     xp, xo, nu = np.empty(4), np.empty(4), np.empty(2)
     Pp, Po, S = np.empty((4, 4)), np.empty((4, 4)), np.empty((2, 2))
-    of = np.empty(_k.W_FEAT)
+    of = np.empty(_k.W_FEAT + ext.shape[1])
     ofb = np.empty(_k.W_BANK_OUTB, dtype=np.bool_)
     seed_xy, R1, R2, seed_t = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
     max_steps = int(ep[EP_MAX_STEPS])
@@ -343,6 +346,8 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, obs, f
             t_prev = st[r, _k.S_T]
             _step_row(r, q, 0.0, no, no, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP, u,
                       R, zz, xh)
+        for c in range(ext.shape[1]):
+            of[_k.W_FEAT + c] = ext[r, c]
         lost, done = _emit(r, r, q, t_prev, not start, ep, plan, st, it, looks, of, frames, start, obs, fo, fs, bo)
         trunc = done and not lost
         elapsed[r] = 0 if start else elapsed[r] + 1

@@ -93,6 +93,11 @@ def imm_action_map(cfg, spec=None):
 
 def check_imm_config(cfg, p="RadarTrack-v0: "):
     """The refusals of ``tracker="imm_cv_ct"`` (``ValueError`` naming the argument)."""
+    from .observation import DETECTOR_FEATURES
+    det = [f for f in cfg.features if f in DETECTOR_FEATURES]
+    if det:
+        raise ValueError(f"{p}features {det} apply only with tracker='cv' (with tracker='imm_cv_ct' the "
+                         f"observation has the IMM's own detectors after the features)")
     if cfg.frame_stack != 1:
         raise ValueError(f"{p}frame_stack must be 1 with tracker='imm_cv_ct' (its observation appends the IMM's "
                          f"detectors to one feature vector), got {cfg.frame_stack!r}")

@@ -35,12 +35,21 @@ name                   unit       meaning                                       
 ``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
 ``next_meas_std_m``    m          per-axis RMS noise of the next plot                      log10(1+x)/3  [0, 1]
 ``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
+``imm_ct_prob``        1          imm_cv_ct's CT-mode probability (a detector, off by default)  x    [0, 1]
+``imm_omega_deg_s``    deg/s      imm_cv_ct's turn-rate estimate (+ = right; off by default)  x / 20  [-1, 1]
+``imm2_high_prob``     1          imm2's high-noise-mode probability (off by default)      x         [0, 1]
 =====================  =========  =======================================================  ========  ==========
 
 The ``next_*`` entries preview the plot that the chosen q will be used for
 (:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
-chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has all 27;
+chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has the first 27;
 ``PAST_FEATURES`` the first 17 (no preview: q for a look chosen from the looks before it).
+
+The last three, ``DETECTOR_FEATURES``, are classical maneuver detectors: the tuned ``imm_cv_ct`` and ``imm2``
+IMMs run beside the chain on the same looks (:mod:`radar_env.detectors`). They are in no default list (the
+bundled policies' observations stay as they were); name them in ``features`` to add them. Only the env with
+``tracker="cv"`` computes them (the IMM env has its own detectors), and :meth:`ObservationLayout.encode` takes
+their values as ``detectors``.
 
 ``q_prev_g`` and ``next_q_fit_g`` use the action map: ``2 (log10 q - log10 q_min) / (log10 q_max - log10 q_min) - 1``.
 """
@@ -56,8 +65,8 @@ from . import kernels as _k
 from .units import G0_M_S2
 from .validate import check_known_keys
 
-__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DEFAULT_Q_LEVELS_G", "ObservationLayout",
-           "FrameStack", "measurement_sigma_m"]
+__all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DETECTOR_FEATURES", "DEFAULT_Q_LEVELS_G",
+           "ObservationLayout", "FrameStack", "measurement_sigma_m"]
 
 DEFAULT_Q_LEVELS_G = tuple(float(0.03 * (2.0 / 0.03) ** (j / 6.0)) for j in range(-4, 9))
 """13 levels, g: ``0.03 * (2/0.03)^(j/6)``, j = -4..8, i.e. a ratio of ~2.01 between neighbours, exactly 0.03 g
@@ -105,9 +114,14 @@ FEATURE_SPECS = {s.name: s for s in [
     FeatureSpec("next_dt_s", "s", 0, 1, "linear", 20.0, "time to the next look"),
     FeatureSpec("next_meas_std_m", "m", 0, 1, "log10p", 3.0, "per-axis RMS noise of the next plot"),
     FeatureSpec("next_detected", "1", 0, 1, "linear", 1.0, "next look detected"),
+    FeatureSpec("imm_ct_prob", "1", 0, 1, "linear", 1.0, "imm_cv_ct's CT-mode probability"),
+    FeatureSpec("imm_omega_deg_s", "deg/s", -1, 1, "linear", 20.0, "imm_cv_ct's turn-rate estimate"),
+    FeatureSpec("imm2_high_prob", "1", 0, 1, "linear", 1.0, "imm2's high-noise-mode probability"),
 ]}
 
-DEFAULT_FEATURES = tuple(FEATURE_SPECS)
+DETECTOR_FEATURES = ("imm_ct_prob", "imm_omega_deg_s", "imm2_high_prob")
+"""The detector features (:mod:`radar_env.detectors`), in the order of its value columns."""
+DEFAULT_FEATURES = tuple(n for n in FEATURE_SPECS if n not in DETECTOR_FEATURES)
 
 _FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to the observation's unit)
     "nu_along": ("nu_along", 1.0), "nu_cross": ("nu_cross", 1.0), "nis": ("nis", 1.0),
@@ -128,7 +142,8 @@ _SPECIAL_SOURCES = {  # observation name -> (env_kernels.SP_* special, the featu
     "detected": (_ek.SP_DETECTED, None),
 }
 _FEATURE_COLUMN = {k: i for i, k in enumerate(_k.BANK_FLOAT_KEYS + _k.PREVIEW_KEYS)}
-PAST_FEATURES = tuple(n for n in FEATURE_SPECS if not n.startswith("next_"))
+_FEATURE_COLUMN.update({k: _k.W_FEAT + c for c, k in enumerate(DETECTOR_FEATURES)})   # the env kernel's ext
+PAST_FEATURES = tuple(n for n in DEFAULT_FEATURES if not n.startswith("next_"))
 
 
 def measurement_sigma_m(range_m, range_noise_std_m, bearing_noise_std_rad):
@@ -165,6 +180,8 @@ class ObservationLayout:
             if n in _FROM_FEATURES:
                 key, divisor = _FROM_FEATURES[n]
                 special = _ek.SP_COLUMN
+            elif n in DETECTOR_FEATURES:
+                key, divisor, special = n, 1.0, _ek.SP_COLUMN
             else:
                 key, divisor = _SPECIAL_SOURCES[n][1], 1.0
                 special = _SPECIAL_SOURCES[n][0]
@@ -178,14 +195,25 @@ class ObservationLayout:
     def __contains__(self, name):
         return name in self._index
 
-    def _inputs(self, out, q_prev_m_s2):
+    @property
+    def uses_detectors(self):
+        """True if an entry is a :data:`DETECTOR_FEATURES` (the caller then runs :mod:`radar_env.detectors`)."""
+        return any(n in DETECTOR_FEATURES for n in self.names)
+
+    def _inputs(self, out, q_prev_m_s2, detectors=None):
         """The compiled encoding's inputs from a StepOutput: the features each entry reads (n, F) and the step's
         dt, position variances, site sigmas, detection flags and previous q (n,)."""
         f = out.features
         n = out.dt_s.shape[0]
         src = np.zeros((n, len(self.names)))
+        if self.uses_detectors and (detectors is None or np.shape(detectors) != (n, len(DETECTOR_FEATURES))):
+            raise ValueError(f"detectors must be the ({n}, {len(DETECTOR_FEATURES)}) values of "
+                             f"radar_env.detectors.DetectorBank ({', '.join(DETECTOR_FEATURES)}) for this layout's "
+                             f"detector features, got {None if detectors is None else np.shape(detectors)}")
         for j, key in enumerate(self._sources):
-            if key is not None:
+            if key in DETECTOR_FEATURES:
+                src[:, j] = detectors[:, DETECTOR_FEATURES.index(key)]
+            elif key is not None:
                 src[:, j] = f[key]
         c = _k.c_array
         q = np.asarray(q_prev_m_s2, dtype=np.float64)
@@ -193,9 +221,10 @@ class ObservationLayout:
                 c(out.range_noise_std_m, np.float64), c(out.bearing_noise_std_rad, np.float64),
                 c(out.detected, np.bool_), c(q if q.shape == (n,) else np.broadcast_to(q, (n,)), np.float64))
 
-    def physical(self, out, q_prev_m_s2):
-        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput`."""
-        inp = self._inputs(out, q_prev_m_s2)
+    def physical(self, out, q_prev_m_s2, detectors=None):
+        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput` (and the detectors' (n, 3) values,
+        needed if :attr:`uses_detectors`)."""
+        inp = self._inputs(out, q_prev_m_s2, detectors)
         phys = np.empty(inp[0].shape)
         _ek.k_physical(self._plan, *inp, phys)
         return phys
@@ -209,11 +238,11 @@ class ObservationLayout:
         _ek.k_scale(self._plan, self._lq0, self._lq1, flat, obs)
         return obs.reshape(phys.shape)
 
-    def encode(self, out, q_prev_m_s2):
+    def encode(self, out, q_prev_m_s2, detectors=None):
         """The (n, F) float32 observation of a :class:`radar_env.tracking.StepOutput`: ``encode_physical(
-        physical(out, q_prev_m_s2))`` in one compiled pass (the env's step runs the same code,
+        physical(out, q_prev_m_s2, detectors))`` in one compiled pass (the env's step runs the same code,
         :mod:`radar_env.env_kernels`)."""
-        inp = self._inputs(out, q_prev_m_s2)
+        inp = self._inputs(out, q_prev_m_s2, detectors)
         obs = np.empty(inp[0].shape, dtype=np.float32)
         _ek.k_encode(self._plan, self._lq0, self._lq1, *inp, obs)
         return obs

@@ -68,10 +68,12 @@ class RadarTrackEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: all 27 below), scaled and
-    clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-16 describe
+    ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: the first 27 below), scaled
+    and clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-16 describe
     the looks processed so far, 17-26 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
-    out: q then has to be chosen before the plot is seen).
+    out: q then has to be chosen before the plot is seen). 27-29 are opt-in classical maneuver detectors
+    (``radar_env.observation.DETECTOR_FEATURES``, in no default list): the tuned imm_cv_ct and imm2 IMMs run beside
+    the chain on the same looks (``radar_env.detectors``; ``tracker="cv"`` only).
 
     | Num | Name | Unit | Scaling | Min | Max |
     |---|---|---|---|---|---|
@@ -102,6 +104,9 @@ class RadarTrackEnv(gym.Env):
     | 24 | next_dt_s: time to the next look | s | x/20 | 0 | 1 |
     | 25 | next_meas_std_m: per-axis RMS noise of the next plot | m | log10(1+x)/3 | 0 | 1 |
     | 26 | next_detected: the next look gives a plot | 1 | x | 0 | 1 |
+    | 27 | imm_ct_prob: imm_cv_ct's CT-mode probability (opt-in) | 1 | x | 0 | 1 |
+    | 28 | imm_omega_deg_s: imm_cv_ct's turn-rate estimate, + = right (opt-in) | deg/s | x/20 | -1 | 1 |
+    | 29 | imm2_high_prob: imm2's high-noise-mode probability (opt-in) | 1 | x | 0 | 1 |
 
     Measurement-based features hold their last value through a missed look.
 
@@ -181,8 +186,9 @@ class RadarTrackEnv(gym.Env):
 
     ## Version History
 
-    * v0 (``tracker="imm_cv_ct"`` added later, off by default: the default env is unchanged): initial version (the next-plot preview entries 17-26 were added before the first release; ``info["q"]``
-      renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
+    * v0 (``tracker="imm_cv_ct"`` and the detector features 27-29 added later, both opt-in: the default env is
+      unchanged): initial version (the next-plot preview entries 17-26 were added before the first release;
+      ``info["q"]`` renamed ``info["q_m_s2"]``, the old key kept as a deprecated alias).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 10}

@@ -6,7 +6,8 @@ import pytest
 
 from radar_env.config import EnvConfig
 from radar_env.core import _Core, actions_to_q_m_s2
-from radar_env.observation import DEFAULT_FEATURES, FEATURE_SPECS, PAST_FEATURES, ObservationLayout
+from radar_env.observation import (DEFAULT_FEATURES, DETECTOR_FEATURES, FEATURE_SPECS, PAST_FEATURES,
+                                   ObservationLayout)
 from radar_env.units import G0_M_S2
 
 
@@ -65,7 +66,7 @@ def test_encode_physical_keeps_leading_shape():
     phys = np.random.default_rng(0).normal(size=(2, 3, len(DEFAULT_FEATURES)))
     assert lay.encode_physical(phys).shape == phys.shape
     np.testing.assert_array_equal(lay.encode_physical(phys)[1], lay.encode_physical(phys[1]))
-    assert set(FEATURE_SPECS) == set(DEFAULT_FEATURES)
+    assert set(FEATURE_SPECS) == set(DEFAULT_FEATURES) | set(DETECTOR_FEATURES)   # the detectors: opt-in
 
 
 @pytest.mark.parametrize("action_type", ["discrete", "continuous"])

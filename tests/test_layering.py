@@ -30,7 +30,7 @@ GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.s
             "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry", "baselines.policies",
             "baselines.alpha_beta", "baselines.konle", "baselines.imm_cv_ct", "baselines.hindsight",
             "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.draws", "radar_env.kernels",
-            "radar_env.imm_cv_ct", "radar_env.imm_env", "radar_env.imm_core")
+            "radar_env.imm_cv_ct", "radar_env.imm_env", "radar_env.imm_core", "radar_env.detectors")
 
 
 def _run(code, block=_NO_GYM):
