@@ -409,3 +409,33 @@ def test_training_curve_of_a_run_folder_names_the_run_and_its_origin(tmp_path, m
     title = figs[0].axes[0].get_title()
     assert "ppo_x" in title and "fine-tuned from runs/a/best/policy.zip" in title
     plt.close(figs[0])
+
+
+def test_maneuver_figure_shows_the_imms_and_the_learned_imms_parameters():
+    """Only trackers with a maneuver probability; a panel of per-look parameter factors per learned IMM (the
+    bundled policy_imm_bp moves them by more than 2x somewhere); the truth's turns shaded at the segment times."""
+    from agents.evaluation.runner import run_policy
+    from agents.policies.loading import load_policy
+    from agents.policies.bundle import BUNDLED_LEARNED_IMM
+
+    eps = draw_suite("bizup2002", 2, seed=123)
+    batch = stack_episodes(eps)
+    sc = run_scenario("bizup2002", 123)
+    runs = {t: run_tracker(t, eps) for t in ("kf_low", "imm2", "imm_cv_ct")}
+    fig = plots.maneuver_figure("bizup2002", batch, runs, scenario=sc)
+    assert len(fig.axes) == 2
+    labels = [ln.get_label() for ln in fig.axes[0].get_lines()]
+    assert labels == ["imm2", "imm_cv_ct"]                      # kf_low has no maneuver probability
+    spans = {(round(p.get_x(), 6), round(p.get_x() + p.get_width(), 6)) for p in fig.axes[0].patches
+             if type(p).__name__ == "Rectangle"}
+    assert (290.0, 330.0) in spans and (610.0, 640.0) in spans
+    plt.close(fig)
+    choose, cfg = load_policy(BUNDLED_LEARNED_IMM)
+    runs["policy_imm_bp"] = run_policy("policy_imm_bp", eps, choose, cfg)
+    fig = plots.maneuver_figure("bizup2002", batch, runs, scenario=sc)
+    assert len(fig.axes) == 3
+    params = {ln.get_label(): ln.get_ydata() for ln in fig.axes[2].get_lines() if not ln.get_label().startswith("_")}
+    assert len(params) == 7 and all(np.nanmin(v) > 0 for v in params.values())
+    assert any(np.nanmax(np.abs(np.log(v))) > np.log(2) for v in params.values())   # it does move them
+    assert plots.maneuver_figure("bizup2002", batch, {"kf_low": runs["kf_low"]}) is None
+    plt.close(fig)

@@ -14,7 +14,9 @@ Per suite:
   maneuver after the track start with every tracker's track (east/north for a turn; speed against time, with the
   measured range rate on a radial flight, for a speed change, which an east/north view cannot show);
 * ``<suite>_q.png``: the q each q-choosing tracker used over time in run 0, against the truth's |a|;
-* ``<suite>_features.png``: c_min and Adrian's turn-rate estimates over time in run 0, against the truth.
+* ``<suite>_features.png``: c_min and Adrian's turn-rate estimates over time in run 0, against the truth;
+* ``<suite>_maneuver.png``: the IMMs' maneuver-mode probabilities and turn-rate estimates in run 0, against the
+  truth, and each learned IMM's per-look parameters as factors of imm_cv_ct's tuned values (what it changed).
 
 The truth's maneuver times, |a| and turn rate come from run 0's scenario when it is given (``scenario``: its exact
 segment times, drawn as steps; :func:`agents.evaluation.suites.run_scenario`), else from the looks. The maneuver
@@ -38,7 +40,7 @@ from radar_env.units import G0_M_S2
 from agents.evaluation.metrics import FEW_RUNS, errors, failed_runs
 
 __all__ = ["suite_figures", "FIGURE_KINDS", "error_figure", "trajectory_figure", "q_figure", "features_figure",
-           "training_curve_figure", "shared_look_times", "binned_error_stats", "error_bin_width_s",
+           "maneuver_figure", "training_curve_figure", "shared_look_times", "binned_error_stats", "error_bin_width_s",
            "maneuver_intervals_s", "truth_model", "tracker_color"]
 
 MAX_TIME_BINS = 200
@@ -681,6 +683,74 @@ def features_figure(suite, batch, runs, scenario=None):
     return fig
 
 
+_SWITCH = {"p_stay_cv": "CV -> other", "p_stay_ct": "CT -> other", "p_stay_high": "high -> other"}
+_PARAM_STYLE = {  # a mode's noise (solid) and its switch probability (dashed) share a colour
+    "q_cv_g": ("tab:blue", "-"), "p_stay_cv": ("tab:blue", "--"), "q_ct_g": ("tab:green", "-"),
+    "p_stay_ct": ("tab:green", "--"), "sigma_omega_deg_s15": ("tab:purple", ":"), "q_high_g": ("tab:red", "-"),
+    "p_stay_high": ("tab:red", "--")}
+
+
+def maneuver_figure(suite, batch, runs, scenario=None):
+    """The IMMs' maneuver detection in run 0: every tracker's maneuver-mode probability and turn-rate estimate
+    against the truth, and each learned IMM's per-look parameters as factors of imm_cv_ct's tuned values (a noise:
+    value / tuned; a stay probability: its switch probability ``1 - p`` / the tuned one). None if no tracker records
+    a maneuver probability."""
+    from baselines.imm_cv_ct import tuned_imm_cv_ct_spec
+    from radar_env.imm_cv_ct import look_parameter_names, look_parameter_vector
+
+    man = {k: r for k, r in runs.items() if "maneuver_probability" in r.extra}
+    if not man:
+        return None
+    learned = {k: r for k, r in man.items() if any(e.startswith("param_") for e in r.extra)}
+    turn = {k: r for k, r in man.items() if "turn_rate_deg_s" in r.extra}
+    n = int(batch.n_looks[0])
+    tt = batch.t_s[0, :n]
+    sc = truth_model(scenario, batch)
+    intervals = _run0_intervals(batch, sc)
+    colors = _colors(list(runs))
+    nrows = 2 + len(learned)
+    fig, axes = _figure(12.0, 2.6 * nrows + 1.6, nrows, 1, sharex=True, bottom_in=1.3, top_in=0.45, hspace_in=0.3,
+                        right_in=2.0 if learned else 0.25)
+    axes = axes[:, 0]
+    for i, ax in enumerate(axes):
+        _shade(ax, intervals, "truth maneuvering" if i == 0 else None)
+        ax.grid(alpha=0.25)
+    a0, a1 = axes[0], axes[1]
+    for name, r in man.items():
+        a0.plot(tt, r.extra["maneuver_probability"][0, :n], color=colors[name], lw=1.1, label=name)
+    a0.set_ylim(-0.03, 1.03)
+    a0.set_ylabel("P(maneuver modes)")
+    _truth_steps(a1, sc, batch, "turn", float(tt[0]), float(tt[-1]), label="true turn rate")
+    for name, r in turn.items():
+        a1.plot(tt, r.extra["turn_rate_deg_s"][0, :n], color=colors[name], lw=1.0)
+    a1.set_ylabel("turn rate (deg/s, + right)")
+    spec = tuned_imm_cv_ct_spec()
+    base = dict(zip(look_parameter_names(spec), look_parameter_vector(spec)))
+    for ax, (name, r) in zip(axes[2:], learned.items()):
+        for p, v0 in base.items():
+            v = r.extra.get(f"param_{p}")
+            if v is None:
+                continue
+            v = v[0, :n]
+            f = (1.0 - v) / (1.0 - v0) if p in _SWITCH else v / v0
+            lab = f"switch {_SWITCH[p]}" if p in _SWITCH else p
+            color, ls = _PARAM_STYLE.get(p, ("0.3", "-."))
+            ax.plot(tt, f, color=color, ls=ls, lw=1.0, label=lab)
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_yscale("log")
+        _plain_log_ticks(ax)
+        ax.set_ylabel(f"{name}: factor of\nimm_cv_ct's value")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, frameon=False)
+    axes[-1].set_xlim(tt[0], tt[-1])
+    axes[-1].set_xlabel("time since scenario start (s)")
+    a0.set_title(f"{suite}: maneuver detection of the IMMs in run 0 (mode probability, turn rate)"
+                 + (" and the learned IMMs' parameters" if learned else ""), fontsize=10, y=1.0, pad=5)
+    h0, l0 = a0.get_legend_handles_labels()
+    h1, l1 = a1.get_legend_handles_labels()
+    _bottom_legend(fig, h0 + h1, l0 + l1, ncol=5, y_in=0.05)
+    return fig
+
+
 def training_curve_figure(stages, returns=None):
     """Selection-suite ratios (position RMSE / imm2) over env steps, one or more training stages in order.
 
@@ -738,7 +808,8 @@ def training_curve_figure(stages, returns=None):
     return fig
 
 
-FIGURE_KINDS = {"errors": error_figure, "trajectory": trajectory_figure, "q": q_figure, "features": features_figure}
+FIGURE_KINDS = {"errors": error_figure, "trajectory": trajectory_figure, "q": q_figure, "features": features_figure,
+                "maneuver": maneuver_figure}
 """The figures of a suite, by the file name's suffix."""
 
 
