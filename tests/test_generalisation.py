@@ -183,3 +183,23 @@ def test_imm_targets_reached_on_results_that_meet_them():
 ])
 def test_each_imm_target_fails_when_its_condition_does(over, index):
     assert _imm_verdicts(**over)[index] is False
+
+
+def _readme_verdicts(**over):
+    sp = {"random": _imm_suite(0.88, 0.88), "bizup2002": _imm_suite(0.93, 0.93)}
+    for n in g.NAMED_SUITES + g.HELDOUT_FAMILY_SUITES:
+        sp.setdefault(n, _imm_suite(0.97, 0.98))
+    sp.update(over)
+    table = g.imm_targets_readme({"spread": sp, "recipes": {g.IMM_RECIPE: {"seeds": ["imm_s1", "imm_s2", "imm_s3"]}}})
+    rows = table.splitlines()[2:]
+    assert table.splitlines()[0] == "| target (held-out seeds) | policy_imm_bp |" and len(rows) == 6
+    return [row.split(" | ")[1].startswith("yes:") for row in rows]
+
+
+@pytest.mark.parametrize("over", [{}, {"random": _imm_suite(0.91, 0.91)}, {"bizup2002": _imm_suite(0.96, 0.96)},
+                                  {"slow_orbits": _imm_suite(0.97, 1.01)},
+                                  {"sharp_turns": _imm_suite(0.97, 0.98, fail=("imm_s1", "imm_s2"))},
+                                  {"kim_lee_accel": _imm_suite(0.97, 0.98, loss=0.02, loss_cvct=0.01)},
+                                  {"random": _imm_suite(0.88, 0.88, anees=2.5)}])
+def test_the_readme_table_of_the_imm_targets_gives_the_full_tables_verdicts(over):
+    assert _readme_verdicts(**over) == _imm_verdicts(**over)[:6]

@@ -63,7 +63,7 @@ def _generalisation(render):
 RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream,
              "adsb-flights": _adsb_flights, "families": _generalisation("families_table"),
              "seed-spread": _generalisation("spread_table"), "targets": _generalisation("targets_table"),
-             "track-start": _generalisation("track_start_table")}
+             "track-start": _generalisation("track_start_table"), "imm-targets": _generalisation("imm_targets_readme")}
 
 
 def test_every_generated_block_has_a_generator():

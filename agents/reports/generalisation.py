@@ -306,6 +306,26 @@ def _imm_suite_ok(p):
     return bool(r <= 1.0 and hi <= 1.02)
 
 
+def _imm_vs_cv_ct(spread, name, suite, limit):
+    return spread[suite]["policies"][name]["ratio_vs_imm_cv_ct"][0] <= limit
+
+
+def _imm_bad_suites(spread, name):
+    """The named scenarios, families and adsb_heldout where ``name`` misses the learned IMM's per-suite bound."""
+    return [s for s in spread if (s in NAMED_SUITES or s in HELDOUT_FAMILY_SUITES)
+            and not _imm_suite_ok(spread[s]["policies"][name])]
+
+
+def _imm_all_ok(spread, name):
+    return (_imm_vs_cv_ct(spread, name, "random", 0.90) and _imm_vs_cv_ct(spread, name, "bizup2002", 0.95)
+            and not _imm_bad_suites(spread, name))
+
+
+def _imm_worse_loss(spread, name):
+    p = {s: r["policies"][name]["track_loss_rate"] for s, r in spread.items()}
+    return [s for s in spread if p[s] > spread[s]["trackers"]["imm_cv_ct"]["track_loss_rate"]]
+
+
 def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
     """The learned IMM's targets (``policy`` and its recipe's ``seeds``, held-out seeds) from a seed-spread dict:
     each ``(target, reached, numbers)``. ``minutes``: :func:`_train_minutes` of the seeds."""
@@ -313,13 +333,13 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
     bounded = [s for s in spread if s in NAMED_SUITES or s in HELDOUT_FAMILY_SUITES]
 
     def vs_cv_ct(name, suite, limit):
-        return spread[suite]["policies"][name]["ratio_vs_imm_cv_ct"][0] <= limit
+        return _imm_vs_cv_ct(spread, name, suite, limit)
 
     def bad_suites(name):
-        return [s for s in bounded if not _imm_suite_ok(spread[s]["policies"][name])]
+        return _imm_bad_suites(spread, name)
 
     def all_ok(name):
-        return vs_cv_ct(name, "random", 0.90) and vs_cv_ct(name, "bizup2002", 0.95) and not bad_suites(name)
+        return _imm_all_ok(spread, name)
 
     out = [(f"{policy}: random <= 0.90 x imm_cv_ct (stretch 0.85)", vs_cv_ct(policy, "random", 0.90),
             _f3(pol["random"]["ratio_vs_imm_cv_ct"])),
@@ -339,7 +359,7 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
                         f"{n} {spread['random']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f}, "
                         f"{spread['bizup2002']['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f} "
                         f"({len(bad_suites(n))} suites fail the bound)" for n in seeds)))
-    worse = [s for s in spread if pol[s]["track_loss_rate"] > spread[s]["trackers"]["imm_cv_ct"]["track_loss_rate"]]
+    worse = _imm_worse_loss(spread, policy)
     out.append((f"{policy}: track-loss rate <= imm_cv_ct's on every suite", not worse,
                 "worse on " + ", ".join(f"{s} ({100 * pol[s]['track_loss_rate']:.1f} % vs "
                                         f"{100 * spread[s]['trackers']['imm_cv_ct']['track_loss_rate']:.1f} %)"
@@ -354,6 +374,43 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
         out.append(("at its initial weights it is imm_cv_ct; its torch forward equals the numba IMM (1e-9)", None,
                     "tested: tests/test_learned_imm.py, tests/test_torch_imm.py (a failure fails the test suite)"))
     return out
+
+
+def imm_targets_readme(data):
+    """The README's compact table of the learned IMMs' targets (held-out seeds): one row per target, one column per
+    learned IMM with its recipe's seeds (the full rows are in :func:`targets_table`)."""
+    sp = data["spread"]
+    cols = [(p, r) for p, r in (("policy_imm_bp", IMM_RECIPE), ("policy_imm_ppo", IMM_PPO_RECIPE))
+            if p in sp["random"]["policies"]]
+    if not cols:
+        return "(no learned IMM was evaluated)"
+
+    def cell(ok, text):
+        return f"{'yes' if ok else '**no**'}: {text}"
+
+    rows = {"random <= 0.90 x imm_cv_ct": [], "bizup2002 <= 0.95 x imm_cv_ct": [],
+            "every named scenario, family and adsb_heldout: <= 1.0 x the strongest classical (upper end <= 1.02)": [],
+            "at least 2 of 3 seeds meet the three above": [], "track loss <= imm_cv_ct's on every suite": [],
+            "ANEES on random <= imm_cv_ct's": []}
+    cells = list(rows.values())
+    for p, rec in cols:
+        for j, suite, lim in ((0, "random", 0.90), (1, "bizup2002", 0.95)):
+            cells[j].append(cell(_imm_vs_cv_ct(sp, p, suite, lim), _f3(sp[suite]["policies"][p]["ratio_vs_imm_cv_ct"])))
+        bad = _imm_bad_suites(sp, p)
+        worst = max(bad, key=lambda s: sp[s]["policies"][p]["ratio_vs_strongest"][0], default=None)
+        cells[2].append(cell(not bad, f"{len(bad)} suites fail, worst {worst} "
+                             f"{sp[worst]['policies'][p]['ratio_vs_strongest'][0]:.3f}" if bad else "all suites"))
+        seeds = data["recipes"].get(rec, {}).get("seeds", [])
+        good = [n for n in seeds if _imm_all_ok(sp, n)]
+        cells[3].append(cell(len(good) >= 2, f"{len(good)} of {len(seeds)}"))
+        worse = _imm_worse_loss(sp, p)
+        cells[4].append(cell(not worse, f"worse on {', '.join(worse)}" if worse else "all suites"))
+        a, ref = sp["random"]["policies"][p]["anees"], sp["random"]["trackers"]["imm_cv_ct"]["anees"]
+        cells[5].append(cell(bool(a <= ref), f"{a:.2f} vs {ref:.2f}"))
+    lines = ["| target (held-out seeds) | " + " | ".join(p for p, _ in cols) + " |",
+             "|---|" + "---|" * len(cols)]
+    lines += [f"| {name} | " + " | ".join(c) + " |" for name, c in rows.items()]
+    return "\n".join(lines)
 
 
 def _f3(r):
@@ -495,7 +552,7 @@ def _add_recipe(args, docs, t0):
 def _write(args, docs, data):
     (docs / "generalisation.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"families": families_table(data), "seed-spread": spread_table(data), "targets": targets_table(data),
-              "track-start": track_start_table(data)}
+              "track-start": track_start_table(data), "imm-targets": imm_targets_readme(data)}
     if args.readme:
         from agents.reports.readme_blocks import replace_block
         for name, text in blocks.items():
