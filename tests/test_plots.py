@@ -439,3 +439,18 @@ def test_maneuver_figure_shows_the_imms_and_the_learned_imms_parameters():
     assert any(np.nanmax(np.abs(np.log(v))) > np.log(2) for v in params.values())   # it does move them
     assert plots.maneuver_figure("bizup2002", batch, {"kf_low": runs["kf_low"]}) is None
     plt.close(fig)
+
+
+def test_maneuver_figure_of_a_long_run_shows_a_window_from_its_first_maneuver(monkeypatch):
+    eps = draw_suite("bizup2002", 1, seed=123)
+    batch = stack_episodes(eps)
+    runs = {t: run_tracker(t, eps) for t in ("imm2", "imm_cv_ct")}
+    monkeypatch.setattr(plots, "MANEUVER_WINDOW_LOOKS", 20)
+    fig = plots.maneuver_figure("bizup2002", batch, runs, scenario=run_scenario("bizup2002", 123))
+    t = batch.t_s[0]
+    first = int(np.flatnonzero(batch.maneuvering[0])[0])       # the 290 s turn, after the track start
+    k0 = first - 2
+    assert fig.axes[0].get_xlim() == (t[k0], t[k0 + 19])
+    assert f"looks {k0}-{k0 + 19} of {int(batch.n_looks[0])}" in fig.axes[0].get_title()
+    assert all(len(ln.get_xdata()) == 20 for ln in fig.axes[0].get_lines())
+    plt.close(fig)

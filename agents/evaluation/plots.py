@@ -683,6 +683,8 @@ def features_figure(suite, batch, runs, scenario=None):
     return fig
 
 
+MANEUVER_WINDOW_LOOKS = 300
+"""The maneuver figure of a longer run 0 shows this many looks (from a little before its first maneuver)."""
 _SWITCH = {"p_stay_cv": "CV -> other", "p_stay_ct": "CT -> other", "p_stay_high": "high -> other"}
 _PARAM_STYLE = {  # a mode's noise (solid) and its switch probability (dashed) share a colour
     "q_cv_g": ("tab:blue", "-"), "p_stay_cv": ("tab:blue", "--"), "q_ct_g": ("tab:green", "-"),
@@ -709,6 +711,15 @@ def maneuver_figure(suite, batch, runs, scenario=None):
     intervals = _run0_intervals(batch, sc)
     colors = _colors(list(runs))
     nrows = 2 + len(learned)
+    # a long flight (an ADS-B one: thousands of looks) shows MANEUVER_WINDOW_LOOKS looks from a little before its
+    # first maneuver after the track start: the per-look lines of the whole flight would be a solid block
+    k0, k1 = 0, n
+    if n > MANEUVER_WINDOW_LOOKS:
+        start = int(min(r.start_index[0] for r in man.values()))
+        later = np.flatnonzero(batch.maneuvering[0, start:n])
+        k0 = max(start, start + int(later[0]) - MANEUVER_WINDOW_LOOKS // 10) if later.size else start
+        k1 = min(n, k0 + MANEUVER_WINDOW_LOOKS)
+        k0 = max(0, k1 - MANEUVER_WINDOW_LOOKS)
     fig, axes = _figure(12.0, 2.6 * nrows + 1.6, nrows, 1, sharex=True, bottom_in=1.3, top_in=0.45, hspace_in=0.3,
                         right_in=2.0 if learned else 0.25)
     axes = axes[:, 0]
@@ -717,12 +728,12 @@ def maneuver_figure(suite, batch, runs, scenario=None):
         ax.grid(alpha=0.25)
     a0, a1 = axes[0], axes[1]
     for name, r in man.items():
-        a0.plot(tt, r.extra["maneuver_probability"][0, :n], color=colors[name], lw=1.1, label=name)
+        a0.plot(tt[k0:k1], r.extra["maneuver_probability"][0, k0:k1], color=colors[name], lw=1.1, label=name)
     a0.set_ylim(-0.03, 1.03)
     a0.set_ylabel("P(maneuver modes)")
-    _truth_steps(a1, sc, batch, "turn", float(tt[0]), float(tt[-1]), label="true turn rate")
+    _truth_steps(a1, sc, batch, "turn", float(tt[k0]), float(tt[k1 - 1]), label="true turn rate")
     for name, r in turn.items():
-        a1.plot(tt, r.extra["turn_rate_deg_s"][0, :n], color=colors[name], lw=1.0)
+        a1.plot(tt[k0:k1], r.extra["turn_rate_deg_s"][0, k0:k1], color=colors[name], lw=1.0)
     a1.set_ylabel("turn rate (deg/s, + right)")
     spec = tuned_imm_cv_ct_spec()
     base = dict(zip(look_parameter_names(spec), look_parameter_vector(spec)))
@@ -731,20 +742,21 @@ def maneuver_figure(suite, batch, runs, scenario=None):
             v = r.extra.get(f"param_{p}")
             if v is None:
                 continue
-            v = v[0, :n]
+            v = v[0, k0:k1]
             f = (1.0 - v) / (1.0 - v0) if p in _SWITCH else v / v0
             lab = f"switch {_SWITCH[p]}" if p in _SWITCH else p
             color, ls = _PARAM_STYLE.get(p, ("0.3", "-."))
-            ax.plot(tt, f, color=color, ls=ls, lw=1.0, label=lab)
+            ax.plot(tt[k0:k1], f, color=color, ls=ls, lw=1.0, label=lab)
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_yscale("log")
         _plain_log_ticks(ax)
         ax.set_ylabel(f"{name}: factor of\nimm_cv_ct's value")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, frameon=False)
-    axes[-1].set_xlim(tt[0], tt[-1])
+    axes[-1].set_xlim(tt[k0], tt[k1 - 1])
     axes[-1].set_xlabel("time since scenario start (s)")
     a0.set_title(f"{suite}: maneuver detection of the IMMs in run 0 (mode probability, turn rate)"
-                 + (" and the learned IMMs' parameters" if learned else ""), fontsize=10, y=1.0, pad=5)
+                 + (" and the learned IMMs' parameters" if learned else "")
+                 + (f"; looks {k0}-{k1 - 1} of {n}" if (k0, k1) != (0, n) else ""), fontsize=10, y=1.0, pad=5)
     h0, l0 = a0.get_legend_handles_labels()
     h1, l1 = a1.get_legend_handles_labels()
     _bottom_legend(fig, h0 + h1, l0 + l1, ncol=5, y_in=0.05)
