@@ -721,7 +721,7 @@ def maneuver_figure(suite, batch, runs, scenario=None):
         k1 = min(n, k0 + MANEUVER_WINDOW_LOOKS)
         k0 = max(0, k1 - MANEUVER_WINDOW_LOOKS)
     fig, axes = _figure(12.0, 2.6 * nrows + 1.6, nrows, 1, sharex=True, bottom_in=1.3, top_in=0.45, hspace_in=0.3,
-                        right_in=2.0 if learned else 0.25)
+                        left_in=1.25, right_in=2.0 if learned else 0.25)   # room for 1e5's tick labels
     axes = axes[:, 0]
     for i, ax in enumerate(axes):
         _shade(ax, intervals, "truth maneuvering" if i == 0 else None)
@@ -750,7 +750,7 @@ def maneuver_figure(suite, batch, runs, scenario=None):
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_yscale("log")
         _plain_log_ticks(ax)
-        ax.set_ylabel(f"{name}: factor of\nimm_cv_ct's value")
+        ax.set_ylabel(f"{name}:\nfactor of imm_cv_ct's")
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, frameon=False)
     axes[-1].set_xlim(tt[k0], tt[k1 - 1])
     axes[-1].set_xlabel("time since scenario start (s)")
