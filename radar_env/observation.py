@@ -35,9 +35,9 @@ name                   unit       meaning                                       
 ``next_dt_s``          s          time to the next look                                    x / 20    [0, 1]
 ``next_meas_std_m``    m          per-axis RMS noise of the next plot                      log10(1+x)/3  [0, 1]
 ``next_detected``      1          1 if the next look gives a plot                          x         [0, 1]
-``imm_ct_prob``        1          imm_cv_ct's CT-mode probability (a detector, off by default)  x    [0, 1]
-``imm_omega_deg_s``    deg/s      imm_cv_ct's turn-rate estimate (+ = right; off by default)  x / 20  [-1, 1]
-``imm2_high_prob``     1          imm2's high-noise-mode probability (off by default)      x         [0, 1]
+``imm_ct_prob``        1          imm_cv_ct's CT-mode probability (opt-in detector)        x         [0, 1]
+``imm_omega_deg_s``    deg/s      imm_cv_ct's turn-rate estimate, + = right (opt-in)       x / 20    [-1, 1]
+``imm2_high_prob``     1          imm2's high-noise-mode probability (opt-in detector)     x         [0, 1]
 =====================  =========  =======================================================  ========  ==========
 
 The ``next_*`` entries preview the plot that the chosen q will be used for

@@ -283,7 +283,8 @@ def test_check_hp_refusals():
     with pytest.raises(ValueError, match="select_on"):
         bp.check_hp(_hp(select_on=["bizup2002"]))
     for ek, msg in (({"scenario": "bizup2002"}, "random scenario generators"),
-                    ({"action_type": "discrete"}, "continuous"), ({"frame_stack": 4}, "frame_stack")):
+                    ({"action_type": "discrete"}, "continuous"), ({"frame_stack": 4}, "frame_stack"),
+                    ({"features": ["nis", "imm_ct_prob"]}, r"features \['imm_ct_prob'\] are not supported")):
         with pytest.raises(ValueError, match=msg):
             bp.check_hp(_hp(env_kwargs={**_hp()["env_kwargs"], **ek}))
     hp = _hp()

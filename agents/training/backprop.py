@@ -67,7 +67,7 @@ from radar_env import torch_chain as tc
 from radar_env.config import EnvConfig
 from radar_env.core import actions_to_q_m_s2
 from radar_env.draws import draw_episodes
-from radar_env.observation import DEFAULT_FEATURES, ObservationLayout, measurement_sigma_m
+from radar_env.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, ObservationLayout, measurement_sigma_m
 from radar_env.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
@@ -350,6 +350,10 @@ def check_hp(hp):
         raise ValueError(f"--env-kwargs: frame_stack must be 1 for --method backprop (the GRU carries the history), "
                          f"got {env_kwargs['frame_stack']!r}")
     env_kwargs.setdefault("features", list(DEFAULT_FEATURES))   # pinned: the default list may grow
+    det = [f for f in env_kwargs["features"] if f in DETECTOR_FEATURES]
+    if det:
+        raise ValueError(f"--env-kwargs: features {det} are not supported by --method backprop (its lockstep does "
+                         f"not run the detectors' IMMs; PPO and the other SB3 algorithms take them)")
     try:
         cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kwargs))
     except (TypeError, ValueError) as e:
