@@ -130,7 +130,7 @@ def test_cli_json_schema_and_outputs(tmp_path, capsys):
     assert "detection_delay_looks" in s["trackers"]["cmin"] and "ratio_vs_imm2" in s
     assert s["ratio_vs_imm2"]["imm2"][0] == pytest.approx(1.0)
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == [
-        "kim_lee_accel_errors.png", "kim_lee_accel_features.png", "kim_lee_accel_q.png",
+        "kim_lee_accel_errors.png", "kim_lee_accel_features.png", "kim_lee_accel_maneuver.png", "kim_lee_accel_q.png",
         "kim_lee_accel_trajectory.png"]
     assert "kim_lee_accel" in capsys.readouterr().out
 
