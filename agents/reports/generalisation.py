@@ -338,9 +338,6 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
     def bad_suites(name):
         return _imm_bad_suites(spread, name)
 
-    def all_ok(name):
-        return _imm_all_ok(spread, name)
-
     out = [(f"{policy}: random <= 0.90 x imm_cv_ct (stretch 0.85)", vs_cv_ct(policy, "random", 0.90),
             _f3(pol["random"]["ratio_vs_imm_cv_ct"])),
            (f"{policy}: bizup2002 <= 0.95 x imm_cv_ct", vs_cv_ct(policy, "bizup2002", 0.95),
@@ -352,7 +349,7 @@ def imm_targets(spread, policy="policy_imm_bp", seeds=(), minutes=None):
                                         f"{spread[s]['strongest_classical']})" for s in bad)
                 if bad else f"all {len(bounded)} suites"))
     if seeds:
-        good = [n for n in seeds if all_ok(n)]
+        good = [n for n in seeds if _imm_all_ok(spread, n)]
         out.append((f"at least 2 of 3 seeds of {policy}'s recipe meet these three", len(good) >= 2,
                     f"{len(good)} of {len(seeds)} ({', '.join(good) or 'none'}); random / imm_cv_ct, bizup2002 / "
                     "imm_cv_ct: " + ", ".join(
