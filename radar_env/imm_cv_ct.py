@@ -242,10 +242,11 @@ def _ct_coefficients(theta):
 
 
 @numba.njit(cache=True)
-def _ct_predict_mean(x, dt, out):
-    """``out = f(x)``: the exact CT motion of the 5-state ``x`` over ``dt``."""
+def _ct_predict(x, dt, out, J):
+    """``out = f(x)``, the exact CT motion of the 5-state ``x`` over ``dt``, and ``J = df/dx`` (5 x 5) at ``x``
+    (one evaluation of the coefficients for both)."""
     th = x[4] * dt
-    s1, c1, _, _ = _ct_coefficients(th)
+    s1, c1, g1, g2 = _ct_coefficients(th)
     a, b = dt * s1, dt * c1
     s, c = math.sin(th), math.cos(th)
     vx, vy = x[2], x[3]
@@ -254,16 +255,6 @@ def _ct_predict_mean(x, dt, out):
     out[2] = c * vx + s * vy
     out[3] = -s * vx + c * vy
     out[4] = x[4]
-
-
-@numba.njit(cache=True)
-def _ct_jacobian(x, dt, J):
-    """``J = df/dx`` (5 x 5) of the CT motion at ``x``."""
-    th = x[4] * dt
-    s1, c1, g1, g2 = _ct_coefficients(th)
-    a, b = dt * s1, dt * c1
-    s, c = math.sin(th), math.cos(th)
-    vx, vy = x[2], x[3]
     J[:, :] = 0.0
     J[0, 0] = J[1, 1] = J[4, 4] = 1.0
     J[0, 2], J[0, 3] = a, b
@@ -277,24 +268,23 @@ def _ct_jacobian(x, dt, J):
     J[3, 4] = -dt * (c * vx + s * vy)
 
 
+def _ct_rows(x, dt_s):
+    """:func:`_ct_predict` of every 5-state row of ``x (..., 5)``: ``(f (n, 5), J (n, 5, 5))``."""
+    flat = np.asarray(x, dtype=np.float64).reshape(-1, 5)
+    f, J = np.empty_like(flat), np.empty((flat.shape[0], 5, 5))
+    for i in range(flat.shape[0]):
+        _ct_predict(flat[i], float(dt_s), f[i], J[i])
+    return f, J
+
+
 def ct_motion(x, dt_s):
     """The CT motion ``f(x)`` of 5-state vectors ``x (..., 5)`` over ``dt_s`` (scalar) (for tests and users)."""
-    x = np.asarray(x, dtype=np.float64)
-    flat = x.reshape(-1, 5)
-    out = np.empty_like(flat)
-    for i in range(flat.shape[0]):
-        _ct_predict_mean(flat[i], float(dt_s), out[i])
-    return out.reshape(x.shape)
+    return _ct_rows(x, dt_s)[0].reshape(np.shape(x))
 
 
 def ct_jacobian(x, dt_s):
     """The analytic Jacobian ``df/dx (..., 5, 5)`` of :func:`ct_motion` at ``x (..., 5)``."""
-    x = np.asarray(x, dtype=np.float64)
-    flat = x.reshape(-1, 5)
-    out = np.empty((flat.shape[0], 5, 5))
-    for i in range(flat.shape[0]):
-        _ct_jacobian(flat[i], float(dt_s), out[i])
-    return out.reshape(x.shape[:-1] + (5, 5))
+    return _ct_rows(x, dt_s)[1].reshape(np.shape(x)[:-1] + (5, 5))
 
 
 # ------------------------------------------------------------------------------------------------ the kernel
@@ -440,8 +430,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     # ---- mode-matched prediction
     for j in range(M):
         if is_ct[j]:
-            _ct_predict_mean(x0[j], dt, xp[j])
-            _ct_jacobian(x0[j], dt, J)
+            _ct_predict(x0[j], dt, xp[j], J)
         else:
             J[:, :] = 0.0
             for r in range(5):
