@@ -96,7 +96,7 @@ from dataclasses import asdict, dataclass, fields
 import numba
 import numpy as np
 
-from .kernels import _gain_update, _pd_floor, _plot_nis
+from .kernels import _gain_update, _logsumexp, _pd_floor, _plot_nis, _symmetrize
 from .units import DEG, G0_M_S2
 from .validate import check_known_keys, check_number
 
@@ -313,16 +313,6 @@ def _add_cv_noise(P, dt, q):
 
 
 @numba.njit(cache=True)
-def _sym(A):
-    n = A.shape[0]
-    for r in range(n):
-        for c in range(r + 1, n):
-            v = 0.5 * (A[r, c] + A[c, r])
-            A[r, c] = v
-            A[c, r] = v
-
-
-@numba.njit(cache=True)
 def _abat(A, B, tmp, out):
     """``out = A B A^T`` (square)."""
     n = A.shape[0]
@@ -341,17 +331,6 @@ def _abat(A, B, tmp, out):
 
 
 @numba.njit(cache=True)
-def _logsumexp(a):
-    mx = -np.inf
-    for v in a:
-        mx = max(mx, v)
-    s = 0.0
-    for v in a:
-        s += math.exp(v - mx)
-    return mx + math.log(s)
-
-
-@numba.njit(cache=True)
 def _moments(w, xs, Ps, n, x_out, P_out):
     """Moment-matched mixture of the first ``n`` components: ``x = sum w_i x_i``,
     ``P = sum w_i (P_i + (x_i - x)(x_i - x)^T)``, symmetrised."""
@@ -365,7 +344,7 @@ def _moments(w, xs, Ps, n, x_out, P_out):
             dr = xs[i, r] - x_out[r]
             for c in range(n):
                 P_out[r, c] += w[i] * (Ps[i, r, c] + dr * (xs[i, c] - x_out[c]))
-    _sym(P_out)
+    _symmetrize(P_out)
 
 
 @numba.njit(cache=True)
@@ -419,7 +398,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
         for j in range(M):
             a[i, j] = log_Pi[i, j] + log_mu[i]
     for j in range(M):
-        log_c[j] = _logsumexp(a[:, j])
+        log_c[j] = _logsumexp(a[:, j], M)
         for i in range(M):
             w[i] = math.exp(a[i, j] - log_c[j])
         _moments(w, xm, Pm, 5, x0[j], P0[j])
@@ -443,7 +422,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
         _add_cv_noise(Pp[j], dt, q[j])
         if is_ct[j]:
             Pp[j, 4, 4] += sig_w2 * dt
-        _sym(Pp[j])
+        _symmetrize(Pp[j])
     # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
     for j in range(M):
         if det:
@@ -458,11 +437,11 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
     for j in range(M):
         ll[j] += log_c[j]
-    lse = _logsumexp(ll)
+    lse = _logsumexp(ll, M)
     for j in range(M):
         log_mu[j] = ll[j] - lse
     # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.imm_step
-    lse = _logsumexp(log_c)
+    lse = _logsumexp(log_c, M)
     for j in range(M):
         w[j] = math.exp(log_c[j] - lse)
     _moments(w, xp, Pp, 4, xc, Pc)

@@ -183,9 +183,10 @@ def _propagate(x, P, F, xo, FPF, FP):
 
 @njit(cache=True)
 def _symmetrize(A):
-    """A = (A + A^T) / 2 in place (4 x 4): rounding must not make a covariance asymmetric."""
-    for i in range(4):
-        for j in range(i + 1, 4):
+    """A = (A + A^T) / 2 in place (square): rounding must not make a covariance asymmetric."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
             v = 0.5 * (A[i, j] + A[j, i])
             A[i, j] = v
             A[j, i] = v
