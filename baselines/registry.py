@@ -4,6 +4,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
+``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
+knowing the flight's start: the causal reference on ``random``),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
 in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
 ``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
@@ -21,6 +23,7 @@ import re
 from . import trackers as T
 from .imm_cv_ct import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
+from .rbpf import RBPF_REF, run_rbpf
 from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
@@ -58,6 +61,8 @@ _RUNNERS = {
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
     "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
+    "rbpf": lambda eps, cfg: run_rbpf(eps, name="rbpf", cfg=cfg),
+    "rbpf_ref": lambda eps, cfg: run_rbpf(eps, RBPF_REF, name="rbpf_ref", cfg=cfg),
     "kf_tuned": _policy_run("kf_tuned"),
     "kf_low": _policy_run("kf_low"),
     "kf_high": _policy_run("kf_high"),

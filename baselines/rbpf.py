@@ -1,0 +1,53 @@
+"""``rbpf`` and ``rbpf_ref``: the Rao-Blackwellised particle filter of :mod:`radar_env.rbpf` run on episodes.
+
+``rbpf`` is a tracker: it knows the random flights' regime laws (:class:`radar_env.scenario.RandomScenarioConfig`)
+but not where a flight started, as a deployed tracker would. ``rbpf_ref`` is the causal reference: it also uses what
+the generator says about the flight's start (its first leg's law from ``t = 0``, the number of legs), so on the
+``random`` suite nothing causal knows more. On every other suite both are trackers with a mismatched prior.
+
+Both start from the common track start (two-hit start and warm-up, as every tracker) and run on the same converted
+plots and R. Each row's random stream is keyed by a hash of its looks (times and plots), so the same episode gives the
+same numbers in any batch and any order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import replace
+
+import numpy as np
+
+from radar_env.rbpf import DEFAULT_RBPF, RBPFSpec, rbpf_filter
+
+from .imm_cv_ct import _declared, common_start
+from .trackers import TrackRun
+
+__all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_REF", "episode_key", "run_rbpf"]
+
+RBPF_REF = replace(DEFAULT_RBPF, flight_start_known=True)
+"""``rbpf_ref``'s settings: ``rbpf``'s, knowing the flight's start."""
+
+
+def episode_key(episode) -> np.uint64:
+    """The random-stream key of one episode's particle filter: a hash of its look times and plots."""
+    h = hashlib.blake2b(digest_size=8)
+    h.update(np.ascontiguousarray(episode.t_s, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(np.nan_to_num(episode.z_m), dtype=np.float64).tobytes())
+    return np.uint64(int.from_bytes(h.digest(), "little"))
+
+
+def run_rbpf(episodes, spec: RBPFSpec = DEFAULT_RBPF, name="rbpf", cfg=None, start=None):
+    """The particle filter on recorded episodes from the common track start. Returns a
+    :class:`baselines.trackers.TrackRun` with extra series ``maneuver_probability`` (the weight of particles off a
+    straight leg), ``turn_rate_deg_s`` (the mean turn rate, straight particles counting 0) and ``ess`` (effective
+    sample size before resampling); ``start``: a :func:`baselines.imm_cv_ct.common_start` result to reuse."""
+    episodes = list(episodes)
+    batch, k0, x4, P4 = start if start is not None else common_start(episodes, cfg)
+    B, K = batch.t_s.shape
+    keys = np.array([episode_key(e) for e in episodes], dtype=np.uint64)
+    x, P, p_man, w, ess = rbpf_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x4,
+                                      P4, keys, spec)
+    rows = np.arange(B)
+    x[rows, k0], P[rows, k0] = x4, P4      # the start look, as every tracker records it
+    return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=_declared(p_man),
+                    extra={"maneuver_probability": p_man, "turn_rate_deg_s": np.degrees(w), "ess": ess})
