@@ -69,7 +69,7 @@ RBPF_PARAMS = (
     ("broad_min_s", 5.0, 0.0, 3600.0, "shortest stay in the broad regime (s)"),
     ("broad_max_s", 60.0, 0.0, 3600.0, "longest stay in the broad regime (s)"),
     ("resample_ess", 0.5, 0.0, 1.0, "resample when the effective sample size falls below this fraction of N"),
-    ("onset_boost", 4.0, 1.0, 100.0, "importance proposal: a leg's end is proposed this many times as often as "
+    ("onset_boost", 8.0, 1.0, 100.0, "importance proposal: a leg's end is proposed this many times as often as "
                                      "the prior says, the weights corrected"),
 )
 _RANGES = {p[0]: (p[2], p[3]) for p in RBPF_PARAMS}
@@ -95,7 +95,7 @@ class RBPFSpec:
     broad_min_s: float = 5.0
     broad_max_s: float = 60.0
     resample_ess: float = 0.5
-    onset_boost: float = 4.0
+    onset_boost: float = 8.0
     prior: RandomScenarioConfig = RandomScenarioConfig()
     flight_start_known: bool = False
 

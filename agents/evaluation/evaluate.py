@@ -6,7 +6,8 @@ writes plots (PNG) and optionally a JSON file with every metric (:mod:`agents.ev
 
 Defaults: the bundled learned policies if they exist (``agents/bundled/``: ``policy``, PPO, ``policy_bp``, a q-policy
 trained by backpropagation, ``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and
-by PPO), the tuned 2-mode IMM (``imm2``), the tuned CV / CT-EKF IMM (``imm_cv_ct``, the strongest classical tracker on most suites), Bizup's IMM, the tuned constant-q
+by PPO), the tuned 2-mode IMM (``imm2``), the tuned CV / CT-EKF IMM (``imm_cv_ct``), the particle filter over the
+random flights' regimes (``rbpf``: the strongest classical tracker on its own prior), Bizup's IMM, the tuned constant-q
 KF, the c_min tracker and the clairvoyant bound, on the default suite (random scenarios and the papers' named
 scenarios).
 """

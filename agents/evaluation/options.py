@@ -16,7 +16,7 @@ from baselines.seeds import EVAL_SEED_BASE
 
 __all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
 
-DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "imm2_bizup",
+DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup",
                     "kf_tuned", "cmin", "clairvoyant")
 """The main job's trackers (the learned ones, ``policy``, PPO, ``policy_bp``, a q-policy trained by backpropagation,
 ``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and by PPO, only when such a

@@ -41,9 +41,9 @@ __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spr
            "track_start_table", "NAMED_SUITES", "bp_targets", "imm_targets", "LONG_TURN_SUITES", "evaluate_suite",
            "BP_RECIPE", "IMM_RECIPE"]
 
-CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
-"""The classical field the *strongest classical tracker* is taken from (tuned IMMs, Bizup's IMM, the tuned KF,
-Bizup's c_min rule)."""
+CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
+"""The classical field the *strongest classical tracker* is taken from (tuned IMMs, the particle filter over the
+random flights' regimes, Bizup's IMM, the tuned KF, Bizup's c_min rule)."""
 BOUNDS = ("hindsight_q", "clairvoyant")
 FAMILY_RUNS = 60
 """Runs per family for the family table (``hindsight_q`` costs about a CPU-second per episode); ``adsb_heldout``

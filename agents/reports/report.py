@@ -22,10 +22,10 @@ from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite,
 
 __all__ = ["main", "markdown_tables"]
 
-REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
+REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
                    "oracle_q", "clairvoyant")
-FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
+FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 """The trackers of the figures: the main job's (the strongest classical tracker, imm_cv_ct, included)."""
 PER_FLIGHT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")
 """The columns of the ADS-B per-flight table."""
@@ -79,13 +79,13 @@ def markdown_tables(results, reference="imm2"):
     return "\n".join(out)
 
 
-HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "kf_tuned", "cmin",
+HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "rbpf", "kf_tuned", "cmin",
                      "hindsight_q", "hindsight_q_turn", "clairvoyant")
 
 
 BOUNDS_SUITES = ("random", "bizup2002", "kim_lee_accel")
 BOUNDS_RUNS = 30
-BOUNDS_TRACKERS = ("imm2", "imm_cv_ct", "kf_tuned", "cmin", "hindsight_q", "hindsight_q_turn", "clairvoyant")
+BOUNDS_TRACKERS = ("imm2", "imm_cv_ct", "rbpf", "kf_tuned", "cmin", "hindsight_q", "hindsight_q_turn", "clairvoyant")
 """The hindsight bounds cost about a CPU-second per episode each (baselines/hindsight.py), so they are computed on the
 first ``BOUNDS_RUNS`` runs of these suites only (the same episodes as runs 0..29 of the full tables, seeds
 ``seed + i``), beside the trackers they bound; written to ``docs/bounds.json`` and the README's ``bounds`` block."""
