@@ -1,6 +1,6 @@
 """Layers only look down: radar_env (simulation, filters, env) knows nothing of baselines or agents, baselines
-never imports agents, the simulation and filter modules import without gymnasium, and only radar_env.torch_chain
-(the differentiable chain) and radar_env.torch_imm (the IMM built from its blocks) need torch: radar_env and
+never imports agents, the simulation and filter modules import without gymnasium, and only radar_env.filters.torch_chain
+(the differentiable chain) and radar_env.filters.torch_imm (the IMM built from its blocks) need torch: radar_env and
 baselines import without it."""
 
 import ast
@@ -25,12 +25,12 @@ sys.meta_path.insert(0, _Blocked())
 _NO_GYM = _BLOCK.format(pkg="gymnasium")
 _NO_TORCH = _BLOCK.format(pkg="torch")
 
-GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.scenario", "radar_env.episode",
-            "radar_env.radar", "radar_env.features", "radar_env.observation", "radar_env.catalog",
-            "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry", "baselines.policies",
-            "baselines.alpha_beta", "baselines.konle", "baselines.imm_cv_ct", "baselines.hindsight",
-            "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.draws", "radar_env.kernels",
-            "radar_env.imm_cv_ct", "radar_env.imm_env", "radar_env.imm_core", "radar_env.detectors")
+GYM_FREE = ("radar_env", "radar_env.filters.kalman", "radar_env.filters.tracking", "radar_env.sim.scenario", "radar_env.sim.episode",
+            "radar_env.sim.radar", "radar_env.filters.features", "radar_env.envs.observation", "radar_env.sim.catalog",
+            "radar_env.envs.config", "radar_env.envs.core", "baselines.trackers", "baselines.registry", "baselines.policies",
+            "baselines.alpha_beta", "baselines.konle", "baselines.imm_cv_ct_runner", "baselines.hindsight",
+            "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.sim.draws", "radar_env.filters.kernels",
+            "radar_env.filters.imm_cv_ct", "radar_env.envs.imm_env", "radar_env.envs.imm_core", "radar_env.envs.detectors")
 
 
 def _run(code, block=_NO_GYM):
@@ -45,9 +45,9 @@ def test_simulation_and_filter_modules_import_without_gymnasium():
             "assert not any(m == 'gymnasium' or m.startswith('gymnasium.') for m in sys.modules)\n"
             # and they run: draw an episode and start its track
             "import numpy as np\n"
-            "from radar_env.catalog import make_setup\n"
-            "from radar_env.episode import draw_episode\n"
-            "from radar_env.tracking import TrackStart\n"
+            "from radar_env.sim.catalog import make_setup\n"
+            "from radar_env.sim.episode import draw_episode\n"
+            "from radar_env.filters.tracking import TrackStart\n"
             "rng = np.random.default_rng(0)\n"
             "s = make_setup('bizup2002', rng)\n"
             "tr = TrackStart().tracker(1)\n"
@@ -60,7 +60,7 @@ def test_simulation_and_filter_modules_import_without_gymnasium():
 
 
 def test_the_gym_layer_says_it_needs_gymnasium():
-    res = _run("import radar_env.env\n")
+    res = _run("import radar_env.envs.env\n")
     assert res.returncode != 0 and "gymnasium" in res.stderr
 
 
@@ -73,7 +73,7 @@ def test_block_is_effective():
 
 def test_torch_chain_imports_without_gymnasium():
     pytest.importorskip("torch")
-    res = _run("import radar_env.torch_chain\n"
+    res = _run("import radar_env.filters.torch_chain\n"
                "assert not any(m == 'gymnasium' or m.startswith('gymnasium.') for m in sys.modules)\nprint('ok')\n")
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
@@ -81,13 +81,13 @@ def test_torch_chain_imports_without_gymnasium():
 
 def test_radar_env_and_baselines_import_without_torch():
     code = ("import importlib\n"
-            f"for m in {GYM_FREE + ('radar_env.env',)!r}:\n"
+            f"for m in {GYM_FREE + ('radar_env.envs.env',)!r}:\n"
             "    importlib.import_module(m)\n"
             "assert not any(m == 'torch' or m.startswith('torch.') for m in sys.modules)\nprint('ok')\n")
     res = _run(code, _NO_TORCH)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
-    res = _run("import radar_env.torch_chain\n", _NO_TORCH)
+    res = _run("import radar_env.filters.torch_chain\n", _NO_TORCH)
     assert res.returncode != 0 and "torch" in res.stderr
 
 

@@ -2,7 +2,7 @@ r"""``imm_cv_ct``: a mixed-order IMM of a constant-velocity mode and a coordinat
 a state (the IMM air-traffic trackers use), optionally with a third, high-noise CV mode; batched, compiled.
 
 The model, its parameters (:class:`IMMCVCTSpec`, :data:`IMM_CV_CT_PARAMS`) and the compiled per-look kernel are
-:mod:`radar_env.imm_cv_ct` (shared with the env's ``tracker="imm_cv_ct"``; re-exported here); this module runs
+:mod:`radar_env.filters.imm_cv_ct` (shared with the env's ``tracker="imm_cv_ct"``; re-exported here); this module runs
 it on episodes (:func:`run_imm_cv_ct`, :func:`imm_cv_ct_filter`, :class:`IMMCVCTStepper`) with the tuned values.
 
 The defaults (:data:`DEFAULT_IMM_CV_CT`) were chosen on tuning seeds only: scipy Nelder-Mead (log scale for the
@@ -17,8 +17,8 @@ of the previous version. ``baselines/tuned.json``'s ``imm_cv_ct`` entry (the con
 (:func:`tuned_imm_cv_ct_spec`); it is what ``imm_cv_ct`` runs with.
 
 Implementation: the whole per-look loop of every row is one numba kernel (``prange`` over rows); the track start
-is the common one (two-hit start and warm-up through :class:`radar_env.tracking.Tracker`), the looks are read from
-:func:`radar_env.episode.stack_episodes`.
+is the common one (two-hit start and warm-up through :class:`radar_env.filters.tracking.Tracker`), the looks are read from
+:func:`radar_env.sim.episode.stack_episodes`.
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radar_env.episode import stack_episodes
-from radar_env.imm_cv_ct import (DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S,  # noqa: F401
+from radar_env.sim.episode import stack_episodes
+from radar_env.filters.imm_cv_ct import (DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S,  # noqa: F401
                                  SERIES_THETA, IMMCVCTSpec, _init_modes, _kernel, _step_kernel, check_look_parameters,
                                  ct_jacobian, ct_motion, detector_inputs, imm_cv_ct_spec_from_params,
                                  initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector)
-from radar_env.units import DEG, G0_M_S2
+from radar_env.common.units import DEG, G0_M_S2
 
 from .trackers import TrackRun, _tracker, observation_layout
 
@@ -264,9 +264,9 @@ def run_imm_lockstep(episodes, choose, cfg, spec, feature_q_m_s2, name):
     feature chain (the lockstep of a learned IMM: ``RadarTrack-v0`` with ``tracker="imm_cv_ct"`` computes the same).
 
     Per look of the active rows: ``params = choose(obs, detectors, rows)`` from the env's observation after the
-    previous look (``cfg``'s features of :class:`radar_env.tracking.Tracker` stepped at the constant
+    previous look (``cfg``'s features of :class:`radar_env.filters.tracking.Tracker` stepped at the constant
     ``feature_q_m_s2``, encoded as the env does; after the start at the warm-up q) and the IMM's detectors after it
-    (:func:`radar_env.imm_cv_ct.detector_inputs`; at the start :func:`~radar_env.imm_cv_ct.initial_detectors`);
+    (:func:`radar_env.filters.imm_cv_ct.detector_inputs`; at the start :func:`~radar_env.filters.imm_cv_ct.initial_detectors`);
     then the IMM's look with ``params (n, n_par)`` (:class:`IMMCVCTStepper`), then the feature chain's.
 
     Returns a :class:`baselines.trackers.TrackRun` (x, P combined; extra series ``maneuver_probability``,

@@ -1,0 +1,111 @@
+"""Old import paths kept working for one release: each old module name is an alias of its new module.
+
+Issue 37 moved the flat modules into sub-packages (``radar_env.episode`` is now ``radar_env.sim.episode``, ...).
+One meta-path finder, registered by ``radar_env/__init__.py``, answers the old names: importing one returns the
+*same* module object as the new path (``radar_env.episode.Episode is radar_env.sim.episode.Episode``) and emits
+one DeprecationWarning naming the new path. :func:`install` adds mappings (``baselines`` registers its renamed
+runner with it); :func:`forward_attributes` does the same for names read from a package whose module became it
+(``radar_env.filters.transition_ct``, formerly of the module ``radar_env/filters.py``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import sys
+import warnings
+from pathlib import Path
+
+__all__ = ["MOVED", "install", "forward_attributes"]
+
+MOVED = {f"radar_env.{old}": f"radar_env.{new}" for old, new in {
+    # shared utilities
+    "units": "common.units", "validate": "common.validate", "numba_cache": "common.numba_cache",
+    # simulation
+    "scenario": "sim.scenario", "radar": "sim.radar", "episode": "sim.episode", "draws": "sim.draws",
+    "adsb": "sim.adsb", "adsb_scenarios": "sim.adsb_scenarios", "catalog": "sim.catalog",
+    # filters (the module radar_env/filters.py became radar_env.filters.kalman: see forward_attributes)
+    "kernels": "filters.kernels", "tracking": "filters.tracking", "features": "filters.features",
+    "imm_cv_ct": "filters.imm_cv_ct", "torch_chain": "filters.torch_chain", "torch_imm": "filters.torch_imm",
+    # the Gymnasium layer
+    "config": "envs.config", "core": "envs.core", "env_kernels": "envs.env_kernels",
+    "observation": "envs.observation", "imm_env": "envs.imm_env", "imm_core": "envs.imm_core",
+    "detectors": "envs.detectors", "single_env": "envs.single_env", "vector_env": "envs.vector_env",
+    "env": "envs.env",
+}.items()}
+"""Old module name -> new module name (radar_env's own moves; others join through :func:`install`)."""
+
+_WHEN = "the old path goes away in the next release"
+
+
+def _stacklevel():
+    """The ``stacklevel`` that points a warning raised here at the code that asked for the old name (past the
+    import system's frames and this module's)."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and (frame.f_code.co_filename.startswith("<frozen importlib")
+                                 or frame.f_code.co_filename == __file__):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+class _AliasLoader(importlib.abc.Loader):
+    """Loads an old name as the new module itself (imported if need be); executes nothing."""
+
+    def __init__(self, new):
+        self.new = new
+        self._spec = None
+
+    def create_module(self, spec):
+        module = importlib.import_module(self.new)
+        self._spec = module.__spec__
+        return module
+
+    def exec_module(self, module):
+        module.__spec__ = self._spec     # the import system gave the shared module the alias' spec: restore its own
+
+
+class _MovedFinder(importlib.abc.MetaPathFinder):
+    """Answers the old names of :data:`MOVED` (after every other finder: only names no file has any more)."""
+
+    def __init__(self):
+        self.moved = {}
+
+    def find_spec(self, name, path=None, target=None):
+        new = self.moved.get(name)
+        if new is None:
+            return None
+        warnings.warn(f"{name} moved to {new}; {_WHEN}", DeprecationWarning, stacklevel=_stacklevel())
+        return importlib.machinery.ModuleSpec(name, _AliasLoader(new))
+
+
+def install(moved):
+    """Make each old module name of ``moved`` (``{old: new}``) an alias of its new module; one finder for all."""
+    finder = next((f for f in sys.meta_path if type(f).__name__ == "_MovedFinder"), None)
+    if finder is None:
+        finder = _MovedFinder()
+        sys.meta_path.append(finder)
+    finder.moved.update(moved)
+
+
+def forward_attributes(package, module):
+    """A module ``__getattr__`` for ``package`` that serves the public names (``__all__``) of ``module`` with one
+    DeprecationWarning each: the old ``package.name`` of a module that became the package ``package``. Names of
+    the package's own sub-modules are left to the import system."""
+    folder = None
+
+    def __getattr__(name):
+        nonlocal folder
+        pkg = sys.modules[package]
+        folder = folder or Path(pkg.__file__).parent
+        if name.startswith("_") or (folder / f"{name}.py").is_file() or (folder / name).is_dir():
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        mod = importlib.import_module(module)
+        if name not in getattr(mod, "__all__", ()):
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        warnings.warn(f"{package}.{name} moved to {module}.{name}; {_WHEN}", DeprecationWarning, stacklevel=2)
+        value = getattr(mod, name)
+        setattr(pkg, name, value)        # once: later reads find the attribute
+        return value
+
+    return __getattr__
