@@ -2,4 +2,4 @@
 
 from radar_env._moved import install as _install
 
-_install({"baselines.imm_cv_ct_runner": "baselines.imm_cv_ct_runner"})   # old name of the IMM CV/CT runner, warned
+_install({"baselines.imm_cv_ct": "baselines.imm_cv_ct_runner"})   # old name of the IMM CV/CT runner, warned

@@ -40,12 +40,17 @@ _WHEN = "the old path goes away in the next release"
 
 
 def _stacklevel():
-    """The ``stacklevel`` that points a warning raised here at the code that asked for the old name (past the
-    import system's frames and this module's)."""
-    frame, level = sys._getframe(1), 1
-    while frame is not None and (frame.f_code.co_filename.startswith("<frozen importlib")
-                                 or frame.f_code.co_filename == __file__):
-        frame, level = frame.f_back, level + 1
+    """The ``stacklevel`` that points a warning raised in ``find_spec`` at the code that asked for the old name:
+    past this module's frames and ``importlib.import_module``; ``warnings`` itself skips (and does not count) the
+    import system's ``<frozen importlib._bootstrap...>`` frames."""
+    def internal(f):
+        return "importlib" in f.f_code.co_filename and "_bootstrap" in f.f_code.co_filename
+
+    frame, level = sys._getframe(2), 1            # find_spec's frame is level 1
+    while frame is not None and (internal(frame) or frame.f_code.co_filename in (__file__, importlib.__file__)):
+        frame = frame.f_back
+        if frame is not None and not internal(frame):
+            level += 1
     return level
 
 
@@ -66,7 +71,8 @@ class _AliasLoader(importlib.abc.Loader):
 
 
 class _MovedFinder(importlib.abc.MetaPathFinder):
-    """Answers the old names of :data:`MOVED` (after every other finder: only names no file has any more)."""
+    """Answers the old names of :data:`MOVED`, before any other finder (a stale copy of the old layout on the path,
+    e.g. an editable install of another checkout, must not shadow the alias); it answers nothing else."""
 
     def __init__(self):
         self.moved = {}
@@ -84,7 +90,7 @@ def install(moved):
     finder = next((f for f in sys.meta_path if type(f).__name__ == "_MovedFinder"), None)
     if finder is None:
         finder = _MovedFinder()
-        sys.meta_path.append(finder)
+        sys.meta_path.insert(0, finder)
     finder.moved.update(moved)
 
 
