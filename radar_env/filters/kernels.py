@@ -9,9 +9,11 @@ these kernels.
 
 Layouts (module constants, compile-time constants inside the kernels):
 
-* a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1);
+* a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1): the
+  simulation's data format, defined in :mod:`radar_env.sim.looks` (the episode drawer writes it) and re-exported
+  here;
 * the tracker's state ``st (B, W_ST)`` float (``S_*``: x, P, time of the last look) and ``it (B, W_IT)`` int
-  (``I_*``: next look, looks in the episode);
+  (``I_*``: next look, looks in the episode; the look cursor, also from :mod:`radar_env.sim.looks`);
 * the feature-bank state of one track: ``bf`` (float: ring buffers, FMA, held values), ``bi`` (int: ring-buffer
   indices and counts), ``bb`` (bool: validity flags), offsets from :func:`bank_offsets`;
 * one step's output row ``O_*`` (float), ``OB_*`` (bool) and the feature columns ``FB_*`` (bank) / ``FP_*``
@@ -75,7 +77,7 @@ PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
 W_PAR = 7
 
 # packed tracker state: floats ``st (B, W_ST)`` (posterior x, P, time of the last processed look) and ints
-# ``it (B, W_IT)`` (next look to process, looks in the episode): few kernel arguments
+# ``it (B, W_IT)`` (next look to process, looks in the episode; I_K, I_N, W_IT from sim.looks): few kernel arguments
 S_X, S_P, S_T = 0, 4, 20
 W_ST = 21
 
