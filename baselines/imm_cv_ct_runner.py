@@ -28,10 +28,10 @@ from typing import NamedTuple
 import numpy as np
 
 from radar_env.sim.episode import stack_episodes
-from radar_env.filters.imm_cv_ct import (DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S,  # noqa: F401
-                                 SERIES_THETA, IMMCVCTSpec, _init_modes, _kernel, _step_kernel, check_look_parameters,
-                                 ct_jacobian, ct_motion, detector_inputs, imm_cv_ct_spec_from_params,
-                                 initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector)
+from radar_env.filters.imm_cv_ct import (  # noqa: F401
+    DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
+    _init_modes, _kernel, _step_kernel, check_look_parameters, ct_jacobian, ct_motion, detector_inputs,
+    imm_cv_ct_spec_from_params, initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector)
 from radar_env.common.units import DEG, G0_M_S2
 
 from .trackers import TrackRun, _tracker, observation_layout

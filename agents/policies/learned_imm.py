@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.imm_cv_ct_runner import IMM_CV_CT_PARAMS, imm_cv_ct_spec_from_params, look_parameter_names, run_imm_lockstep
+from baselines.imm_cv_ct_runner import (IMM_CV_CT_PARAMS, imm_cv_ct_spec_from_params, look_parameter_names,
+                                        run_imm_lockstep)
 from baselines.trackers import observation_layout
 from radar_env.envs.config import EnvConfig
 from radar_env.filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
