@@ -3,9 +3,10 @@
 Issue 37 moved the flat modules into sub-packages (``radar_env.episode`` is now ``radar_env.sim.episode``, ...).
 One meta-path finder, registered by ``radar_env/__init__.py``, answers the old names: importing one returns the
 *same* module object as the new path (``radar_env.episode.Episode is radar_env.sim.episode.Episode``) and emits
-one DeprecationWarning naming the new path. :func:`install` adds mappings (``baselines`` registers its renamed
-runner with it); :func:`forward_attributes` does the same for names read from a package whose module became it
-(``radar_env.filters.transition_ct``, formerly of the module ``radar_env/filters.py``).
+one DeprecationWarning naming the new path (:func:`warn_moved`; ``baselines/imm_cv_ct.py``, the old name of the
+renamed runner, is a one-file shim that uses it: an alias registered from ``baselines/__init__.py`` would import
+radar_env with every ``import baselines``). :func:`forward_attributes` does the same for names read from a package
+whose module became it (``radar_env.filters.transition_ct``, formerly of the module ``radar_env/filters.py``).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import sys
 import warnings
 from pathlib import Path
 
-__all__ = ["MOVED", "install", "forward_attributes"]
+__all__ = ["MOVED", "install", "forward_attributes", "warn_moved"]
 
 MOVED = {f"radar_env.{old}": f"radar_env.{new}" for old, new in {
     # shared utilities
@@ -39,19 +40,26 @@ MOVED = {f"radar_env.{old}": f"radar_env.{new}" for old, new in {
 _WHEN = "the old path goes away in the next release"
 
 
-def _stacklevel():
-    """The ``stacklevel`` that points a warning raised in ``find_spec`` at the code that asked for the old name:
-    past this module's frames and ``importlib.import_module``; ``warnings`` itself skips (and does not count) the
-    import system's ``<frozen importlib._bootstrap...>`` frames."""
+def _stacklevel(skip=()):
+    """The ``stacklevel`` for a warning raised in :func:`warn_moved` that points it at the code that asked for the
+    old name: past this module's frames, ``importlib.import_module`` and the files ``skip``; ``warnings`` itself
+    skips (and does not count) the import system's ``<frozen importlib._bootstrap...>`` frames."""
     def internal(f):
         return "importlib" in f.f_code.co_filename and "_bootstrap" in f.f_code.co_filename
 
-    frame, level = sys._getframe(2), 1            # find_spec's frame is level 1
-    while frame is not None and (internal(frame) or frame.f_code.co_filename in (__file__, importlib.__file__)):
+    files = {__file__, importlib.__file__, *skip}
+    frame, level = sys._getframe(1), 1            # warn_moved's frame is level 1
+    while frame is not None and (internal(frame) or frame.f_code.co_filename in files):
         frame = frame.f_back
         if frame is not None and not internal(frame):
             level += 1
     return level
+
+
+def warn_moved(old, new, skip=()):
+    """The one DeprecationWarning of an old path ``old``, naming ``new``, attributed to the importing code (past
+    the frames of the files ``skip``: a shim module calling this)."""
+    warnings.warn(f"{old} moved to {new}; {_WHEN}", DeprecationWarning, stacklevel=_stacklevel(skip))
 
 
 class _AliasLoader(importlib.abc.Loader):
@@ -81,7 +89,7 @@ class _MovedFinder(importlib.abc.MetaPathFinder):
         new = self.moved.get(name)
         if new is None:
             return None
-        warnings.warn(f"{name} moved to {new}; {_WHEN}", DeprecationWarning, stacklevel=_stacklevel())
+        warn_moved(name, new)
         return importlib.machinery.ModuleSpec(name, _AliasLoader(new))
 
 
