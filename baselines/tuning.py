@@ -239,7 +239,7 @@ def _imm_cv_ct_entry():
     dataclass: the first start; a ``None`` value starts at the geometric mean of its bounds).
     Returns ``(entry, None)`` or ``(None, why it is skipped)``."""
     try:
-        from . import imm_cv_ct as mod
+        from . import imm_cv_ct_runner as mod
     except ImportError as e:
         return None, f"baselines.imm_cv_ct_runner is not importable ({e})"
     missing = [a for a in ("imm_cv_ct_spec_from_params", "run_imm_cv_ct", "IMM_CV_CT_PARAMS", "DEFAULT_IMM_CV_CT")
