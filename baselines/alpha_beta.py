@@ -19,7 +19,7 @@ Equations (Kim & Lee, "Adaptive alpha-beta tracker for TWS radar system")
 * steady-state posterior covariance (eq 12):
   :math:`P_o = \sigma_w^2 [[\alpha, \beta/T], [\beta/T, \beta(2\alpha-\beta)/(2(1-\alpha)T^2)]]`.
 * adaptive (eqs 13-17): per axis and per scan, :math:`\hat S_k` = mean of the last N squared innovations
-  (eq 16 sums N+1 terms but divides by N; read as the mean of the last N, as in ``radar_env/features.py``),
+  (eq 16 sums N+1 terms but divides by N; read as the mean of the last N, as in ``radar_env/filters/features.py``),
   :math:`\phi_k = (\hat S_k - (F P_o F^T)_{11} - \sigma_w^2)/(T^4/4)` (eq 15 with Q at unit acceleration
   variance, so :math:`\phi` estimates :math:`\sigma_v^2`), :math:`\hat\sigma_v^2 = \phi_k` if
   :math:`\phi_k\ge0` else :math:`\sigma_D^2` (eq 17); then eq 5 -> eqs 6, 7 give this scan's gains.
@@ -78,7 +78,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radar_env.features import MIN_DT_S, kim_lee_variance
+from radar_env.filters.features import MIN_DT_S, kim_lee_variance
 
 __all__ = ["kalata_gains", "tracking_index", "steady_state_covariance", "noise_only_innovation_variance", "run_alpha_beta", "AlphaBetaResult"]
 

@@ -3,13 +3,13 @@ r"""Hindsight bounds: the q schedule (and turn-rate schedule) that is best for e
 ``hindsight_q`` is the ceiling of RadarTrack-v0's action space: for each episode, the whole sequence
 :math:`q_k` (one per look after the common track start) that minimises that episode's position MSE after the track
 start -- the metric the evaluation pools -- for the env's own chain (two-hit start and warm-up through
-:class:`radar_env.tracking.Tracker`, then ``F_cv(dt)``, ``Q = q_k^2 Gamma Gamma^T``, Joseph update). ``q_k`` is
+:class:`radar_env.filters.tracking.Tracker`, then ``F_cv(dt)``, ``Q = q_k^2 Gamma Gamma^T``, Joseph update). ``q_k`` is
 restricted to the action range ``[q_min, q_max]`` of ``EnvConfig.q_levels_g`` (default 0.00182 g .. 8.11 g): an
 agent of the env can only choose in that range, so a q-policy run with other levels or a rule whose q leaves the
 range (``cmin``, ``kim_lee``) is not bounded by it on every episode (``q_range_g`` widens it).
 
 ``hindsight_q_turn`` also chooses a coordinated-turn rate :math:`\omega_k` per look (prediction with
-``F_ct(dt, omega_k)``, :func:`radar_env.filters.transition_ct`), :math:`|\omega_k| \le` ``turn_rate_max_deg_s``
+``F_ct(dt, omega_k)``, :func:`radar_env.filters.kalman.transition_ct`), :math:`|\omega_k| \le` ``turn_rate_max_deg_s``
 (default 20 deg/s, the random scenario's turn-rate cap ``RandomScenarioConfig.max_turn_rate_deg_s``): how much an
 action that may also turn the prediction could add over q alone.
 
@@ -18,9 +18,9 @@ How they are computed
 The chain after the track start is written a second time as a compiled kernel (numba, float64,
 :func:`_mse_grad_rows`) that returns each episode's MSE :math:`J_b = \frac{1}{n_b}\sum_k |\hat p_k - p_k|^2` over
 its ``n_b`` scored looks *and* its exact gradient by a hand-written reverse (adjoint) pass through the same steps
-(the formulas of :mod:`radar_env.filters`: ``F x``, ``F P F^T + q^2 G`` symmetrised, Joseph update). The tests check
+(the formulas of :mod:`radar_env.filters.kalman`: ``F x``, ``F P F^T + q^2 G`` symmetrised, Joseph update). The tests check
 the forward pass against the chain and against the project's differentiable chain (:func:`torch_forward`,
-:mod:`radar_env.torch_chain`), and the gradient against torch's autograd through it (itself checked against finite
+:mod:`radar_env.filters.torch_chain`), and the gradient against torch's autograd through it (itself checked against finite
 differences in tests/test_torch_chain.py). Each episode and start is then minimised by its own L-BFGS
 (:func:`_lbfgs_rows`, batched but row-independent: a two-loop recursion and an Armijo backtracking line search per
 row) over ``s`` with :math:`\log q_k = c + h \sin s_k` (so ``q`` stays in ``[q_min, q_max]`` and reaches the bounds
@@ -41,7 +41,7 @@ The problem is not convex in ``q``: the answer is a local optimum (the best of a
 ceiling's RMSE (the true best schedule can only be better). It is a lower bound on any q-policy's RMSE only up to
 that non-convexity; tests/test_hindsight.py checks that it is below every q-policy of the comparison on every
 episode of a small suite. The reported estimates are not the kernel's: the chosen schedules are re-run through the
-library's chain (:class:`radar_env.tracking.Tracker`, :func:`chain_forward`).
+library's chain (:class:`radar_env.filters.tracking.Tracker`, :func:`chain_forward`).
 
 What it is not: a causal tracker. The schedule is fitted to the episode's own measurement noise as well as to its
 maneuvers (one or two free numbers per look), so the bounds can fall below ``clairvoyant`` (measured on 100
@@ -63,9 +63,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from radar_env.numba_cache import drop_stale_kernels, package_sources
-from radar_env.observation import DEFAULT_Q_LEVELS_G
-from radar_env.units import DEG, G0_M_S2
+from radar_env.common.numba_cache import drop_stale_kernels, package_sources
+from radar_env.envs.observation import DEFAULT_Q_LEVELS_G
+from radar_env.common.units import DEG, G0_M_S2
 
 from .trackers import _loop, _Recorder, _start, _tracker
 from .tuned_params import tuned_parameters
@@ -109,7 +109,7 @@ class HindsightInfo:
 
 def _torch_chain():
     try:
-        from radar_env import torch_chain
+        from radar_env.filters import torch_chain
     except ImportError:   # pragma: no cover - depends on the install
         raise ValueError("torch_forward needs torch (pip install -e '.[train]')") from None
     return torch_chain
@@ -167,7 +167,7 @@ class _Problem:
 # ------------------------------------------------------------------------------------------------ torch forward
 def _torch_mse(prob, log_q, omega=None):
     """Per-row position MSE after the track start, differentiable in ``log_q`` (B, J) and ``omega`` (B, J) torch
-    tensors: the project's differentiable chain (:mod:`radar_env.torch_chain`) from the problem's track start."""
+    tensors: the project's differentiable chain (:mod:`radar_env.filters.torch_chain`) from the problem's track start."""
     tc = _torch_chain()
     state, looks = tc.handover(prob.tr)
     out = tc.run(state, looks, log_q.exp(), omega)
@@ -192,7 +192,7 @@ def torch_forward(episodes, q_m_s2, turn_rate_rad_s=None, cfg=None):
 
 # ------------------------------------------------------------------------------------------------ the chain
 def chain_forward(episodes, q_m_s2, turn_rate_rad_s=None, name="hindsight_q", cfg=None):
-    """Run the library's chain (:class:`radar_env.tracking.Tracker`) with the schedule ``q_m_s2`` (B, J) (column j
+    """Run the library's chain (:class:`radar_env.filters.tracking.Tracker`) with the schedule ``q_m_s2`` (B, J) (column j
     = look ``start_b + j``) and optionally ``turn_rate_rad_s`` (B, J) (CT prediction); returns the
     :class:`TrackRun` (``extra["turn_rate_deg_s"]`` when a turn rate is given)."""
     tr, out = _tracker(list(episodes), cfg)
@@ -268,7 +268,7 @@ def _mse_grad_rows(x0, P0, dt, det, z, Rm, pos, n, lq, w, turn, want_grad):
     """Per-row position MSE after the track start and its gradient w.r.t. ``lq = log q`` (and ``w``, if ``turn``).
 
     Forward: F x, F P F^T + q^2 G symmetrised, and the Joseph update with H = [I 0] symmetrised. The chain's
-    update (radar_env.kernels._gain_update) computes the same posterior in R's principal axes with a PD floor: the
+    update (radar_env.filters.kernels._gain_update) computes the same posterior in R's principal axes with a PD floor: the
     two agree to rounding on ordinary looks and differ only where the floor acts (near-singular plots, long hard
     coasts), so a schedule optimised here is scored by the chain itself (chain_forward). Reverse: the adjoint of the same steps (matrix calculus, written out below). Rows are
     independent: a row's numbers do not depend on the other rows of the batch."""
@@ -578,7 +578,7 @@ def run_hindsight_q(episodes, name="hindsight_q", cfg=None, q_range_g=None,
     """``hindsight_q``: the best per-episode q schedule for the CV KF, chosen knowing the truth (module docstring).
 
     Args:
-        episodes: list of :class:`radar_env.episode.Episode`.
+        episodes: list of :class:`radar_env.sim.episode.Episode`.
         cfg: the env config (track start, warm-up, q levels); default the env's defaults (:func:`baselines.trackers._start`).
         q_range_g: ``(lo, hi)`` in g, the range q may take; default the action range of ``cfg.q_levels_g``.
         iterations: L-BFGS iteration limit per start (default :data:`DEFAULT_ITERATIONS`).
@@ -614,5 +614,5 @@ def run_hindsight_q_turn(episodes, name="hindsight_q_turn", cfg=None, q_range_g=
 
 
 # numba keys each cached kernel on its own file only, and these read radar_env's constants: drop the cached kernels
-# of this folder when a source of radar_env or baselines changed (radar_env.numba_cache)
+# of this folder when a source of radar_env or baselines changed (radar_env.common.numba_cache)
 drop_stale_kernels(_mm, package_sources(Path(__file__).parents[1] / "radar_env", Path(__file__).parent))

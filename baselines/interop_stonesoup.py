@@ -13,7 +13,7 @@ both needed for it to be the same filter as our ``kf_tuned``:
 
 * Stone Soup's ``ConstantVelocity`` uses the continuous white-noise acceleration covariance
   ``q_c [[dt^3/3, dt^2/2], [dt^2/2, dt]]``; our chain uses the piecewise-constant (discrete) white acceleration
-  ``q^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]`` (:func:`radar_env.filters.process_noise`). :class:`_DiscreteCV`
+  ``q^2 [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]`` (:func:`radar_env.filters.kalman.process_noise`). :class:`_DiscreteCV`
   subclasses ``ConstantVelocity`` with that covariance (``noise_diff_coeff = q^2``); its transition matrix is
   Stone Soup's.
 * Stone Soup's state order is ``[x, vx, y, vy]``, ours ``[x, y, vx, vy]``: the adapter permutes.

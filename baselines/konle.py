@@ -84,8 +84,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radar_env.features import wrap_angle
-from radar_env.filters import inv2
+from radar_env.filters.features import wrap_angle
+from radar_env.filters.kalman import inv2
 
 __all__ = ["run_konle", "KonleResult", "konle_measurement", "konle_transition", "blend_speed_heading"]
 

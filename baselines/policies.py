@@ -1,7 +1,7 @@
 """Reference policies: the papers' rules for choosing q, with the stable-baselines3 ``predict`` interface.
 
 A rule reads its features from the observation (decoded to physical units by the env's
-:class:`radar_env.observation.ObservationLayout`, so it sees exactly what an agent sees) and returns an action of
+:class:`radar_env.envs.observation.ObservationLayout`, so it sees exactly what an agent sees) and returns an action of
 the env's action space. Internally each rule computes ``q`` in m/s^2 (:meth:`ReferencePolicy.q_m_s2`); the
 action is the continuous action that maps to that q, or for a discrete env the level nearest in log10.
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from radar_env.observation import ObservationLayout
-from radar_env.units import G0_M_S2, NM_M
+from radar_env.envs.observation import ObservationLayout
+from radar_env.common.units import G0_M_S2, NM_M
 
 from .tuned_params import tuned_parameters
 

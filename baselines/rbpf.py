@@ -1,6 +1,6 @@
-"""``rbpf`` and ``rbpf_ref``: the Rao-Blackwellised particle filter of :mod:`radar_env.rbpf` run on episodes.
+"""``rbpf`` and ``rbpf_ref``: the Rao-Blackwellised particle filter of :mod:`radar_env.filters.rbpf` run on episodes.
 
-``rbpf`` is a tracker: it knows the random flights' regime laws (:class:`radar_env.scenario.RandomScenarioConfig`)
+``rbpf`` is a tracker: it knows the random flights' regime laws (:class:`radar_env.sim.scenario.RandomScenarioConfig`)
 but not where a flight started, as a deployed tracker would. ``rbpf_ref`` is the causal reference: it also uses what
 the generator says about the flight's start (its first leg's law from ``t = 0``, the number of legs), so on the
 ``random`` suite nothing causal knows more. On every other suite both are trackers with a mismatched prior.
@@ -17,9 +17,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from radar_env.rbpf import DEFAULT_RBPF, RBPFSpec, rbpf_filter
+from radar_env.filters.rbpf import DEFAULT_RBPF, RBPFSpec, rbpf_filter
 
-from .imm_cv_ct import _declared, common_start
+from .imm_cv_ct_runner import _declared, common_start
 from .trackers import TrackRun
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_REF", "episode_key", "run_rbpf"]
@@ -40,7 +40,7 @@ def run_rbpf(episodes, spec: RBPFSpec = DEFAULT_RBPF, name="rbpf", cfg=None, sta
     """The particle filter on recorded episodes from the common track start. Returns a
     :class:`baselines.trackers.TrackRun` with extra series ``maneuver_probability`` (the weight of particles off a
     straight leg), ``turn_rate_deg_s`` (the mean turn rate, straight particles counting 0) and ``ess`` (effective
-    sample size before resampling); ``start``: a :func:`baselines.imm_cv_ct.common_start` result to reuse."""
+    sample size before resampling); ``start``: a :func:`baselines.imm_cv_ct_runner.common_start` result to reuse."""
     episodes = list(episodes)
     batch, k0, x4, P4 = start if start is not None else common_start(episodes, cfg)
     B, K = batch.t_s.shape

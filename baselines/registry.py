@@ -3,7 +3,7 @@
 Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_bizup``, ``imm3_ct``, ``kf_tuned``,
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
-as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct`),
+as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct_runner`),
 ``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
 knowing the flight's start: the causal reference on ``random``),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
@@ -21,7 +21,7 @@ import re
 
 
 from . import trackers as T
-from .imm_cv_ct import run_imm_cv_ct, tuned_imm_cv_ct_spec
+from .imm_cv_ct_runner import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
 from .rbpf import RBPF_REF, run_rbpf
 from .trackers import imm2_spec_from_params
@@ -140,8 +140,8 @@ print these notes beside them, so a poor number is read as what it is."""
 
 
 def run_tracker(name, episodes, cfg=None):
-    """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.episode.Episode`). ``cfg``: the
-    track start and observation (an env config or a :class:`radar_env.tracking.TrackStart`; default the env's
+    """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.sim.episode.Episode`). ``cfg``: the
+    track start and observation (an env config or a :class:`radar_env.filters.tracking.TrackStart`; default the env's
     defaults), see :mod:`baselines.trackers`."""
     if name not in _RUNNERS:
         raise ValueError(f"unknown tracker {name!r}; valid: {list(tracker_names())}")

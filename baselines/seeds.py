@@ -44,8 +44,8 @@ def draw_random_episodes(runs, seed=TUNING_SEEDS.start):
     """
     import numpy as np
 
-    from radar_env.config import resolve_scenario
-    from radar_env.core import draw_setup_and_episode
+    from radar_env.envs.config import resolve_scenario
+    from radar_env.envs.core import draw_setup_and_episode
     if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or int(runs) < 1:
         raise ValueError(f"runs must be an integer >= 1, got {runs!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:

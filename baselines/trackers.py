@@ -1,7 +1,7 @@
 """Comparison trackers: whole filters run on recorded measurement streams, batched over episodes.
 
 Every tracker here starts exactly like the env (two-hit start, then the warm-up looks at 0.03 g, through
-:class:`radar_env.tracking.Tracker`), then runs its own logic on the same looks, and returns a :class:`TrackRun`:
+:class:`radar_env.filters.tracking.Tracker`), then runs its own logic on the same looks, and returns a :class:`TrackRun`:
 per-look estimates and covariances in the same (B, K, ...) layout, so the evaluation compares them look by look on
 identical plots (common random numbers).
 
@@ -9,15 +9,15 @@ Kinds:
 
 * :func:`run_q_policy` -- the tracking chain with q chosen each look by a function of the observation: reference
   policies (:mod:`baselines.policies`) and learned stable-baselines3 policies run through it alike.
-* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.imm_filter`).
+* :func:`run_imm` -- IMM with CV and coordinated-turn modes (:func:`radar_env.filters.kalman.imm_filter`).
 * :func:`run_turn_rate_kf` -- Adrian's KF with ``F(omega)`` fed by algorithm 1 or 2.
 * :func:`run_reinit` -- seed 002's re-initialising KF.
 * :func:`run_clairvoyant` -- the known-input KF (the physical limit) and :func:`run_oracle_q` (q = |a_true|).
 
 Each is the chain (a KF) plus a q-rule, or its own filter beside the chain behind the Tracker's cursor
 (``next_look``, ``advance``, ``set_posterior``): no runner writes the Tracker's internals. ``cfg`` of every runner
-is the common track start: a :class:`radar_env.tracking.TrackStart`, an env config with a ``track_start`` (e.g.
-:class:`radar_env.config.EnvConfig`, whose ``features`` and ``q_levels_g`` also give a q-policy's observation),
+is the common track start: a :class:`radar_env.filters.tracking.TrackStart`, an env config with a ``track_start`` (e.g.
+:class:`radar_env.envs.config.EnvConfig`, whose ``features`` and ``q_levels_g`` also give a q-policy's observation),
 or None for the defaults; the trackers' own parameters are their arguments.
 """
 
@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radar_env.detectors import DetectorBank
-from radar_env.filters import imm_filter, two_point_init
-from radar_env.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
-from radar_env.tracking import MAX_Q_M_S2, TrackStart, init_looks
-from radar_env.units import DEG, G0_M_S2
-from radar_env.validate import check_number, check_probabilities
+from radar_env.envs.detectors import DetectorBank
+from radar_env.filters.kalman import imm_filter, two_point_init
+from radar_env.envs.observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
+from radar_env.filters.tracking import MAX_Q_M_S2, TrackStart, init_looks
+from radar_env.common.units import DEG, G0_M_S2
+from radar_env.common.validate import check_number, check_probabilities
 
 from .tuned_params import param, tuned_parameters
 
@@ -67,8 +67,8 @@ class TrackRun:
 
 
 def _start(cfg):
-    """The common track start of ``cfg``: a :class:`radar_env.tracking.TrackStart`, an env config (anything with a
-    ``track_start``, e.g. :class:`radar_env.config.EnvConfig`), or None (the defaults)."""
+    """The common track start of ``cfg``: a :class:`radar_env.filters.tracking.TrackStart`, an env config (anything with a
+    ``track_start``, e.g. :class:`radar_env.envs.config.EnvConfig`), or None (the defaults)."""
     if cfg is None:
         return TrackStart()
     return cfg if isinstance(cfg, TrackStart) else cfg.track_start
@@ -86,8 +86,8 @@ def _read_only(out):
 
 
 def _tracker(episodes, cfg, known_input=False):
-    """A :class:`radar_env.tracking.Tracker` whose rows have started ``episodes`` (two-hit start and warm-up) and
-    the last warm-up :class:`radar_env.tracking.StepOutput` (read-only: runners share it).
+    """A :class:`radar_env.filters.tracking.Tracker` whose rows have started ``episodes`` (two-hit start and warm-up) and
+    the last warm-up :class:`radar_env.filters.tracking.StepOutput` (read-only: runners share it).
 
     An evaluation runs every tracker on the same episodes, so the last start is kept (with the episode objects
     themselves, whose ids key it) and the next tracker on the same episodes and start gets a deep copy of the
@@ -254,7 +254,7 @@ IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
 def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
     """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate), then
     runs as a separate filter on the chain's looks: every look of every row in one compiled call
-    (:func:`radar_env.filters.imm_filter`, the look-by-look :func:`radar_env.filters.imm_step` bit for bit)."""
+    (:func:`radar_env.filters.kalman.imm_filter`, the look-by-look :func:`radar_env.filters.kalman.imm_step` bit for bit)."""
     tr, out = _tracker(episodes, cfg)
     B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
     rows = np.arange(B)
@@ -403,7 +403,7 @@ def run_alpha_beta_tracker(episodes, adaptive=False, q_m_s2=None, name=None, cfg
     ``q_max_m_s2`` (default the largest q level of ``cfg`` or of the env's defaults: the largest q any q-chooser
     of the comparison may use). The alpha-beta starts from its own two-plot start; metrics use the same looks as
     every other tracker."""
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
 
     from .alpha_beta import run_alpha_beta
 
@@ -426,7 +426,7 @@ def run_konle_tracker(episodes, q_m_s2=None, weight=0.75, name="konle", cfg=None
     beside the position KF (the tracking chain at ``q``, default the tuned constant q) and replacing ``weight``
     (75%) of the KF's speed and heading after every look (``Tracker.set_posterior``). The KF covariance is left as
     the KF computed it."""
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
 
     from .konle import blend_speed_heading, run_konle
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from radar_env.units import G0_M_S2
+from radar_env.common.units import G0_M_S2
 
 __all__ = ["TUNED_PATH", "tuned_parameters", "param", "kf_q_m_s2_from_params"]
 

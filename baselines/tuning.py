@@ -15,7 +15,7 @@ optimizer (:func:`minimize_with_restarts`):
   meaning; an optimum on a bound marked ``search bound`` (not a physical limit) is reported as such.
 
 Tuned trackers (:data:`TUNED_TRACKERS`): ``kf`` (``kf_tuned``'s constant q), ``imm2`` (the 2-mode CV IMM's two mode
-noises and two stay probabilities), ``imm_cv_ct`` (from ``baselines.imm_cv_ct``; skipped with a message if that
+noises and two stay probabilities), ``imm_cv_ct`` (from ``baselines.imm_cv_ct_runner``; skipped with a message if that
 module or its tuning interface is not there). The 2-mode IMM as tuned by the grid search of earlier versions is
 kept as ``imm2_grid`` (:data:`IMM2_GRID_PARAMS`, its RMSE re-measured on each run), so a change is visible.
 
@@ -38,8 +38,8 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize
 
-from radar_env.config import EnvConfig
-from radar_env.episode import stack_episodes
+from radar_env.envs.config import EnvConfig
+from radar_env.sim.episode import stack_episodes
 
 from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes
@@ -232,21 +232,21 @@ Registered as ``imm2_grid``."""
 
 
 def _imm_cv_ct_entry():
-    """The ``imm_cv_ct`` entry, built from ``baselines.imm_cv_ct`` (engineer I's module) if it offers:
+    """The ``imm_cv_ct`` entry, built from ``baselines.imm_cv_ct_runner`` (engineer I's module) if it offers:
     ``imm_cv_ct_spec_from_params(dict)``, ``run_imm_cv_ct(episodes, spec, name, cfg[, start])``, the parameter
     table ``IMM_CV_CT_PARAMS`` (rows ``(name, unit, low, high, log_scale)``: ``log`` space if ``log_scale``, else
     ``logit``: the probabilities; the bounds are the valid ranges its spec accepts) and ``DEFAULT_IMM_CV_CT`` (a
     dataclass: the first start; a ``None`` value starts at the geometric mean of its bounds).
     Returns ``(entry, None)`` or ``(None, why it is skipped)``."""
     try:
-        from . import imm_cv_ct as mod
+        from . import imm_cv_ct_runner as mod
     except ImportError as e:
-        return None, f"baselines.imm_cv_ct is not importable ({e})"
+        return None, f"baselines.imm_cv_ct_runner is not importable ({e})"
     missing = [a for a in ("imm_cv_ct_spec_from_params", "run_imm_cv_ct", "IMM_CV_CT_PARAMS", "DEFAULT_IMM_CV_CT")
                if not hasattr(mod, a)]
     if missing:
-        return None, f"baselines.imm_cv_ct has no {', '.join(missing)} (the tuning interface)"
-    where = "the valid range of baselines.imm_cv_ct.IMMCVCTSpec"
+        return None, f"baselines.imm_cv_ct_runner has no {', '.join(missing)} (the tuning interface)"
+    where = "the valid range of baselines.imm_cv_ct_runner.IMMCVCTSpec"
     params = tuple(Param(name, float(lo), float(hi), "log" if log_scale else "logit", where, where)
                    for name, _unit, lo, hi, log_scale in mod.IMM_CV_CT_PARAMS)
     x0 = {}

@@ -76,13 +76,13 @@ class UserTracker(Protocol):
 
 
 def looks_of(episode) -> Looks:
-    """The :class:`Looks` of an :class:`radar_env.episode.Episode` (copies: a tracker cannot alter the episode)."""
+    """The :class:`Looks` of an :class:`radar_env.sim.episode.Episode` (copies: a tracker cannot alter the episode)."""
     return Looks(**{f: np.array(getattr(episode, f)) for f in Looks._fields})
 
 
 def common_track_start(episodes, cfg=None):
     """The common track start of each episode (list of :class:`TrackStart`), computed by the tracking chain
-    (:meth:`radar_env.tracking.Tracker.load`) exactly as for the built-in trackers."""
+    (:meth:`radar_env.filters.tracking.Tracker.load`) exactly as for the built-in trackers."""
     episodes = list(episodes)
     tr = _start(cfg).tracker(len(episodes))
     out = tr.load(np.arange(len(episodes)), episodes)

@@ -1,4 +1,4 @@
-"""Episodes per second of the batched drawer (radar_env.draws) and of the per-episode drawer it replaced.
+"""Episodes per second of the batched drawer (radar_env.sim.draws) and of the per-episode drawer it replaced.
 
 Run by hand: ``python benchmarks/bench_draws.py [--rows 1024] [--repeats 3]``. For each scenario (``random``,
 ``random_radars``, ``bizup2002``) it draws ``rows`` episodes (one generator per row, as the vector env's rows)
@@ -19,10 +19,10 @@ import time
 
 import numpy as np
 
-from radar_env.catalog import make_setup
-from radar_env.draws import MAX_EPISODE_DRAWS, draw_episodes
-from radar_env.episode import draw_episode
-from radar_env.tracking import looks_for_track_start
+from radar_env.sim.catalog import make_setup
+from radar_env.sim.draws import MAX_EPISODE_DRAWS, draw_episodes
+from radar_env.sim.episode import draw_episode
+from radar_env.filters.tracking import looks_for_track_start
 
 
 def per_episode(name, rng, warmup_scans=12):

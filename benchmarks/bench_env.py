@@ -55,11 +55,11 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 import radar_env  # noqa: E402,F401  (registers RadarTrack-v0)
-from radar_env.catalog import make_setup  # noqa: E402
-from radar_env.env import RadarTrackVectorEnv  # noqa: E402
-from radar_env.episode import draw_episode  # noqa: E402
-from radar_env.tracking import Tracker  # noqa: E402
-from radar_env.units import G0_M_S2  # noqa: E402
+from radar_env.sim.catalog import make_setup  # noqa: E402
+from radar_env.envs.env import RadarTrackVectorEnv  # noqa: E402
+from radar_env.sim.episode import draw_episode  # noqa: E402
+from radar_env.filters.tracking import Tracker  # noqa: E402
+from radar_env.common.units import G0_M_S2  # noqa: E402
 
 DEFAULT_NUM_ENVS = (1, 16, 64, 256, 1024, 4096)
 _ACTION_POOL = 64     # random actions drawn beforehand and cycled through
@@ -190,8 +190,8 @@ t0 = time.perf_counter()
 import gymnasium as gym
 import numpy as np
 import radar_env
-from radar_env.env import RadarTrackVectorEnv
-from radar_env import filters as kf
+from radar_env.envs.env import RadarTrackVectorEnv
+from radar_env.filters import kalman as kf
 t1 = time.perf_counter()
 env = gym.make("RadarTrack-v0")
 env.reset(seed=0)
@@ -228,7 +228,7 @@ def status_mb(key):   # VmRSS: resident now; VmHWM: this process's peak (getrusa
             return int(line.split()[1]) / 1024.0
     return float("nan")
 rss_mb = lambda: status_mb("VmRSS")
-from radar_env.env import RadarTrackVectorEnv
+from radar_env.envs.env import RadarTrackVectorEnv
 base = rss_mb()
 venv = RadarTrackVectorEnv(num_envs=%d)
 venv.reset(seed=0)

@@ -19,7 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_env as B  # noqa: E402
-from radar_env.observation import DEFAULT_FEATURES, DETECTOR_FEATURES  # noqa: E402
+from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES  # noqa: E402
 
 
 def main(argv=None):

@@ -24,7 +24,7 @@ from agents.evaluation.metrics import ratio_ci, score_run
 from agents.evaluation.suites import draw_suite
 from baselines.rbpf import DEFAULT_RBPF, RBPF_REF, run_rbpf
 from baselines.registry import run_tracker
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 
 def _pooled(batch, score):

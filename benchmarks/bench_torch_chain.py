@@ -1,8 +1,8 @@
-"""Speed of the differentiable chain (radar_env.torch_chain): forward + backward through the filter, single thread.
+"""Speed of the differentiable chain (radar_env.filters.torch_chain): forward + backward through the filter, single thread.
 
 Run by hand from the repository root: ``python benchmarks/bench_torch_chain.py [--batch 1000] [--chunk 40]
 [--repeats 3] [--json PATH]``. With ``torch.set_num_threads(1)`` it draws ``--batch`` random-suite episodes
-(``radar_env.draws.draw_episodes``), starts their tracks in a numba Tracker, hands them over
+(``radar_env.sim.draws.draw_episodes``), starts their tracks in a numba Tracker, hands them over
 (``torch_chain.handover``) and times, per pass over every look of every episode (best of ``--repeats``):
 
 * ``full``: ``run`` over all looks, then ``pooled_position_mse(...).backward()`` (gradient w.r.t. log q per look);
@@ -39,10 +39,10 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from radar_env import torch_chain as tc  # noqa: E402
-from radar_env.draws import draw_episodes  # noqa: E402
-from radar_env.tracking import TrackStart  # noqa: E402
-from radar_env.units import DEG, G0_M_S2  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
+from radar_env.sim.draws import draw_episodes  # noqa: E402
+from radar_env.filters.tracking import TrackStart  # noqa: E402
+from radar_env.common.units import DEG, G0_M_S2  # noqa: E402
 
 MODES = ("full", "tbptt", "step", "turn", "forward")
 

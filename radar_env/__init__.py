@@ -1,9 +1,14 @@
 """radar-track-gym: simulation, shared filter math and the RadarTrack-v0 Gymnasium environment.
 
+The sub-packages follow the chain, each importing only the ones before it: ``common`` (units, validation, numba
+cache) -> ``sim`` (flights, radar, episodes, packed looks) -> ``filters`` (compiled chain: Kalman, IMM, feature
+bank, preview; torch forward) -> ``envs`` (Gymnasium layer); ``applications`` and ``render`` sit beside them.
+
 Importing the package registers ``RadarTrack-v0`` (idempotent); ``gym.make("radar_env:RadarTrack-v0")`` works
-without importing it first. Only the Gymnasium layer (``radar_env.env``, ``single_env``, ``vector_env``) needs
+without importing it first. Only the Gymnasium layer (``radar_env.envs.env``, ``single_env``, ``vector_env``) needs
 gymnasium: without it the package still imports, registers nothing, and the simulation, filter, tracking and
-feature modules (and the env's configuration and batched core) work.
+feature modules (and the env's configuration and batched core) work. The old flat module paths
+(``radar_env.episode``, ...) still import for one release, with a DeprecationWarning (``radar_env._moved``).
 """
 
 __version__ = "0.1.0"
@@ -17,9 +22,13 @@ def _register():
     if "RadarTrack-v0" not in registry:
         register(
             id="RadarTrack-v0",
-            entry_point="radar_env.env:RadarTrackEnv",
-            vector_entry_point="radar_env.env:RadarTrackVectorEnv",
+            entry_point="radar_env.envs.env:RadarTrackEnv",
+            vector_entry_point="radar_env.envs.env:RadarTrackVectorEnv",
         )
 
 
 _register()
+
+from ._moved import MOVED as _MOVED, install as _install  # noqa: E402
+
+_install(_MOVED)

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radar_env.units import DEG, KNOT_M_S, NM_M
+from radar_env.common.units import DEG, KNOT_M_S, NM_M
 
 __all__ = [
     "ClosestApproach",

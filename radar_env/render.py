@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .units import G0_M_S2
+from .common.units import G0_M_S2
 
 __all__ = ["render_frame", "FRAME_SHAPE", "human_display_problem"]
 
@@ -81,7 +81,7 @@ def _site_off_view(ax, centre, half, site):
 
 
 def render_frame(env):
-    """Draw the current state of ``env`` (a :class:`radar_env.env.RadarTrackEnv`)."""
+    """Draw the current state of ``env`` (a :class:`radar_env.envs.env.RadarTrackEnv`)."""
     _, Figure, FigureCanvasAgg = _import_matplotlib()
     st = env._render_state()
     if getattr(env, "_fig", None) is None:

@@ -1,6 +1,6 @@
 """Convert the navaid-calibration sample flights of the ``traffic`` library into ``radar_env/data/adsb/``.
 
-Development script (it uses pandas); the runtime loader :mod:`radar_env.adsb` needs only stdlib + numpy + scipy.
+Development script (it uses pandas); the runtime loader :mod:`radar_env.sim.adsb` needs only stdlib + numpy + scipy.
 
 Source
 ------

@@ -24,7 +24,7 @@ from agents.evaluation.metrics import ratio_ci
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 SUITES = {"random": 400, "random_radars": 200, "bizup2002": 20, "adrian_flower": 4, "kim_lee_accel": 20,
           "seed002_course_changes": 20, "seed002_two_radars": 20, "adsb_dev": 12}

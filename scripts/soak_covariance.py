@@ -28,10 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from radar_env.draws import draw_episodes  # noqa: E402
-from radar_env.env import RadarTrackVectorEnv  # noqa: E402
-from radar_env.radar import Radar, RadarSite  # noqa: E402
-from radar_env.scenario import ScenarioBuilder  # noqa: E402
+from radar_env.sim.draws import draw_episodes  # noqa: E402
+from radar_env.envs.env import RadarTrackVectorEnv  # noqa: E402
+from radar_env.sim.radar import Radar, RadarSite  # noqa: E402
+from radar_env.sim.scenario import ScenarioBuilder  # noqa: E402
 
 EXTREMES = {
     "scan_period_s": (0.01, 12.0, 3600.0),
@@ -108,7 +108,7 @@ def soak_corner(site, seconds, num_envs, seed, action_type="discrete"):
 def soak_imms(site, runs, seed):
     """The IMMs on ``runs`` episodes drawn with ``site``: ``(looks, failures, first_failure)``."""
     from baselines.registry import run_tracker
-    from radar_env.env import EnvConfig
+    from radar_env.envs.env import EnvConfig
 
     warmup = 1 if site.scan_period_s > 60 else 12
     try:

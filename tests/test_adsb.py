@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from radar_env import adsb
+from radar_env.sim import adsb
 
 HEADER = "t_s,lat_deg,lon_deg,alt_m,groundspeed_m_s,track_deg"
 R_EARTH_M = 6371008.8

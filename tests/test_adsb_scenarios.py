@@ -6,9 +6,9 @@ import pytest
 
 import radar_env  # noqa: F401
 from agents.evaluation.suites import draw_suite
-from radar_env.adsb import list_flights
-from radar_env.adsb_scenarios import AdsbPool, resolve_adsb
-from radar_env.radar import polar_from_cartesian
+from radar_env.sim.adsb import list_flights
+from radar_env.sim.adsb_scenarios import AdsbPool, resolve_adsb
+from radar_env.sim.radar import polar_from_cartesian
 
 
 def test_named_flight_is_a_setup_with_the_radar_in_range():

@@ -5,7 +5,7 @@ import pytest
 
 from baselines.alpha_beta import (kalata_gains, noise_only_innovation_variance, run_alpha_beta,
                                   steady_state_covariance, tracking_index)
-from radar_env import filters
+from radar_env.filters import kalman
 
 G0 = 9.80665
 
@@ -26,12 +26,12 @@ def test_gains_eqs_6_7_8_and_stability():
 def test_kalata_equals_steady_state_kf(q, sigma, T):
     x = np.zeros((1, 4))
     P = np.eye(4)[None] * 1e6
-    F, Q = filters.transition_cv(T), filters.process_noise(T, q)
+    F, Q = kalman.transition_cv(T), kalman.process_noise(T, q)
     R = np.eye(2)[None] * sigma**2
     for _ in range(3000):
-        x, P = filters.predict(x, P, F, Q)
+        x, P = kalman.predict(x, P, F, Q)
         P_pr = P
-        P = filters.update(x, P, np.zeros((1, 2)), R).P
+        P = kalman.update(x, P, np.zeros((1, 2)), R).P
     K = P_pr[0, :, :2] @ np.linalg.inv(P_pr[0, :2, :2] + R[0])
     a, b = kalata_gains(tracking_index(q, sigma, T))
     np.testing.assert_allclose([K[0, 0], K[2, 0]], [a, b / T], rtol=1e-6)

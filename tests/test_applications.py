@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from radar_env import applications as ap
-from radar_env.units import KNOT_M_S, NM_M
+from radar_env.common.units import KNOT_M_S, NM_M
 
 
 def _random_pairs(rng, B):

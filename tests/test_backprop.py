@@ -26,8 +26,8 @@ from agents.training.runs import load_hyperparams  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
 from baselines.trackers import run_q_policy  # noqa: E402
 from baselines.tuned_params import tuned_parameters  # noqa: E402
-from radar_env.core import draw_setup_and_episode  # noqa: E402
-from radar_env.units import G0_M_S2  # noqa: E402
+from radar_env.envs.core import draw_setup_and_episode  # noqa: E402
+from radar_env.common.units import G0_M_S2  # noqa: E402
 
 
 def _hp(**over):

@@ -10,13 +10,13 @@ from agents.evaluation.suites import draw_suite
 from baselines import trackers as T
 from baselines.policies import CKFPolicy, CminPolicy, POLICY_NAMES, make_policy
 from baselines.registry import POLICY_TRACKERS, TRACKER_NAMES, run_tracker
-from radar_env.catalog import SCENARIO_NAMES
-from radar_env.env import EnvConfig
-from radar_env.episode import stack_episodes
-from radar_env.filters import process_noise, transition_cv
-from radar_env.observation import PAST_FEATURES, ObservationLayout
-from radar_env.tracking import Tracker
-from radar_env.units import G0_M_S2
+from radar_env.sim.catalog import SCENARIO_NAMES
+from radar_env.envs.env import EnvConfig
+from radar_env.sim.episode import stack_episodes
+from radar_env.filters.kalman import process_noise, transition_cv
+from radar_env.envs.observation import PAST_FEATURES, ObservationLayout
+from radar_env.filters.tracking import Tracker
+from radar_env.common.units import G0_M_S2
 
 CFG = EnvConfig()
 LEVELS = np.asarray(CFG.q_levels_g) * G0_M_S2

@@ -8,11 +8,11 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 from scipy import stats
 
-from radar_env.catalog import make_setup
-from radar_env.episode import Episode, draw_episode
-from radar_env.radar import converted_covariance, polar_from_cartesian
-from radar_env.tracking import MAX_Q_M_S2, Tracker
-from radar_env.units import DEG, G0_M_S2
+from radar_env.sim.catalog import make_setup
+from radar_env.sim.episode import Episode, draw_episode
+from radar_env.sim.radar import converted_covariance, polar_from_cartesian
+from radar_env.filters.tracking import MAX_Q_M_S2, Tracker
+from radar_env.common.units import DEG, G0_M_S2
 
 WARMUP_Q_M_S2 = 0.03 * G0_M_S2   # the chain's documented warm-up level (Bizup's track start)
 WARMUP_SCANS = 12                # and its documented number of warm-up looks

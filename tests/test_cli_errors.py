@@ -16,7 +16,7 @@ from agents.evaluation import evaluate as ev
 from agents.evaluation.suites import draw_suite
 from agents.training.train import _tb_scalars, load_hyperparams
 from agents.training.train import main as train_main
-from radar_env.radar import atc_radar
+from radar_env.sim.radar import atc_radar
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["--no-plots", "--quiet"]
@@ -44,7 +44,7 @@ def _tiny_model(tmp_path, algo="PPO", **env_kwargs):
     """An untrained SB3 model of RadarTrack-v0 saved as <tmp>/<algo>/policy.zip (no env_config.json)."""
     import stable_baselines3 as sb3
 
-    from radar_env.env import RadarTrackEnv
+    from radar_env.envs.env import RadarTrackEnv
     env = RadarTrackEnv(**env_kwargs)
     kw = {"learning_starts": 0, "buffer_size": 100} if algo == "DQN" else {"n_steps": 16, "batch_size": 16}
     model = getattr(sb3, algo)("MlpPolicy", env, device="cpu", seed=0, policy_kwargs={"net_arch": [8]}, **kw)

@@ -71,7 +71,7 @@ def test_help_states_the_real_defaults():
     from agents.evaluation.evaluate import DEFAULT_SUITES as used_suites, DEFAULT_TRACKERS as used_trackers
     from agents.training.train import load_hyperparams
     from baselines.seeds import EVAL_SEED_BASE
-    from radar_env.scenario import RADAR_PLACEMENT_RANGE_M
+    from radar_env.sim.scenario import RADAR_PLACEMENT_RANGE_M
     assert tuple(v * 1e3 for v in RADAR_RANGE_HELP_KM) == RADAR_PLACEMENT_RANGE_M
     assert used_suites == DEFAULT_SUITES and used_trackers == DEFAULT_TRACKERS
     p = _parsers()
@@ -114,7 +114,7 @@ def test_first_line_comes_before_the_slow_imports(args, words):
 def test_list_prints_every_suite_and_tracker(capsys):
     from agents.evaluation.evaluate import main
     from baselines.registry import TRACKER_NAMES
-    from radar_env.catalog import SCENARIO_NAMES
+    from radar_env.sim.catalog import SCENARIO_NAMES
     assert main(["--list"]) == {}
     out = capsys.readouterr().out
     for name in list(SCENARIO_NAMES) + list(TRACKER_NAMES) + ["encounters", "adsb_heldout"]:
@@ -162,7 +162,7 @@ def test_write_plots_has_its_own_bar(tmp_path, capsys):
     from agents.evaluation.evaluate import write_plots
     from agents.evaluation.suites import draw_suite, run_scenario
     from baselines.registry import run_tracker
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     eps = draw_suite("bizup2002", 2, seed=7)
     runs = {"bizup2002": (stack_episodes(eps), {t: run_tracker(t, eps) for t in ("kf_low", "cmin")})}
     files = write_plots(runs, tmp_path, {"bizup2002": run_scenario("bizup2002", 7)}, progress=True)

@@ -21,9 +21,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from radar_env import env_kernels as ek, filters as kf
-from radar_env.env import RadarTrackEnv
-from radar_env.radar import Radar, RadarSite, converted_covariance
+from radar_env.envs import env_kernels as ek
+from radar_env.filters import kalman as kf
+from radar_env.envs.env import RadarTrackEnv
+from radar_env.sim.radar import Radar, RadarSite, converted_covariance
 
 SOAK = Path(__file__).resolve().parents[1] / "scripts" / "soak_covariance.py"
 

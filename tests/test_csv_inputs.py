@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, event, given, settings, strategies as st
 
 import radar_env  # noqa: F401
 from agents.evaluation.evaluate import main as evaluate_main
-from radar_env.env import draw_setup_and_episode
-from radar_env.scenario import (TRAJECTORY_COLUMNS, TRAJECTORY_MAX_ACCEL_G, ScenarioBuilder, TrajectoryScenario)
-from radar_env.units import G0_M_S2
+from radar_env.envs.env import draw_setup_and_episode
+from radar_env.sim.scenario import (TRAJECTORY_COLUMNS, TRAJECTORY_MAX_ACCEL_G, ScenarioBuilder, TrajectoryScenario)
+from radar_env.common.units import G0_M_S2
 
 HEADER = ",".join(TRAJECTORY_COLUMNS)
 

@@ -1,4 +1,4 @@
-"""The default env's optional detector features (radar_env.detectors): off by default, equal to what the imm_cv_ct
+"""The default env's optional detector features (radar_env.envs.detectors): off by default, equal to what the imm_cv_ct
 and imm2 trackers compute on the same episode (imm2 against the independent 4-state IMM), independent of the
 actions, the same in the evaluation's lockstep (run_q_policy) and the vector env, refused where unsupported."""
 
@@ -12,13 +12,13 @@ from gymnasium.utils import seeding
 from gymnasium.utils.env_checker import check_env
 
 import radar_env  # noqa: F401  (registers RadarTrack-v0)
-from baselines.imm_cv_ct import _start_state, common_start, imm_cv_ct_filter, tuned_imm_cv_ct_spec
+from baselines.imm_cv_ct_runner import _start_state, common_start, imm_cv_ct_filter, tuned_imm_cv_ct_spec
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
 from baselines.tuned_params import tuned_parameters
-from radar_env.detectors import DetectorBank, detector_imm2_parameters
-from radar_env.draws import draw_episodes
-from radar_env.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, FEATURE_SPECS, ObservationLayout
+from radar_env.envs.detectors import DetectorBank, detector_imm2_parameters
+from radar_env.sim.draws import draw_episodes
+from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, FEATURE_SPECS, ObservationLayout
 
 WITH = DEFAULT_FEATURES + DETECTOR_FEATURES
 
@@ -56,7 +56,7 @@ def test_off_by_default_and_the_copy_of_imm2_is_the_tuned_one():
 @pytest.mark.parametrize("seed,scenario", [(0, "random"), (7, "random"), (3, "bizup2002")])
 def test_the_features_are_imm_cv_ct_and_imm2_on_the_same_episode(seed, scenario):
     """Every look: the CT probability and turn rate are imm_cv_ct_filter's from the common start (1e-9), the
-    high-noise probability is the imm2 tracker's (the independent 4-state IMM of radar_env.filters, 1e-9); the
+    high-noise probability is the imm2 tracker's (the independent 4-state IMM of radar_env.filters.kalman, 1e-9); the
     observation holds them scaled as FEATURE_SPECS says. At the reset: the initial values."""
     env = gym.make("RadarTrack-v0", features=WITH, scenario=scenario)
     obs, vals = _rollout(env, seed, lambda i: 4)
@@ -182,7 +182,7 @@ def test_refusals():
         gym.make("RadarTrack-v0", tracker="imm_cv_ct", features=DEFAULT_FEATURES + ("imm_ct_prob",))
     lay = ObservationLayout(WITH)
     assert lay.uses_detectors and not ObservationLayout(DEFAULT_FEATURES).uses_detectors
-    tr = radar_env.config.EnvConfig().track_start.tracker(1)
+    tr = radar_env.envs.config.EnvConfig().track_start.tracker(1)
     out = tr.load([0], [_episode(0)])
     with pytest.raises(ValueError, match="detectors must be the"):
         lay.encode(out, np.zeros(1))

@@ -7,8 +7,8 @@ from agents.evaluation.downstream import LEAD_AFTER_TURN_S, T_CPA_S, intercept_m
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import TrackRun
-from radar_env.episode import stack_episodes
-from radar_env.units import NM_M
+from radar_env.sim.episode import stack_episodes
+from radar_env.common.units import NM_M
 
 
 def test_encounters_have_prescribed_closest_approach_after_the_turn():

@@ -1,4 +1,4 @@
-"""radar_env.draws: batched == per-row, reproducibility, the padding of stack_episodes, the kernels' truth and
+"""radar_env.sim.draws: batched == per-row, reproducibility, the padding of stack_episodes, the kernels' truth and
 placement against the reference code, plot statistics, and the random distributions against the per-episode
 drawer (two-sample KS tests, fixed seeds)."""
 
@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 from scipy.stats import ks_2samp
 
-from radar_env import draws
-from radar_env.catalog import Setup, make_setup
-from radar_env.draws import draw_episodes, random_scenarios
-from radar_env.episode import _ARRAY_FIELDS, draw_episode, stack_episodes
-from radar_env.radar import atc_radar, converted_covariance, polar_from_cartesian
-from radar_env.scenario import RandomScenarioConfig, ScenarioBuilder, place_radar_site
-from radar_env.tracking import looks_for_track_start
-from radar_env.units import G0_M_S2
+from radar_env.sim import draws
+from radar_env.sim.catalog import Setup, make_setup
+from radar_env.sim.draws import draw_episodes, random_scenarios
+from radar_env.sim.episode import _ARRAY_FIELDS, draw_episode, stack_episodes
+from radar_env.sim.radar import atc_radar, converted_covariance, polar_from_cartesian
+from radar_env.sim.scenario import RandomScenarioConfig, ScenarioBuilder, place_radar_site
+from radar_env.filters.tracking import looks_for_track_start
+from radar_env.common.units import G0_M_S2
 
 MEASURED = ("range_m", "bearing_rad", "radial_velocity_m_s", "z_m", "R_m2")
 
@@ -106,11 +106,11 @@ def test_random_truth_and_schedule_equal_the_reference_code(name):
         np.testing.assert_allclose(e.truth_accel_m_s2, sc.accelerations_at(e.t_s), rtol=1e-9, atol=1e-9)
         assert np.array_equal(e.truth_turn_rate_rad_s, sc.turn_rates_at(e.t_s))
         assert np.array_equal(e.maneuvering, sc.maneuvering_at(e.t_s))
-        from radar_env.radar import Radar, RadarSite
+        from radar_env.sim.radar import Radar, RadarSite
         radar = Radar(tuple(RadarSite(position_m=(s[0], s[1]), scan_period_s=s[2], range_noise_std_m=s[3],
                                       bearing_noise_std_rad=s[4], radial_velocity_noise_std_m_s=s[5],
                                       detection_probability=s[6], first_scan_s=s[9]) for s in sites))
-        from radar_env.radar import scan_schedule
+        from radar_env.sim.radar import scan_schedule
         t, idx = scan_schedule(radar, sc.duration_s)
         assert np.array_equal(t, e.t_s) and np.array_equal(idx, e.site_index)
         tg = np.arange(0.0, sc.duration_s, 1.0)

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 import radar_env
-from radar_env.draws import LookDrawer
-from radar_env.kernels import L_MAN, L_TACC, L_TRUTH, L_TTURN
-import radar_env.env as renv
-from radar_env.catalog import make_setup
-from radar_env.radar import atc_radar
-from radar_env.env import DEFAULT_Q_LEVELS_G, RadarTrackEnv, RadarTrackVectorEnv
-from radar_env.observation import DEFAULT_FEATURES
-from radar_env.units import G0_M_S2
+from radar_env.sim.draws import LookDrawer
+from radar_env.sim.looks import L_MAN, L_TACC, L_TRUTH, L_TTURN
+import radar_env.envs.env as renv
+from radar_env.sim.catalog import make_setup
+from radar_env.sim.radar import atc_radar
+from radar_env.envs.env import DEFAULT_Q_LEVELS_G, RadarTrackEnv, RadarTrackVectorEnv
+from radar_env.envs.observation import DEFAULT_FEATURES
+from radar_env.common.units import G0_M_S2
 
 ENV_ID = "RadarTrack-v0"
 INFO_KEYS = {"truth", "estimate", "covariance", "measurement", "measurement_covariance", "polar", "q_m_s2", "dt",
@@ -61,7 +61,7 @@ def _rollout(env, seed, n_episodes=2, action_seed=123, options=None):
 def test_make_after_import():
     env = gym.make(ENV_ID)
     assert isinstance(env.unwrapped, RadarTrackEnv)
-    assert env.spec.vector_entry_point == "radar_env.env:RadarTrackVectorEnv"
+    assert env.spec.vector_entry_point == "radar_env.envs.env:RadarTrackVectorEnv"
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
 
@@ -211,7 +211,7 @@ def test_observation_does_not_depend_on_truth(monkeypatch):
         return out
 
     ref = run()
-    orig = LookDrawer.draw   # the core draws its episodes straight into the tracker's looks (radar_env.draws)
+    orig = LookDrawer.draw   # the core draws its episodes straight into the tracker's looks (radar_env.sim.draws)
 
     def perturbed(self, keys, rows, tracker):
         orig(self, keys, rows, tracker)
@@ -539,12 +539,12 @@ def test_max_episode_steps_truncates_like_time_limit():
 
 
 def test_documented_observation_tables_match_the_feature_specs():
-    """The observation tables users read (RadarTrackEnv's docstring, radar_env.observation's module docstring) list
+    """The observation tables users read (RadarTrackEnv's docstring, radar_env.envs.observation's module docstring) list
     every feature of FEATURE_SPECS, in order, with its index, unit range and scale."""
     import re
 
-    import radar_env.observation as obs_mod
-    from radar_env.observation import FEATURE_SPECS
+    import radar_env.envs.observation as obs_mod
+    from radar_env.envs.observation import FEATURE_SPECS
     names = list(FEATURE_SPECS)
     rows = re.findall(r"^\s*\| (\d+) \| (\w+):.*\| ([^|]+) \| (-?\d+) \| (-?\d+) \|$", RadarTrackEnv.__doc__, re.M)
     assert [r[1] for r in rows] == names and [int(r[0]) for r in rows] == list(range(len(names)))

@@ -1,4 +1,4 @@
-"""RadarTrack-v0 with tracker="imm_cv_ct" (radar_env.imm_env): the zero action is the imm_cv_ct tracker, any action
+"""RadarTrack-v0 with tracker="imm_cv_ct" (radar_env.envs.imm_env): the zero action is the imm_cv_ct tracker, any action
 is the IMM stepped with the mapped parameters beside the env's own feature chain, the map stays in the ranges, the
 env is reproducible, passes Gymnasium's checker, stays finite and SPD under random actions, and refuses what it
 does not support."""
@@ -13,21 +13,21 @@ from gymnasium.utils import seeding
 from gymnasium.utils.env_checker import check_env
 
 import radar_env  # noqa: F401  (registers RadarTrack-v0)
-from baselines.imm_cv_ct import IMMCVCTStepper, check_look_parameters, tuned_imm_cv_ct_spec
+from baselines.imm_cv_ct_runner import IMMCVCTStepper, check_look_parameters, tuned_imm_cv_ct_spec
 from baselines.registry import run_tracker
 from baselines.tuned_params import tuned_parameters
-from radar_env.draws import draw_episodes
-from radar_env.episode import stack_episodes
-from radar_env.imm_cv_ct import IMM_CV_CT_PARAMS, detector_inputs, look_parameter_names
-from radar_env.imm_env import IMMActionMap, imm_env_defaults
-from radar_env.observation import ObservationLayout, measurement_sigma_m
-from radar_env.units import DEG, G0_M_S2
+from radar_env.sim.draws import draw_episodes
+from radar_env.sim.episode import stack_episodes
+from radar_env.filters.imm_cv_ct import IMM_CV_CT_PARAMS, detector_inputs, look_parameter_names
+from radar_env.envs.imm_env import IMMActionMap, imm_env_defaults
+from radar_env.envs.observation import ObservationLayout, measurement_sigma_m
+from radar_env.common.units import DEG, G0_M_S2
 
 IMM = dict(tracker="imm_cv_ct")
 
 
 def _episode(seed, scenario="random"):
-    """The episode a single env reset with ``seed`` draws (radar_env.draws; tests/test_env_kernel.py)."""
+    """The episode a single env reset with ``seed`` draws (radar_env.sim.draws; tests/test_env_kernel.py)."""
     return draw_episodes(scenario, None, None, [seeding.np_random(seed)[0]], 12).episode(0)
 
 
@@ -318,8 +318,8 @@ def test_the_training_selection_runs_an_sb3_model_as_the_env_does():
 def test_two_modes_and_other_imm_parameters():
     """imm_parameters moves the a = 0 point: without the third mode (q_high_g None) the action has 5 entries and the
     observation 4 detectors, and the zero action is imm_cv_ct with those parameters."""
-    from baselines.imm_cv_ct import run_imm_cv_ct
-    from radar_env.imm_cv_ct import imm_cv_ct_spec_from_params
+    from baselines.imm_cv_ct_runner import run_imm_cv_ct
+    from radar_env.filters.imm_cv_ct import imm_cv_ct_spec_from_params
     params = {**imm_env_defaults()["imm_parameters"], "q_high_g": None, "p_stay_cv": 0.95}
     env = gym.make("RadarTrack-v0", action_type="continuous", imm_parameters={"q_high_g": None, "p_stay_cv": 0.95},
                    **IMM)

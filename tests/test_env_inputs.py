@@ -13,12 +13,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import radar_env  # noqa: F401
-from radar_env.draws import draw_episodes
-from radar_env.env import DEFAULT_Q_LEVELS_G, EnvConfig, RadarTrackEnv, RadarTrackVectorEnv, draw_setup_and_episode
-from radar_env.observation import DEFAULT_FEATURES, PAST_FEATURES
-from radar_env.radar import Radar, RadarSite, atc_radar
-from radar_env.scenario import RandomScenarioConfig
-from radar_env.units import G0_M_S2
+from radar_env.sim.draws import draw_episodes
+from radar_env.envs.env import DEFAULT_Q_LEVELS_G, EnvConfig, RadarTrackEnv, RadarTrackVectorEnv, draw_setup_and_episode
+from radar_env.envs.observation import DEFAULT_FEATURES, PAST_FEATURES
+from radar_env.sim.radar import Radar, RadarSite, atc_radar
+from radar_env.sim.scenario import RandomScenarioConfig
+from radar_env.common.units import G0_M_S2
 
 ENV_ID = "RadarTrack-v0"
 
@@ -460,7 +460,7 @@ def _place_radar_site_whole_grid(rng, scenario, range_m, n_candidates, grid_dt_s
     [(300.0, 0.0), (40.0, 0.05), (500.0, 0.0)],
 ])
 def test_radar_placement_in_blocks_equals_the_whole_grid(segments):
-    from radar_env.scenario import Segment, SegmentScenario, place_radar_site
+    from radar_env.sim.scenario import Segment, SegmentScenario, place_radar_site
     sc = SegmentScenario([0.0, 0.0, 100.0, 0.0], [Segment(d, w) for d, w in segments])
     for seed in range(5):
         for range_m in ((10e3, 150e3), (5e3, 20e3)):
@@ -474,7 +474,7 @@ def test_radar_placement_memory_does_not_grow_with_the_flight():
     MB; with max_turn_rate_deg_s=1e-6 a 270 deg turn lasts 2.7e8 s and main ran out of memory)."""
     import tracemalloc
 
-    from radar_env.scenario import Segment, SegmentScenario, place_radar_site
+    from radar_env.sim.scenario import Segment, SegmentScenario, place_radar_site
     sc = SegmentScenario([0.0, 0.0, 200.0, 0.0], [Segment(200_000.0)])
     tracemalloc.start()
     try:

@@ -1,4 +1,4 @@
-"""The env's one kernel (radar_env.env_kernels) and what came with it: the closed-form refusal at build is a true
+"""The env's one kernel (radar_env.envs.env_kernels) and what came with it: the closed-form refusal at build is a true
 bound (it never refuses a configuration that can run), the cold-cache line, and the env's draws straight into the
 tracker equal draw_episodes + Tracker.load."""
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from gymnasium.utils import seeding
 
-from radar_env import env_kernels as ek
-from radar_env.catalog import FAMILIES, family_config
-from radar_env.draws import LookDrawer, _DEFAULT_CONFIG, draw_episodes, max_random_looks
-from radar_env.scenario import RandomScenarioConfig
-from radar_env.tracking import Tracker
+from radar_env.envs import env_kernels as ek
+from radar_env.sim.catalog import FAMILIES, family_config
+from radar_env.sim.draws import LookDrawer, _DEFAULT_CONFIG, draw_episodes, max_random_looks
+from radar_env.sim.scenario import RandomScenarioConfig
+from radar_env.filters.tracking import Tracker
 
 
 @pytest.mark.parametrize("name, cfg", [("random", None), ("random_radars", None),
@@ -59,7 +59,7 @@ def test_cold_cache_line_is_printed_once_and_only_when_cold(monkeypatch, capsys)
     warm = {"sig": "file"}
     for d in (ek.k_env,):
         monkeypatch.setattr(d, "_cache", _FakeCache(warm), raising=False)
-    from radar_env import draws
+    from radar_env.sim import draws
     for d in (draws._random_rows, draws.k_fill_random_looks):
         monkeypatch.setattr(d, "_cache", _FakeCache(warm), raising=False)
     monkeypatch.setattr(ek, "_announced", False)

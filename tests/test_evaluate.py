@@ -13,9 +13,9 @@ from agents.evaluation.metrics import NEES_95_4DOF, evaluate_run, ratio_ci, regi
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
 from baselines.trackers import TrackRun, run_q_policy
-from radar_env.env import draw_setup_and_episode
-from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
+from radar_env.envs.env import draw_setup_and_episode
+from radar_env.sim.episode import stack_episodes
+from radar_env.common.units import G0_M_S2
 
 
 def test_suite_draw_is_deterministic_and_suites_differ():

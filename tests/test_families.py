@@ -1,4 +1,4 @@
-"""Held-out family suites (radar_env.catalog.FAMILIES, the ADS-B split) and the RandomScenarioConfig fields they
+"""Held-out family suites (radar_env.sim.catalog.FAMILIES, the ADS-B split) and the RandomScenarioConfig fields they
 use: every drawn flight is of its family's kind, the kernel and the per-episode drawer agree in distribution, the
 default stream is untouched by the new fields, and misuse is refused."""
 
@@ -7,13 +7,13 @@ import pytest
 from scipy.stats import ks_2samp
 
 from agents.evaluation.suites import HELDOUT_FAMILY_SUITES, draw_suite
-from radar_env.adsb import list_flights
-from radar_env.adsb_scenarios import split_flights
-from radar_env.catalog import FAMILIES, SCENARIO_NAMES, family_config, make_setup
-from radar_env.draws import draw_episodes, random_scenarios
-from radar_env.episode import _ARRAY_FIELDS
-from radar_env.scenario import RandomScenarioConfig
-from radar_env.units import DEG, G0_M_S2, KNOT_M_S
+from radar_env.sim.adsb import list_flights
+from radar_env.sim.adsb_scenarios import split_flights
+from radar_env.sim.catalog import FAMILIES, SCENARIO_NAMES, family_config, make_setup
+from radar_env.sim.draws import draw_episodes, random_scenarios
+from radar_env.sim.episode import _ARRAY_FIELDS
+from radar_env.sim.scenario import RandomScenarioConfig
+from radar_env.common.units import DEG, G0_M_S2, KNOT_M_S
 
 from test_draws import _old_draw, _rngs, _same, _stats
 
@@ -148,7 +148,7 @@ def test_new_config_fields_are_checked(kw, msg):
 
 
 def test_family_configs_are_valid_and_documented():
-    import radar_env.catalog as catalog
+    import radar_env.sim.catalog as catalog
     for name in FAMILIES:
         assert isinstance(family_config(name), RandomScenarioConfig)
         assert f"``{name}``" in catalog.__doc__

@@ -1,4 +1,4 @@
-"""Maneuver features (radar_env/features.py) against closed forms, exact noise-free kinematics and Monte Carlo.
+"""Maneuver features (radar_env/filters/features.py) against closed forms, exact noise-free kinematics and Monte Carlo.
 
 Truth for the turn tests is built with ``filters.transition_ct`` (exact constant-speed coordinated turn, positive
 turn rate = clockwise = right turn); bearings and radial velocities are computed exactly from the truth.
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from radar_env import features as ft
-from radar_env import filters as kf
+from radar_env.filters import features as ft
+from radar_env.filters import kalman as kf
 
 DEG = np.pi / 180.0
 H = np.hstack([np.eye(2), np.zeros((2, 2))])
@@ -582,7 +582,7 @@ def test_fm_weight_must_be_a_fraction():
 
 def test_feature_bank_row_state_is_fully_listed():
     """take_rows/put_rows (used to step row subsets) must cover every per-row array of the bank."""
-    from radar_env.features import FeatureBank
+    from radar_env.filters.features import FeatureBank
     bank = FeatureBank(7)
     per_row = {k for k, v in vars(bank).items() if isinstance(v, np.ndarray) and v.shape[:1] == (7,)
                and k not in ("_rows", "_par")}  # _par: the parameter vector, not row state

@@ -6,8 +6,8 @@ from hypothesis import given, settings, strategies as st
 from scipy import stats
 from scipy.integrate import solve_ivp
 
-from radar_env import filters as kf
-from radar_env.units import G0_M_S2
+from radar_env.filters import kalman as kf
+from radar_env.common.units import G0_M_S2
 
 H = np.hstack([np.eye(2), np.zeros((2, 2))])
 
@@ -353,9 +353,9 @@ def test_run_imm_on_recorded_episodes_matches_kalman_filter_bank(spec_name):
     from filterpy.kalman import KalmanFilter
 
     from baselines.trackers import IMM3_CT, IMMSpec, run_imm
-    from radar_env.catalog import make_setup
-    from radar_env.episode import draw_episode
-    from radar_env.radar import Radar, RadarSite
+    from radar_env.sim.catalog import make_setup
+    from radar_env.sim.episode import draw_episode
+    from radar_env.sim.radar import Radar, RadarSite
 
     spec = IMM3_CT if spec_name == "IMM3_CT" else IMMSpec(
         q_m_s2=tuple(_IMM_Q), turn_rate_rad_s=tuple(_IMM_OMEGA), Pi=tuple(map(tuple, _IMM_PI)),

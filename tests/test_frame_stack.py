@@ -8,8 +8,8 @@ from gymnasium.utils import seeding
 
 import radar_env  # noqa: F401
 from baselines.trackers import run_q_policy
-from radar_env.env import EnvConfig, RadarTrackVectorEnv, draw_setup_and_episode
-from radar_env.observation import FrameStack
+from radar_env.envs.env import EnvConfig, RadarTrackVectorEnv, draw_setup_and_episode
+from radar_env.envs.observation import FrameStack
 
 
 def _rollout(k, seed, actions):

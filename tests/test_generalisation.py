@@ -8,7 +8,7 @@ from agents.reports import generalisation as g
 from agents.evaluation.metrics import evaluate_run
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 
 def test_evaluate_suite_picks_the_lowest_classical_rmse_and_scores_policies_against_it():

@@ -4,11 +4,11 @@ vectorised transform) against a frozen copy of the column-by-column encoding, an
 import numpy as np
 import pytest
 
-from radar_env.config import EnvConfig
-from radar_env.core import _Core, actions_to_q_m_s2
-from radar_env.observation import (DEFAULT_FEATURES, DETECTOR_FEATURES, FEATURE_SPECS, PAST_FEATURES,
+from radar_env.envs.config import EnvConfig
+from radar_env.envs.core import _Core, actions_to_q_m_s2
+from radar_env.envs.observation import (DEFAULT_FEATURES, DETECTOR_FEATURES, FEATURE_SPECS, PAST_FEATURES,
                                    ObservationLayout)
-from radar_env.units import G0_M_S2
+from radar_env.common.units import G0_M_S2
 
 
 def _frozen_encode(lay, out, q_prev):
@@ -91,7 +91,7 @@ def test_action_to_q_matches_the_action_map_and_refuses_bad_actions(action_type)
 
 
 def test_unknown_reset_options_and_features_name_the_valid_ones():
-    from radar_env.env import RadarTrackEnv, RadarTrackVectorEnv
+    from radar_env.envs.env import RadarTrackEnv, RadarTrackVectorEnv
 
     for env in (RadarTrackEnv(scenario="kim_lee_accel"), RadarTrackVectorEnv(2, scenario="kim_lee_accel")):
         with pytest.raises(ValueError, match=r"unknown reset option\(s\) \['speed'\]; valid: \['scenario'\]"):

@@ -10,10 +10,10 @@ from agents.evaluation.suites import draw_suite
 from baselines import hindsight as H
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
-from radar_env.catalog import SCENARIO_NAMES
-from radar_env.env import EnvConfig
-from radar_env.episode import Episode, stack_episodes
-from radar_env.units import DEG, G0_M_S2
+from radar_env.sim.catalog import SCENARIO_NAMES
+from radar_env.envs.env import EnvConfig
+from radar_env.sim.episode import Episode, stack_episodes
+from radar_env.common.units import DEG, G0_M_S2
 
 CFG = EnvConfig()
 LO, HI = CFG.q_levels_g[0] * G0_M_S2, CFG.q_levels_g[-1] * G0_M_S2

@@ -30,8 +30,8 @@ from agents.evaluation.metrics import nees_values
 from agents.policies.bundle import BUNDLED_POLICY, embed_env_config, policy_env_kwargs
 from agents.policies.loading import load_policy
 from baselines.user_trackers import import_tracker_module
-from radar_env import adsb
-from radar_env.env import RadarTrackEnv
+from radar_env.sim import adsb
+from radar_env.envs.env import RadarTrackEnv
 from test_cli_errors import _write_flight
 
 QUICK = ["--no-plots", "--quiet"]
@@ -268,7 +268,7 @@ def test_anees_is_flagged_where_few_looks_are_valid_and_a_beaten_bound_is_flagge
     from agents.evaluation.metrics import evaluate_run
     from agents.evaluation.suites import draw_suite
     from baselines.registry import run_tracker
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     eps = draw_suite("kim_lee_accel", 3)
     batch = stack_episodes(eps)
     run = run_tracker("kf_tuned", eps)

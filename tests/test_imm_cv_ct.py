@@ -10,12 +10,12 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from agents.evaluation.suites import TUNING_SEEDS, draw_suite
-from baselines import imm_cv_ct as I
-from radar_env.episode import draw_episode
-from radar_env.filters import process_noise, transition_ct
-from radar_env.radar import Radar, RadarSite
-from radar_env.scenario import ScenarioBuilder
-from radar_env.units import DEG, G0_M_S2
+from baselines import imm_cv_ct_runner as I
+from radar_env.sim.episode import draw_episode
+from radar_env.filters.kalman import process_noise, transition_ct
+from radar_env.sim.radar import Radar, RadarSite
+from radar_env.sim.scenario import ScenarioBuilder
+from radar_env.common.units import DEG, G0_M_S2
 
 H5 = np.hstack([np.eye(2), np.zeros((2, 3))])
 
@@ -29,7 +29,7 @@ def _q5(dt, q, sig_w):
 
 # ------------------------------------------------------------------------------------------------ the reference
 def _ref_ct_mean(x, dt):
-    """CT motion through the repo's tested F_ct (radar_env.filters.transition_ct)."""
+    """CT motion through the repo's tested F_ct (radar_env.filters.kalman.transition_ct)."""
     return np.r_[transition_ct(dt, x[4])[0] @ x[:4], x[4]]
 
 

@@ -1,4 +1,4 @@
-"""The compiled kernels (radar_env/kernels.py) against the numpy chain they replaced (tests/numpy_reference, main
+"""The compiled kernels (radar_env/filters/kernels.py) against the numpy chain they replaced (tests/numpy_reference, main
 before the kernels, verbatim): every public filter / feature / preview function on random inputs, the Tracker's
 outputs and features on drawn episodes (misses, several sites, row subsets, turn-rate and known-input steps), the
 bundled policy's choice of q look by look, and SPD / finite outputs of the compiled step for any q, misses and
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from radar_env import features as ft
-from radar_env import filters as kf
-from radar_env.catalog import make_setup
-from radar_env.episode import draw_episode
-from radar_env.tracking import MAX_Q_M_S2, Tracker, preview_next_plot
-from radar_env.units import G0_M_S2
+from radar_env.filters import features as ft
+from radar_env.filters import kalman as kf
+from radar_env.sim.catalog import make_setup
+from radar_env.sim.episode import draw_episode
+from radar_env.filters.tracking import MAX_Q_M_S2, Tracker, preview_next_plot
+from radar_env.common.units import G0_M_S2
 from tests.numpy_reference import features as ref_ft
 from tests.numpy_reference import filters as ref_kf
 from tests.numpy_reference import tracking as ref_tr
@@ -284,8 +284,8 @@ def test_bundled_policy_chooses_the_same_q_as_with_the_numpy_chain():
     from stable_baselines3 import PPO
 
     from agents.policies.bundle import BUNDLED_POLICY, policy_env_kwargs
-    from radar_env.env import EnvConfig
-    from radar_env.observation import ObservationLayout
+    from radar_env.envs.env import EnvConfig
+    from radar_env.envs.observation import ObservationLayout
 
     if not BUNDLED_POLICY.is_file():
         pytest.skip("no bundled policy")
@@ -301,7 +301,7 @@ def test_bundled_policy_chooses_the_same_q_as_with_the_numpy_chain():
     outs = [t.load(range(B), eps) for t in trs]
     q_prev = [np.full(B, cfg.warmup_q_g * G0_M_S2)] * 2
     n_looks, chosen = 0, set()
-    from radar_env.observation import FrameStack
+    from radar_env.envs.observation import FrameStack
     stacks = [FrameStack(B, cfg.frame_stack, len(cfg.features)) for _ in trs]   # as the env stacks them
     first = True
     while trs[0].remaining_looks().min() > 0:
@@ -346,7 +346,7 @@ def _synthetic_episode(dts, det, range_m, bearing, sr, sb_deg):
 
 
 def ft_episode(**kw):
-    from radar_env.episode import Episode
+    from radar_env.sim.episode import Episode
     return Episode(**kw)
 
 

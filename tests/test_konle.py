@@ -3,8 +3,8 @@
 import numpy as np
 
 from baselines.konle import blend_speed_heading, konle_measurement, run_konle
-from radar_env import filters
-from radar_env.features import wrap_angle
+from radar_env.filters import kalman
+from radar_env.filters.features import wrap_angle
 
 DEG = np.pi / 180.0
 
@@ -92,12 +92,12 @@ def test_constant_turn_rate_sign_and_value():
 
 def _position_kf_heading(t, z, R, det, q):
     B, K = z.shape[:2]
-    x, P = filters.two_point_init(z[:, 0], R[:, 0], t[0], z[:, 1], R[:, 1], t[1])
+    x, P = kalman.two_point_init(z[:, 0], R[:, 0], t[0], z[:, 1], R[:, 1], t[1])
     H = np.full((B, K), np.nan)
     for k in range(2, K):
         dt = np.full(B, t[k] - t[k - 1])
-        x, P = filters.predict(x, P, filters.transition_cv(dt), filters.process_noise(dt, q))
-        u = filters.update(x, P, np.nan_to_num(z[:, k]), R[:, k], det[:, k])
+        x, P = kalman.predict(x, P, kalman.transition_cv(dt), kalman.process_noise(dt, q))
+        u = kalman.update(x, P, np.nan_to_num(z[:, k]), R[:, k], det[:, k])
         x, P = u.x, u.P
         H[:, k] = np.arctan2(x[:, 2], x[:, 3])
     return H

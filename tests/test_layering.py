@@ -1,7 +1,8 @@
 """Layers only look down: radar_env (simulation, filters, env) knows nothing of baselines or agents, baselines
-never imports agents, the simulation and filter modules import without gymnasium, and only radar_env.torch_chain
-(the differentiable chain) and radar_env.torch_imm (the IMM built from its blocks) need torch: radar_env and
-baselines import without it."""
+never imports agents, the simulation and filter modules import without gymnasium, and only
+radar_env.filters.torch_chain (the differentiable chain) and radar_env.filters.torch_imm (the IMM built from its
+blocks) need torch: radar_env and baselines import without it. Inside radar_env the sub-packages are floors
+(common < sim < filters < envs): each imports only the ones below it (test_radar_env_floors)."""
 
 import ast
 import subprocess
@@ -25,12 +26,14 @@ sys.meta_path.insert(0, _Blocked())
 _NO_GYM = _BLOCK.format(pkg="gymnasium")
 _NO_TORCH = _BLOCK.format(pkg="torch")
 
-GYM_FREE = ("radar_env", "radar_env.filters", "radar_env.tracking", "radar_env.scenario", "radar_env.episode",
-            "radar_env.radar", "radar_env.features", "radar_env.observation", "radar_env.catalog",
-            "radar_env.config", "radar_env.core", "baselines.trackers", "baselines.registry", "baselines.policies",
-            "baselines.alpha_beta", "baselines.konle", "baselines.imm_cv_ct", "baselines.hindsight",
-            "baselines.user_trackers", "baselines.seeds", "baselines.tuning", "radar_env.draws", "radar_env.kernels",
-            "radar_env.imm_cv_ct", "radar_env.imm_env", "radar_env.imm_core", "radar_env.detectors")
+GYM_FREE = ("radar_env", "radar_env.filters.kalman", "radar_env.filters.tracking", "radar_env.sim.scenario",
+            "radar_env.sim.episode", "radar_env.sim.radar", "radar_env.filters.features", "radar_env.envs.observation",
+            "radar_env.sim.catalog", "radar_env.envs.config", "radar_env.envs.core", "baselines.trackers",
+            "baselines.registry", "baselines.policies", "baselines.alpha_beta", "baselines.konle",
+            "baselines.imm_cv_ct_runner", "baselines.hindsight", "baselines.user_trackers", "baselines.seeds",
+            "baselines.tuning", "radar_env.sim.draws", "radar_env.filters.kernels", "radar_env.filters.imm_cv_ct",
+            "radar_env.envs.imm_env", "radar_env.envs.imm_core", "radar_env.envs.detectors", "radar_env.sim.looks",
+            "radar_env.sim.motion", "radar_env.sim.adsb_scenarios", "radar_env.common.numba_cache")
 
 
 def _run(code, block=_NO_GYM):
@@ -45,9 +48,9 @@ def test_simulation_and_filter_modules_import_without_gymnasium():
             "assert not any(m == 'gymnasium' or m.startswith('gymnasium.') for m in sys.modules)\n"
             # and they run: draw an episode and start its track
             "import numpy as np\n"
-            "from radar_env.catalog import make_setup\n"
-            "from radar_env.episode import draw_episode\n"
-            "from radar_env.tracking import TrackStart\n"
+            "from radar_env.sim.catalog import make_setup\n"
+            "from radar_env.sim.episode import draw_episode\n"
+            "from radar_env.filters.tracking import TrackStart\n"
             "rng = np.random.default_rng(0)\n"
             "s = make_setup('bizup2002', rng)\n"
             "tr = TrackStart().tracker(1)\n"
@@ -60,7 +63,7 @@ def test_simulation_and_filter_modules_import_without_gymnasium():
 
 
 def test_the_gym_layer_says_it_needs_gymnasium():
-    res = _run("import radar_env.env\n")
+    res = _run("import radar_env.envs.env\n")
     assert res.returncode != 0 and "gymnasium" in res.stderr
 
 
@@ -73,7 +76,7 @@ def test_block_is_effective():
 
 def test_torch_chain_imports_without_gymnasium():
     pytest.importorskip("torch")
-    res = _run("import radar_env.torch_chain\n"
+    res = _run("import radar_env.filters.torch_chain\n"
                "assert not any(m == 'gymnasium' or m.startswith('gymnasium.') for m in sys.modules)\nprint('ok')\n")
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
@@ -81,19 +84,20 @@ def test_torch_chain_imports_without_gymnasium():
 
 def test_radar_env_and_baselines_import_without_torch():
     code = ("import importlib\n"
-            f"for m in {GYM_FREE + ('radar_env.env',)!r}:\n"
+            f"for m in {GYM_FREE + ('radar_env.envs.env',)!r}:\n"
             "    importlib.import_module(m)\n"
             "assert not any(m == 'torch' or m.startswith('torch.') for m in sys.modules)\nprint('ok')\n")
     res = _run(code, _NO_TORCH)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
-    res = _run("import radar_env.torch_chain\n", _NO_TORCH)
+    res = _run("import radar_env.filters.torch_chain\n", _NO_TORCH)
     assert res.returncode != 0 and "torch" in res.stderr
 
 
 def test_only_torch_chain_imports_torch_in_radar_env():
-    users = {p.name for p in _files("radar_env") if "torch" in _imported_modules(p)}
-    assert users == {"torch_chain.py", "torch_imm.py"}     # the differentiable chain and the IMM built on it
+    users = {str(p.relative_to(ROOT)) for p in _files("radar_env") if "torch" in _imported_modules(p)}
+    # the differentiable chain and the IMM built on it
+    assert users == {"radar_env/filters/torch_chain.py", "radar_env/filters/torch_imm.py"}
 
 
 def _imported_modules(path):
@@ -224,3 +228,92 @@ def test_agents_sub_packages_look_down_only():
     assert bad == []
     top = {p.name for p in (ROOT / "agents").iterdir() if p.suffix == ".py" or (p / "__init__.py").is_file()}
     assert top == {"__init__.py", "cli.py", "policies", "training", "evaluation", "reports"}
+
+
+# ------------------------------------------------------------------------------------------- radar_env's floors
+FLOORS = ("radar_env.common", "radar_env.sim", "radar_env.filters", "radar_env.envs")
+"""radar_env's sub-packages, lowest first: a module of one may import only its own floor and those below it."""
+BESIDE = {"radar_env.render": ("radar_env.common",), "radar_env.applications": ("radar_env.common",)}
+"""Top-level modules beside the floors and the floors they may import (the env layer renders: envs imports render)."""
+ANYWHERE = {"radar_env._moved"}
+"""Importable from any floor: the old-path aliases (standard library only)."""
+GYM_LAYER = {"radar_env", "radar_env.envs.env", "radar_env.envs.single_env", "radar_env.envs.vector_env"}
+"""The only radar_env modules that import gymnasium (``radar_env`` itself: the registration, inside a try)."""
+TORCH_MODULES = {"radar_env.filters.torch_chain", "radar_env.filters.torch_imm"}
+
+
+def _floor(mod):
+    return next((i for i, p in enumerate(FLOORS) if mod == p or mod.startswith(p + ".")), None)
+
+
+def _floor_violations(graph, external):
+    """``(module, import, rule)`` for each import of ``graph`` (``{module: {project modules}}``) and ``external``
+    (``{module: {top-level third-party names}}``) that breaks a floor of radar_env."""
+    bad = []
+    for m, deps in graph.items():
+        if not m.startswith("radar_env"):
+            continue
+        for d in sorted(deps):
+            if not d.startswith("radar_env") or d in ANYWHERE:
+                continue
+            if _floor(m) is not None:
+                if d == "radar_env.render" and FLOORS[_floor(m)] == "radar_env.envs":
+                    continue                       # the env layer renders its frames
+                if _floor(d) is None or _floor(d) > _floor(m):
+                    bad.append((m, d, "imports an upper floor"))
+            elif m in BESIDE and (_floor(d) is None or FLOORS[_floor(d)] not in BESIDE[m]):
+                bad.append((m, d, "imports above its floors"))
+    for m, names in external.items():
+        if not m.startswith("radar_env"):
+            continue
+        if "gymnasium" in names and m not in GYM_LAYER:
+            bad.append((m, "gymnasium", "below the Gymnasium layer"))
+        if "torch" in names and m not in TORCH_MODULES:
+            bad.append((m, "torch", "not a torch module"))
+    return sorted(bad)
+
+
+def _external_imports():
+    return {_module_name(p): _imported_modules(p) for p in _files("radar_env")}
+
+
+def test_radar_env_floors():
+    """sim imports nothing of filters or envs, filters nothing of envs, common nothing of the others; nothing
+    below the Gymnasium layer imports gymnasium; only the torch modules import torch."""
+    graph, external = _module_graph(), _external_imports()
+    # the scan sees the package: known edges down the chain (else an empty graph would pass)
+    for m, d in (("radar_env.filters.kernels", "radar_env.sim.looks"), ("radar_env.filters.tracking",
+                 "radar_env.filters.features"), ("radar_env.envs.core", "radar_env.sim.draws"),
+                 ("radar_env.sim.scenario", "radar_env.sim.motion"), ("radar_env.envs.single_env", "radar_env.render"),
+                 ("radar_env.envs.config", "radar_env.filters.tracking")):
+        assert d in graph[m], (m, d)
+    assert "gymnasium" in external["radar_env.envs.single_env"] and "torch" in external["radar_env.filters.torch_imm"]
+    assert {_floor(m) for m in graph if m.startswith("radar_env.")} >= {0, 1, 2, 3}
+    assert _floor_violations(graph, external) == []
+
+
+def test_floor_check_catches_upward_imports():
+    """The check fails on a synthetic graph with one breach of each rule."""
+    graph = {"radar_env.sim.episode": {"radar_env.filters.kernels", "radar_env.common.units"},
+             "radar_env.filters.tracking": {"radar_env.envs.config", "radar_env._moved"},
+             "radar_env.common.units": {"radar_env.sim.radar"},
+             "radar_env.render": {"radar_env.envs.core"},
+             "radar_env.envs.single_env": {"radar_env.render", "radar_env.filters.kernels"}}
+    external = {"radar_env.envs.config": {"gymnasium"}, "radar_env.sim.draws": {"torch", "numpy"},
+                "radar_env.envs.env": {"gymnasium"}, "radar_env.filters.torch_chain": {"torch"}}
+    assert _floor_violations(graph, external) == [
+        ("radar_env.common.units", "radar_env.sim.radar", "imports an upper floor"),
+        ("radar_env.envs.config", "gymnasium", "below the Gymnasium layer"),
+        ("radar_env.filters.tracking", "radar_env.envs.config", "imports an upper floor"),
+        ("radar_env.render", "radar_env.envs.core", "imports above its floors"),
+        ("radar_env.sim.draws", "torch", "not a torch module"),
+        ("radar_env.sim.episode", "radar_env.filters.kernels", "imports an upper floor"),
+    ]
+
+
+def test_radar_env_folders_read_like_the_chain():
+    top = {p.name for p in (ROOT / "radar_env").iterdir() if p.suffix == ".py" or (p / "__init__.py").is_file()}
+    assert top == {"__init__.py", "_moved.py", "common", "sim", "filters", "envs", "applications.py", "render.py"}
+    for pkg in ("common", "sim", "filters", "envs"):   # each floor says what lives there and what it may import
+        doc = ast.get_docstring(ast.parse((ROOT / "radar_env" / pkg / "__init__.py").read_text()))
+        assert doc and len(doc.splitlines()) == 2 and "import" in doc.splitlines()[1].lower(), pkg

@@ -15,7 +15,7 @@ from agents.evaluation.suites import draw_suite  # noqa: E402
 from agents.policies import learned_imm as LI  # noqa: E402
 from agents.training import backprop as bp  # noqa: E402
 from agents.training.runs import load_hyperparams  # noqa: E402
-from baselines import imm_cv_ct as I  # noqa: E402
+from baselines import imm_cv_ct_runner as I  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
 
 TOL = 1e-9
@@ -164,7 +164,7 @@ def test_tiny_training_run(tmp_path, setup):
     assert s["tracker"] == "imm_cv_ct" and s["steps"] == 2 and len(s["selection_history"]) == 3
     first = s["selection_history"][0]
     from agents.training.selection import pooled_rmse
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     eps = draw_suite("random", 3, seed=900_000)
     ref = pooled_rmse(stack_episodes(eps), run_tracker("imm_cv_ct", eps))
     assert first["random_rmse_m"] == pytest.approx(ref, rel=1e-9)            # it starts as imm_cv_ct
@@ -197,7 +197,7 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
                 "--runs", "3", "--no-plots", "--quiet", "--json", str(out)])
     t = res["random"]["trackers"]
     from agents.evaluation.metrics import evaluate_run
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     assert t["policy_imm_bp"]["pos_rmse_m"] == evaluate_run(stack_episodes(eps), ref)["pos_rmse_m"]
     assert t["policy_imm_bp"]["pos_rmse_m"] != t["imm_cv_ct"]["pos_rmse_m"]
     assert json.loads(out.read_text())["meta"]["policy_imm_bp"] == str(path)

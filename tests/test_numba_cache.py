@@ -1,9 +1,10 @@
-"""radar_env.numba_cache: cached kernels are dropped when a source they depend on changes (numba itself keys a
+"""radar_env.common.numba_cache: cached kernels are dropped when a source they depend on changes (numba itself keys a
 kernel's cache on its own file only), and kept otherwise."""
 
 from types import SimpleNamespace
 
-from radar_env import kernels, numba_cache
+from radar_env.filters import kernels
+from radar_env.common import numba_cache
 
 
 def _fake_dispatcher(cache_dir):
@@ -50,8 +51,8 @@ def test_a_read_only_or_unknown_cache_is_left_alone(tmp_path, monkeypatch):
     numba_cache.drop_stale_kernels(_fake_dispatcher(blocker / "cache"), [tmp_path / "m.py"])   # cannot create
 
 
-def test_the_env_kernels_cache_is_stamped_with_the_current_sources():
+def test_the_kernels_cache_is_stamped_with_the_current_sources():
     cache = kernels.k_update._cache._cache_path
     stamp = numba_cache.Path(cache) / numba_cache.STAMP_NAME
-    sources = numba_cache.package_sources(numba_cache.Path(kernels.__file__).parent)
+    sources = numba_cache.package_sources(numba_cache.Path(kernels.__file__).parents[1])   # all of radar_env
     assert stamp.read_text().strip() == numba_cache.sources_digest(sources)

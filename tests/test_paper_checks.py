@@ -15,7 +15,7 @@ from agents.reports.paper_bizup import bizup_errors, ckf_fma, fma_threshold, pha
 from agents.reports.paper_kim_lee import kim_lee_1d_check, kim_lee_truth
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
-from radar_env.units import NM_M
+from radar_env.common.units import NM_M
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -146,7 +146,7 @@ def test_ckf_never_switches_at_5_nm_and_equals_the_baseline(bizup_eps):
 
 
 def test_phase_masks_split_each_turn_and_the_60_s_after_it(bizup_eps):
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     batch = stack_episodes(bizup_eps)
     m = phase_masks(batch, np.full(batch.batch_size, 14))
     t = batch.t_s[0]
@@ -316,7 +316,7 @@ def test_bizup_variance_across_runs_excludes_the_mean_curve_and_decides_the_clai
 
 def test_ckf_tuned_threshold_is_chosen_on_a_disjoint_seed_block():
     from agents.reports.paper_bizup import TUNING_SEED_OFFSET, bizup_figures_check
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     seed = 10_000_000
     r = bizup_figures_check(runs=3, seed=seed)["ckf"]
     assert r["threshold_tuned_seed"] == seed + TUNING_SEED_OFFSET and r["threshold_tuned_runs"] == 3

@@ -18,7 +18,7 @@ import pytest  # noqa: E402
 from agents.evaluation import plots  # noqa: E402
 from agents.evaluation.suites import draw_suite, run_scenario  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
-from radar_env.episode import stack_episodes  # noqa: E402
+from radar_env.sim.episode import stack_episodes  # noqa: E402
 
 TRACKERS = ("kf_low", "cmin", "clairvoyant")
 UNIT = re.compile(r"\(.+\)|\[.+\]")

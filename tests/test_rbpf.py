@@ -11,13 +11,13 @@ from filterpy.kalman import KalmanFilter
 
 from agents.evaluation.metrics import nees_values, score_run
 from agents.evaluation.suites import TUNING_SEEDS, draw_suite
-from baselines.imm_cv_ct import common_start
+from baselines.imm_cv_ct_runner import common_start
 from baselines.rbpf import DEFAULT_RBPF, RBPF_REF, RBPFSpec, run_rbpf
 from baselines.registry import run_tracker
-from radar_env import rbpf as K
-from radar_env.episode import stack_episodes
-from radar_env.scenario import RandomScenarioConfig, Segment, SegmentScenario
-from radar_env.units import G0_M_S2
+from radar_env.filters import rbpf as K
+from radar_env.common.units import G0_M_S2
+from radar_env.sim.episode import stack_episodes
+from radar_env.sim.scenario import RandomScenarioConfig, Segment, SegmentScenario
 
 SMALL = dataclasses.replace(DEFAULT_RBPF, n_particles=256)
 

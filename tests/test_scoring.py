@@ -16,7 +16,7 @@ from agents.evaluation.metrics import (FEW_RUNS, NEES_95_4DOF, evaluate_run, fai
 from agents.reports.report import headline, markdown_tables
 from agents.evaluation.suites import draw_suite
 from baselines.registry import run_tracker
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 TRACKERS = ("imm2", "kf_tuned", "cmin")
 

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from radar_env.catalog import FAMILIES, SCENARIO_NAMES, make_setup
-from radar_env.episode import draw_episode, stack_episodes
-from radar_env.radar import (Radar, RadarSite, atc_radar, bizup_radar, converted_covariance,
+from radar_env.sim.catalog import FAMILIES, SCENARIO_NAMES, make_setup
+from radar_env.sim.episode import draw_episode, stack_episodes
+from radar_env.sim.radar import (Radar, RadarSite, atc_radar, bizup_radar, converted_covariance,
                              polar_from_cartesian, scan_schedule)
-from radar_env.scenario import (RandomScenarioConfig, ScenarioBuilder, Segment, SegmentScenario,
+from radar_env.sim.scenario import (RandomScenarioConfig, ScenarioBuilder, Segment, SegmentScenario,
                                 TrajectoryScenario, random_scenario)
-from radar_env.units import DEG, G0_M_S2, KNOT_M_S
+from radar_env.common.units import DEG, G0_M_S2, KNOT_M_S
 
 
 def _ode_truth(sc, t_eval):
@@ -216,7 +216,7 @@ def test_stack_episodes_pads_and_roundtrips():
 
 
 def test_random_radar_ranges_and_reproducible():
-    from radar_env.catalog import RANDOM_RADAR_RANGES as R, random_radar
+    from radar_env.sim.catalog import RANDOM_RADAR_RANGES as R, random_radar
     n_two = 0
     for seed in range(200):
         r = random_radar(np.random.default_rng(seed), (1e3, 2e3))
@@ -241,7 +241,7 @@ def test_random_radar_ranges_and_reproducible():
 
 
 def test_random_radars_mixture_probability():
-    from radar_env.scenario import RandomScenarioConfig
+    from radar_env.sim.scenario import RandomScenarioConfig
     atc = make_setup("random", np.random.default_rng(0)).radar.sites[0]
     n_atc = 0
     for seed in range(100):

@@ -1,9 +1,9 @@
-"""The differentiable chain (radar_env/torch_chain.py) against the numba chain it copies: every look's prior,
-posterior, innovation and NIS equal radar_env.tracking.Tracker stepped with the same q (and turn-rate) schedule to
+"""The differentiable chain (radar_env/filters/torch_chain.py) against the numba chain it copies: every look's prior,
+posterior, innovation and NIS equal radar_env.filters.tracking.Tracker stepped with the same q (and turn-rate) schedule to
 1e-9 on drawn episodes of every scenario kind, single and multi-site radars (irregular dt, dt = 0), missed looks
 and rows of different lengths in one batch; the torch track start equals Tracker.load; chunks, step() and run()
 agree; gradients against finite differences (gradcheck) and finite at omega ~ 0; the building blocks against
-radar_env.filters; the loss against agents.evaluation.metrics; bad inputs refused."""
+radar_env.filters.kalman; the loss against agents.evaluation.metrics; bad inputs refused."""
 
 import dataclasses
 import importlib.util
@@ -15,14 +15,14 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from radar_env import filters  # noqa: E402
-from radar_env import torch_chain as tc  # noqa: E402
-from radar_env.config import resolve_scenario  # noqa: E402
-from radar_env.draws import draw_episodes  # noqa: E402
-from radar_env.episode import Episode, stack_episodes  # noqa: E402
-from radar_env.radar import Radar, RadarSite  # noqa: E402
-from radar_env.tracking import MAX_Q_M_S2, TrackStart  # noqa: E402
-from radar_env.units import DEG, G0_M_S2  # noqa: E402
+from radar_env.filters import kalman  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
+from radar_env.envs.config import resolve_scenario  # noqa: E402
+from radar_env.sim.draws import draw_episodes  # noqa: E402
+from radar_env.sim.episode import Episode, stack_episodes  # noqa: E402
+from radar_env.sim.radar import Radar, RadarSite  # noqa: E402
+from radar_env.filters.tracking import MAX_Q_M_S2, TrackStart  # noqa: E402
+from radar_env.common.units import DEG, G0_M_S2  # noqa: E402
 
 TOL = 1e-9
 Q_LO, Q_HI = 0.002 * G0_M_S2, 8.0 * G0_M_S2
@@ -275,10 +275,10 @@ def test_gradients_finite_and_continuous_at_omega_zero():
     jac = torch.stack([torch.autograd.grad(F[i, j].sum(), om, retain_graph=True)[0]
                        for i in range(4) for j in range(4)])          # (16, 9): dF_ij / d omega per entry
     assert torch.all(torch.isfinite(jac))
-    # against central differences of the exact kinematics (filters.transition_ct, the kernels' sinc forms)
+    # against central differences of the exact kinematics (kalman.transition_ct, the kernels' sinc forms)
     h = 1e-7
     w = om.detach().numpy()
-    fd = (filters.transition_ct(5.0 * np.ones(9), w + h) - filters.transition_ct(5.0 * np.ones(9), w - h)) / (2 * h)
+    fd = (kalman.transition_ct(5.0 * np.ones(9), w + h) - kalman.transition_ct(5.0 * np.ones(9), w - h)) / (2 * h)
     np.testing.assert_allclose(jac.numpy().T.reshape(9, 4, 4), fd, rtol=1e-6, atol=1e-7)
     # the two sides of the series boundary agree
     np.testing.assert_allclose(jac[:, 4].numpy(), jac[:, 5].numpy(), rtol=1e-7, atol=1e-12)
@@ -303,20 +303,20 @@ def test_blocks_equal_radar_env_filters():
     q = rng.uniform(0.0, 50.0, n)
     cf = lambda a, k: torch.tensor(np.moveaxis(a, 0, -1).copy()) if k else torch.tensor(a)   # noqa: E731
     bf = lambda t, k: np.moveaxis(t.detach().numpy(), -1, 0) if k else t.detach().numpy()   # noqa: E731
-    np.testing.assert_allclose(bf(tc.transition(cf(dt, 0), cf(w, 0)), 1), filters.transition_ct(dt, w),
+    np.testing.assert_allclose(bf(tc.transition(cf(dt, 0), cf(w, 0)), 1), kalman.transition_ct(dt, w),
                                rtol=1e-13, atol=1e-14)
-    np.testing.assert_array_equal(bf(tc.transition(cf(dt, 0)), 1), filters.transition_cv(dt))
-    np.testing.assert_allclose(bf(tc.process_noise(cf(dt, 0), cf(q, 0)), 1), filters.process_noise(dt, q),
+    np.testing.assert_array_equal(bf(tc.transition(cf(dt, 0)), 1), kalman.transition_cv(dt))
+    np.testing.assert_allclose(bf(tc.process_noise(cf(dt, 0), cf(q, 0)), 1), kalman.process_noise(dt, q),
                                rtol=1e-14, atol=0)
     A = rng.standard_normal((n, 4, 4)) * [30.0, 30.0, 3.0, 3.0]
     P = A @ np.swapaxes(A, -1, -2) + np.eye(4)
     P = 0.5 * (P + np.swapaxes(P, -1, -2))
     x = rng.standard_normal((n, 4)) * [1e4, 1e4, 200.0, 200.0]
-    Fn, Qn = filters.transition_ct(dt, w), filters.process_noise(dt, q)
-    xp, Pp = filters.predict(x, P, Fn, Qn)
+    Fn, Qn = kalman.transition_ct(dt, w), kalman.process_noise(dt, q)
+    xp, Pp = kalman.predict(x, P, Fn, Qn)
     for pred in (tc.predict(cf(x, 1), cf(P, 2), cf(Fn, 2), cf(Qn, 2)),):
         assert _err_x(bf(pred[0], 1), xp) < 1e-14 and _err_P(bf(pred[1], 2), Pp) < 1e-14
-    xc, Pc = filters.predict(x, P, filters.transition_cv(dt), Qn)
+    xc, Pc = kalman.predict(x, P, kalman.transition_cv(dt), Qn)
     pred = tc.predict_cv(cf(x, 1), cf(P, 2), cf(dt, 0), cf(Qn, 2))
     assert _err_x(bf(pred[0], 1), xc) < 1e-14 and _err_P(bf(pred[1], 2), Pc) < 1e-14
     assert torch.equal(pred[1], pred[1].transpose(0, 1))          # exactly symmetric without a symmetrisation
@@ -325,7 +325,7 @@ def test_blocks_equal_radar_env_filters():
     R = B_ @ np.swapaxes(B_, -1, -2) + 100.0 * np.eye(2)
     R = 0.5 * (R + np.swapaxes(R, -1, -2))
     det = rng.uniform(size=n) < 0.7
-    ref = filters.update(xp, Pp, z, R, det)
+    ref = kalman.update(xp, Pp, z, R, det)
     z0, R0 = np.where(det[:, None], z, 0.0), np.where(det[:, None, None], R, np.eye(2))
     xo, Po, nu, S, S_inv = tc.update(cf(xp, 1), cf(Pp, 2), cf(z0, 1), cf(R0, 2), cf(det.astype(float), 0))
     assert _err_x(bf(xo, 1), ref.x) < 1e-12 and _err_P(bf(Po, 2), ref.P) < 1e-12   # rounding (cancellation in P+)
@@ -336,7 +336,7 @@ def test_blocks_equal_radar_env_filters():
     np.testing.assert_allclose(tc.log_likelihood(nu, S, S_inv, cf(det.astype(float), 0)).numpy(), ref.loglik,
                                rtol=1e-12, atol=1e-14)
     z1 = z + 300.0
-    x2, P2 = filters.two_point_init(z, R, np.zeros(n), z1, R, np.full(n, 4.5))
+    x2, P2 = kalman.two_point_init(z, R, np.zeros(n), z1, R, np.full(n, 4.5))
     t2 = tc.two_point_init(cf(z, 1), cf(R, 2), torch.zeros(n, dtype=torch.float64), cf(z1, 1), cf(R, 2),
                            torch.full((n,), 4.5, dtype=torch.float64))
     np.testing.assert_array_equal(bf(t2[0], 1), x2)

@@ -1,4 +1,4 @@
-"""The IMM in torch (radar_env/torch_imm.py) against the numba kernel it copies (baselines/imm_cv_ct.py): the
+"""The IMM in torch (radar_env/filters/torch_imm.py) against the numba kernel it copies (baselines/imm_cv_ct_runner.py): the
 combined estimate and covariance, every mode's posterior, the mode probabilities, the turn rate and its spread and
 the NIS equal to 1e-9 on drawn episodes of every scenario kind (single and multi-site radars, dt = 0, missed looks,
 rows of different lengths), with the tuned constants and with per-look parameters; the turn-rate clip where it is
@@ -10,10 +10,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from baselines import imm_cv_ct as I  # noqa: E402
-from radar_env import torch_chain as tc  # noqa: E402
-from radar_env import torch_imm as ti  # noqa: E402
-from radar_env.units import DEG  # noqa: E402
+from baselines import imm_cv_ct_runner as I  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
+from radar_env.filters import torch_imm as ti  # noqa: E402
+from radar_env.common.units import DEG  # noqa: E402
 from test_torch_chain import SUITES, _episodes, _loaded  # noqa: E402
 
 TOL = 1e-9
@@ -35,7 +35,7 @@ def _numba(eps, spec, params=None):
 
 
 def _torch_params(spec, looks, params=None):
-    """The kernel's arrays (baselines.imm_cv_ct.kernel_parameters) at the looks' columns, as IMMParams."""
+    """The kernel's arrays (baselines.imm_cv_ct_runner.kernel_parameters) at the looks' columns, as IMMParams."""
     q, sw2, lp = I.kernel_parameters(spec, None if params is None else I.check_look_parameters(spec, params))
     if params is None:
         return ti.IMMParams(*(torch.as_tensor(a) for a in (q, sw2, lp)))

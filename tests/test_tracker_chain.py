@@ -11,9 +11,9 @@ from agents.evaluation.suites import draw_suite
 from baselines import trackers as T
 from baselines.registry import run_tracker, tuned_imm2_spec
 from baselines.tuned_params import tuned_parameters
-from radar_env.filters import imm_step, process_noise, transition_ct, two_point_init
-from radar_env.tracking import Tracker, TrackStart
-from radar_env.units import G0_M_S2
+from radar_env.filters.kalman import imm_step, process_noise, transition_ct, two_point_init
+from radar_env.filters.tracking import Tracker, TrackStart
+from radar_env.common.units import G0_M_S2
 
 
 # ------------------------------------------------------------------------------------ frozen reference (old code)
@@ -107,7 +107,7 @@ def _old_reinit(episodes, q_m_s2=0.03 * G0_M_S2, n_sigma=2.0, consecutive=4):
 
 def _old_konle(episodes, weight=0.75):
     from baselines.konle import blend_speed_heading, run_konle
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
 
     batch = stack_episodes(episodes)
     kon = run_konle(batch.t_s, batch.site_xy_m, np.nan_to_num(batch.range_m), np.nan_to_num(batch.bearing_rad),
@@ -205,7 +205,7 @@ def test_track_start_checked_names_the_field():
 
 
 def test_trackers_accept_a_track_start_or_an_env_config():
-    from radar_env.config import EnvConfig
+    from radar_env.envs.config import EnvConfig
 
     eps = draw_suite("random", 2, seed=11)
     a = T.run_imm(eps, T.IMM2_BIZUP, cfg=TrackStart(warmup_scans=5))
@@ -267,7 +267,7 @@ def test_the_shared_track_start_is_a_fresh_start_bit_for_bit(suites):
 
 
 def test_imm_filter_is_imm_step_look_by_look_and_refuses_bad_ranges():
-    from radar_env.filters import imm_filter
+    from radar_env.filters.kalman import imm_filter
     rng = np.random.default_rng(5)
     B, K, M = 5, 40, 3
     t = np.cumsum(rng.uniform(0.5, 12.0, (B, K)), axis=1)

@@ -10,11 +10,11 @@ from agents.evaluation.suites import draw_suite
 from baselines.alpha_beta import run_alpha_beta
 from baselines.konle import run_konle
 from baselines.registry import run_tracker
-from radar_env.episode import stack_episodes
-from radar_env.features import wrap_angle
-from radar_env.radar import Radar, RadarSite
-from radar_env.scenario import RandomScenarioConfig
-from radar_env.units import DEG
+from radar_env.sim.episode import stack_episodes
+from radar_env.filters.features import wrap_angle
+from radar_env.sim.radar import Radar, RadarSite
+from radar_env.sim.scenario import RandomScenarioConfig
+from radar_env.common.units import DEG
 
 SEED = 5000  # training range (held-out evaluation seeds start at 10_000_000)
 

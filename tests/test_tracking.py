@@ -7,13 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from radar_env.catalog import make_setup
-from radar_env.episode import draw_episode
-from radar_env.filters import predict, process_noise, transition_cv, two_point_init, update
-from radar_env.radar import atc_radar
-from radar_env.scenario import ScenarioBuilder
-from radar_env.tracking import MAX_Q_M_S2, Tracker, init_looks
-from radar_env.units import G0_M_S2
+from radar_env.sim.catalog import make_setup
+from radar_env.sim.episode import draw_episode
+from radar_env.filters.kalman import predict, process_noise, transition_cv, two_point_init, update
+from radar_env.sim.radar import atc_radar
+from radar_env.sim.scenario import ScenarioBuilder
+from radar_env.filters.tracking import MAX_Q_M_S2, Tracker, init_looks
+from radar_env.common.units import G0_M_S2
 
 
 def _episode(seed, name="random", pd=None):

@@ -17,8 +17,8 @@ from agents.training.callbacks import ImmRatioEvalCallback  # noqa: E402
 from agents.cli import main as cli_main  # noqa: E402
 from agents.training.sb3_vec import make_sb3_vec_env  # noqa: E402
 from agents.training.train import load_hyperparams, main as train_main, train  # noqa: E402
-from radar_env.env import RadarTrackEnv  # noqa: E402
-from radar_env.observation import DEFAULT_FEATURES  # noqa: E402
+from radar_env.envs.env import RadarTrackEnv  # noqa: E402
+from radar_env.envs.observation import DEFAULT_FEATURES  # noqa: E402
 
 
 def _assert_info_equal(i1, i2):
@@ -174,7 +174,7 @@ def _bundled_policy_ratios(scenario, runs, baselines):
     from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
     from baselines.registry import run_tracker
     from baselines.trackers import run_q_policy
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
     eps = draw_suite(scenario, runs, seed=EVAL_SEED_BASE + 5000)
     batch = stack_episodes(eps)
@@ -202,7 +202,7 @@ def _bundled_policy_family_check(scenario, runs):
     from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
     from baselines.registry import run_tracker
     from baselines.trackers import run_q_policy
-    from radar_env.episode import stack_episodes
+    from radar_env.sim.episode import stack_episodes
     choose_q, cfg = ev.load_policy(ev.BUNDLED_POLICY)
     eps = draw_suite(scenario, runs, seed=EVAL_SEED_BASE + 5000)
     batch = stack_episodes(eps)

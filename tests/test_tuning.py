@@ -14,8 +14,8 @@ from baselines import tuning as tu
 from baselines.seeds import draw_random_episodes
 from baselines.trackers import imm2_spec_from_params
 from baselines.tuned_params import kf_q_m_s2_from_params, tuned_parameters
-from radar_env.env import EnvConfig
-from radar_env.episode import stack_episodes
+from radar_env.envs.env import EnvConfig
+from radar_env.sim.episode import stack_episodes
 
 ROOT = Path(__file__).resolve().parents[1]
 BOX = (tu.Param("a_g", 1e-3, 10.0, "log", "lo", "hi"), tu.Param("p", 0.01, 0.999, "logit", "lo", "hi limit"))

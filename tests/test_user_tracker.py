@@ -16,7 +16,7 @@ from baselines.registry import register_tracker, run_tracker, tracker_names
 from baselines.trackers import TrackRun
 from baselines.tuning import pooled_rmse
 from baselines.user_trackers import common_track_start, looks_of
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["--no-plots", "--quiet"]

@@ -20,11 +20,11 @@ import math
 import numpy as np
 
 from radar_env.applications import closest_approach, conflict_warning, simulate_intercept, two_aircraft_encounter
-from radar_env.episode import draw_episode
-from radar_env.filters import transition_ct
-from radar_env.radar import atc_radar
-from radar_env.scenario import Segment, SegmentScenario
-from radar_env.units import DEG, NM_M
+from radar_env.sim.episode import draw_episode
+from radar_env.filters.kalman import transition_ct
+from radar_env.sim.radar import atc_radar
+from radar_env.sim.scenario import Segment, SegmentScenario
+from radar_env.common.units import DEG, NM_M
 
 __all__ = ["draw_encounters", "true_encounter", "warning_metrics", "intercept_metrics"]
 

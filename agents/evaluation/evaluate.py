@@ -27,9 +27,9 @@ import numpy as np
 
 from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, POLICY_TRACKERS, tracker_names
 from baselines.user_trackers import import_tracker_module
-from radar_env.catalog import FAMILIES, SCENARIO_NAMES
-from radar_env.radar import atc_radar
-from radar_env.episode import stack_episodes
+from radar_env.sim.catalog import FAMILIES, SCENARIO_NAMES
+from radar_env.sim.radar import atc_radar
+from radar_env.sim.episode import stack_episodes
 
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F401 (BUNDLED_POLICY: part of this API)
 from agents.policies.loading import load_policy

@@ -54,7 +54,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import chdtri
 
-from radar_env.observation import measurement_sigma_m
+from radar_env.envs.observation import measurement_sigma_m
 
 __all__ = ["region_masks", "evaluate_run", "ratio_ci", "failed_runs", "lost_runs", "common_runs", "errors",
            "RunScore", "score_run", "positive_definite", "nees_values", "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M",
@@ -151,7 +151,7 @@ def failed_runs(batch, run, used=None):
 
 def lost_runs(batch, run, track_loss_gate_sigma=30.0, used=None, failed=None):
     """(B,) bool: the run failed (:func:`failed_runs`) or its position error exceeds ``track_loss_gate_sigma`` times
-    the plot noise (:func:`radar_env.observation.measurement_sigma_m` at the true range) at some used look."""
+    the plot noise (:func:`radar_env.envs.observation.measurement_sigma_m` at the true range) at some used look."""
     if used is None:
         used = region_masks(batch, run.start_index)["used"]
     if failed is None:

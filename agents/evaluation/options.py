@@ -27,7 +27,7 @@ DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_
 """The main job's suites: random flights, random radars and the papers' named scenarios."""
 
 RADAR_RANGE_HELP_KM = (10, 150)
-"""The default of ``--radar-range-km`` as the help states it: :data:`radar_env.scenario.RADAR_PLACEMENT_RANGE_M`
+"""The default of ``--radar-range-km`` as the help states it: :data:`radar_env.sim.scenario.RADAR_PLACEMENT_RANGE_M`
 in km (a test checks that they agree; the value itself is not imported here, which would load numba)."""
 
 

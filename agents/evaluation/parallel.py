@@ -5,7 +5,7 @@ on its chunk and returns the :class:`baselines.trackers.TrackRun`; the chunks ar
 (padded to the suite's longest episode exactly as the serial run pads) before any scoring, so the scoring sees
 the serial arrays bit for bit (common random numbers kept: every tracker sees the same episodes).
 
-Tasks of the papers' named and random suites (``radar_env.catalog.SCENARIO_NAMES``, where run ``i`` is a pure
+Tasks of the papers' named and random suites (``radar_env.sim.catalog.SCENARIO_NAMES``, where run ``i`` is a pure
 function of seed ``S + i``) draw their own episodes from the suite name and seed range, so nothing but the names
 travels; every task returns a digest of the episodes it drew, checked against the driver's, so a mismatch is an
 error and never a silently different number. Other suites (encounter pairs, ADS-B flights, trajectory files) are
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines.trackers import TrackRun
-from radar_env.catalog import SCENARIO_NAMES
+from radar_env.sim.catalog import SCENARIO_NAMES
 
 from agents.evaluation.runner import failed_track_run, run_one
 from agents.evaluation.suites import draw_suite

@@ -35,7 +35,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from radar_env.units import G0_M_S2
+from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import FEW_RUNS, errors, failed_runs
 
@@ -697,8 +697,8 @@ def maneuver_figure(suite, batch, runs, scenario=None):
     against the truth, and each learned IMM's per-look parameters as factors of imm_cv_ct's tuned values (a noise:
     value / tuned; a stay probability: its switch probability ``1 - p`` / the tuned one). None if no tracker records
     a maneuver probability."""
-    from baselines.imm_cv_ct import tuned_imm_cv_ct_spec
-    from radar_env.imm_cv_ct import look_parameter_names, look_parameter_vector
+    from baselines.imm_cv_ct_runner import tuned_imm_cv_ct_spec
+    from radar_env.filters.imm_cv_ct import look_parameter_names, look_parameter_vector
 
     man = {k: r for k, r in runs.items() if "maneuver_probability" in r.extra}
     if not man:

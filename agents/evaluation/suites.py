@@ -15,7 +15,7 @@ w7])`` with ``w0..w7`` the SHA-256 digest of the file's bytes read as eight litt
 the file (even whitespace) gives new ones. Its suite is named after the file's stem (``flight.csv`` -> ``flight``);
 two files with the same stem, or a stem that is a built-in suite's name, are refused
 (:func:`trajectory_suite_names`). Its radar is Adrian's ATC radar, placed per run by
-:func:`radar_env.scenario.place_radar_site` at 10-150 km (``radar_range_m``), or a fixed site (``radar``).
+:func:`radar_env.sim.scenario.place_radar_site` at 10-150 km (``radar_range_m``), or a fixed site (``radar``).
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_SEEDS, TUNING_SEEDS, suite_rng
-from radar_env.catalog import FAMILIES, SCENARIO_NAMES, make_setup
-from radar_env.draws import draw_episodes, random_scenarios
-from radar_env.env import draw_setup_and_episode, resolve_scenario
-from radar_env.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
+from radar_env.sim.catalog import FAMILIES, SCENARIO_NAMES, make_setup
+from radar_env.sim.draws import draw_episodes, random_scenarios
+from radar_env.envs.env import draw_setup_and_episode, resolve_scenario
+from radar_env.sim.scenario import RADAR_PLACEMENT_RANGE_M, SegmentScenario, TrajectoryScenario
 
 from agents.evaluation.options import DEFAULT_SUITES
 
@@ -41,15 +41,15 @@ __all__ = ["TRAIN_SEEDS", "TUNING_SEEDS", "EVAL_SEED_BASE", "DEFAULT_SUITES", "H
 # the command's options (agents.evaluation.options, read by --help without loading the simulation).
 EXTRA_SUITES = ("encounters", "adsb_calibration", "adsb_dev", "adsb_heldout")
 """Also available: ``encounters`` (pairs of aircraft, conflict warnings; ``runs`` = pairs) and the real flights
-(all, and the two halves of :data:`radar_env.adsb_scenarios.ADSB_SPLIT`)."""
+(all, and the two halves of :data:`radar_env.sim.adsb_scenarios.ADSB_SPLIT`)."""
 
 HELDOUT_FAMILY_SUITES = tuple(FAMILIES) + ("adsb_heldout",)
-"""The held-out families of issue 20 (:data:`radar_env.catalog.FAMILIES` and the held-out half of the real
+"""The held-out families of issue 20 (:data:`radar_env.sim.catalog.FAMILIES` and the held-out half of the real
 flights): evaluated with held-out seeds only, never used for training, tuning or choosing a policy."""
 
 
 DEFAULT_RADAR_RANGE_M = RADAR_PLACEMENT_RANGE_M
-"""Range annulus (m) of the ATC radar placement for a trajectory suite (:func:`radar_env.scenario.place_radar_site`)."""
+"""Range annulus (m) of the ATC radar placement for a trajectory suite (:func:`radar_env.sim.scenario.place_radar_site`)."""
 
 
 def _is_csv(scenario):
@@ -91,7 +91,7 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
 
     Args:
         seed: base seed (an integer >= 0); run ``i`` uses ``suite_rng(suite_key(scenario), seed + i)``.
-        radar: a :class:`radar_env.radar.Radar` replacing the scenario's (for a trajectory: a fixed site).
+        radar: a :class:`radar_env.sim.radar.Radar` replacing the scenario's (for a trajectory: a fixed site).
         radar_range_m: ``(lo, hi)`` in m, ``0 < lo < hi``: range annulus of the ATC radar placement for a trajectory
             without ``radar`` (default :data:`DEFAULT_RADAR_RANGE_M`); trajectories only.
     """
@@ -122,8 +122,8 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
 
 def run_scenario(scenario, seed=EVAL_SEED_BASE, run=0):
     """The truth model of run ``run`` of the suite :func:`draw_suite` draws from ``scenario`` with base seed
-    ``seed``: a :class:`~radar_env.scenario.SegmentScenario` (named scenarios, the random flights and families,
-    re-drawn from the run's generator) or a :class:`~radar_env.scenario.TrajectoryScenario` (ADS-B flights, CSV
+    ``seed``: a :class:`~radar_env.sim.scenario.SegmentScenario` (named scenarios, the random flights and families,
+    re-drawn from the run's generator) or a :class:`~radar_env.sim.scenario.TrajectoryScenario` (ADS-B flights, CSV
     trajectories); None for ``encounters`` (two aircraft per run). The figures draw its exact path and maneuver
     times (and check them against the episode's truth first)."""
     if scenario == "encounters":

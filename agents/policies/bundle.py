@@ -113,11 +113,11 @@ def recorded_env_kwargs(policy_path):
 def make_policy_env(policy_path=None, num_envs=None, **overrides):
     """The env a policy was trained in: ``gym.make("RadarTrack-v0", **kwargs)`` with ``kwargs`` from
     :func:`policy_env_kwargs` updated by ``overrides``, or, with ``num_envs``, the native
-    :class:`radar_env.env.RadarTrackVectorEnv` with the same arguments."""
+    :class:`radar_env.envs.env.RadarTrackVectorEnv` with the same arguments."""
     import gymnasium as gym      # here, not at import: BUNDLED_POLICY is read by `radar-track evaluate --help`
 
     import radar_env  # noqa: F401 - registers RadarTrack-v0
-    from radar_env.env import RadarTrackVectorEnv
+    from radar_env.envs.env import RadarTrackVectorEnv
     kw = policy_env_kwargs(policy_path)
     kw.update(overrides)
     if num_envs is None:

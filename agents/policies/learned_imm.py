@@ -1,16 +1,16 @@
 r"""The learned IMM: imm_cv_ct whose per-look parameters a causal network sets, run in numpy + numba.
 
-``imm_cv_ct`` (:mod:`baselines.imm_cv_ct`: a CV mode, a CT-EKF mode with the turn rate in its state, a high-noise
+``imm_cv_ct`` (:mod:`baselines.imm_cv_ct_runner`: a CV mode, a CT-EKF mode with the turn rate in its state, a high-noise
 CV mode) holds its mode-switch probabilities and its modes' process noise constant. Here a GRU sets them at every
-look (:data:`baselines.imm_cv_ct.LOOK_PARAMS`: ``q_cv_g``, ``q_ct_g``, ``sigma_omega_deg_s15``, ``p_stay_cv``,
+look (:data:`baselines.imm_cv_ct_runner.LOOK_PARAMS`: ``q_cv_g``, ``q_ct_g``, ``sigma_omega_deg_s15``, ``p_stay_cv``,
 ``p_stay_ct``, ``q_high_g``, ``p_stay_high``); the turn rate stays in the filter's state, estimated by the filter.
 
 Per look ``k`` of a row (the parameters of look ``k`` are chosen before look ``k`` is filtered)::
 
     input_k  = [ obs_{k-1} , detectors_{k-1} ]
                obs: the env's observation after look k-1 (RadarTrack-v0's features, incl. the preview of plot k),
-                    from the env's own chain (radar_env.tracking.Tracker at the constant q feature_q_g, encoded by
-                    radar_env.observation.ObservationLayout, exactly as the env computes it)
+                    from the env's own chain (radar_env.filters.tracking.Tracker at the constant q feature_q_g, encoded by
+                    radar_env.envs.observation.ObservationLayout, exactly as the env computes it)
                detectors: the IMM's own output after look k-1 -- mode probabilities mu (M), combined turn rate
                     omega / (20 deg/s), log10(its std in deg/s) / 3 (:func:`detector_inputs`)
     h_k      = GRU(input_k, h_{k-1})                         (h = 0 at the track start)
@@ -19,14 +19,14 @@ Per look ``k`` of a row (the parameters of look ``k`` are chosen before look ``k
     param_i  = exp(s) for a noise (log space), sigmoid(s) for a stay probability (logit space)
     IMM look k with param_k  ->  estimate, mode probabilities, omega, its std (the detectors of look k)
 
-``[L_i, H_i]`` is the parameter's :data:`baselines.imm_cv_ct.IMM_CV_CT_PARAMS` range in log (noises) or logit
+``[L_i, H_i]`` is the parameter's :data:`baselines.imm_cv_ct_runner.IMM_CV_CT_PARAMS` range in log (noises) or logit
 (probabilities) space, so every output is inside the documented range whatever the network does; the offsets
 ``delta`` move each parameter in that space from ``imm_cv_ct``'s tuned constant (``baselines/tuned.json``, recorded
 in the checkpoint). With the last layer at zero the learned IMM *is* imm_cv_ct with its tuned values (tested to
 1e-9). ``sigma_omega0_deg_s`` (the turn-rate prior at a turn's onset) and the turn-rate bound stay constants.
 
 The same computation in torch, differentiable, trains it (:mod:`agents.training.learned_imm`); this module runs a
-checkpoint with numpy (the GRU) and the compiled per-look kernel (:class:`baselines.imm_cv_ct.IMMCVCTStepper`),
+checkpoint with numpy (the GRU) and the compiled per-look kernel (:class:`baselines.imm_cv_ct_runner.IMMCVCTStepper`),
 equal to the torch forward to 1e-9 (tests/test_learned_imm.py), with no torch.
 
 A checkpoint is a folder: ``policy.npz`` (the weights, float64; read with ``np.load(allow_pickle=False)``, which
@@ -43,11 +43,12 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, imm_cv_ct_spec_from_params, look_parameter_names, run_imm_lockstep
+from baselines.imm_cv_ct_runner import (IMM_CV_CT_PARAMS, imm_cv_ct_spec_from_params, look_parameter_names,
+                                        run_imm_lockstep)
 from baselines.trackers import observation_layout
-from radar_env.config import EnvConfig
-from radar_env.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
-from radar_env.units import G0_M_S2
+from radar_env.envs.config import EnvConfig
+from radar_env.filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
+from radar_env.common.units import G0_M_S2
 
 from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
 from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
@@ -68,7 +69,7 @@ class ParamMap:
 
     Args:
         base: ``{name: value}`` of every name in ``names`` (the tuned constants: where ``delta = 0`` maps to).
-        names: the parameters, :func:`baselines.imm_cv_ct.look_parameter_names` of the spec.
+        names: the parameters, :func:`baselines.imm_cv_ct_runner.look_parameter_names` of the spec.
     Attributes: ``log_space`` (n_par,) bool (True: a noise, log space; False: a stay probability, logit space),
     ``L``, ``H``, ``u0`` (n_par,): the range in that space and the offset origin.
     """
@@ -159,7 +160,7 @@ class LearnedIMM:
         """The learned IMM on ``episodes`` from the common track start: a :class:`baselines.trackers.TrackRun`
         (x, P combined; extra series ``maneuver_probability``, ``turn_rate_deg_s`` and each parameter as
         ``param_<name>``; declared = maneuver probability > 0.5), through
-        :func:`baselines.imm_cv_ct.run_imm_lockstep` with the GRU choosing the parameters."""
+        :func:`baselines.imm_cv_ct_runner.run_imm_lockstep` with the GRU choosing the parameters."""
         episodes = list(episodes)
         h = np.zeros((len(episodes), self.arch["hidden_size"]))
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from radar_env.env import EnvConfig, actions_to_q_m_s2
-from radar_env.observation import ObservationLayout
-from radar_env.units import G0_M_S2
+from radar_env.envs.env import EnvConfig, actions_to_q_m_s2
+from radar_env.envs.observation import ObservationLayout
+from radar_env.common.units import G0_M_S2
 
 from agents.policies.bundle import policy_env_kwargs, recorded_env_kwargs
 from agents.policies.numpy_policy import load_sb3_model
@@ -75,7 +75,7 @@ def load_policy(path):
     n_obs = int(np.prod(model.observation_space.shape))
     imm = cfg.tracker == "imm_cv_ct"           # trained on the IMM env: the IMM's parameters are the action
     if imm:
-        from radar_env.imm_core import make_core
+        from radar_env.envs.imm_core import make_core
         core = make_core(1, cfg)
         lo, hi = core.observation_bounds()
         n_act = core.action_map.n_par
@@ -180,7 +180,7 @@ def _same(a, b):
 
 def model_choose_q(model, cfg: EnvConfig):
     """``choose_q(obs (n, F)) -> q (n,)`` in m/s^2 for a stable-baselines3 model (deterministic actions), through
-    the env's action map :func:`radar_env.env.actions_to_q_m_s2`."""
+    the env's action map :func:`radar_env.envs.env.actions_to_q_m_s2`."""
     levels = np.asarray(cfg.q_levels_g) * G0_M_S2
 
     def choose_q(obs):
@@ -206,10 +206,10 @@ class SB3LearnedIMM:
 def model_run_imm(model, cfg: EnvConfig, name="policy_imm_ppo"):
     """``run(episodes) -> TrackRun`` of a stable-baselines3 model trained on ``RadarTrack-v0`` with
     ``tracker="imm_cv_ct"`` (deterministic actions): the env's lockstep
-    (:func:`baselines.imm_cv_ct.run_imm_lockstep`) with the model choosing the IMM's parameters from the env's
-    observation (features + :func:`radar_env.imm_env.detector_observation`) through the env's action map."""
-    from baselines.imm_cv_ct import run_imm_lockstep
-    from radar_env.imm_env import detector_observation, feature_q_m_s2, imm_action_map, imm_spec
+    (:func:`baselines.imm_cv_ct_runner.run_imm_lockstep`) with the model choosing the IMM's parameters from the env's
+    observation (features + :func:`radar_env.envs.imm_env.detector_observation`) through the env's action map."""
+    from baselines.imm_cv_ct_runner import run_imm_lockstep
+    from radar_env.envs.imm_env import detector_observation, feature_q_m_s2, imm_action_map, imm_spec
 
     spec = imm_spec(cfg)
     amap, q = imm_action_map(cfg, spec), feature_q_m_s2(cfg)

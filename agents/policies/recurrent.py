@@ -4,7 +4,7 @@ pickle.
 A policy is a GRU over the env's observations (``RadarTrack-v0`` with ``action_type="continuous"``): at every look
 it reads the observation, updates its hidden state ``h`` and outputs the continuous action
 ``a = tanh(head(h))`` in [-1, 1], which the env maps to ``q = q_min (q_max / q_min)^((a + 1) / 2)``
-(:func:`radar_env.core.actions_to_q_m_s2`). The GRU is torch's (``torch.nn.GRUCell``; gates in the order r, z, n)::
+(:func:`radar_env.envs.core.actions_to_q_m_s2`). The GRU is torch's (``torch.nn.GRUCell``; gates in the order r, z, n)::
 
     r = sigmoid(W_ir x + b_ir + W_hr h + b_hr)
     z = sigmoid(W_iz x + b_iz + W_hz h + b_hz)
@@ -48,9 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from radar_env.config import EnvConfig
-from radar_env.core import actions_to_q_m_s2
-from radar_env.units import G0_M_S2
+from radar_env.envs.config import EnvConfig
+from radar_env.envs.core import actions_to_q_m_s2
+from radar_env.common.units import G0_M_S2
 
 from agents.policies.bundle import env_kwargs_from_json
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from baselines.registry import run_tracker
-from radar_env.episode import stack_episodes
+from radar_env.sim.episode import stack_episodes
 
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
@@ -136,7 +136,7 @@ warm-up look, then the tracker acts), scored on the looks both use (after the la
 def track_start_study(seed, runs):
     """Per suite and tracker: pooled RMSE with 1 warm-up look / with 12, paired 95 % interval, on the looks after
     the 12-look start (the same looks for both)."""
-    from radar_env.tracking import TrackStart
+    from radar_env.filters.tracking import TrackStart
     out = {}
     for suite in TRACK_START_SUITES:
         eps = draw_suite(suite, runs, seed=seed)

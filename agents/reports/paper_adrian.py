@@ -22,16 +22,16 @@ Mathcad pads the undefined first elements of ``ewr4`` / ``dix`` with zeros and `
 
 Each run is one realisation of his worksheet (his ``rnorm`` streams: ``nvx``, then range, then bearing noise, from
 one generator seeded per run). Conventions inside: his headings are mathematical angles (counter-clockwise from
-east), his ``F(w)`` is ours (:func:`radar_env.filters.transition_ct`, clockwise) at ``-w``; state order ours.
+east), his ``F(w)`` is ours (:func:`radar_env.filters.kalman.transition_ct`, clockwise) at ``-w``; state order ours.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from radar_env.filters import predict, process_noise, transition_ct, update
-from radar_env.radar import cartesian_from_polar, converted_covariance, polar_from_cartesian
-from radar_env.units import DEG, NM_M
+from radar_env.filters.kalman import predict, process_noise, transition_ct, update
+from radar_env.sim.radar import cartesian_from_polar, converted_covariance, polar_from_cartesian
+from radar_env.common.units import DEG, NM_M
 
 __all__ = ["ADRIAN_G_M_S2", "adrian_geometry", "adrian_truth", "adrian_plots", "adrian_kf",
            "adrian_reference_turn_rate", "adrian_alg1", "adrian_quantities", "adrian_worksheet"]

@@ -30,10 +30,10 @@ import numpy as np
 from baselines import trackers as T
 from baselines.policies import CKFPolicy
 from baselines.registry import run_tracker
-from radar_env.env import EnvConfig
-from radar_env.episode import stack_episodes
-from radar_env.observation import ObservationLayout
-from radar_env.units import G0_M_S2, NM_M
+from radar_env.envs.env import EnvConfig
+from radar_env.sim.episode import stack_episodes
+from radar_env.envs.observation import ObservationLayout
+from radar_env.common.units import G0_M_S2, NM_M
 
 from agents.evaluation.metrics import region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from baselines import trackers as T
-from radar_env.env import EnvConfig
-from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
+from radar_env.envs.env import EnvConfig
+from radar_env.sim.episode import stack_episodes
+from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import evaluate_run, region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite

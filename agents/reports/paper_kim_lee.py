@@ -20,7 +20,7 @@ import numpy as np
 
 from baselines.alpha_beta import run_alpha_beta
 from baselines.tuned_params import tuned_parameters
-from radar_env.units import G0_M_S2
+from radar_env.common.units import G0_M_S2
 
 __all__ = ["LOW_Q_M_S2", "kim_lee_truth", "kim_lee_1d_check"]
 

@@ -3,7 +3,7 @@ r"""End-to-end training by backpropagation through the project's own filter: ``r
 RadarTrack-v0's loss, the position error after the track start, is a differentiable function of every q the
 policy chose, through the Kalman filter. This trainer minimises it by gradient descent: a causal recurrent policy
 (a GRU over the env's observation) outputs q at every look, the differentiable chain
-(:mod:`radar_env.torch_chain`) filters with it, and the pooled position MSE is backpropagated through the filter's
+(:mod:`radar_env.filters.torch_chain`) filters with it, and the pooled position MSE is backpropagated through the filter's
 states into the network. The trained network is a policy like any other: a numpy GRU runs it in the evaluation and
 in the env (:mod:`agents.policies.recurrent`), with no torch.
 
@@ -13,12 +13,12 @@ One look of one training row (the *lockstep*)::
     torch chain:  x_j, P_j = step(x_{j-1}, P_{j-1}, plot j; q_j)            (gradient flows through q_j, x, P)
     numba chain:  Tracker.step(q_j.detach()) -> StepOutput -> ObservationLayout.encode -> obs_j   (as the env)
 
-The numba :class:`radar_env.tracking.Tracker` and :meth:`radar_env.observation.ObservationLayout.encode` compute the
+The numba :class:`radar_env.filters.tracking.Tracker` and :meth:`radar_env.envs.observation.ObservationLayout.encode` compute the
 observation exactly as ``RadarTrack-v0`` does (the env's own code, so the network reads in training what it reads
 when acting; tested bit for bit against the env), and the torch chain carries the gradient.
 
 Streaming truncated backpropagation. ``batch_episodes`` rows (>= 1,000 episodes side by side) each play one episode
-after another, drawn by the batched drawer (:func:`radar_env.draws.draw_episodes`, one call per chunk for every row
+after another, drawn by the batched drawer (:func:`radar_env.sim.draws.draw_episodes`, one call per chunk for every row
 that needs a new episode) from the training flights (``env_kwargs``: the bundled PPO policy's last-stage
 distribution by default). One optimiser step per chunk of ``chunk_looks`` looks of every row: the loss is the
 pooled position MSE over the chunk's looks after the track start (those :mod:`agents.evaluation.metrics` scores),
@@ -63,12 +63,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from radar_env import torch_chain as tc
-from radar_env.config import EnvConfig
-from radar_env.core import actions_to_q_m_s2
-from radar_env.draws import draw_episodes
-from radar_env.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, ObservationLayout, measurement_sigma_m
-from radar_env.units import G0_M_S2
+from radar_env.filters import torch_chain as tc
+from radar_env.envs.config import EnvConfig
+from radar_env.envs.core import actions_to_q_m_s2
+from radar_env.sim.draws import draw_episodes
+from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, ObservationLayout, measurement_sigma_m
+from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import env_kwargs_from_json
@@ -94,7 +94,7 @@ MAX_TRAIN_SEED = SELECTION_SEED_BASE
 class ChainModel(torch.nn.Module):
     """What the trainer needs of a differentiable tracker model. Subclass it, name it in :data:`MODELS`.
 
-    The trainer owns the rows' episodes, the numba :class:`radar_env.tracking.Tracker` stepped in lockstep (it gives
+    The trainer owns the rows' episodes, the numba :class:`radar_env.filters.tracking.Tracker` stepped in lockstep (it gives
     the env's observation), the chunks, the loss and the optimiser. A model keeps, per row, its network's recurrent
     state and its own torch filter state, and implements:
 
@@ -103,7 +103,7 @@ class ChainModel(torch.nn.Module):
       ``tracker.x[rows]``, ``tracker.P[rows]`` is the start state): clear their recurrent state, start their filter;
     * :meth:`begin_chunk` ``(tracker)``: cut the autograd graph before a chunk (detach every carried tensor);
     * :meth:`step` ``(looks, j, obs) -> (x (4, B), tracker_q (B,))``: one look ``j`` of the chunk's
-      :class:`radar_env.torch_chain.ChainLooks` for every row, reading the observation ``obs (B, F)`` (float64,
+      :class:`radar_env.filters.torch_chain.ChainLooks` for every row, reading the observation ``obs (B, F)`` (float64,
       detached) of the look before: returns the position estimate the loss scores (components first, see
       torch_chain) and the q (m/s^2, numpy) the trainer steps the numba Tracker with, for the next observation;
     * :meth:`architecture` (JSON-able dict), :meth:`policy_weights` (``{name: numpy array}``) and
@@ -159,7 +159,7 @@ class CVQModel(ChainModel):
         input_size: entries of the observation. hidden_size: GRU width. head: widths of tanh layers between the
             GRU and the output (may be empty).
         q_levels_m_s2: the env's q levels; the action ``a = tanh(.)`` maps to ``q`` as the env maps continuous
-            actions (:func:`radar_env.core.actions_to_q_m_s2`).
+            actions (:func:`radar_env.envs.core.actions_to_q_m_s2`).
         q_init_m_s2: the q the untrained network outputs at every look (its output layer is zero, its bias gives
             this q): kf_tuned's, so training starts from the tuned constant-q filter.
     """
@@ -400,7 +400,7 @@ class StreamingTrainer:
 
     def chunk(self):
         """One chunk of every row: returns ``(loss, looks)``, the chunk's loss (:data:`LOSSES`: pooled over its
-        scored looks; a graph to backpropagate) and its :class:`radar_env.torch_chain.ChainLooks`."""
+        scored looks; a graph to backpropagate) and its :class:`radar_env.filters.torch_chain.ChainLooks`."""
         tr = self.tracker
         ended = np.flatnonzero(tr.k >= tr.n_looks)
         if ended.size:
@@ -450,7 +450,7 @@ def lockstep(model, tracker, layout, obs, looks, on_look=None):
 def forward_episodes(model, episodes, cfg, on_look=None):
     """``model`` over whole ``episodes`` from the common track start of ``cfg``, in one chunk and without chunking
     the graph (tests and diagnostics): ``(x (B, J, 4), looks)``, the looks after the start as
-    :class:`radar_env.torch_chain.ChainLooks`."""
+    :class:`radar_env.filters.torch_chain.ChainLooks`."""
     episodes = list(episodes)
     B = len(episodes)
     lv = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from radar_env.env import EnvConfig
+from radar_env.envs.env import EnvConfig
 
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import embed_env_config, env_kwargs_from_json

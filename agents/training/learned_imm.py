@@ -3,9 +3,9 @@ imm_cv_ct``.
 
 :class:`LearnedIMMModel` is the network of :mod:`agents.policies.learned_imm` in torch (a GRU over the env's
 observation and the IMM's own detectors, whose offsets set imm_cv_ct's per-look parameters) and the differentiable
-IMM they drive (:mod:`radar_env.torch_imm`, built from the one torch chain's blocks). It implements the backprop
+IMM they drive (:mod:`radar_env.filters.torch_imm`, built from the one torch chain's blocks). It implements the backprop
 trainer's model interface (:class:`agents.training.backprop.ChainModel`), so that trainer runs it: the rows' flights,
-the lockstep numba :class:`radar_env.tracking.Tracker` (stepped at kf_tuned's constant q: the env's observation,
+the lockstep numba :class:`radar_env.filters.tracking.Tracker` (stepped at kf_tuned's constant q: the env's observation,
 as ``RadarTrack-v0`` computes it), chunks of truncated backpropagation of the pooled position MSE through the IMM
 into the network, validation on training-range seeds and the best checkpoint, the run folder. Its hyperparameters:
 ``agents/training/hyperparams/backprop_imm_cv_ct.toml``. A checkpoint is the learned IMM's own format
@@ -18,10 +18,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from baselines.imm_cv_ct import IMM_CV_CT_PARAMS, look_parameter_names, tuned_imm_cv_ct_spec
-from radar_env import torch_chain as tc
-from radar_env import torch_imm as ti
-from radar_env.units import DEG, G0_M_S2
+from baselines.imm_cv_ct_runner import IMM_CV_CT_PARAMS, look_parameter_names, tuned_imm_cv_ct_spec
+from radar_env.filters import torch_chain as tc
+from radar_env.filters import torch_imm as ti
+from radar_env.common.units import DEG, G0_M_S2
 
 from agents.policies.learned_imm import (LearnedIMM, ParamMap, detector_inputs, detector_names, initial_detectors,
                                          save_learned_imm, weight_shapes)

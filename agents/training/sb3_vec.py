@@ -1,4 +1,4 @@
-"""Adapter: the native batched :class:`radar_env.env.RadarTrackVectorEnv` as a stable-baselines3 ``VecEnv``.
+"""Adapter: the native batched :class:`radar_env.envs.env.RadarTrackVectorEnv` as a stable-baselines3 ``VecEnv``.
 
 SB3 cannot consume a Gymnasium ``VectorEnv`` directly. Both use same-step autoreset, so the adapter only
 translates the conventions:
@@ -29,7 +29,7 @@ import time
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from radar_env.env import RadarTrackVectorEnv, _row
+from radar_env.envs.env import RadarTrackVectorEnv, _row
 
 __all__ = ["RadarTrackSB3VecEnv", "make_sb3_vec_env"]
 

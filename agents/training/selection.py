@@ -16,8 +16,8 @@ import numpy as np
 
 from baselines.registry import run_tracker
 from baselines.trackers import run_q_policy
-from radar_env.episode import stack_episodes
-from radar_env.units import G0_M_S2
+from radar_env.sim.episode import stack_episodes
+from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import errors, failed_runs, region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite

@@ -9,7 +9,7 @@ command line overrides ``n_timesteps``, ``n_envs``, env arguments (``--env-kwarg
 Special keys: ``eval_scenarios`` / ``eval_runs`` / ``eval_freq`` / ``select_on`` (selection callback),
 ``init_from`` (path of a saved model of the same algorithm and network to start from: fine-tuning).
 
-Rollouts run on the native batched vector env (:class:`radar_env.env.RadarTrackVectorEnv`) through the SB3
+Rollouts run on the native batched vector env (:class:`radar_env.envs.env.RadarTrackVectorEnv`) through the SB3
 adapter (:mod:`agents.training.sb3_vec`), random scenarios only, row ``i`` seeded ``seed + i`` (training range
 ``[0, 1_000_000)``). Hyperparameters are checked before anything is written (unknown keys, wrong types, a missing
 ``init_from`` or one of another algorithm are one-line errors). The run is written into
@@ -218,7 +218,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from radar_env.observation import DEFAULT_FEATURES
+    from radar_env.envs.observation import DEFAULT_FEATURES
 
     from agents.training.callbacks import EnvTimeCallback, ImmRatioEvalCallback
     from agents.training.sb3_vec import make_sb3_vec_env

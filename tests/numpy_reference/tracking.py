@@ -31,10 +31,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from radar_env.episode import Episode
+from radar_env.sim.episode import Episode
 from .features import MIN_DT_S, FeatureBank, c_min_m_s2, kim_lee_phi_2d, nis, normalized_innovation_along_cross
 from .filters import predict, process_noise, transition_ct, transition_cv, two_point_init, update
-from radar_env.units import G0_M_S2
+from radar_env.common.units import G0_M_S2
 
 __all__ = ["Tracker", "StepOutput", "init_looks", "looks_for_track_start", "preview_next_plot", "MAX_Q_M_S2"]
 
@@ -171,7 +171,7 @@ class Tracker:
         warmup_scans: looks filtered at ``warmup_q_m_s2`` after the two-hit start (Bizup: 12), >= 1 (the first
             observation needs the features of one filtered look).
         warmup_q_m_s2: process-noise level during warm-up (Bizup: 0.03 g).
-        n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.features.FeatureBank`.
+        n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.filters.features.FeatureBank`.
     """
 
     def __init__(self, batch_size, warmup_scans=12, warmup_q_m_s2=0.03 * G0_M_S2, n_adrian=4, window_kim_lee=12,

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from .config import RENDER_MODES, EnvConfig
 from .imm_core import make_core
 from .env_kernels import BO_TRUNC
-from .validate import check_known_keys
+from ..common.validate import check_known_keys
 
 __all__ = ["RadarTrackEnv", "row_spaces"]
 
@@ -70,10 +70,10 @@ class RadarTrackEnv(gym.Env):
 
     ``Box(low, high, (F,), float32)``, one entry per name in ``features`` (default: the first 27 below), scaled
     and clipped. Physical value = the inverse of the scaling (``ObservationLayout.decode``). Entries 0-16 describe
-    the looks processed so far, 17-26 preview the next plot (``radar_env.observation.PAST_FEATURES`` leaves them
+    the looks processed so far, 17-26 preview the next plot (``radar_env.envs.observation.PAST_FEATURES`` leaves them
     out: q then has to be chosen before the plot is seen). 27-29 are opt-in classical maneuver detectors
-    (``radar_env.observation.DETECTOR_FEATURES``, in no default list): the tuned imm_cv_ct and imm2 IMMs run beside
-    the chain on the same looks (``radar_env.detectors``; ``tracker="cv"`` only).
+    (``radar_env.envs.observation.DETECTOR_FEATURES``, in no default list): the tuned imm_cv_ct and imm2 IMMs run beside
+    the chain on the same looks (``radar_env.envs.detectors``; ``tracker="cv"`` only).
 
     | Num | Name | Unit | Scaling | Min | Max |
     |---|---|---|---|---|---|
@@ -141,13 +141,13 @@ class RadarTrackEnv(gym.Env):
 
     * ``scenario``: ``"random"`` (default), ``"random_radars"`` (the same flights seen by a random radar: 1-12 s
       scan period, noise, detection probability, sometimes a second site), a name from
-      ``radar_env.catalog.SCENARIO_NAMES`` (``bizup2002``,
+      ``radar_env.sim.catalog.SCENARIO_NAMES`` (``bizup2002``,
       ``adrian_flower``, ``kim_lee_accel``, ``seed002_course_changes``, ``seed002_two_radars``; the held-out
       families ``start_maneuver``, ``short_tracks``, ``sharp_turns``, ``slow_orbits``, ``speed_changes``, which take
       no ``random_config``), ``adsb_calibration`` / ``adsb_dev`` / ``adsb_heldout`` / ``adsb:<flight>``, a path to a
       ``.csv`` trajectory (``t_s,x_m,y_m,vx_m_s,vy_m_s``), a ``Setup`` or a scenario object. ``reset(options=
       {"scenario": ...})`` overrides it for that reset only.
-    * ``radar``: a ``radar_env.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
+    * ``radar``: a ``radar_env.sim.radar.Radar`` replacing the scenario's radar (default: the paper's radar; for a
       user trajectory, the ATC radar placed by ``place_radar_site``).
     * ``random_config``: dict or ``RandomScenarioConfig`` for the random scenarios (unknown keys raise).
     * ``action_type``: ``"discrete"`` or ``"continuous"``; ``q_levels_g``: increasing levels in (0, 100] g.
@@ -167,7 +167,7 @@ class RadarTrackEnv(gym.Env):
       mode probabilities, turn rate and its std to the features (computed by this env's chain at the constant q
       ``feature_q_g``); info estimate / covariance, reward and track loss are the IMM's. With it:
       ``imm_action_levels`` (odd, default 5), ``imm_parameters`` (dict, default the tuned values), ``feature_q_g``
-      (default ``kf``'s tuned q); ``frame_stack`` must be 1. Reference: :mod:`radar_env.imm_env`,
+      (default ``kf``'s tuned q); ``frame_stack`` must be 1. Reference: :mod:`radar_env.envs.imm_env`,
       docs/environment.md.
     * ``render_mode``: ``None`` (default), ``"rgb_array"`` (``render()`` returns an RGB frame of
       ``radar_env.render.FRAME_SHAPE``) or ``"human"`` (a matplotlib window updated every step; refused with a
@@ -197,7 +197,7 @@ class RadarTrackEnv(gym.Env):
         self.config = EnvConfig.from_kwargs(**kwargs)
         self.render_mode = self.config.render_mode
         if self.render_mode == "human":
-            from .render import human_display_problem  # lazy: matplotlib only when rendering
+            from ..render import human_display_problem  # lazy: matplotlib only when rendering
             problem = human_display_problem()
             if problem is not None:
                 raise ValueError(f"RadarTrack-v0: render_mode='human' needs a window, but {problem}; use "
@@ -209,7 +209,7 @@ class RadarTrackEnv(gym.Env):
 
     @property
     def layout(self):
-        """The :class:`radar_env.observation.ObservationLayout` of this env's observations."""
+        """The :class:`radar_env.envs.observation.ObservationLayout` of this env's observations."""
         return self._core.layout
 
     def reset(self, *, seed=None, options=None):
@@ -271,5 +271,5 @@ class RadarTrackEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("RadarTrack-v0: render() called without a render_mode; pass render_mode to gym.make")
             return None
-        from .render import render_frame  # lazy: matplotlib only when rendering
+        from ..render import render_frame  # lazy: matplotlib only when rendering
         return render_frame(self)

@@ -3,15 +3,17 @@ r"""Compiled kernels of the tracking chain: the one copy of the filter, feature 
 Everything here is numba ``@njit(cache=True)`` (nopython, no fastmath, so results agree with plain float64
 arithmetic to rounding) and works on float64 / int64 / bool arrays with the batch axis first. Per-row scalar code
 (functions starting ``_``) is written once and called by the batched kernels (``k_*``), which loop over rows.
-The equations are in :mod:`radar_env.filters` (Kalman / IMM), :mod:`radar_env.features` (features) and
-:mod:`radar_env.tracking` (the chain and the preview); those modules are the public numpy-array API and call
+The equations are in :mod:`radar_env.filters.kalman` (Kalman / IMM), :mod:`radar_env.filters.features` (features) and
+:mod:`radar_env.filters.tracking` (the chain and the preview); those modules are the public numpy-array API and call
 these kernels.
 
 Layouts (module constants, compile-time constants inside the kernels):
 
-* a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1);
+* a look row ``L_*``: the episode data of one look packed into ``W_LOOK`` float64 columns (flags as 0/1): the
+  simulation's data format, defined in :mod:`radar_env.sim.looks` (the episode drawer writes it) and re-exported
+  here;
 * the tracker's state ``st (B, W_ST)`` float (``S_*``: x, P, time of the last look) and ``it (B, W_IT)`` int
-  (``I_*``: next look, looks in the episode);
+  (``I_*``: next look, looks in the episode; the look cursor, also from :mod:`radar_env.sim.looks`);
 * the feature-bank state of one track: ``bf`` (float: ring buffers, FMA, held values), ``bi`` (int: ring-buffer
   indices and counts), ``bb`` (bool: validity flags), offsets from :func:`bank_offsets`;
 * one step's output row ``O_*`` (float), ``OB_*`` (bool) and the feature columns ``FB_*`` (bank) / ``FP_*``
@@ -29,24 +31,16 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .numba_cache import drop_stale_kernels, package_sources
+from ..common.arrays import c_array  # noqa: F401  (re-exported: the kernels' array type)
+from ..common.numba_cache import drop_stale_kernels, package_sources
+from ..sim.looks import (I_K, I_N, L_BEAR, L_BSTD, L_DET, L_MAN, L_R, L_RANGE, L_RDOT,  # noqa: F401
+                         L_RDSTD, L_RSTD, L_SITE, L_T, L_TACC, L_TRUTH, L_TTURN, L_Z, LOOK_COLUMNS, W_IT, W_LOOK)
+from ..sim.motion import _transition, k_transition  # noqa: F401  (the CT motion model the truth uses too)
 
 TWO_PI = 2.0 * math.pi
 LOG_2PI = math.log(2.0 * math.pi)
 MIN_SPEED_M_S = 1e-6
 MIN_DT_S = 1e-3
-
-# ---------------------------------------------------------------------------------------------- look row layout
-L_T, L_SITE, L_RANGE, L_RSTD, L_BSTD, L_RDSTD = 0, 1, 3, 4, 5, 6
-L_TRUTH, L_TACC, L_TTURN, L_MAN, L_DET, L_BEAR, L_RDOT, L_Z, L_R = 7, 11, 13, 14, 15, 16, 17, 18, 20
-W_LOOK = 24
-LOOK_COLUMNS = {  # episode field -> (first column, trailing shape)
-    "t_s": (L_T, ()), "site_xy_m": (L_SITE, (2,)), "range_m": (L_RANGE, ()), "range_noise_std_m": (L_RSTD, ()),
-    "bearing_noise_std_rad": (L_BSTD, ()), "radial_velocity_noise_std_m_s": (L_RDSTD, ()),
-    "truth": (L_TRUTH, (4,)), "truth_accel_m_s2": (L_TACC, (2,)), "truth_turn_rate_rad_s": (L_TTURN, ()),
-    "maneuvering": (L_MAN, ()), "detected": (L_DET, ()), "bearing_rad": (L_BEAR, ()),
-    "radial_velocity_m_s": (L_RDOT, ()), "z_m": (L_Z, (2,)), "R_m2": (L_R, (2, 2)),
-}
 
 # --------------------------------------------------------------------------------------------- step output layout
 O_T, O_DT, O_Q, O_XPR, O_PPR, O_X, O_P, O_NU, O_S, O_NIS = 0, 1, 2, 3, 7, 23, 27, 43, 45, 49
@@ -83,20 +77,9 @@ PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
 W_PAR = 7
 
 # packed tracker state: floats ``st (B, W_ST)`` (posterior x, P, time of the last processed look) and ints
-# ``it (B, W_IT)`` (next look to process, looks in the episode): few kernel arguments
+# ``it (B, W_IT)`` (next look to process, looks in the episode; I_K, I_N, W_IT from sim.looks): few kernel arguments
 S_X, S_P, S_T = 0, 4, 20
 W_ST = 21
-I_K, I_N = 0, 1
-W_IT = 2
-
-
-def c_array(a, dtype=None):
-    """``a`` as a C-contiguous, writeable array (of ``dtype``): the one array type the kernels are compiled for
-    (a read-only or strided argument would compile another specialisation). Copies only when needed."""
-    a = np.asarray(a, dtype=dtype)
-    if a.flags.c_contiguous and a.flags.writeable:
-        return a
-    return np.array(a, dtype=dtype, order="C")
 
 
 def bank_offsets(n, N):
@@ -116,36 +99,6 @@ _bank_offsets = njit(cache=True)(bank_offsets)
 
 
 # =================================================================================================== scalar math
-@njit(cache=True)
-def _sinc(x):
-    # numpy's sinc(x) = sin(pi x)/(pi x), 1 at 0
-    if x == 0.0:
-        return 1.0
-    y = math.pi * x
-    return math.sin(y) / y
-
-
-@njit(cache=True)
-def _transition(dt, w, ct, F):
-    """F_cv(dt) (``ct`` False) or F_ct(dt, w) into F (4,4)."""
-    for i in range(4):
-        for j in range(4):
-            F[i, j] = 0.0
-    F[0, 0] = F[1, 1] = F[2, 2] = F[3, 3] = 1.0
-    if not ct:
-        F[0, 2] = F[1, 3] = dt
-        return
-    theta = w * dt
-    s, c = math.sin(theta), math.cos(theta)
-    a = dt * _sinc(theta / math.pi)
-    sc = _sinc(theta / (2.0 * math.pi))
-    b = dt * (theta / 2.0) * (sc * sc)
-    F[0, 2], F[0, 3] = a, b
-    F[1, 2], F[1, 3] = -b, a
-    F[2, 2], F[2, 3] = c, s
-    F[3, 2], F[3, 3] = -s, c
-
-
 @njit(cache=True)
 def _process_noise(dt, q, Q):
     q2 = q * q
@@ -843,12 +796,6 @@ def k_track_start(rows, i1s, i2s, st, it, looks, bf, bi, bb, par):
 
 # ================================================================================================ batched filters
 @njit(cache=True)
-def k_transition(dt, w, ct, F):
-    for b in range(dt.shape[0]):
-        _transition(dt[b], w[b], ct, F[b])
-
-
-@njit(cache=True)
 def k_process_noise(dt, q, Q):
     for b in range(dt.shape[0]):
         _process_noise(dt[b], q[b], Q[b])
@@ -1084,6 +1031,6 @@ def k_imm_run(t, z, R, det, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, 
             t_last = t[b, k]
 
 
-# numba keys each cached kernel on its own file only: drop this package's cached kernels when any of its sources
-# changed (radar_env.numba_cache), before a kernel of this or another module here loads from the cache
-drop_stale_kernels(k_update, package_sources(Path(__file__).parent))
+# numba keys each cached kernel on its own file only: drop this folder's cached kernels when any source of
+# radar_env changed (radar_env.common.numba_cache), before a kernel of this or another module here loads from the cache
+drop_stale_kernels(k_update, package_sources(Path(__file__).parents[1]))

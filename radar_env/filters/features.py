@@ -10,8 +10,8 @@ Two layers:
   batch size, returning finite values for every finite input (the fallbacks are documented per function);
 * :class:`FeatureBank`, a stateful batched bank holding the ring buffers the history-based features need
   (Adrian's turn-rate algorithms 1 and 2, Kim & Lee's sliding innovation window, Bizup's CKF fading-memory
-  average). Its ``update`` is one compiled kernel call (:mod:`radar_env.kernels`, the per-row code that the
-  fused :meth:`radar_env.tracking.Tracker.step` kernel runs too).
+  average). Its ``update`` is one compiled kernel call (:mod:`radar_env.filters.kernels`, the per-row code that the
+  fused :meth:`radar_env.filters.tracking.Tracker.step` kernel runs too).
 
 The formula functions are plain numpy: they are the readable reference of the kernels' per-row code (tests check
 the bank against them) and are used by the paper checks and baselines (``wrap_angle``, ``kim_lee_variance``).

@@ -13,7 +13,7 @@ from .config import EnvConfig
 from .imm_core import make_core
 from .env_kernels import BO_DONE
 from .single_env import row_spaces
-from .validate import check_known_keys
+from ..common.validate import check_known_keys
 
 __all__ = ["RadarTrackVectorEnv"]
 

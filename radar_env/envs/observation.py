@@ -41,12 +41,12 @@ name                   unit       meaning                                       
 =====================  =========  =======================================================  ========  ==========
 
 The ``next_*`` entries preview the plot that the chosen q will be used for
-(:func:`radar_env.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
+(:func:`radar_env.filters.tracking.preview_next_plot`): the q-free predicted mean makes its innovation known before q is
 chosen, so a policy, like an IMM, can weigh the plot itself. ``DEFAULT_FEATURES`` has the first 27;
 ``PAST_FEATURES`` the first 17 (no preview: q for a look chosen from the looks before it).
 
 The last three, ``DETECTOR_FEATURES``, are classical maneuver detectors: the tuned ``imm_cv_ct`` and ``imm2``
-IMMs run beside the chain on the same looks (:mod:`radar_env.detectors`). They are in no default list (the
+IMMs run beside the chain on the same looks (:mod:`radar_env.envs.detectors`). They are in no default list (the
 bundled policies' observations stay as they were); name them in ``features`` to add them. Only the env with
 ``tracker="cv"`` computes them (the IMM env has its own detectors), and :meth:`ObservationLayout.encode` takes
 their values as ``detectors``.
@@ -61,9 +61,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import env_kernels as _ek
-from . import kernels as _k
-from .units import G0_M_S2
-from .validate import check_known_keys
+from ..filters import kernels as _k
+from ..common.units import G0_M_S2
+from ..common.validate import check_known_keys
 
 __all__ = ["FEATURE_SPECS", "DEFAULT_FEATURES", "PAST_FEATURES", "DETECTOR_FEATURES", "DEFAULT_Q_LEVELS_G",
            "ObservationLayout", "FrameStack", "measurement_sigma_m"]
@@ -120,7 +120,7 @@ FEATURE_SPECS = {s.name: s for s in [
 ]}
 
 DETECTOR_FEATURES = ("imm_ct_prob", "imm_omega_deg_s", "imm2_high_prob")
-"""The detector features (:mod:`radar_env.detectors`), in the order of its value columns."""
+"""The detector features (:mod:`radar_env.envs.detectors`), in the order of its value columns."""
 DEFAULT_FEATURES = tuple(n for n in FEATURE_SPECS if n not in DETECTOR_FEATURES)
 
 _FROM_FEATURES = {  # observation name -> (StepOutput.features key, divisor to the observation's unit)
@@ -172,7 +172,7 @@ class ObservationLayout:
         self.high = np.array([s.high for s in self.specs], dtype=np.float32)
         self._lq0, self._lq1 = float(np.log10(q_min_m_s2 / G0_M_S2)), float(np.log10(q_max_m_s2 / G0_M_S2))
         self._index = {n: i for i, n in enumerate(names)}
-        # the compiled encoding's plan (radar_env.env_kernels: one row per entry); ``_sources`` names the feature
+        # the compiled encoding's plan (radar_env.envs.env_kernels: one row per entry); ``_sources`` names the feature
         # each entry reads (None: dt, q_prev, detected), ``env_plan`` reads the chain's feature row directly
         self._sources, rows = [], []
         for n, s in zip(names, self.specs):
@@ -197,7 +197,7 @@ class ObservationLayout:
 
     @property
     def uses_detectors(self):
-        """True if an entry is a :data:`DETECTOR_FEATURES` (the caller then runs :mod:`radar_env.detectors`)."""
+        """True if an entry is a :data:`DETECTOR_FEATURES` (the caller then runs :mod:`radar_env.envs.detectors`)."""
         return any(n in DETECTOR_FEATURES for n in self.names)
 
     def _inputs(self, out, q_prev_m_s2, detectors=None):
@@ -208,7 +208,7 @@ class ObservationLayout:
         src = np.zeros((n, len(self.names)))
         if self.uses_detectors and (detectors is None or np.shape(detectors) != (n, len(DETECTOR_FEATURES))):
             raise ValueError(f"detectors must be the ({n}, {len(DETECTOR_FEATURES)}) values of "
-                             f"radar_env.detectors.DetectorBank ({', '.join(DETECTOR_FEATURES)}) for this layout's "
+                             f"radar_env.envs.detectors.DetectorBank ({', '.join(DETECTOR_FEATURES)}) for this layout's "
                              f"detector features, got {None if detectors is None else np.shape(detectors)}")
         for j, key in enumerate(self._sources):
             if key in DETECTOR_FEATURES:
@@ -222,7 +222,7 @@ class ObservationLayout:
                 c(out.detected, np.bool_), c(q if q.shape == (n,) else np.broadcast_to(q, (n,)), np.float64))
 
     def physical(self, out, q_prev_m_s2, detectors=None):
-        """Physical values (n, F) from a :class:`radar_env.tracking.StepOutput` (and the detectors' (n, 3) values,
+        """Physical values (n, F) from a :class:`radar_env.filters.tracking.StepOutput` (and the detectors' (n, 3) values,
         needed if :attr:`uses_detectors`)."""
         inp = self._inputs(out, q_prev_m_s2, detectors)
         phys = np.empty(inp[0].shape)
@@ -239,9 +239,9 @@ class ObservationLayout:
         return obs.reshape(phys.shape)
 
     def encode(self, out, q_prev_m_s2, detectors=None):
-        """The (n, F) float32 observation of a :class:`radar_env.tracking.StepOutput`: ``encode_physical(
+        """The (n, F) float32 observation of a :class:`radar_env.filters.tracking.StepOutput`: ``encode_physical(
         physical(out, q_prev_m_s2, detectors))`` in one compiled pass (the env's step runs the same code,
-        :mod:`radar_env.env_kernels`)."""
+        :mod:`radar_env.envs.env_kernels`)."""
         inp = self._inputs(out, q_prev_m_s2, detectors)
         obs = np.empty(inp[0].shape, dtype=np.float32)
         _ek.k_encode(self._plan, self._lq0, self._lq1, *inp, obs)

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .units import DEG, FT_M, KNOT_M_S, NM_M
-from .validate import check_known_keys, check_number, is_real_number
+from ..common.units import DEG, FT_M, KNOT_M_S, NM_M
+from ..common.validate import check_known_keys, check_number, is_real_number
 
 __all__ = [
     "RadarSite",

@@ -1,8 +1,8 @@
 """The batched core of RadarTrack-v0 (no Gymnasium needed): N tracks stepped together.
 
-:class:`_Core` runs the env's step for all rows in one compiled call (:mod:`radar_env.env_kernels`: action -> q,
-the one tracking chain of :class:`radar_env.tracking.Tracker`, observation, reward, end flags) and builds the info
-dict from its output arrays. Episodes are drawn straight into the tracker (:class:`radar_env.draws.LookDrawer`).
+:class:`_Core` runs the env's step for all rows in one compiled call (:mod:`radar_env.envs.env_kernels`: action -> q,
+the one tracking chain of :class:`radar_env.filters.tracking.Tracker`, observation, reward, end flags) and builds the info
+dict from its output arrays. Episodes are drawn straight into the tracker (:class:`radar_env.sim.draws.LookDrawer`).
 The single env and the vector env are thin Gymnasium layers over it.
 """
 
@@ -13,13 +13,13 @@ import math
 import numpy as np
 
 from . import env_kernels as _ek
-from . import kernels as _k
+from ..filters import kernels as _k
 from .config import NEES_99_2DOF, REWARD_SCALE_M, EnvConfig, resolve_scenario
 from .detectors import DetectorBank
-from .draws import MAX_EPISODE_DRAWS, LookDrawer, _keys, draw_episodes
+from ..sim.draws import MAX_EPISODE_DRAWS, LookDrawer, _keys, draw_episodes
 from .observation import FrameStack, ObservationLayout
-from .scenario import RADAR_PLACEMENT_RANGE_M
-from .units import G0_M_S2
+from ..sim.scenario import RADAR_PLACEMENT_RANGE_M
+from ..common.units import G0_M_S2
 
 __all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
 
@@ -27,10 +27,10 @@ __all__ = ["draw_setup_and_episode", "actions_to_q_m_s2", "MAX_EPISODE_DRAWS"]
 def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=EnvConfig.warmup_scans,
                            radar_range_m=RADAR_PLACEMENT_RANGE_M):
     """The episode of one reset: the truth (if random) and all plots, from ``rng`` only (a batch of one of
-    :func:`radar_env.draws.draw_episodes`, whose docstring gives the random stream).
+    :func:`radar_env.sim.draws.draw_episodes`, whose docstring gives the random stream).
 
     A trajectory scenario with ``radar=None`` is seen by Adrian's ATC radar placed as
-    :func:`radar_env.scenario.place_radar_site` does with ``range_m=radar_range_m`` (m).
+    :func:`radar_env.sim.scenario.place_radar_site` does with ``range_m=radar_range_m`` (m).
 
     An episode too short for the track start (two hits, ``warmup_scans`` warm-up looks, then at least one look
     for the policy; e.g. a short random flight seen by a slow radar, or missed plots) is redrawn from the same
@@ -44,7 +44,7 @@ def draw_setup_and_episode(scenario, radar, random_config, rng, warmup_scans=Env
 def actions_to_q_m_s2(actions, action_type, levels_m_s2):
     """The action map (no validation): discrete index -> ``levels_m_s2[i]``; continuous ``a`` in [-1, 1] (clipped)
     -> ``q_min (q_max / q_min)^((a + 1) / 2)`` with ``q_min, q_max`` the first and last level (the env's step
-    kernel computes the same, :func:`radar_env.env_kernels._continuous_q`). Returns (n,)."""
+    kernel computes the same, :func:`radar_env.envs.env_kernels._continuous_q`). Returns (n,)."""
     levels = np.asarray(levels_m_s2, dtype=np.float64)
     a = np.asarray(actions)
     if action_type == "discrete":
@@ -62,10 +62,10 @@ _NO_ACTIONS = np.zeros(0)
 # ---------------------------------------------------------------------------------------------------- batched core
 class _Core:
     """N tracks stepped together: actions -> q -> tracking chain -> observation, reward, end flags, info; every
-    step one call of :func:`radar_env.env_kernels.k_env` (the reward's NEES term, when weighted, in numpy).
+    step one call of :func:`radar_env.envs.env_kernels.k_env` (the reward's NEES term, when weighted, in numpy).
 
-    Episodes are drawn straight into the tracker's looks (:class:`radar_env.draws.LookDrawer`; a pool through
-    :func:`radar_env.draws.draw_episodes`) and started by the same kernel. With
+    Episodes are drawn straight into the tracker's looks (:class:`radar_env.sim.draws.LookDrawer`; a pool through
+    :func:`radar_env.sim.draws.draw_episodes`) and started by the same kernel. With
     ``autoreset`` (the vector env) rows that end are restarted in the same ``step``: their next draw is prepared
     from their own generator as before (all rows without one prepared take it when a finishing row has none), so
     each row's episodes are those of a single env with its seed."""
@@ -77,7 +77,7 @@ class _Core:
         self.layout = ObservationLayout(cfg.features, self.q_min, self.q_max)
         self.frames = FrameStack(n, cfg.frame_stack, len(cfg.features))   # the kernels stack into frames.buf
         self.tracker = cfg.track_start.tracker(n)
-        # the optional detector features (radar_env.detectors): their IMMs step before the chain, and the kernel
+        # the optional detector features (radar_env.envs.detectors): their IMMs step before the chain, and the kernel
         # reads their values from ``_ext`` (no columns without them)
         self.detectors = DetectorBank(n) if self.layout.uses_detectors else None
         self._ext = self.detectors.values if self.detectors is not None else np.zeros((n, 0))
@@ -212,7 +212,7 @@ class _Core:
 
     # ---- episodes
     def _draw(self, rows, scenario=None):
-        # all rows in one batched draw; row r's episode comes from its own generator only (radar_env.draws)
+        # all rows in one batched draw; row r's episode comes from its own generator only (radar_env.sim.draws)
         sc = self.scenario if scenario is None else resolve_scenario(scenario)
         batch = draw_episodes(sc, self.cfg.radar, self.random_config, [self.rngs[r] for r in rows],
                               self.cfg.warmup_scans)
@@ -306,7 +306,7 @@ class _Core:
         a, b, c = P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]
         det = a * c - b * b
         # the 2 x 2 closed form, never a LinAlgError: the update keeps P positive definite on every radar the env
-        # accepts (radar_env.kernels._pd_floor); a block that is not (det <= 0) would count as maximally
+        # accepts (radar_env.filters.kernels._pd_floor); a block that is not (det <= 0) would count as maximally
         # inconsistent (the clipped penalty), never as a number from a singular solve
         ok = (det > 0.0) & (a > 0.0)
         nees = np.divide(c * d0 * d0 - 2.0 * b * d0 * d1 + a * d1 * d1, det, out=np.full(det.shape, np.inf), where=ok)

@@ -1,10 +1,10 @@
-r"""The CV / CT-EKF IMM in torch: ``baselines.imm_cv_ct``'s filter, differentiable in its per-look parameters.
+r"""The CV / CT-EKF IMM in torch: ``baselines.imm_cv_ct_runner``'s filter, differentiable in its per-look parameters.
 
-Built from :mod:`radar_env.torch_chain`'s blocks (:func:`~radar_env.torch_chain.predict_cv` for the CV modes,
-:func:`~radar_env.torch_chain.transition`, :func:`~radar_env.torch_chain.ct_omega_partials` and
-:func:`~radar_env.torch_chain.propagate` for the CT-EKF, :func:`~radar_env.torch_chain.update` and
-:func:`~radar_env.torch_chain.log_likelihood` for every mode), so the project keeps one torch filter. float64;
-equal to the numba kernel of ``baselines/imm_cv_ct.py`` to 1e-9 on drawn episodes, with constant and with per-look
+Built from :mod:`radar_env.filters.torch_chain`'s blocks (:func:`~radar_env.filters.torch_chain.predict_cv` for the CV modes,
+:func:`~radar_env.filters.torch_chain.transition`, :func:`~radar_env.filters.torch_chain.ct_omega_partials` and
+:func:`~radar_env.filters.torch_chain.propagate` for the CT-EKF, :func:`~radar_env.filters.torch_chain.update` and
+:func:`~radar_env.filters.torch_chain.log_likelihood` for every mode), so the project keeps one torch filter. float64;
+equal to the numba kernel of ``baselines/imm_cv_ct_runner.py`` to 1e-9 on drawn episodes, with constant and with per-look
 parameters (tests/test_torch_imm.py, which states the measured differences). The models and equations are that
 module's docstring; per look ``j`` of a row, with this look's parameters ``q_m_s2 (M,)``, ``sig_w2`` (the turn-rate
 random walk, rad^2/s^3) and ``log_Pi (M, M)`` (``Pi[i, k] = P(mode k | mode i)``)::
@@ -28,7 +28,7 @@ unchanged (as the numba kernel). Where the clip is active the clipped turn rate 
 with respect to the unclipped mean is 0, and the gradient flows into the bound instead -- nowhere when
 ``omega_max`` is the smaller bound, into the mode's speed estimate through ``a_max / |v|`` when the g-limit is (the
 speed floor ``v_min`` cuts that below 1 m/s). Near ``omega dt = 0`` the CT entries and their derivatives are Taylor
-series (:data:`radar_env.torch_chain.SERIES_THETA`, :data:`radar_env.torch_chain.SERIES_THETA_PARTIALS`): smooth,
+series (:data:`radar_env.filters.torch_chain.SERIES_THETA`, :data:`radar_env.filters.torch_chain.SERIES_THETA_PARTIALS`): smooth,
 finite gradients at ``omega = 0`` (gradcheck in the tests).
 
 Layout: as torch_chain, components first inside. Modes are held grouped, the CV modes ``x_cv (4, Mcv, B)`` then the
@@ -61,7 +61,7 @@ DTYPE = tc.DTYPE
 
 
 class IMMConstants(NamedTuple):
-    """What the IMM holds fixed (``baselines.imm_cv_ct.IMMCVCTSpec`` gives them): ``is_ct`` (M,) bool per mode in
+    """What the IMM holds fixed (``baselines.imm_cv_ct_runner.IMMCVCTSpec`` gives them): ``is_ct`` (M,) bool per mode in
     mode order, ``log_mu0`` (M,) initial log mode probabilities, ``sig_w0_2`` the CV augmentation's turn-rate
     variance (rad^2/s^2), the turn-rate bound ``omega_max_rad_s``, ``accel_max_m_s2`` and its speed floor
     ``min_speed_m_s``."""
@@ -129,7 +129,7 @@ class IMMRecord(NamedTuple):
 
 def switch_log_probs(log_stay, log_leave) -> torch.Tensor:
     """``log_Pi (..., M, M)`` of modes that stay with probability ``p_m`` and leave with ``1 - p_m`` split equally
-    among the others (``baselines.imm_cv_ct``'s model): from ``log_stay = log p (..., M)`` and
+    among the others (``baselines.imm_cv_ct_runner``'s model): from ``log_stay = log p (..., M)`` and
     ``log_leave = log(1 - p) (..., M)`` (e.g. ``-softplus(-u)``, ``-softplus(u)`` of ``u = logit p``: exact in the
     tails)."""
     M = log_stay.shape[-1]
@@ -150,7 +150,7 @@ def clip_turn_rate(x5, consts: IMMConstants) -> torch.Tensor:
 
 def start(state: tc.ChainState, consts: IMMConstants) -> IMMState:
     """Every mode at the chain's state ``x (4, B)``, ``P``: the CT modes with turn rate 0 and variance
-    ``sig_w0_2`` (as ``baselines.imm_cv_ct.run_imm_cv_ct`` starts), mode probabilities ``exp(log_mu0)``."""
+    ``sig_w0_2`` (as ``baselines.imm_cv_ct_runner.run_imm_cv_ct`` starts), mode probabilities ``exp(log_mu0)``."""
     x, P = state.x_c, state.P_c
     n_cv, n_ct = consts.n_cv, consts.M - consts.n_cv
     x_cv = x[:, None].expand((4, n_cv) + x.shape[1:]).clone()
@@ -194,7 +194,7 @@ def _mixture(w, x, P):
 
 def _ct_predict(x0, P0, dt, q, sig_w2, G5):
     """CT-EKF prediction of ``x0 (5, Mct, B)``: the exact CT motion and its analytic Jacobian
-    (baselines/imm_cv_ct.py), ``Q = blockdiag(q^2 Gamma Gamma^T, sig_w2 dt)``."""
+    (baselines/imm_cv_ct_runner.py), ``Q = blockdiag(q^2 Gamma Gamma^T, sig_w2 dt)``."""
     px, py, vx, vy, w = x0.unbind(0)
     a, b, c, s = tc.ct_entries(dt, w)
     da, db = tc.ct_omega_partials(dt, w)
@@ -224,7 +224,7 @@ def step(state: IMMState, looks: tc.ChainLooks, j: int, q_m_s2, sig_w2, log_Pi, 
 
 def look(state: IMMState, dt_s, G, z_m, R_m2, mask, q_m_s2, sig_w2, log_Pi, consts: IMMConstants, with_nis=False):
     """:func:`step` on one look's tensors (``dt_s (B,)``, ``G (4, 4, B)``, ``z_m (2, B)``, ``R_m2 (2, 2, B)``,
-    ``mask (B,)``: column ``j`` of a :class:`radar_env.torch_chain.ChainLooks`), for a caller that compiles it
+    ``mask (B,)``: column ``j`` of a :class:`radar_env.filters.torch_chain.ChainLooks`), for a caller that compiles it
     (``torch.compile``: tensors and constants only)."""
     o = consts.order
     return _step(state, dt_s, G, z_m, R_m2, mask, q_m_s2[o], sig_w2, log_Pi[o][:, o], consts, with_nis)

@@ -1,6 +1,6 @@
 """Episodes drawn for many rows at once: compiled (numba) kernels for the random scenarios, the radars and the plots.
 
-:func:`draw_episodes` returns an :class:`radar_env.episode.EpisodeBatch` with one row per generator in ``rngs``;
+:func:`draw_episodes` returns an :class:`radar_env.sim.episode.EpisodeBatch` with one row per generator in ``rngs``;
 the env draws through it (``draw_setup_and_episode`` is a batch of one, so row ``i`` of a vector env seeded ``s``
 is the single env seeded ``s + i``). It replaces the per-episode Python chain ``random_scenario`` ->
 ``place_radar_site`` -> ``make_setup`` -> ``draw_episode`` (about 1.4 ms per episode) by two loops over rows in
@@ -18,14 +18,14 @@ What a seed determines (the random stream, changed once in this version for spee
 * Draw order inside one attempt (counter ``j`` increasing): for ``random`` / ``random_radars`` the flight
   (speed, heading, number of legs, per leg its duration and then per maneuver: speed-change flag, new speed,
   speed-change acceleration, turn g, heading change, direction; at most ``max_tries`` flights until one stays in
-  range for ``min_duration_s``, as :func:`radar_env.scenario.random_scenario`), the radar placement
-  (``site_candidates`` pairs of distance and direction, as :func:`radar_env.scenario.place_radar_site`), then the
-  radar (``random_radars``: the mixture flag and :func:`radar_env.catalog.random_radar`'s draws in its order).
+  range for ``min_duration_s``, as :func:`radar_env.sim.scenario.random_scenario`), the radar placement
+  (``site_candidates`` pairs of distance and direction, as :func:`radar_env.sim.scenario.place_radar_site`), then the
+  radar (``random_radars``: the mixture flag and :func:`radar_env.sim.catalog.random_radar`'s draws in its order).
   A fixed scenario draws only the placement, when its radar is placed per episode (a trajectory without radar).
   Then the looks: ``K`` detection uniforms (look ``k`` uses counter ``c + k``), then four uniforms per look
   (``c + K + 4k ...``) giving the range, bearing and radial-velocity normals. As before, every look consumes its
   draws whether or not it is detected (common random numbers across detection probabilities).
-* An attempt too short for the track start (see :func:`radar_env.tracking.looks_for_track_start`) is followed by
+* An attempt too short for the track start (see :func:`radar_env.sim.looks.looks_for_track_start`) is followed by
   the next attempt on the same stream (counter after the attempt's ``5 K`` look draws), at most
   ``MAX_EPISODE_DRAWS`` attempts; only episodes that could not run are replaced. A fixed scenario whose looks
   all detected are too few is refused at once with ``ValueError``.
@@ -33,7 +33,7 @@ What a seed determines (the random stream, changed once in this version for spee
 The distributions are those of the per-episode drawer (the same ranges and rules; tests/test_draws.py compares
 both by two-sample KS tests); the numbers are not, so every evaluation result changed with this stream.
 
-Fixed scenarios (named, :class:`~radar_env.catalog.Setup`, Segment / Trajectory scenarios, pools): their truth at
+Fixed scenarios (named, :class:`~radar_env.sim.catalog.Setup`, Segment / Trajectory scenarios, pools): their truth at
 their look times is the same every episode and is computed once (cached per scenario and radar); the kernel draws
 the placement (if any), detections, noise and converted plots.
 """
@@ -51,10 +51,11 @@ from .episode import EpisodeBatch
 from .radar import Radar, atc_radar, scan_schedule
 from .scenario import (RADAR_PLACEMENT_RANGE_M, RandomScenarioConfig, Segment, SegmentScenario,
                        TrajectoryScenario)
-from . import kernels as _k
+from . import looks as _lk
 from numba import njit
-from .tracking import looks_for_track_start
-from .units import DEG, G0_M_S2, KNOT_M_S
+from .looks import looks_for_track_start
+from .motion import _sinc
+from ..common.units import DEG, G0_M_S2, KNOT_M_S
 
 __all__ = ["draw_episodes", "random_scenarios", "LookDrawer", "MAX_EPISODE_DRAWS", "EpisodeDrawError"]
 
@@ -127,14 +128,6 @@ def _uniforms(key, start, n):
 
 
 # ---------------------------------------------------------------------------------------------------- kinematics
-@njit(cache=True)
-def _sinc(x):
-    if x == 0.0:
-        return 1.0
-    y = math.pi * x
-    return math.sin(y) / y
-
-
 @njit(cache=True)
 def _propagate(x0, w, a, tau, out):
     """SegmentScenario._propagate for one segment: state ``tau`` s into a segment starting at ``x0``."""
@@ -443,17 +436,17 @@ def _measure_looks(r, key, c, K, sites, idx, looks):
     for k in range(K):
         lk = looks[r, k]
         site = sites[idx[k]]
-        lk[_k.L_SITE], lk[_k.L_SITE + 1] = site[_SX], site[_SY]
-        lk[_k.L_RSTD], lk[_k.L_BSTD], lk[_k.L_RDSTD] = site[_SR], site[_SB], site[_SV]
-        tr = _k.L_TRUTH
-        (d, lk[_k.L_RANGE], lk[_k.L_BEAR], lk[_k.L_RDOT], lk[_k.L_Z], lk[_k.L_Z + 1], lk[_k.L_R], lk[_k.L_R + 1],
-         lk[_k.L_R + 3]) = _measure_look(key, c, K, k, site, lk[tr], lk[tr + 1], lk[tr + 2], lk[tr + 3])
-        lk[_k.L_R + 2] = lk[_k.L_R + 1]
-        lk[_k.L_DET] = 1.0 if d else 0.0
+        lk[_lk.L_SITE], lk[_lk.L_SITE + 1] = site[_SX], site[_SY]
+        lk[_lk.L_RSTD], lk[_lk.L_BSTD], lk[_lk.L_RDSTD] = site[_SR], site[_SB], site[_SV]
+        tr = _lk.L_TRUTH
+        (d, lk[_lk.L_RANGE], lk[_lk.L_BEAR], lk[_lk.L_RDOT], lk[_lk.L_Z], lk[_lk.L_Z + 1], lk[_lk.L_R], lk[_lk.L_R + 1],
+         lk[_lk.L_R + 3]) = _measure_look(key, c, K, k, site, lk[tr], lk[tr + 1], lk[tr + 2], lk[tr + 3])
+        lk[_lk.L_R + 2] = lk[_lk.L_R + 1]
+        lk[_lk.L_DET] = 1.0 if d else 0.0
     for k in range(K, looks.shape[1]):
         for col in range(looks.shape[2]):
             looks[r, k, col] = looks[r, K - 1, col]
-        looks[r, k, _k.L_DET] = 0.0
+        looks[r, k, _lk.L_DET] = 0.0
 
 
 @njit(cache=True)
@@ -472,12 +465,12 @@ def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, look
         i = 0
         for k in range(K[j]):
             lk = looks[r, k]
-            lk[_k.L_T] = t[k]
-            i, lk[_k.L_TACC], lk[_k.L_TACC + 1], lk[_k.L_TTURN], man = _truth_look(
-                t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_k.L_TRUTH:_k.L_TRUTH + 4])
-            lk[_k.L_MAN] = 1.0 if man else 0.0
+            lk[_lk.L_T] = t[k]
+            i, lk[_lk.L_TACC], lk[_lk.L_TACC + 1], lk[_lk.L_TTURN], man = _truth_look(
+                t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_lk.L_TRUTH:_lk.L_TRUTH + 4])
+            lk[_lk.L_MAN] = 1.0 if man else 0.0
         _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks)
-        it[r, _k.I_N] = K[j]
+        it[r, _lk.I_N] = K[j]
 
 
 @njit(cache=True)
@@ -489,14 +482,14 @@ def k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth0, accel0, turn0, m
         r = rows[j]
         for k in range(K):
             lk = looks[r, k]
-            lk[_k.L_T] = t[k]
+            lk[_lk.L_T] = t[k]
             for a in range(4):
-                lk[_k.L_TRUTH + a] = truth0[k, a]
-            lk[_k.L_TACC], lk[_k.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
-            lk[_k.L_TTURN] = turn0[k]
-            lk[_k.L_MAN] = 1.0 if man0[k] else 0.0
+                lk[_lk.L_TRUTH + a] = truth0[k, a]
+            lk[_lk.L_TACC], lk[_lk.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
+            lk[_lk.L_TTURN] = turn0[k]
+            lk[_lk.L_MAN] = 1.0 if man0[k] else 0.0
         _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks)
-        it[r, _k.I_N] = K
+        it[r, _lk.I_N] = K
 
 
 # ---------------------------------------------------------------------------------------------------- random kernels
@@ -871,7 +864,7 @@ def _fixed_args(scenario, radar):
 
 
 class LookDrawer:
-    """Draws episodes of one scenario straight into a :class:`radar_env.tracking.Tracker`'s packed looks (the env's
+    """Draws episodes of one scenario straight into a :class:`radar_env.filters.tracking.Tracker`'s packed looks (the env's
     resets): the same kernels and streams as :func:`draw_episodes`, so row ``r`` drawn with key ``k`` holds the
     episode ``draw_episodes`` gives for a generator whose next word is ``k`` (no :class:`EpisodeBatch`, no
     per-row Python). ``LookDrawer.of(...)`` is None for a pool (drawn by :func:`draw_episodes`).
@@ -888,7 +881,7 @@ class LookDrawer:
             if scenario in FAMILIES:
                 if random_config is not None:
                     raise ValueError(f"random_config applies to 'random' and 'random_radars'; scenario {scenario!r} "
-                                     "is a held-out family with its own (radar_env.catalog.FAMILIES)")
+                                     "is a held-out family with its own (radar_env.sim.catalog.FAMILIES)")
                 cfg = family_config(scenario)
             else:
                 cfg = random_config or _DEFAULT_CONFIG
@@ -966,10 +959,10 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
     """One episode per generator in ``rngs``, long enough for the track start, as a padded :class:`EpisodeBatch`.
 
     Args:
-        scenario: ``"random"``, ``"random_radars"``, a name in ``radar_env.catalog.SCENARIO_NAMES``, a
+        scenario: ``"random"``, ``"random_radars"``, a name in ``radar_env.sim.catalog.SCENARIO_NAMES``, a
             :class:`Setup`, a :class:`SegmentScenario` / :class:`TrajectoryScenario`, or a pool with
             ``draw_setup(rng)`` (e.g. ``adsb_calibration``); CSV paths are resolved by the env
-            (``radar_env.env.resolve_scenario``).
+            (``radar_env.envs.env.resolve_scenario``).
         radar: a :class:`Radar` replacing the scenario's (for the random scenarios its first site is moved to the
             drawn position), or None.
         random_config: :class:`RandomScenarioConfig` (or None for the default) of the random scenarios.
@@ -991,7 +984,7 @@ def draw_episodes(scenario, radar, random_config, rngs, warmup_scans=12, radar_r
     if isinstance(scenario, str) and scenario in FAMILIES:   # random flights of one kind, ATC radar
         if random_config is not None:
             raise ValueError(f"random_config applies to 'random' and 'random_radars'; scenario {scenario!r} is a "
-                             "held-out family with its own (radar_env.catalog.FAMILIES)")
+                             "held-out family with its own (radar_env.sim.catalog.FAMILIES)")
         return _draw_random(scenario, _keys(rngs), family_config(scenario), radar, warmup_scans, max_draws)
     if isinstance(scenario, str):
         scenario = make_setup(scenario)

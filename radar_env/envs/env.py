@@ -1,11 +1,11 @@
 """RadarTrack-v0: choose the Kalman filter's process-noise level every radar look.
 
 The Gymnasium layer over the simulation and the tracking chain, split by role: the configuration
-(:mod:`radar_env.config`: :class:`EnvConfig`), the batched core (:mod:`radar_env.core`: ``_Core``, the action map,
-reward and info), the single env (:mod:`radar_env.single_env`: :class:`RadarTrackEnv`) and the native batched
-vector env (:mod:`radar_env.vector_env`: :class:`RadarTrackVectorEnv`). Both envs run the same batched core, which
-runs the one tracking chain (:class:`radar_env.tracking.Tracker`). This module re-exports them, so
-``radar_env.env:RadarTrackEnv`` and ``from radar_env.env import EnvConfig, ...`` keep working.
+(:mod:`radar_env.envs.config`: :class:`EnvConfig`), the batched core (:mod:`radar_env.envs.core`: ``_Core``, the action map,
+reward and info), the single env (:mod:`radar_env.envs.single_env`: :class:`RadarTrackEnv`) and the native batched
+vector env (:mod:`radar_env.envs.vector_env`: :class:`RadarTrackVectorEnv`). Both envs run the same batched core, which
+runs the one tracking chain (:class:`radar_env.filters.tracking.Tracker`). This module re-exports them, so
+``radar_env.envs.env:RadarTrackEnv`` and ``from radar_env.envs.env import EnvConfig, ...`` keep working.
 """
 
 from __future__ import annotations

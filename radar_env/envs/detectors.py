@@ -10,17 +10,17 @@ name                   unit     meaning
 ``imm2_high_prob``     1        imm2's high-noise-mode probability after the look
 =====================  =======  ===========================================================================
 
-The IMMs are :mod:`radar_env.imm_cv_ct`'s filter (``_look``, the arithmetic of the ``imm_cv_ct`` tracker) with
+The IMMs are :mod:`radar_env.filters.imm_cv_ct`'s filter (``_look``, the arithmetic of the ``imm_cv_ct`` tracker) with
 the parameters of ``radar_env/data/imm_cv_ct_env.json`` and, for imm2 (two CV modes, mode probabilities starting
 at (0.9, 0.1)), those of ``radar_env/data/detector_imm2.json``: copies of ``baselines/tuned.json``'s ``imm_cv_ct``
 and ``imm2`` (radar_env reads nothing of baselines; tests/test_detectors.py fails when they drift). Both start
 at the chain's track start (every mode at the warm-up estimate, as the baselines start them), so the features
 equal what the ``imm_cv_ct`` and ``imm2`` trackers compute on the same episode (tested against both, imm2 against
-the independent 4-state IMM of :func:`radar_env.filters.imm_filter`). At the track start (before any look of the
+the independent 4-state IMM of :func:`radar_env.filters.kalman.imm_filter`). At the track start (before any look of the
 IMMs) the features are their initial values: the CT probability ``(1 - mu0_cv) / 2``, turn rate 0, imm2's 0.1.
 
 Per step the env calls :func:`k_detectors_step` before its chain's look (it reads the look the chain is about to
-process) and hands the three values to its observation kernel (:func:`radar_env.env_kernels.k_env`'s ``ext``); the
+process) and hands the three values to its observation kernel (:func:`radar_env.envs.env_kernels.k_env`'s ``ext``); the
 baselines' lockstep (``baselines.trackers.run_q_policy``) runs the same :class:`DetectorBank`, so a policy trained
 with these features sees the same numbers in evaluation. Cost: two IMM looks (5 modes of a 5-state EKF) per row
 and step, beside the chain's one CV look.
@@ -36,16 +36,16 @@ import numpy as np
 from numba import njit
 
 from . import env_kernels as _ek
-from . import kernels as _k
-from .imm_cv_ct import _look, _work, imm_cv_ct_spec_from_params, kernel_parameters
+from ..filters import kernels as _k
+from ..filters.imm_cv_ct import _look, _work, imm_cv_ct_spec_from_params, kernel_parameters
 from .imm_env import imm_env_defaults, k_imm_start
 from .observation import DETECTOR_FEATURES
-from .units import DEG, G0_M_S2
+from ..common.units import DEG, G0_M_S2
 
 __all__ = ["DETECTOR_FEATURES", "DETECTOR_IMM2_PATH", "detector_imm2_parameters", "DetectorBank"]
 
 
-DETECTOR_IMM2_PATH = Path(__file__).parent / "data" / "detector_imm2.json"
+DETECTOR_IMM2_PATH = Path(__file__).parents[1] / "data" / "detector_imm2.json"
 
 _IMM2_MU0 = (0.9, 0.1)     # baselines.trackers.imm2_spec_from_params's start
 
@@ -64,7 +64,7 @@ def _imm2_arrays():
 
 
 class DetectorBank:
-    """The two detector IMMs of ``n`` rows (module docstring). Works on a :class:`radar_env.tracking.Tracker`'s
+    """The two detector IMMs of ``n`` rows (module docstring). Works on a :class:`radar_env.filters.tracking.Tracker`'s
     look arrays (``st``, ``looks``, ``it``), so the env and the baselines' lockstep share it.
 
     Args:

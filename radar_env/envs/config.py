@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .catalog import SCENARIO_NAMES, Setup
+from ..sim.catalog import SCENARIO_NAMES, Setup
 from .observation import DEFAULT_FEATURES, DEFAULT_Q_LEVELS_G, FrameStack, ObservationLayout
-from .radar import Radar
-from .scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario
-from .tracking import TrackStart
-from .validate import check_choice, check_known_keys, check_number, is_real_number
+from ..sim.radar import Radar
+from ..sim.scenario import RandomScenarioConfig, SegmentScenario, TrajectoryScenario
+from ..filters.tracking import TrackStart
+from ..common.validate import check_choice, check_known_keys, check_number, is_real_number
 
 __all__ = ["EnvConfig", "DEFAULT_Q_LEVELS_G", "RENDER_MODES", "REWARD_TYPES", "REWARD_SCALE_M", "TRACKERS",
            "resolve_scenario"]
@@ -28,7 +28,7 @@ RENDER_MODES = ("rgb_array", "human")
 REWARD_TYPES = ("squared", "absolute", "squared_m")
 TRACKERS = ("cv", "imm_cv_ct")
 """The env's filter: ``"cv"`` (the CV Kalman filter whose q is the action) or ``"imm_cv_ct"`` (the CV / CT-EKF IMM
-whose per-look parameters are the action, :mod:`radar_env.imm_env`)."""
+whose per-look parameters are the action, :mod:`radar_env.envs.imm_env`)."""
 IMM_ONLY_ARGUMENTS = ("imm_action_levels", "imm_parameters", "feature_q_g")
 REWARD_SCALE_M = 100.0
 """Error scale of ``reward_type="squared_m"``: the reward is ``-min((error / 100 m)^2, reward_clip)``."""
@@ -95,7 +95,7 @@ class EnvConfig:
         check_number(p + "track_loss_gate_sigma", self.track_loss_gate_sigma, 1.0, 1e6)
         check_choice(p + "render_mode", self.render_mode, (None, *RENDER_MODES))
         if self.radar is not None and not isinstance(self.radar, Radar):
-            raise ValueError(f"{p}radar must be a radar_env.radar.Radar or None, got {type(self.radar).__name__}")
+            raise ValueError(f"{p}radar must be a radar_env.sim.radar.Radar or None, got {type(self.radar).__name__}")
         if self.random_config is not None and not isinstance(self.random_config, (dict, RandomScenarioConfig)):
             raise ValueError(f"{p}random_config must be a dict or RandomScenarioConfig, got "
                              f"{type(self.random_config).__name__}")
@@ -113,7 +113,7 @@ class EnvConfig:
 
     @property
     def track_start(self):
-        """The track-start and feature parameters (:class:`radar_env.tracking.TrackStart`) the env and every tracker
+        """The track-start and feature parameters (:class:`radar_env.filters.tracking.TrackStart`) the env and every tracker
         share."""
         return TrackStart(self.warmup_scans, self.warmup_q_g, self.n_adrian, self.window_kim_lee, self.fma_weight)
 
@@ -137,7 +137,7 @@ def resolve_scenario(scenario):
         return TrajectoryScenario.from_csv(scenario)
     if isinstance(scenario, str):
         if scenario.startswith("adsb:") or scenario in ("adsb_calibration", "adsb_dev", "adsb_heldout"):
-            from .adsb_scenarios import resolve_adsb
+            from ..sim.adsb_scenarios import resolve_adsb
             return resolve_adsb(scenario)
         if scenario.endswith((".gz", ".zip", ".json", ".txt", ".tsv")) or (
                 Path(scenario).suffix and Path(scenario).is_file()):

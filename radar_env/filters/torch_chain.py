@@ -1,7 +1,7 @@
 r"""The tracking chain in torch: the one differentiable copy of the filter RadarTrack-v0 runs, for training through it.
 
-The same chain as :class:`radar_env.tracking.Tracker` (the formulas of :mod:`radar_env.filters`, compiled in
-:mod:`radar_env.kernels`), written with torch operations so that a loss on the estimates can be differentiated with
+The same chain as :class:`radar_env.filters.tracking.Tracker` (the formulas of :mod:`radar_env.filters.kalman`, compiled in
+:mod:`radar_env.filters.kernels`), written with torch operations so that a loss on the estimates can be differentiated with
 respect to every process-noise level ``q`` (and turn rate ``omega``) that produced them. float64 throughout; equal to
 the numba chain to 1e-11 relative or better on drawn episodes (the tests' bound is 1e-9: tests/test_torch_chain.py).
 Per look ``j`` of a row::
@@ -33,7 +33,7 @@ zero tensor per look). The building blocks (:func:`transition`, :func:`ct_entrie
 :func:`predict`, :func:`predict_cv`, :func:`propagate`, :func:`ct_omega_partials`, :func:`update`, :func:`nis`,
 :func:`log_likelihood`, :func:`two_point_init`) take that layout with any trailing batch shape, e.g. ``(4, M, B)``
 for M filters per row; :func:`propagate` and :func:`update` any state size (the 5-state CT-EKF of
-:mod:`radar_env.torch_imm`, the IMM built from these blocks).
+:mod:`radar_env.filters.torch_imm`, the IMM built from these blocks).
 
 What it is not: it does not compute the env's features or observation (the numba chain does; a trainer steps a
 Tracker for them) and it has no known-input (clairvoyant) term. Only this module imports torch; ``radar_env``
@@ -66,7 +66,7 @@ to kernels.py's sinc forms) to rounding."""
 
 SERIES_THETA_PARTIALS = 0.1
 """The same for the CT entries' derivatives in omega (:func:`ct_omega_partials`; series to ``th^9``, truncation
-< 1e-16 relative at 0.1, as baselines/imm_cv_ct.py's kernel evaluates them)."""
+< 1e-16 relative at 0.1, as baselines/imm_cv_ct_runner.py's kernel evaluates them)."""
 
 
 def _t(a, dtype=DTYPE):
@@ -213,7 +213,7 @@ def looks_from_arrays(t_s, detected, z_m, R_m2, truth, n_looks, start, t_last_s)
 
 
 def handover(tracker, rows=None):
-    """The numba :class:`radar_env.tracking.Tracker`'s state and remaining looks, exactly (a copy, no link back).
+    """The numba :class:`radar_env.filters.tracking.Tracker`'s state and remaining looks, exactly (a copy, no link back).
 
     Call it after ``tracker.load`` (the state after the common track start: then ``looks.scored`` is what the
     evaluation scores) or at any later point. Args: ``rows`` (index array, default all). Returns
@@ -233,20 +233,20 @@ def _track_start(track_start):
 
 def start_tracks(batch, track_start=None):
     """The common track start in torch: two-hit initialisation from each row's first two detections at different
-    times (:func:`radar_env.tracking.init_looks`), then ``warmup_scans`` looks at ``warmup_q_m_s2``, as
+    times (:func:`radar_env.filters.tracking.init_looks`), then ``warmup_scans`` looks at ``warmup_q_m_s2``, as
     ``Tracker.load`` does (equal to it to rounding; tested).
 
     Args:
-        batch: a :class:`radar_env.episode.EpisodeBatch` (e.g. from :func:`radar_env.draws.draw_episodes`) or a
+        batch: a :class:`radar_env.sim.episode.EpisodeBatch` (e.g. from :func:`radar_env.sim.draws.draw_episodes`) or a
             list of episodes.
-        track_start: :class:`radar_env.tracking.TrackStart`, an env config (its ``track_start``) or None (defaults).
+        track_start: :class:`radar_env.filters.tracking.TrackStart`, an env config (its ``track_start``) or None (defaults).
     Returns:
         ``(ChainState, ChainLooks)`` after the warm-up; ``looks.scored`` marks the looks the evaluation scores.
     Raises:
         ValueError naming the episode when it has no two hits at different times or too few looks.
     """
     if not hasattr(batch, "valid"):
-        from .episode import stack_episodes
+        from ..sim.episode import stack_episodes
         batch = stack_episodes(batch)
     ts = _track_start(track_start)
     W = int(ts.warmup_scans)
@@ -274,7 +274,7 @@ def start_tracks(batch, track_start=None):
 # ================================================================================================= filter blocks
 def transition(dt_s, omega_rad_s=None) -> torch.Tensor:
     """``F (4, 4, *batch)`` for ``dt_s (*batch)``: ``F_cv(dt)``, or ``F_ct(dt, omega)`` if ``omega_rad_s`` is given
-    (radar_env.filters; ``omega = 0`` gives ``F_cv`` exactly). Differentiable in ``omega`` everywhere: below
+    (radar_env.filters.kalman; ``omega = 0`` gives ``F_cv`` exactly). Differentiable in ``omega`` everywhere: below
     ``|omega dt| <`` :data:`SERIES_THETA` the entries are their Taylor series."""
     if omega_rad_s is None:
         one, zero = torch.ones_like(dt_s), torch.zeros_like(dt_s)
@@ -312,7 +312,7 @@ def gamma_gamma_t(dt_s) -> torch.Tensor:
 
 
 def process_noise(dt_s, q_m_s2) -> torch.Tensor:
-    """``Q = q^2 Gamma Gamma^T (4, 4, *batch)`` (radar_env.filters.process_noise)."""
+    """``Q = q^2 Gamma Gamma^T (4, 4, *batch)`` (radar_env.filters.kalman.process_noise)."""
     return (q_m_s2 * q_m_s2) * gamma_gamma_t(dt_s)
 
 
@@ -331,7 +331,7 @@ def propagate(P, F, Q):
 def ct_omega_partials(dt_s, omega_rad_s):
     """``(da/domega, db/domega)`` (*batch) of the CT entries ``a = sin(th)/omega``, ``b = (1 - cos th)/omega``
     (``th = omega dt``): ``dt^2 (th cos th - sin th) / th^2`` and ``dt^2 (th sin th - 1 + cos th) / th^2``, the
-    turn-rate column of the CT-EKF's Jacobian (radar_env.torch_imm). Below ``|th| <`` :data:`SERIES_THETA_PARTIALS`
+    turn-rate column of the CT-EKF's Jacobian (radar_env.filters.torch_imm). Below ``|th| <`` :data:`SERIES_THETA_PARTIALS`
     their Taylor series (to ``th^9``; the closed form of the first loses ``eps / th^2`` to cancellation), so
     they are smooth with finite gradients at ``omega = 0``."""
     dt_s, omega_rad_s = torch.broadcast_tensors(dt_s, omega_rad_s)
@@ -399,7 +399,7 @@ def log_likelihood(nu, S, S_inv, mask) -> torch.Tensor:
 
 def two_point_init(z1, R1, t1_s, z2, R2, t2_s):
     """Two-hit start ``x = [z2, (z2 - z1)/dt]``, ``P = [[R2, R2/dt], [R2/dt, (R1 + R2)/dt^2]]``; ``z (2, *b)``,
-    ``R (2, 2, *b)``, ``t (*b)`` -> ``(x (4, *b), P (4, 4, *b))`` (radar_env.filters.two_point_init)."""
+    ``R (2, 2, *b)``, ``t (*b)`` -> ``(x (4, *b), P (4, 4, *b))`` (radar_env.filters.kalman.two_point_init)."""
     dt = t2_s - t1_s
     Rd = R2 / dt
     P = torch.cat((torch.cat((R2, Rd), 1), torch.cat((Rd, (R1 + R2) / (dt * dt)), 1)), 0)

@@ -1,15 +1,18 @@
 """numba's on-disk kernel cache kept consistent with the sources it was compiled from.
 
 numba (``@njit(cache=True)``) keys a function's cache entry on its own source file's time stamp and size only. A
-kernel that calls a function of another module (``env_kernels``, ``draws`` and ``imm_cv_ct`` call ``kernels``), or
-reads a module constant, therefore keeps running the *old* compiled callee after that other module changed, e.g.
-after an update of the package: silently wrong numbers, not an error. (Seen: an update of the covariance update in
+kernel that calls a function of another module (``envs.env_kernels`` and ``filters.imm_cv_ct`` call
+``filters.kernels``, which calls ``sim.motion``), or reads a module constant (``sim.looks``), therefore keeps
+running the *old* compiled callee after that other module changed, e.g. after an update of the package: silently
+wrong numbers, not an error. (Seen: an update of the covariance update in
 ``kernels.py`` left the env's cached step kernel on the previous update.)
 
 :func:`drop_stale_kernels` stamps a package's cache folder with a digest of the sources its kernels depend on and,
 when the digest differs, deletes that package's cached kernels first, so that they recompile once (the cold-cache
-notice of :func:`radar_env.env_kernels.announce_compilation` then says so). Each kernel module calls it at import,
-before any of its kernels can load from the cache.
+notice of :func:`radar_env.envs.env_kernels.announce_compilation` then says so). numba keeps one cache folder per
+source folder, so the first kernel module of each sub-package (``sim.motion``, ``filters.kernels``,
+``envs.env_kernels``) calls it at import with the sources of the whole ``radar_env`` package, before any kernel of
+that folder can load from the cache.
 """
 
 from __future__ import annotations
@@ -65,5 +68,5 @@ def drop_stale_kernels(dispatcher, sources):
 
 
 def package_sources(*packages):
-    """Every ``.py`` file of the given package folders."""
-    return [f for p in packages for f in sorted(Path(p).glob("*.py"))]
+    """Every ``.py`` file of the given package folders, their sub-packages included."""
+    return [f for p in packages for f in sorted(Path(p).rglob("*.py"))]

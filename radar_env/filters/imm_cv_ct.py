@@ -1,15 +1,15 @@
 r"""The CV / CT-EKF IMM (``imm_cv_ct``): its model, parameters and compiled per-look kernel, written once for
-the tracker (:mod:`baselines.imm_cv_ct`, which runs it on episodes) and the env (``RadarTrack-v0`` with
-``tracker="imm_cv_ct"``, :mod:`radar_env.imm_env`): a mixed-order IMM of a constant-velocity mode and a
+the tracker (:mod:`baselines.imm_cv_ct_runner`, which runs it on episodes) and the env (``RadarTrack-v0`` with
+``tracker="imm_cv_ct"``, :mod:`radar_env.envs.imm_env`): a mixed-order IMM of a constant-velocity mode and a
 coordinated-turn EKF mode whose turn rate is a state, optionally with a third, high-noise CV mode.
 
 Models
 ------
 CV mode, state :math:`[x, y, v_x, v_y]` (m, m/s): :math:`F_{cv}(dt)` and the piecewise-constant white-acceleration
-noise :math:`Q(dt, q_{cv})` of :func:`radar_env.filters.process_noise`.
+noise :math:`Q(dt, q_{cv})` of :func:`radar_env.filters.kalman.process_noise`.
 
 CT mode, state :math:`[x, y, v_x, v_y, \omega]` (:math:`\omega` in rad/s, positive = clockwise = right turn, as in
-:mod:`radar_env.filters`), the exact coordinated-turn motion with :math:`\theta = \omega\,dt`:
+:mod:`radar_env.filters.kalman`), the exact coordinated-turn motion with :math:`\theta = \omega\,dt`:
 
 .. math::
     x' = x + a v_x + b v_y,\quad y' = y - b v_x + a v_y,\quad
@@ -46,9 +46,9 @@ The mixed mean and covariance into each mode are the usual moment-matched mixtur
 (:math:`x_{0j} = \sum_i \mu_{i|j} x_i`, :math:`P_{0j} = \sum_i \mu_{i|j}(P_i + (x_i - x_{0j})(x_i - x_{0j})^T)`);
 the CT mode takes all five components, a CV mode its 4-state marginal (its :math:`\omega` part is reset to the
 augmentation, so the 4-state CV arithmetic is exactly that of a 4-state KF: the zero cross-covariances make the fifth
-row inert). Mode probabilities are carried as logs (the log-space mixing of :func:`radar_env.filters.imm_mix`); the
-update is the chain's (:func:`radar_env.filters.update`'s covariance form and floor, positive definite); NIS and
-the Gaussian log-likelihood are those of :func:`radar_env.filters.update` (a
+row inert). Mode probabilities are carried as logs (the log-space mixing of :func:`radar_env.filters.kalman.imm_mix`); the
+update is the chain's (:func:`radar_env.filters.kalman.update`'s covariance form and floor, positive definite); NIS and
+the Gaussian log-likelihood are those of :func:`radar_env.filters.kalman.update` (a
 missed look: posterior = prior, log-likelihood 0). The output per look is the moment-matched combination of the
 modes' 4-state marginals, the combined turn rate :math:`\sum_j \mu_j \omega_j` (a CV mode's turn rate is 0), and the
 maneuver probability :math:`1 - \mu_{cv}` (the CT mode's probability when there is no third mode; with a third mode,
@@ -84,7 +84,7 @@ A mode leaves with probability ``1 - p_stay`` split equally among the other mode
 mode probabilities (``mu0_cv`` = 0.9 on CV, the rest split equally), the turn-rate bound.
 
 How the defaults (:data:`DEFAULT_IMM_CV_CT`) and the tuned values (``baselines/tuned.json``, what the
-``imm_cv_ct`` tracker runs with) were chosen: :mod:`baselines.imm_cv_ct`. Everything here is plain numpy and numba
+``imm_cv_ct`` tracker runs with) were chosen: :mod:`baselines.imm_cv_ct_runner`. Everything here is plain numpy and numba
 (no Gymnasium, no baselines).
 """
 
@@ -97,8 +97,8 @@ import numba
 import numpy as np
 
 from .kernels import _gain_update, _logsumexp, _pd_floor, _plot_nis, _symmetrize
-from .units import DEG, G0_M_S2
-from .validate import check_known_keys, check_number
+from ..common.units import DEG, G0_M_S2
+from ..common.validate import check_known_keys, check_number
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
@@ -199,7 +199,7 @@ class IMMCVCTSpec:
 
     def filter_constants(self):
         """What the filter holds fixed whatever the per-look parameters, as plain numbers (the keyword arguments
-        of ``radar_env.torch_imm.IMMConstants``): ``is_ct``, ``log_mu0``, ``sig_w0_2`` (rad^2/s^2),
+        of ``radar_env.filters.torch_imm.IMMConstants``): ``is_ct``, ``log_mu0``, ``sig_w0_2`` (rad^2/s^2),
         ``omega_max_rad_s``, ``accel_max_m_s2``, ``min_speed_m_s``."""
         is_ct, _, _, log_mu0 = self.mode_arrays()
         sig_w0 = self.sigma_omega0_deg_s * DEG
@@ -350,7 +350,7 @@ def _moments(w, xs, Ps, n, x_out, P_out):
 @numba.njit(cache=True)
 def _plot_update(x, P, z, R, x_out, P_out):
     """Kalman update of the 5-state ``(x, P)`` with the position plot ``z`` (R): the chain's update
-    (:func:`radar_env.kernels._gain_update`, positive definite by construction). Returns the log-likelihood
+    (:func:`radar_env.filters.kernels._gain_update`, positive definite by construction). Returns the log-likelihood
     ``-(NIS + log det(2 pi S)) / 2``."""
     nis, d = _gain_update(x, P, 5, z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
                           P_out)
@@ -440,7 +440,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     lse = _logsumexp(ll, M)
     for j in range(M):
         log_mu[j] = ll[j] - lse
-    # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.imm_step
+    # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.kalman.imm_step
     lse = _logsumexp(log_c, M)
     for j in range(M):
         w[j] = math.exp(log_c[j] - lse)

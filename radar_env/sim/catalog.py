@@ -3,7 +3,7 @@
 ``make_setup(name, rng)`` returns a :class:`Setup` (scenario + radar). Names:
 
 =========================  ==========================================================================================
-``random``                 :func:`radar_env.scenario.random_scenario` with Adrian's ATC radar placed by the draw
+``random``                 :func:`radar_env.sim.scenario.random_scenario` with Adrian's ATC radar placed by the draw
 ``random_radars``          the same flights seen by a random radar (:func:`random_radar`): scan period 1-12 s,
                            noise, detection probability and, in 30 % of draws, a second site (irregular looks)
 ``bizup2002``              Bizup (seed 000) fig. 6: 350 kt, starts 120 NM out, two 2 g turns (40 s at ~290 s, 30 s
@@ -17,7 +17,7 @@
 =========================  ==========================================================================================
 
 Held-out families (:data:`FAMILIES`): random flights of one kind, seen by the ATC radar of ``random`` and drawn by
-:func:`radar_env.scenario.random_scenario` with the family's :class:`RandomScenarioConfig` (default values
+:func:`radar_env.sim.scenario.random_scenario` with the family's :class:`RandomScenarioConfig` (default values
 otherwise). They are evaluation suites: each has its own random stream (suite key = its name), and no training,
 tuning or selection run uses them (training may cover such flights through its own ``random_config``).
 
@@ -43,7 +43,7 @@ import numpy as np
 
 from .radar import Radar, RadarSite, atc_radar, bizup_radar
 from .scenario import RandomScenarioConfig, ScenarioBuilder, Segment, SegmentScenario, random_scenario
-from .units import DEG, G0_M_S2, KNOT_M_S, NM_M
+from ..common.units import DEG, G0_M_S2, KNOT_M_S, NM_M
 
 __all__ = ["Setup", "SCENARIO_NAMES", "FAMILIES", "family_config", "make_setup", "random_radar", "RANDOM_RADAR_RANGES"]
 

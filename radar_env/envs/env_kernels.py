@@ -1,5 +1,5 @@
-r"""Compiled kernels of RadarTrack-v0's step and reset: the tracking chain of :mod:`radar_env.kernels` (called, not
-copied), then the observation (:class:`radar_env.observation.ObservationLayout`'s scaling, frame stacking), the
+r"""Compiled kernels of RadarTrack-v0's step and reset: the tracking chain of :mod:`radar_env.filters.kernels` (called, not
+copied), then the observation (:class:`radar_env.envs.observation.ObservationLayout`'s scaling, frame stacking), the
 reward's position and track-loss terms and the end flags, written into the caller's arrays in one call for all rows.
 
 Layouts (module constants):
@@ -11,7 +11,7 @@ Layouts (module constants):
   ``FS_*``, ``BO_*``).
 
 An observation entry of the plan is ``(special, column, divisor, kind, scale, low, high)``: ``special`` 0 reads
-feature column ``column`` of the step's feature row (:data:`radar_env.kernels.BANK_FLOAT_KEYS` +
+feature column ``column`` of the step's feature row (:data:`radar_env.filters.kernels.BANK_FLOAT_KEYS` +
 ``PREVIEW_KEYS``) over ``divisor``; the other ``SP_*`` values are the entries that are not a feature over a divisor
 (degrees and Kim & Lee's q of feature ``column``, dt, the position-std ratio from the range in ``column``, the
 previous q, the detection flag). ``kind`` is the scaling (``KIND_*``): linear ``x / scale``, ``log10(1 + max(x, 0)) / scale`` or the action map of q; NaN -> 0, then clipped
@@ -22,13 +22,15 @@ from __future__ import annotations
 
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from . import kernels as _k
-from .kernels import _scratch, _step_row, _track_start_row
-from .units import G0_M_S2
+from ..common.numba_cache import drop_stale_kernels, package_sources
+from ..filters import kernels as _k
+from ..filters.kernels import _scratch, _step_row, _track_start_row
+from ..common.units import G0_M_S2
 
 # ---------------------------------------------------------------------------------------------------- layouts
 EP_ACT_CONT, EP_NLEV, EP_L0, EP_L1, EP_LQ0, EP_LQ1, EP_WARM_Q, EP_GATE, EP_CLIP, EP_RKIND = range(10)
@@ -295,7 +297,7 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, o
     """The env's one kernel (one compilation of the chain for both uses):
 
     * ``rows`` empty: one step of every row: action ``act[i]`` -> q (validated), the chain's look
-      (:func:`radar_env.kernels._step_row`), observation, reward, end flags (``BO_LOST`` = terminated, ``BO_TRUNC``,
+      (:func:`radar_env.filters.kernels._step_row`), observation, reward, end flags (``BO_LOST`` = terminated, ``BO_TRUNC``,
       ``BO_DONE`` = either) at output index i. ``elapsed`` counts steps since each row's start (``EP_MAX_STEPS``
       > 0 truncates there, as gym's TimeLimit). Returns a status ``ST_*``; nothing is changed unless ST_OK.
     * ``rows`` given: start the episodes already in their looks (two-hit start, ``warmup_scans`` looks at the
@@ -303,7 +305,7 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, o
       ``-1 - j`` if row ``rows[j]`` has no two hits at different times or too few looks for the warm-up (nothing
       is started then), else ST_OK.
 
-    ``ext (n, W)`` holds row r's values of features computed outside the chain (:mod:`radar_env.detectors`),
+    ``ext (n, W)`` holds row r's values of features computed outside the chain (:mod:`radar_env.envs.detectors`),
     appended to its feature row as columns ``W_FEAT ..`` for the observation plan (W = 0: none).
     """
     start = rows.shape[0] > 0
@@ -378,7 +380,7 @@ def announce_compilation(*extra):
     if _announced:
         return
     _announced = True
-    from . import draws
+    from ..sim import draws
     kernels = (k_env, draws._random_rows, draws.k_fill_random_looks) + extra
     try:
         cold = any(not d.overloads and not d._cache._cache_file._load_index() for d in kernels)
@@ -387,3 +389,8 @@ def announce_compilation(*extra):
     if cold:
         print(f"radar_env: compiling the filter kernels (first run only, about {COLD_COMPILE_S} s)", file=sys.stderr,
               flush=True)
+
+
+# numba keys each cached kernel on its own file only: drop this folder's cached kernels (env_kernels, imm_env,
+# detectors import this module first) when any source of radar_env changed (radar_env.common.numba_cache)
+drop_stale_kernels(k_env, package_sources(Path(__file__).parents[1]))

@@ -1,5 +1,5 @@
 """Real ADS-B flights as scenarios: ``adsb:<flight>`` (or ``adsb:<flight>:<segment>``; ``<flight>`` a shipped id or
-a flight file ``<path>.csv[.gz]`` in :mod:`radar_env.adsb`'s format) and the pools
+a flight file ``<path>.csv[.gz]`` in :mod:`radar_env.sim.adsb`'s format) and the pools
 ``adsb_calibration`` (all shipped calibration flights, one drawn per episode), ``adsb_dev`` and ``adsb_heldout``.
 
 The split (:data:`ADSB_SPLIT`), stated before any policy of issue 20 was trained: the shipped flights in
@@ -7,9 +7,9 @@ alphabetical order, ``adsb_dev`` the 1st, 3rd, 5th, ... (may be looked at while 
 ``adsb_heldout`` the 2nd, 4th, ... (12 flights each; used only to report). Every flight has been in the README's
 per-flight table since an earlier round, so ``adsb_heldout`` is held out from training and choosing, not unseen.
 
-Each flight is loaded, cleaned, split and smoothed by :mod:`radar_env.adsb` (longest continuous segment by
-default), turned into a :class:`radar_env.scenario.TrajectoryScenario`, and observed by Adrian's ATC radar placed
-by :func:`radar_env.adsb.place_radar` (deterministic: south-west of the flight, at least 20 km from it).
+Each flight is loaded, cleaned, split and smoothed by :mod:`radar_env.sim.adsb` (longest continuous segment by
+default), turned into a :class:`radar_env.sim.scenario.TrajectoryScenario`, and observed by Adrian's ATC radar placed
+by :func:`radar_env.sim.adsb.place_radar` (deterministic: south-west of the flight, at least 20 km from it).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def _setup(flight, segment):
 def resolve_adsb(name):
     """Setup (scenario + radar) for ``adsb:<flight>[:<segment>]`` (a shipped flight id or a flight file path), or
     the :class:`AdsbPool` for ``adsb_calibration``. Unknown flights raise ``ValueError`` listing the shipped ones;
-    a bad file, the loader's one-line error naming it (:func:`radar_env.adsb.load_trajectory`)."""
+    a bad file, the loader's one-line error naming it (:func:`radar_env.sim.adsb.load_trajectory`)."""
     if name == ADSB_SUITE or name in ADSB_SPLIT:
         return AdsbPool(name)
     parts = str(name).split(":")

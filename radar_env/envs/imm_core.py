@@ -1,5 +1,5 @@
 """The batched core of RadarTrack-v0 with ``tracker="imm_cv_ct"`` (:class:`_IMMCore`, no Gymnasium needed) and
-:func:`make_core`, the core of a configuration; the IMM env itself: :mod:`radar_env.imm_env`."""
+:func:`make_core`, the core of a configuration; the IMM env itself: :mod:`radar_env.envs.imm_env`."""
 
 from __future__ import annotations
 
@@ -10,16 +10,16 @@ import numpy as np
 from . import env_kernels as _ek
 from .core import _NO_ROWS, _Core
 from .config import EnvConfig
-from .imm_cv_ct import detector_inputs, detector_names, initial_detectors
+from ..filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors
 from .imm_env import (detector_bounds, detector_observation, feature_q_m_s2, imm_action_map, imm_spec, k_imm_emit,
                       k_imm_start, k_imm_step)
-from .units import DEG, G0_M_S2
+from ..common.units import DEG, G0_M_S2
 
 __all__ = ["make_core"]
 
 
 def make_core(n, cfg: EnvConfig, autoreset=False, max_episode_steps=None):
-    """The batched core of ``cfg``'s tracker: :class:`radar_env.core._Core` (``tracker="cv"``) or
+    """The batched core of ``cfg``'s tracker: :class:`radar_env.envs.core._Core` (``tracker="cv"``) or
     :class:`_IMMCore` (``tracker="imm_cv_ct"``)."""
     cls = _IMMCore if cfg.tracker == "imm_cv_ct" else _Core
     return cls(n, cfg, autoreset, max_episode_steps)
@@ -27,7 +27,7 @@ def make_core(n, cfg: EnvConfig, autoreset=False, max_episode_steps=None):
 
 # ---------------------------------------------------------------------------------------------------- batched core
 class _IMMCore(_Core):
-    """:class:`radar_env.core._Core` whose filter is the IMM: the same rows, draws, autoreset, feature chain and
+    """:class:`radar_env.envs.core._Core` whose filter is the IMM: the same rows, draws, autoreset, feature chain and
     reward code, with the IMM's look before the chain's and its estimate in the info, reward and end flags.
 
     Attributes: ``spec`` (the IMM's), ``action_map`` (:class:`IMMActionMap`), ``feature_q_m_s2``, ``n_features``

@@ -20,7 +20,7 @@ Two kinds:
         vx(tau) =  vx cos(theta) + vy sin(theta)        x(tau) = x + vx sin(theta)/omega + vy (1 - cos(theta))/omega
         vy(tau) = -vx sin(theta) + vy cos(theta)        y(tau) = y - vx (1 - cos(theta))/omega + vy sin(theta)/omega
 
-    which is ``filters.transition_ct(tau, omega) @ state`` (used here, so the truth and the CT filter share one
+    which is ``motion.transition_ct(tau, omega) @ state`` (used here, so the truth and the CT filter share one
     formula);
   - longitudinal acceleration ``a`` along the unit velocity ``u``: ``v = u (s + a tau)``,
     ``p = p0 + u (s tau + a tau^2 / 2)``.
@@ -43,9 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .filters import transition_ct
-from .units import DEG, G0_M_S2, KNOT_M_S
-from .validate import check_known_keys, check_number, check_pair
+from ..common.units import DEG, G0_M_S2, KNOT_M_S
+from ..common.validate import check_known_keys, check_number, check_pair
+from .motion import transition_ct
 
 __all__ = [
     "Segment",
@@ -337,7 +337,7 @@ def _check_trajectory(t, p, v, prefix, where):
             f"{_num(t[k])} ({where(k)}) and {_num(t[k + 1])} ({where(k + 1)}): the positions give "
             f"({d[k, 0]:.6g}, {d[k, 1]:.6g}) m/s, the velocity columns ({v[k, 0]:.6g}, {v[k, 1]:.6g}) and "
             f"({v[k + 1, 0]:.6g}, {v[k + 1, 1]:.6g}) m/s; honouring both needs {peak[k] / G0_M_S2:.3g} g, the "
-            f"tolerance is {TRAJECTORY_MAX_ACCEL_G:g} g (smooth noisy data first, e.g. radar_env.adsb.smooth_segment)")
+            f"tolerance is {TRAJECTORY_MAX_ACCEL_G:g} g (smooth noisy data first, e.g. radar_env.sim.adsb.smooth_segment)")
     # Speed between samples: |v| is Lipschitz in t with constant peak, so a 16-step grid bounds it to within
     # peak * h / 32; only intervals near a limit are solved exactly (roots of d|v|^2/ds, v quadratic in s).
     s = np.linspace(0.0, 1.0, 17)
@@ -576,13 +576,13 @@ class RandomScenarioConfig:
         max_duration_s: the flight is cut after this long (s). Default 1e6 (no cut); e.g. 190 s gives tracks of
             under 40 looks at T = 5 s (the ``short_tracks`` family). (The env also
             redraws an episode with fewer looks than its track start needs, e.g. a short flight seen by a slow
-            radar: :func:`radar_env.env.draw_setup_and_episode`.)
+            radar: :func:`radar_env.envs.env.draw_setup_and_episode`.)
 
     Every value is checked when the config is built: a range must be a ``(low, high)`` pair of real numbers (a
     list is accepted and stored as a tuple), a scalar a real number; strings, ``None``, booleans and complex
     numbers raise ``ValueError`` naming the key.
         random_radar_probability: scenario ``random_radars`` only: the probability that the radar is drawn by
-            :func:`radar_env.catalog.random_radar`; otherwise it is the ATC radar of ``random``. Default 1.
+            :func:`radar_env.sim.catalog.random_radar`; otherwise it is the ATC radar of ``random``. Default 1.
     """
 
     speed_kt: tuple = _range_field(100.0, 600.0)

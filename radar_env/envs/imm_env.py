@@ -1,19 +1,19 @@
 r"""RadarTrack-v0 with ``tracker="imm_cv_ct"``: the agent sets the CV / CT-EKF IMM's per-look parameters (no
 Gymnasium needed). This module: the arguments, the action map, the detectors' observation and the compiled step;
-the batched core that runs them beside the env's chain is :mod:`radar_env.imm_core`.
+the batched core that runs them beside the env's chain is :mod:`radar_env.envs.imm_core`.
 
-The filter is :mod:`radar_env.imm_cv_ct`'s IMM (a CV mode, a CT-EKF mode with the turn rate in its state, a
-high-noise CV mode); the action is its per-look parameter vector (:func:`radar_env.imm_cv_ct.look_parameter_names`:
+The filter is :mod:`radar_env.filters.imm_cv_ct`'s IMM (a CV mode, a CT-EKF mode with the turn rate in its state, a
+high-noise CV mode); the action is its per-look parameter vector (:func:`radar_env.filters.imm_cv_ct.look_parameter_names`:
 ``q_cv_g``, ``q_ct_g``, ``sigma_omega_deg_s15``, ``p_stay_cv``, ``p_stay_ct``, ``q_high_g``, ``p_stay_high``). Per
 step of a row (look ``k``), as ``agents.policies.learned_imm.LearnedIMM.run`` runs it::
 
-    action a (n_par,) -> parameters p_k (IMMActionMap) -> IMM look k with p_k (radar_env.imm_cv_ct._look)
+    action a (n_par,) -> parameters p_k (IMMActionMap) -> IMM look k with p_k (radar_env.filters.imm_cv_ct._look)
         -> estimate, covariance, mode probabilities mu, turn rate omega and its std
-    the env's CV chain at the constant q feature_q_g (radar_env.kernels, the env's own step) -> the features
+    the env's CV chain at the constant q feature_q_g (radar_env.filters.kernels, the env's own step) -> the features
     observation = [the env's features after look k (incl. the preview of plot k+1), detectors(mu, omega, std)]
-    reward and track loss = the env's terms (radar_env.env_kernels._reward_terms) on the IMM's estimate
+    reward and track loss = the env's terms (radar_env.envs.env_kernels._reward_terms) on the IMM's estimate
 
-Action map (:class:`IMMActionMap`), per parameter with range ``[lo, hi]`` (:data:`radar_env.imm_cv_ct.IMM_CV_CT_PARAMS`)
+Action map (:class:`IMMActionMap`), per parameter with range ``[lo, hi]`` (:data:`radar_env.filters.imm_cv_ct.IMM_CV_CT_PARAMS`)
 and base value ``v0`` (the a = 0 point: ``imm_cv_ct``'s tuned value): piecewise linear in ``s = log p`` (noises) or
 ``s = logit p`` (stay probabilities), ``s(-1) = s(lo)``, ``s(0) = s(v0)``, ``s(+1) = s(hi)``, computed as
 ``p = v0 exp(d)`` (log) or ``p = v0 e^d / ((1 - v0) + v0 e^d)`` (logit) with ``d = s(a) - s(v0)``, so a = 0 gives
@@ -35,16 +35,16 @@ import numpy as np
 from numba import njit
 
 from . import env_kernels as _ek
-from . import kernels as _k
-from .imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _work, imm_cv_ct_spec_from_params, look_parameter_names,
-                        look_parameter_vector)
-from .units import DEG, G0_M_S2
-from .validate import check_number
+from ..filters import kernels as _k
+from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _work, imm_cv_ct_spec_from_params,
+                                 look_parameter_names, look_parameter_vector)
+from ..common.units import DEG, G0_M_S2
+from ..common.validate import check_number
 
 __all__ = ["IMM_ENV_DEFAULTS_PATH", "DEFAULT_IMM_ACTION_LEVELS", "imm_env_defaults", "imm_spec", "feature_q_m_s2",
            "imm_action_map", "IMMActionMap", "detector_bounds", "detector_observation", "check_imm_config"]
 
-IMM_ENV_DEFAULTS_PATH = Path(__file__).parent / "data" / "imm_cv_ct_env.json"
+IMM_ENV_DEFAULTS_PATH = Path(__file__).parents[1] / "data" / "imm_cv_ct_env.json"
 DEFAULT_IMM_ACTION_LEVELS = 5
 """Levels per parameter of ``action_type="discrete"`` (``imm_action_levels``)."""
 
@@ -58,7 +58,7 @@ def detector_bounds(n_modes):
 
 
 def detector_observation(detectors):
-    """The observation's detector entries: :func:`radar_env.imm_cv_ct.detector_inputs` ``(n, M + 2)`` clipped to
+    """The observation's detector entries: :func:`radar_env.filters.imm_cv_ct.detector_inputs` ``(n, M + 2)`` clipped to
     :func:`detector_bounds`, float32."""
     lo, hi = detector_bounds(detectors.shape[1] - 2)
     return np.clip(detectors, lo, hi).astype(np.float32)
@@ -74,7 +74,7 @@ def imm_env_defaults():
 
 
 def imm_spec(cfg):
-    """The :class:`radar_env.imm_cv_ct.IMMCVCTSpec` of an env config: the defaults' parameters, updated by
+    """The :class:`radar_env.filters.imm_cv_ct.IMMCVCTSpec` of an env config: the defaults' parameters, updated by
     ``cfg.imm_parameters``."""
     return imm_cv_ct_spec_from_params({**imm_env_defaults()["imm_parameters"], **dict(cfg.imm_parameters or {})})
 
@@ -126,7 +126,7 @@ class IMMActionMap:
     """Actions -> the IMM's per-look parameters (module docstring).
 
     Args:
-        spec: the IMM's spec (its :func:`radar_env.imm_cv_ct.look_parameter_vector` is the a = 0 point).
+        spec: the IMM's spec (its :func:`radar_env.filters.imm_cv_ct.look_parameter_vector` is the a = 0 point).
         discrete: actions are level indices (else values in [-1, 1]); levels: levels per parameter (odd).
     Attributes: ``names`` (the parameters), ``n_par``, ``lo``, ``hi``, ``base`` (n_par,), ``table``
     (n_par, W_MAP) the kernel's map.
@@ -210,7 +210,7 @@ def k_map(act, discrete, levels, table, out):
 
 @njit(cache=True)
 def k_imm_start(rows, st, is_ct, sig_w0_2, p_w0, log_mu0, xm, Pm, log_mu):
-    """Start the IMM of ``rows`` at the chain's warm-up estimate (as ``baselines.imm_cv_ct.run_imm_cv_ct``): turn
+    """Start the IMM of ``rows`` at the chain's warm-up estimate (as ``baselines.imm_cv_ct_runner.run_imm_cv_ct``): turn
     rate 0 with variance ``p_w0`` in the CT mode, every mode at that state (a CV mode with its augmentation)."""
     x5 = np.zeros(5)
     P5 = np.zeros((5, 5))
@@ -230,7 +230,7 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
     """The IMM's next look of every row (the look the chain processes next, ``it[r, I_K]``) with the parameters of
     action ``act[r]``: ``par (n, n_par)``, the combined ``x (n, 4)``, ``P (n, 4, 4)``, ``mu (n, M)``, turn rate
     ``om`` and its variance ``om_var``; the modes ``xm, Pm, log_mu`` in place. The per-look arrays are those of
-    ``radar_env.imm_cv_ct.kernel_parameters`` (same operations). Returns a status ``ST_*`` (nothing changed unless
+    ``radar_env.filters.imm_cv_ct.kernel_parameters`` (same operations). Returns a status ``ST_*`` (nothing changed unless
     ST_OK)."""
     s = _check_actions(act, discrete, levels)
     if s != _ek.ST_OK:

@@ -25,13 +25,13 @@ initialisation from the first two detected looks (position from the second, velo
 returns the output of the last warm-up look, from which the first choice of q is made.
 
 Implementation: the whole step (predict, update, features, preview) of all stepped rows is one compiled kernel
-call (:func:`radar_env.kernels.k_tracker_step`), and the track start another (:func:`radar_env.kernels.k_track_start`,
+call (:func:`radar_env.filters.kernels.k_tracker_step`), and the track start another (:func:`radar_env.filters.kernels.k_track_start`,
 then the warm-up as ``k_tracker_step`` with ``n_rep = warmup_scans``). The state lives in preallocated arrays that
 the kernels update in place: ``x (B,4)``, ``P (B,4,4)`` and ``t_last`` are views of one packed float array, ``k`` and
-``n_looks (B,)`` of one int array (:data:`radar_env.kernels.S_X` ...), beside the feature bank's packed ring buffers
-and the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.kernels.LOOK_COLUMNS`). The
-env runs the same row step (:func:`radar_env.kernels._step_row`) from its own kernel
-(:mod:`radar_env.env_kernels`).
+``n_looks (B,)`` of one int array (:data:`radar_env.filters.kernels.S_X` ...), beside the feature bank's packed ring buffers
+and the episodes' looks packed as ``(B, K_cap, W_LOOK)`` float64 rows (:data:`radar_env.filters.kernels.LOOK_COLUMNS`). The
+env runs the same row step (:func:`radar_env.filters.kernels._step_row`) from its own kernel
+(:mod:`radar_env.envs.env_kernels`).
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ import numpy as np
 
 from . import kernels as _k
 from .features import FeatureBank
-from .units import G0_M_S2
+from ..sim.looks import init_looks, looks_for_track_start  # noqa: F401  (the two-hit start's looks)
+from ..common.units import G0_M_S2
 
 __all__ = ["Tracker", "StepOutput", "init_looks", "looks_for_track_start", "preview_next_plot", "MAX_Q_M_S2"]
 
@@ -82,30 +83,6 @@ class StepOutput(NamedTuple):
 
 FEATURE_FLOAT_KEYS = _k.BANK_FLOAT_KEYS + _k.PREVIEW_KEYS
 """Column names of ``StepOutput.feature_block`` (the float features; the flags are only in ``features``)."""
-
-
-def init_looks(detected, t_s):
-    """Indices of the two looks used for the two-hit start: the first detection and the next detection at a
-    strictly later time. Returns ``(i1, i2)`` or raises ``ValueError`` if there are not two."""
-    det = np.flatnonzero(detected)
-    if det.size < 2:
-        raise ValueError("an episode needs at least two detected looks for the two-hit track start")
-    i1 = int(det[0])
-    later = det[t_s[det] > t_s[i1]]
-    if later.size == 0:
-        raise ValueError("an episode needs two detected looks at different times for the two-hit track start")
-    return i1, int(later[0])
-
-
-def looks_for_track_start(detected, t_s, warmup_scans):
-    """Number of looks an episode needs so that the track start (two hits, then ``warmup_scans`` warm-up looks)
-    leaves at least one look for a policy to act on: index of the second hit + 2 + ``warmup_scans``. ``None`` if
-    the episode has no two hits at different times."""
-    try:
-        _, i2 = init_looks(detected, t_s)
-    except ValueError:
-        return None
-    return i2 + 2 + int(warmup_scans)
 
 
 def preview_next_plot(x_post, P_post, t_s, next_look):
@@ -205,7 +182,7 @@ class Tracker:
         warmup_scans: looks filtered at ``warmup_q_m_s2`` after the two-hit start (Bizup: 12), >= 1 (the first
             observation needs the features of one filtered look).
         warmup_q_m_s2: process-noise level during warm-up (Bizup: 0.03 g).
-        n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.features.FeatureBank`.
+        n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.filters.features.FeatureBank`.
     """
 
     def __init__(self, batch_size, warmup_scans=12, warmup_q_m_s2=0.03 * G0_M_S2, n_adrian=4, window_kim_lee=12,
@@ -419,8 +396,8 @@ class Tracker:
 class TrackStart(NamedTuple):
     """The parameters of the common track start and of the chain's features, shared by the env and every tracker
     (see the module docstring): ``warmup_scans`` looks at ``warmup_q_g`` after the two-hit start, and the
-    :class:`radar_env.features.FeatureBank` parameters ``n_adrian``, ``window_kim_lee``, ``fma_weight``. Checked
-    by :meth:`checked`; :class:`radar_env.config.EnvConfig` builds one from its arguments (``track_start``)."""
+    :class:`radar_env.filters.features.FeatureBank` parameters ``n_adrian``, ``window_kim_lee``, ``fma_weight``. Checked
+    by :meth:`checked`; :class:`radar_env.envs.config.EnvConfig` builds one from its arguments (``track_start``)."""
 
     warmup_scans: int = 12
     warmup_q_g: float = 0.03
@@ -430,7 +407,7 @@ class TrackStart(NamedTuple):
 
     def checked(self, prefix=""):
         """``self`` if every field is in range; else ``ValueError`` naming the field (after ``prefix``)."""
-        from .validate import check_number
+        from ..common.validate import check_number
         check_number(prefix + "warmup_scans", self.warmup_scans, 1, 1000, integer=True)
         check_number(prefix + "warmup_q_g", self.warmup_q_g, 0.0, 100.0)
         check_number(prefix + "n_adrian", self.n_adrian, 1, 50, integer=True)

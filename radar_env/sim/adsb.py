@@ -15,7 +15,7 @@ clockwise from north. ``lat_deg``/``lon_deg`` may be empty (missing position); `
 Pipeline (:func:`load_trajectory`): :func:`load_raw` -> :func:`clean` (drop missing and stale positions, check time,
 optionally drop slow rows) -> :func:`split_segments` (at gaps and drop short pieces) -> :func:`project_local_en`
 (local tangent plane) -> :func:`smooth_segment` (smoothing spline per axis, velocity from its derivative, regular
-grid) -> :class:`AdsbTrajectory`, whose arrays feed :class:`radar_env.scenario.TrajectoryScenario`.
+grid) -> :class:`AdsbTrajectory`, whose arrays feed :class:`radar_env.sim.scenario.TrajectoryScenario`.
 
 Measured on the shipped flights (longest segment, defaults; spline velocity vs reported values at the raw
 times): RMS speed difference 2.8-12.6 m/s per flight (liege_sprimont 3.6, brussels_vor 2.8, munich 6.5,
@@ -59,7 +59,7 @@ __all__ = [
     "place_radar",
 ]
 
-DATA_DIR = Path(__file__).resolve().parent / "data" / "adsb"
+DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "adsb"
 """Folder of the shipped flights."""
 
 COLUMNS = ("t_s", "lat_deg", "lon_deg", "alt_m", "groundspeed_m_s", "track_deg")
@@ -490,7 +490,7 @@ class AdsbTrajectory:
         return np.column_stack([self.t_s, self.x_m, self.y_m, self.vx_m_s, self.vy_m_s])
 
     def to_scenario(self, **kwargs):
-        """A :class:`radar_env.scenario.TrajectoryScenario` from these samples (name ``adsb:<id>:<segment>``)."""
+        """A :class:`radar_env.sim.scenario.TrajectoryScenario` from these samples (name ``adsb:<id>:<segment>``)."""
         from .scenario import TrajectoryScenario
 
         kwargs.setdefault("name", f"adsb:{self.flight_id}:{self.segment}")
@@ -629,7 +629,7 @@ def place_radar(traj, rng=None, min_range_m=20e3, bearing_deg=225.0):
     ``[min_range_m, 2 r_ext + min_range_m]``. With the default 20 km, 22 of the 24 shipped flights (longest segment)
     stay within 20-141 km; ``ajaccio`` (45-235 km) and ``vancouver`` (114-387 km) are too large for that: the rule
     guarantees the minimum range, not a maximum. Cut long
-    flights (or use :func:`radar_env.scenario.place_radar_site`) if a maximum range must hold.
+    flights (or use :func:`radar_env.sim.scenario.place_radar_site`) if a maximum range must hold.
 
     Parameters
     ----------

@@ -1,10 +1,10 @@
 r"""``rbpf``: a Rao-Blackwellised particle filter over the flight regime of the random-flight generator.
 
-Each particle carries the regime of :func:`radar_env.scenario.random_scenario`'s flights (a straight leg, a
+Each particle carries the regime of :func:`radar_env.sim.scenario.random_scenario`'s flights (a straight leg, a
 coordinated turn with its rate, a speed change with its acceleration), the time spent in it and the support of its
 duration, and a Kalman filter (EKF for the nonlinear regimes) on ``[x, y, vx, vy, eta]`` given that regime:
 ``eta`` is the turn rate (rad/s) in a turn, the longitudinal acceleration (m/s^2) in a speed change, and 0 on a
-straight leg. The regime laws are read from a :class:`radar_env.scenario.RandomScenarioConfig` (the prior), never
+straight leg. The regime laws are read from a :class:`radar_env.sim.scenario.RandomScenarioConfig` (the prior), never
 copied:
 
 * every segment's duration is uniform given its parameters: a leg ``U(leg_duration_s)``; a turn of rate ``w``
@@ -26,7 +26,7 @@ the flight's start (the first leg lasts ``max(U(first leg), first_leg_min_s)`` f
 ``U(n_legs)`` legs), as the look times of a random episode count from it. Without it (``rbpf``, the deployed
 tracker) a track starts on a leg of unknown age (its stationary distribution) with unlimited legs ahead.
 
-Randomness: a counter-based stream per row (:func:`radar_env.draws._u01`) keyed by the caller (the runner hashes
+Randomness: a counter-based stream per row (:func:`radar_env.sim.draws._u01`) keyed by the caller (the runner hashes
 the row's looks), counter ``(look, particle, draw)``: the same looks give the same numbers in any batch.
 The kernel works over rows in parallel (``prange``), each row's particles in one thread.
 """
@@ -39,12 +39,12 @@ from dataclasses import dataclass, fields
 import numba
 import numpy as np
 
-from .draws import _u01
+from ..common.units import DEG, G0_M_S2, KNOT_M_S
+from ..common.validate import check_number
+from ..sim.draws import _u01
+from ..sim.scenario import RandomScenarioConfig
 from .imm_cv_ct import _abat, _add_cv_noise, _ct_predict, _moments
 from .kernels import _gain_update, _logsumexp, _symmetrize
-from .scenario import RandomScenarioConfig
-from .units import DEG, G0_M_S2, KNOT_M_S
-from .validate import check_number
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_PARAMS", "rbpf_filter", "prior_vector"]
 
@@ -198,7 +198,7 @@ def _propagate(kind, x, P, h, pv, xo, J, tmp, Po):
 
 @numba.njit(cache=True)
 def _plot_update(x, P, n, z, R, xo, Po):
-    """The chain's Kalman update (:func:`radar_env.kernels._gain_update`) of the first ``n`` states (4 where
+    """The chain's Kalman update (:func:`radar_env.filters.kernels._gain_update`) of the first ``n`` states (4 where
     ``eta``'s row and column are 0) with the position plot, in place; returns the plot's log-likelihood."""
     nis, d = _gain_update(x, P, n, z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], xo, Po)
     for r in range(n):

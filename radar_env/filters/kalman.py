@@ -1,7 +1,7 @@
 r"""Kalman and IMM filter math: one batched implementation used by the env, the baselines and the evaluation.
 
 All functions are pure, float64, batch axis first, and free of randomness. The arithmetic is written once, as
-compiled per-row code in :mod:`radar_env.kernels`; the functions here broadcast their inputs, flatten the batch
+compiled per-row code in :mod:`radar_env.filters.kernels`; the functions here broadcast their inputs, flatten the batch
 axes and call those kernels (the only numpy reference left is :func:`inv2`, a two-line closed form used by
 baselines/konle.py). State order is ``[x, y, vx, vy]``
 (metres, m/s), the measurement is the converted position ``z = H x + v`` with ``H = [I2 0]``.
@@ -38,7 +38,7 @@ large prior: the position rows and columns as :math:`P^+H^T = KR`, the rest as :
 ``eps x prior``, above the posterior after a long or hard coast), symmetrised. Where rounding would still leave
 :math:`P^+` indefinite (a posterior variance below ``1.4e-14`` of its block's scale: a near-singular plot, a coast of
 minutes at 100 g), the smallest isotropic addition restores that level
-(:func:`radar_env.kernels._pd_floor`; nothing changes on ordinary looks), so :math:`P^+` is symmetric positive
+(:func:`radar_env.filters.kernels._pd_floor`; nothing changes on ordinary looks), so :math:`P^+` is symmetric positive
 definite (Cholesky) for any :math:`q \ge 0` and every radar the env accepts. NIS :math:`= \nu^T S^{-1}\nu`; the Gaussian
 log-likelihood :math:`\ell = -\tfrac12(\mathrm{NIS} + \log\det(2\pi S))`. A missed detection skips the update
 (posterior = prior, NIS = 0, likelihood 0 in log space).
@@ -59,6 +59,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels as _k
+from ..sim.motion import _as_batch, _flat, transition_ct, transition_cv  # noqa: F401  (the motion model)
 
 __all__ = [
     "transition_cv",
@@ -78,37 +79,6 @@ __all__ = [
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-def _as_batch(a) -> np.ndarray:
-    return np.atleast_1d(np.asarray(a, dtype=np.float64))
-
-
-def _flat(a, shape, tail):
-    """``a`` broadcast to ``shape + tail``, as a C-contiguous float64 array of shape ``(-1,) + tail``."""
-    return _k.c_array(np.broadcast_to(np.asarray(a, dtype=np.float64), shape + tail)).reshape((-1,) + tail)
-
-
-def transition_cv(dt_s) -> np.ndarray:
-    """Constant-velocity transition matrices ``F (B,4,4)`` for time steps ``dt_s (B,)``."""
-    dt = _as_batch(dt_s)
-    F = np.empty((dt.size, 4, 4))
-    _k.k_transition(_k.c_array(dt).reshape(-1), np.zeros(dt.size), False, F)
-    return F.reshape(dt.shape + (4, 4))
-
-
-def transition_ct(dt_s, turn_rate_rad_s) -> np.ndarray:
-    """Coordinated-turn transition matrices ``F (B,4,4)``; exact kinematics of a constant-speed turn.
-
-    Args:
-        dt_s: time steps (B,) or scalar.
-        turn_rate_rad_s: heading rate (B,) or scalar, positive = clockwise (right turn). Zero gives ``F_cv``.
-    """
-    # sin(theta)/w = dt*sinc(theta); (1-cos(theta))/w = dt*(theta/2)*sinc(theta/2)^2 -- exact, smooth at w = 0.
-    dt, w = np.broadcast_arrays(_as_batch(dt_s), _as_batch(turn_rate_rad_s))
-    F = np.empty((dt.size, 4, 4))
-    _k.k_transition(_flat(dt, dt.shape, ()), _flat(w, dt.shape, ()), True, F)
-    return F.reshape(dt.shape + (4, 4))
 
 
 def process_noise(dt_s, q_m_s2) -> np.ndarray:

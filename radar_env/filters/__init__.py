@@ -1,0 +1,7 @@
+"""Filters: the compiled chain kernels (Kalman, IMM, feature bank, preview), tracker, IMM CV/CT, the regime particle
+filter (rbpf), torch forward.
+May import radar_env.common and radar_env.sim; never envs or gymnasium; torch only in torch_chain and torch_imm."""
+
+from .._moved import forward_attributes
+
+__getattr__ = forward_attributes(__name__, "radar_env.filters.kalman")   # old radar_env/filters.py names, warned
