@@ -7,7 +7,8 @@ Generators called, by name: ``agents.reports.report.headline(results, has_policy
 ``agents.reports.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.reports.report.main``
 passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.reports.paper_checks.readme_block(data)`` on
 ``docs/paper_checks.json``, and ``agents.reports.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
-for ``adsb-flights``, and ``agents.reports.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
+for ``adsb-flights``, ``agents.reports.report.scores_table(results[, HEADLINE_TRACKERS])`` for ``scores`` and
+``headline-scores``, and ``agents.reports.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
 ``track_start_table`` on ``docs/generalisation.json`` for ``families``, ``seed-spread``, ``targets`` and
 ``track-start``.
 """
@@ -48,6 +49,10 @@ def _adsb_flights():
     return report.per_flight_table(_results()["adsb_calibration"]["per_flight"])
 
 
+def _scores(names=None):
+    return lambda: report.scores_table(_results(), names)
+
+
 def _bounds():
     res = json.loads((ROOT / "docs" / "bounds.json").read_text())
     return report.headline(res, _has_policy(res))
@@ -60,7 +65,8 @@ def _generalisation(render):
     return f
 
 
-RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream,
+RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream, "scores": _scores(),
+             "headline-scores": _scores(report.HEADLINE_TRACKERS),
              "adsb-flights": _adsb_flights, "families": _generalisation("families_table"),
              "seed-spread": _generalisation("spread_table"), "targets": _generalisation("targets_table"),
              "track-start": _generalisation("track_start_table"), "imm-targets": _generalisation("imm_targets_readme")}

@@ -38,6 +38,7 @@ from agents.evaluation.files import check_output_file, move_replacing, same_file
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
                                        jsonable, ratio_ci, score_run)
 from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
+from agents.evaluation.scores import REFERENCE_RMSE_M, normalised_score
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
 from baselines.seeds import EVAL_SEED_BASE
@@ -134,6 +135,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if r.error is not None:
                 m["error"] = r.error
             m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
+            if suite in REFERENCE_RMSE_M and _finite(m["pos_rmse_m"]):     # 0 = kf_tuned, 100 = rbpf
+                m["score"] = normalised_score(suite, float(m["pos_rmse_m"]))
             _note_undefined(m)
             res["trackers"][t] = m
         res["bounds_beaten"] = bounds_beaten(res["trackers"])
@@ -215,16 +218,17 @@ def _pair(rc):
 def format_table(results, reference="imm2"):
     """Plain-text table: one block per suite, one row per tracker.
 
-    ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``common`` over the suite's
+    ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``score`` is its normalised
+    score (0 = ``kf_tuned``, 100 = ``rbpf``, :mod:`agents.evaluation.scores`) where the suite has reference RMSEs; ``common`` over the suite's
     common runs (no compared tracker lost or failed them); the ratio columns are paired over the runs neither
     tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs; ``*``
     beside an ANEES one taken from under 90 % of the looks (:func:`table_notes` says how many, and names a bound
     tracker that some real tracker beat)."""
     lines = []
-    head = ("tracker", "pos RMSE m [95% CI]", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
+    head = ("tracker", "pos RMSE m [95% CI]", "score", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
             "in95", "lost", "failed", "common RMSE m [95% CI]", f"/{reference} all [95% CI]",
             f"/{reference} common [95% CI]")
-    widths = (20, 30, 9, 8, 9, 8, 8, 6, 5, 5, 6, 30, 28, 28)
+    widths = (20, 30, 6, 9, 8, 9, 8, 8, 6, 5, 5, 6, 30, 28, 28)
     for suite, res in results.items():
         n_common = res.get("common_runs")
         lines.append(f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run"
@@ -240,7 +244,7 @@ def format_table(results, reference="imm2"):
             cells = (
                 t,
                 _f_ci(m["pos_rmse_m"], m["pos_rmse_m_ci95"], m.get("runs_scored", res["runs"]), 1),
-                _f(m["pos_rmse_m_maneuver"], 9), _f(m["pos_rmse_m_after"], 8), _f(m["pos_rmse_m_straight"], 9),
+                _f(m.get("score"), 6, 0), _f(m["pos_rmse_m_maneuver"], 9), _f(m["pos_rmse_m_after"], 8), _f(m["pos_rmse_m_straight"], 9),
                 _f(m["vel_rmse_m_s"], 8, 2), _f(m["peak_pos_err_m"], 8, 0), _anees_cell(m, 6),
                 _f(m["nees_in_95"], 5, 2), _f(m["track_loss_rate"], 5, 2), str(m.get("failed_runs", "-")),
                 _f_ci(m["pos_rmse_m_common"], m["pos_rmse_m_common_ci95"], m["common_runs"], 1)

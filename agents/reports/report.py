@@ -18,6 +18,8 @@ from agents.evaluation.evaluate import DEFAULT_RUNS, evaluate, table_notes
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY
 from agents.evaluation.metrics import FEW_RUNS
+from agents.evaluation.scores import normalised_score, reference_constants
+from baselines.registry import BOUND_TRACKERS
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, run_scenario
 
 __all__ = ["main", "markdown_tables"]
@@ -100,6 +102,25 @@ def headroom_share(res, tracker="policy", low="imm2", ceiling="hindsight_q"):
         return None
     a, b, c = (m["pos_rmse_m"] for m in ms)
     return None if b - c <= 0 else (b - a) / (b - c)
+
+
+def scores_table(results, names=None):
+    """Markdown: the normalised score (0 = ``kf_tuned``, 100 = ``rbpf``; :mod:`agents.evaluation.scores`) of each
+    tracker of ``names`` (default: every tracker of the results, bounds last) per suite, the references taken from
+    ``results`` themselves (:func:`~agents.evaluation.scores.reference_constants`)."""
+    refs = reference_constants(results)
+    present = [t for res in results.values() for t in res["trackers"]]
+    names = [t for t in dict.fromkeys(present) if names is None or t in names]
+    names = [t for t in names if t not in BOUND_TRACKERS] + [t for t in names if t in BOUND_TRACKERS]
+    lines = ["| suite | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for suite, res in results.items():
+        cells = []
+        for t in names:
+            m = res["trackers"].get(t)
+            v = None if m is None or m.get("pos_rmse_m") is None else normalised_score(suite, m["pos_rmse_m"], refs)
+            cells.append("-" if v is None else f"{v:.0f}")
+        lines.append(f"| {suite} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def headline(results, has_policy):
@@ -267,6 +288,12 @@ def main(argv=None):
               for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
     results, runs = evaluate(suites, trackers, policy)
     seconds = time.time() - t0
+    refs = reference_constants(results)     # the scores against these results' own references (= the code's once
+    for suite, res in results.items():      # agents.evaluation.scores.REFERENCE_RMSE_M is updated from them)
+        for m in res["trackers"].values():
+            m.pop("score", None)
+            if suite in refs and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"]):
+                m["score"] = normalised_score(suite, float(m["pos_rmse_m"]), refs)
     fig_dir = docs / "figures"
     suite_figures(runs, fig_dir, args.seed)
     scope_figure(fig_dir / "scope_frame.png", args.seed)
@@ -301,6 +328,8 @@ def main(argv=None):
     if args.readme:
         from agents.reports.readme_blocks import replace_block
         replace_block("headline", headline(results, policy is not None))
+        replace_block("headline-scores", scores_table(results, HEADLINE_TRACKERS))
+        replace_block("scores", scores_table(results))
         replace_block("downstream", down)
         replace_block("adsb-flights", flights)
     (docs / "results.json").write_text(json.dumps(jsonable(results), indent=1, allow_nan=False))
