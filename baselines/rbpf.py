@@ -22,10 +22,12 @@ from radar_env.filters.rbpf import DEFAULT_RBPF, RBPFSpec, rbpf_filter
 from .imm_cv_ct_runner import _declared, common_start
 from .trackers import TrackRun
 
-__all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_REF", "episode_key", "run_rbpf"]
+__all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_REF", "RBPF_RDOT", "episode_key", "run_rbpf"]
 
 RBPF_REF = replace(DEFAULT_RBPF, flight_start_known=True)
 """``rbpf_ref``'s settings: ``rbpf``'s, knowing the flight's start."""
+RBPF_RDOT = replace(DEFAULT_RBPF, radial_velocity=True, rdot_noise_scale=1.0)
+"""``rbpf_rdot``'s settings: ``rbpf``'s, also updating on the plots' radial velocity."""
 
 
 def episode_key(episode) -> np.uint64:
@@ -46,7 +48,8 @@ def run_rbpf(episodes, spec: RBPFSpec = DEFAULT_RBPF, name="rbpf", cfg=None, sta
     B, K = batch.t_s.shape
     keys = np.array([episode_key(e) for e in episodes], dtype=np.uint64)
     x, P, p_man, w, ess = rbpf_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x4,
-                                      P4, keys, spec)
+                                      P4, keys, spec, batch.radial_velocity_m_s, batch.site_xy_m,
+                                      batch.radial_velocity_noise_std_m_s)
     rows = np.arange(B)
     x[rows, k0], P[rows, k0] = x4, P4      # the start look, as every tracker records it
     return TrackRun(name, x, P, k0 + 1, np.full((B, K), np.nan), declared=_declared(p_man),

@@ -5,7 +5,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct_runner`),
 ``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
-knowing the flight's start: the causal reference on ``random``),
+knowing the flight's start: the causal reference on ``random``), ``rbpf_rdot`` (``rbpf`` also updating on the radial
+velocity),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
 in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
 ``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
@@ -23,7 +24,7 @@ import re
 from . import trackers as T
 from .imm_cv_ct_runner import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
-from .rbpf import RBPF_REF, run_rbpf
+from .rbpf import RBPF_RDOT, RBPF_REF, run_rbpf
 from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
@@ -63,6 +64,7 @@ _RUNNERS = {
     "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
     "rbpf": lambda eps, cfg: run_rbpf(eps, name="rbpf", cfg=cfg),
     "rbpf_ref": lambda eps, cfg: run_rbpf(eps, RBPF_REF, name="rbpf_ref", cfg=cfg),
+    "rbpf_rdot": lambda eps, cfg: run_rbpf(eps, RBPF_RDOT, name="rbpf_rdot", cfg=cfg),
     "kf_tuned": _policy_run("kf_tuned"),
     "kf_low": _policy_run("kf_low"),
     "kf_high": _policy_run("kf_high"),

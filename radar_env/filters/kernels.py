@@ -317,6 +317,45 @@ def _gain_update(x, P, n, nu0, nu1, r00, r01, r11, xo, Po):
     return n0 * n0 * i00 + 2.0 * n0 * n1 * i01 + n1 * n1 * i11, det_s
 
 
+MIN_RANGE_FOR_RDOT_M = 1.0
+"""A predicted position closer than this to the site gets no range-rate update (the line of sight is undefined)."""
+
+
+@njit(cache=True)
+def _rdot_update(x, P, n, rdot, sx, sy, var, xo, Po):
+    """The EKF update of an n-state (n = 4 or 5: position, velocity[, turn rate]) ``(x, P)`` with a measured radial
+    velocity ``rdot`` (m/s, positive receding) from the site ``(sx, sy)``, variance ``var``: ``h(x) = u . v`` with
+    ``u`` the unit line of sight from the site, Jacobian row ``[(vx - h ux) / r, (vy - h uy) / r, ux, uy, 0]``.
+    Writes the posterior into ``xo``, ``Po`` (not aliasing ``x``, ``P``), symmetrised and floored like the position
+    update; returns the log-likelihood ``-(nu^2 / s + log(2 pi s)) / 2`` (0, posterior = prior, within
+    ``MIN_RANGE_FOR_RDOT_M`` of the site or for a variance that is not finite and positive: no measurement)."""
+    dx, dy = x[0] - sx, x[1] - sy
+    r = math.hypot(dx, dy)
+    for i in range(n):
+        xo[i] = x[i]
+        for j in range(n):
+            Po[i, j] = P[i, j]
+    if not (r >= MIN_RANGE_FOR_RDOT_M and math.isfinite(var) and var > 0.0):
+        return 0.0
+    ux, uy = dx / r, dy / r
+    h = ux * x[2] + uy * x[3]
+    H0, H1, H2, H3 = (x[2] - h * ux) / r, (x[3] - h * uy) / r, ux, uy
+    s = var                     # H P H^T + var: H is zero beyond the velocity
+    for i in range(4):
+        s += (P[i, 0] * H0 + P[i, 1] * H1 + P[i, 2] * H2 + P[i, 3] * H3) * (H0, H1, H2, H3)[i]
+    nu = rdot - h
+    for i in range(n):
+        phi = P[i, 0] * H0 + P[i, 1] * H1 + P[i, 2] * H2 + P[i, 3] * H3
+        xo[i] = x[i] + phi * nu / s
+        for j in range(i + 1):
+            phj = P[j, 0] * H0 + P[j, 1] * H1 + P[j, 2] * H2 + P[j, 3] * H3
+            v = 0.5 * (P[i, j] + P[j, i]) - phi * phj / s
+            Po[i, j] = v
+            Po[j, i] = v
+    _pd_floor(Po, n, P)
+    return -0.5 * (nu * nu / s + math.log(2.0 * math.pi * s))
+
+
 @njit(cache=True)
 def _propagate_cv(x, P, dt, xo, FPF):
     """:func:`_propagate` for ``F = F_cv(dt)`` in closed form: the same products and sums in the same order, without

@@ -44,7 +44,7 @@ from ..common.validate import check_number
 from ..sim.draws import _u01
 from ..sim.scenario import RandomScenarioConfig
 from .imm_cv_ct import _abat, _add_cv_noise, _ct_predict, _moments
-from .kernels import _gain_update, _logsumexp, _symmetrize
+from .kernels import _gain_update, _logsumexp, _rdot_update, _symmetrize
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_PARAMS", "rbpf_filter", "prior_vector"]
 
@@ -69,6 +69,7 @@ RBPF_PARAMS = (
     ("broad_min_s", 5.0, 0.0, 3600.0, "shortest stay in the broad regime (s)"),
     ("broad_max_s", 60.0, 0.0, 3600.0, "longest stay in the broad regime (s)"),
     ("resample_ess", 0.5, 0.0, 1.0, "resample when the effective sample size falls below this fraction of N"),
+    ("rdot_noise_scale", 1.0, 0.1, 100.0, "radial_velocity only: the range-rate noise std used, over the radar's"),
     ("onset_boost", 8.0, 1.0, 100.0, "importance proposal: a leg's end is proposed this many times as often as "
                                      "the prior says, the weights corrected"),
 )
@@ -81,7 +82,9 @@ class RBPFSpec:
 
     Attributes: the names of :data:`RBPF_PARAMS`; ``prior``: the :class:`RandomScenarioConfig` whose laws the
     regimes follow (default: the ``random`` suite's); ``flight_start_known``: the particles know the look times
-    count from the flight's start (the causal reference; see the module docstring).
+    count from the flight's start (the causal reference; see the module docstring); ``radial_velocity``: each
+    particle's filter also updates on the plot's radial velocity (:func:`radar_env.filters.kernels._rdot_update`,
+    after the position), its noise std ``rdot_noise_scale`` x the radar's.
     Every value is checked when built: ``ValueError`` naming the field and its range."""
 
     n_particles: int = 4096
@@ -96,6 +99,8 @@ class RBPFSpec:
     broad_max_s: float = 60.0
     resample_ess: float = 0.5
     onset_boost: float = 8.0
+    rdot_noise_scale: float = 1.0
+    radial_velocity: bool = False
     prior: RandomScenarioConfig = RandomScenarioConfig()
     flight_start_known: bool = False
 
@@ -110,8 +115,9 @@ class RBPFSpec:
             raise ValueError(f"RBPFSpec: broad_min_s ({self.broad_min_s}) must be <= broad_max_s ({self.broad_max_s})")
         if not isinstance(self.prior, RandomScenarioConfig):
             raise ValueError(f"RBPFSpec.prior must be a RandomScenarioConfig, got {type(self.prior).__name__}")
-        if not isinstance(self.flight_start_known, bool):
-            raise ValueError(f"RBPFSpec.flight_start_known must be a bool, got {self.flight_start_known!r}")
+        for name in ("flight_start_known", "radial_velocity"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"RBPFSpec.{name} must be a bool, got {getattr(self, name)!r}")
 
 
 DEFAULT_RBPF = RBPFSpec()
@@ -119,7 +125,7 @@ DEFAULT_RBPF = RBPFSpec()
 # index of each value in the kernel's parameter vector (prior_vector)
 (_P_LEG_LO, _P_LEG_HI, _P_FIRST_LO, _P_FIRST_HI, _P_FIRST_MIN, _P_LEGS_LO, _P_LEGS_HI, _P_PTURN, _P_PSPEED,
  _P_TURN_G_LO, _P_TURN_G_HI, _P_WMAX, _P_DH_LO, _P_DH_HI, _P_ACC_LO, _P_ACC_HI, _P_V_LO, _P_V_HI,
- _P_QFLOOR, _P_SW0, _P_SWW, _P_SA0, _P_SAW, _P_BRATE, _P_BQ, _P_BMIN, _P_BMAX, _P_ESS, _P_START, _P_BOOST) = range(30)
+ _P_QFLOOR, _P_SW0, _P_SWW, _P_SA0, _P_SAW, _P_BRATE, _P_BQ, _P_BMIN, _P_BMAX, _P_ESS, _P_START, _P_BOOST, _P_RDOT, _P_RDOT_SCALE) = range(32)
 
 
 def prior_vector(spec: RBPFSpec = DEFAULT_RBPF) -> np.ndarray:
@@ -133,7 +139,8 @@ def prior_vector(spec: RBPFSpec = DEFAULT_RBPF) -> np.ndarray:
          c.speed_kt[1] * KNOT_M_S, spec.q_floor_g * G0_M_S2, spec.sigma_turn_rate0_deg_s * DEG,
          spec.sigma_turn_rate_walk_deg_s15 * DEG, spec.sigma_accel0_g * G0_M_S2, spec.sigma_accel_walk_g_s05 * G0_M_S2,
          spec.broad_rate_per_s, spec.broad_q_g * G0_M_S2, spec.broad_min_s, spec.broad_max_s, spec.resample_ess,
-         1.0 if spec.flight_start_known else 0.0, spec.onset_boost]
+         1.0 if spec.flight_start_known else 0.0, spec.onset_boost, 1.0 if spec.radial_velocity else 0.0,
+         spec.rdot_noise_scale]
     return np.asarray(v, dtype=np.float64)
 
 
@@ -338,7 +345,8 @@ def _init_particle(t0, x4, P4, pv, key, c, x, P, seg):
 
 
 @numba.njit(cache=True)
-def _row(t, z, R, det, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_pman, out_w, out_ess):
+def _row(t, z, R, det, rdot, site, rdot_var, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_pman, out_w,
+         out_ess):
     """One track's looks ``k_start .. n_looks - 1`` with ``N`` particles."""
     xs, Ps = np.empty((N, 5)), np.empty((N, 5, 5))
     kind, tau, dlo, dhi = np.empty(N, np.int64), np.empty(N), np.empty(N), np.empty(N)
@@ -357,6 +365,7 @@ def _row(t, z, R, det, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_p
         kind[i], dlo[i], dhi[i] = int(seg[0]), seg[1], seg[2]
         logw[i] = -math.log(N)
     rkey = key ^ _RESAMPLE_STREAM
+    use_rdot = pv[_P_RDOT] > 0.0
     for k in range(k_start, n_looks):
         dt = t[k] - t_prev
         t_prev = t[k]
@@ -384,7 +393,14 @@ def _row(t, z, R, det, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_p
                 pend[i], legs[i] = _next_segment(kind[i], pend[i], legs[i], x, P, pv, key, cm + 1, seg)
                 kind[i], tau[i], dlo[i], dhi[i] = int(seg[0]), 0.0, seg[1], seg[2]
             if det[k]:
-                logw[i] += _plot_update(x, P, 4 if kind[i] == STRAIGHT or kind[i] == BROAD else 5, z[k], R[k], xo, Po)
+                n = 4 if kind[i] == STRAIGHT or kind[i] == BROAD else 5
+                logw[i] += _plot_update(x, P, n, z[k], R[k], xo, Po)
+                if use_rdot:
+                    logw[i] += _rdot_update(x, P, n, rdot[k], site[k, 0], site[k, 1], rdot_var[k], xo, Po)
+                    for r in range(n):
+                        x[r] = xo[r]
+                        for c in range(n):
+                            P[r, c] = Po[r, c]
         lse = _logsumexp(logw, N)
         s2, pman, om = 0.0, 0.0, 0.0
         for i in range(N):
@@ -415,13 +431,15 @@ def _row(t, z, R, det, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_p
 
 
 @numba.njit(cache=True, parallel=True)
-def _kernel(t, z, R, det, n_looks, k_start, x4, P4, keys, pv, N, out_x, out_P, out_pman, out_w, out_ess):
+def _kernel(t, z, R, det, rdot, site, rdot_var, n_looks, k_start, x4, P4, keys, pv, N, out_x, out_P, out_pman, out_w,
+            out_ess):
     for b in numba.prange(t.shape[0]):
-        _row(t[b], z[b], R[b], det[b], n_looks[b], k_start[b], x4[b], P4[b], keys[b], pv, N, out_x[b], out_P[b],
+        _row(t[b], z[b], R[b], det[b], rdot[b], site[b], rdot_var[b], n_looks[b], k_start[b], x4[b], P4[b], keys[b], pv, N, out_x[b], out_P[b],
              out_pman[b], out_w[b], out_ess[b])
 
 
-def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: RBPFSpec = DEFAULT_RBPF):
+def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: RBPFSpec = DEFAULT_RBPF,
+                radial_velocity_m_s=None, site_xy_m=None, radial_velocity_std_m_s=None):
     """Run the particle filter on B padded look sequences from a given start (no track start of its own).
 
     Args:
@@ -430,6 +448,9 @@ def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: 
         x0 (B, 4), P0 (B, 4, 4): the start estimate (every particle's filter begins there).
         keys (B,) uint64: each row's random stream.
         spec: the settings and prior (:class:`RBPFSpec`).
+        radial_velocity_m_s (B, K), site_xy_m (B, K, 2), radial_velocity_std_m_s (B, K): the measured radial
+            velocity, the site that looked and its noise std; needed with ``spec.radial_velocity`` (a look whose
+            radial velocity or std is not finite, or whose std is not positive, updates on its position only).
     Returns ``(x (B, K, 4), P (B, K, 4, 4), maneuver_probability (B, K), turn_rate_rad_s (B, K), ess (B, K))``,
     NaN outside the filtered looks."""
     t = np.ascontiguousarray(t_s, dtype=np.float64)
@@ -448,7 +469,20 @@ def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: 
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 4)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 4, 4)
     keys = np.ascontiguousarray(keys, dtype=np.uint64).reshape(B)
+    if spec.radial_velocity:
+        if radial_velocity_m_s is None or site_xy_m is None or radial_velocity_std_m_s is None:
+            raise ValueError("rbpf_filter: spec.radial_velocity needs radial_velocity_m_s, site_xy_m and "
+                             "radial_velocity_std_m_s")
+        rd = np.asarray(radial_velocity_m_s, dtype=np.float64).reshape(B, K)
+        sd = np.asarray(radial_velocity_std_m_s, dtype=np.float64).reshape(B, K) * spec.rdot_noise_scale
+        ok = np.isfinite(rd) & np.isfinite(sd) & (sd > 0)
+        # a look without a usable radial velocity: an infinite variance makes its update the identity
+        rdot, var = np.where(ok, rd, 0.0), np.where(ok, sd * sd, np.inf)
+        site = np.ascontiguousarray(np.nan_to_num(np.asarray(site_xy_m, dtype=np.float64)).reshape(B, K, 2))
+    else:
+        rdot, var, site = np.zeros((B, K)), np.full((B, K), np.inf), np.zeros((B, K, 2))
     out = (np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.full((B, K), np.nan),
            np.full((B, K), np.nan), np.full((B, K), np.nan))
-    _kernel(t, z, R, det, n, ks, x0, P0, keys, prior_vector(spec), int(spec.n_particles), *out)
+    _kernel(t, z, R, det, np.ascontiguousarray(rdot), site, np.ascontiguousarray(var), n, ks, x0, P0, keys,
+            prior_vector(spec), int(spec.n_particles), *out)
     return out
