@@ -7,8 +7,9 @@ over the random flights' regimes, the causal reference on its own prior), from t
 Above 100 beats the particle filter; below 0 is worse than the constant-q filter. The reference RMSEs are constants
 here (:data:`REFERENCE_RMSE_M`): the main job's on its default suites, runs and held-out seeds, as
 ``docs/results.json`` has them (a test checks they agree; ``python -m agents.evaluation.scores`` prints them from that
-file after a regeneration). A suite without references (a trajectory file, another seed or run count) has no score:
-its own ``kf_tuned`` and ``rbpf`` rows are the references there.
+file after a regeneration). A suite without references has no score: a trajectory file (its own ``kf_tuned`` and
+``rbpf`` rows are the references there), and a suite where ``rbpf`` is not clearly better than ``kf_tuned``
+(:data:`MIN_REFERENCE_GAP`: the real ADS-B flights, where the particle filter's prior does not hold).
 """
 
 from __future__ import annotations
@@ -23,7 +24,21 @@ __all__ = ["REFERENCE_RMSE_M", "REFERENCE_TRACKERS", "normalised_score", "refere
 REFERENCE_TRACKERS = ("kf_tuned", "rbpf")
 """(score 0, score 100)."""
 
-REFERENCE_RMSE_M = {}
+MIN_REFERENCE_GAP = 0.05
+"""A suite is scored only where ``rbpf`` beats ``kf_tuned`` by at least this fraction of ``kf_tuned``'s RMSE: where the
+particle filter's prior is so far off that it is no better than a constant-q filter (the real flights), the scale
+from one to the other is undefined, and a score would only magnify noise."""
+
+REFERENCE_RMSE_M = {
+    'random': (115.817, 66.79),
+    'random_radars': (171.952, 84.099),
+    'bizup2002': (291.9, 136.661),
+    'adrian_flower': (76.337, 39.123),
+    'kim_lee_accel': (344.127, 158.155),
+    'seed002_course_changes': (84.799, 54.5),
+    'seed002_two_radars': (64.512, 34.299),
+    'encounters': (91.323, 48.686),
+}
 """Per suite: ``(RMSE of kf_tuned, RMSE of rbpf)`` in m, the main job's (default runs, seed 10,000,000)."""
 
 
@@ -46,12 +61,13 @@ def normalised_score(suite, rmse_m, references=None):
 
 def reference_constants(results):
     """``{suite: (kf_tuned m, rbpf m)}`` from an evaluation's results (``docs/results.json``'s ``suites``): the
-    suites where both references ran and scored."""
+    suites where both references ran and ``rbpf`` beat ``kf_tuned`` by :data:`MIN_REFERENCE_GAP` or more."""
     out = {}
     for suite, res in results.items():
         t = res.get("trackers", {})
         vals = [t.get(n, {}).get("pos_rmse_m") for n in REFERENCE_TRACKERS]
-        if all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals) and vals[0] != vals[1]:
+        if all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals) and \
+                vals[0] - vals[1] >= MIN_REFERENCE_GAP * vals[0]:
             out[suite] = tuple(round(v, 3) for v in vals)
     return out
 

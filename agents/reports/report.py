@@ -18,7 +18,7 @@ from agents.evaluation.evaluate import DEFAULT_RUNS, evaluate, table_notes
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY
 from agents.evaluation.metrics import FEW_RUNS
-from agents.evaluation.scores import normalised_score, reference_constants
+from agents.evaluation.scores import MIN_REFERENCE_GAP, normalised_score, reference_constants
 from baselines.registry import BOUND_TRACKERS
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, run_scenario
 
@@ -114,12 +114,18 @@ def scores_table(results, names=None):
     names = [t for t in names if t not in BOUND_TRACKERS] + [t for t in names if t in BOUND_TRACKERS]
     lines = ["| suite | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for suite, res in results.items():
+        if suite not in refs:
+            continue
         cells = []
         for t in names:
             m = res["trackers"].get(t)
             v = None if m is None or m.get("pos_rmse_m") is None else normalised_score(suite, m["pos_rmse_m"], refs)
-            cells.append("-" if v is None else f"{v:.0f}")
+            cells.append("-" if v is None else str(int(round(v))))
         lines.append(f"| {suite} | " + " | ".join(cells) + " |")
+    unscored = [s for s in results if s not in refs]
+    if unscored:
+        lines += ["", f"No score on {', '.join(unscored)}: there `rbpf` is not {MIN_REFERENCE_GAP:.0%} better than "
+                      "`kf_tuned` (its prior does not hold), so the scale is undefined."]
     return "\n".join(lines)
 
 
