@@ -29,7 +29,7 @@ __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLE
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
-BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
+BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
 BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop" / "policy.npz"
 """The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
@@ -83,8 +83,9 @@ def embed_env_config(zip_path, env_kwargs):
 def recorded_env_kwargs(policy_path):
     """``(kwargs, where)``: the record of the env a policy was trained in, independent of the ``env_config.json``
     beside it: the zip's embedded copy (:func:`embed_env_config`), else the run's hyperparameters (``config.json``
-    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``train_config.json``).
-    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled)."""
+    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``training.json``).
+    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled). A bundled folder's training record
+    is ``training.json`` (``train_config.json`` before the one-folder layout, still read)."""
     path = Path(policy_path)
     try:
         with zipfile.ZipFile(path) as z:
@@ -94,7 +95,8 @@ def recorded_env_kwargs(policy_path):
                     return env_kwargs_from_json(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
     except (OSError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError):
         pass
-    for cand, key in ((path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
+    for cand, key in ((path.with_name("training.json"), ("hyperparams", "env_kwargs")),
+                      (path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
                       (path.with_name("config.json"), ("env_kwargs",)),
                       (path.parent.with_name("config.json"), ("env_kwargs",))):
         if not cand.is_file():

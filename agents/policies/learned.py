@@ -1,0 +1,251 @@
+"""One interface for every learned tracker: a folder of known files, read by :func:`load_learned` by its kind.
+
+Every learned tracker, bundled or trained by a user, is a folder holding:
+
+* ``policy.npz``: the weights as arrays (no pickle);
+* ``policy.json``: ``kind`` (one of :data:`KINDS`) and the architecture (a recurrent policy's and a learned IMM's
+  file is also their per-kind config, read by :mod:`agents.policies.recurrent` / :mod:`agents.policies.learned_imm`);
+* ``env_config.json``: the ``RadarTrack-v0`` arguments it was trained with;
+* ``training.json``: the training record (hyperparameters, command, summary);
+* ``choice.json``: the choice record (the rule and what it chose: a seed, a checkpoint);
+* where the kind is a stable-baselines3 model, ``policy.zip`` beside the ``.npz`` (a pickle; the ``.npz`` is its
+  numpy export and is what runs when it is current, :mod:`agents.policies.numpy_policy`).
+
+The kind, not the caller, decides how the tracker runs: :func:`load_learned` reads ``policy.json`` and hands the
+folder to the per-kind loader (:func:`agents.policies.loading.load_policy`). The bundled trackers are named in
+:data:`BUNDLED_LEARNED`; ``load_learned("policy_bp")`` and ``load_learned("agents/bundled/backprop")`` are the same.
+
+A folder written before this layout (a training run with ``policy.zip`` and no ``policy.json``, or a recurrent
+checkpoint whose ``policy.json`` has a ``format`` but no ``kind``) is still read: its kind is inferred from those
+files (JSON only; nothing is unpickled to decide it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+__all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST", "LearnedTracker",
+           "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
+           "learned_label"]
+
+MANIFEST = "policy.json"
+"""The file naming a learned tracker's kind, beside its weights."""
+MANIFEST_FORMAT = "radar-track-learned-tracker"
+"""``format`` of the ``policy.json`` of a stable-baselines3 kind (the recurrent kinds keep their own formats)."""
+MANIFEST_VERSION = 1
+
+KINDS = {
+    "ppo_q_policy": "a q-policy trained with PPO (stable-baselines3 MLP; policy.zip + its numpy export policy.npz)",
+    "dqn_q_policy": "a q-policy trained with DQN (stable-baselines3; policy.zip + its numpy export policy.npz)",
+    "sac_q_policy": "a q-policy trained with SAC (stable-baselines3; policy.zip + its numpy export policy.npz)",
+    "gru_q_policy": "a recurrent (GRU) q-policy trained by backpropagation through the tracker (policy.npz)",
+    "learned_imm_gru": "a learned IMM: a GRU choosing the CV/CT IMM's parameters, trained by backpropagation "
+                       "(policy.npz)",
+    "learned_imm_ppo": "a learned IMM: an MLP choosing the CV/CT IMM's parameters, trained with PPO on "
+                       "tracker='imm_cv_ct' (policy.zip + its numpy export policy.npz)",
+    "learned_imm_sac": "a learned IMM trained with SAC on tracker='imm_cv_ct' (policy.zip + policy.npz)",
+}
+"""Every kind :func:`load_learned` runs -> what it is."""
+Q_POLICY_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "gru_q_policy")
+"""Kinds that choose the CV filter's q (run by :func:`baselines.trackers.run_q_policy`)."""
+IMM_KINDS = ("learned_imm_gru", "learned_imm_ppo", "learned_imm_sac")
+"""Kinds that choose the CV/CT IMM's parameters (run by their own ``run``)."""
+_SB3_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "learned_imm_ppo", "learned_imm_sac")
+
+BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
+"""Where the bundled learned trackers live, one folder each."""
+BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / "backprop",
+                   "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo"}
+"""The registry: bundled learned tracker name -> its folder."""
+
+
+def sb3_kind(algo, env_kwargs):
+    """The kind of a stable-baselines3 model trained with ``algo`` (``"ppo"``, ``"dqn"``, ``"sac"``) on an env with
+    ``env_kwargs`` (a learned IMM when ``tracker="imm_cv_ct"``). ``ValueError`` for a pair no kind describes."""
+    imm = (env_kwargs or {}).get("tracker") == "imm_cv_ct"
+    kind = f"learned_imm_{algo}" if imm else f"{algo}_q_policy"
+    if kind not in KINDS:
+        raise ValueError(f"no learned-tracker kind for algo {algo!r} with tracker={(env_kwargs or {}).get('tracker')!r}")
+    return kind
+
+
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not readable as JSON ({e})") from None
+
+
+def read_kind(folder, file=None):
+    """The kind of the learned tracker in ``folder``: ``policy.json``'s ``kind``; for a folder written before this
+    layout, inferred from its files (module docstring). ``file``: the weights file the caller named, if any.
+
+    Returns:
+        ``(kind, source)``: the kind and the file it was read or inferred from.
+    Raises:
+        ValueError: (one line, naming the file and the field) no ``policy.json`` and no ``policy.zip``; a
+            ``policy.json`` that is not a JSON object, or whose ``kind`` is not one of :data:`KINDS`.
+    """
+    from agents.policies import learned_imm, recurrent
+    folder = Path(folder)
+    man = folder / MANIFEST
+    if man.is_file():
+        meta = _read_json(man)
+        if not isinstance(meta, dict):
+            raise ValueError(f"{man}: must hold a JSON object with a 'kind' field, got {type(meta).__name__}")
+        if "kind" in meta:
+            if meta["kind"] not in KINDS:
+                raise ValueError(f"{man}: field 'kind' is {meta['kind']!r}, not one of {list(KINDS)}")
+            return meta["kind"], str(man)
+        # before this layout: the recurrent checkpoints' policy.json had a format and no kind
+        legacy = {recurrent.FORMAT: "gru_q_policy", learned_imm.FORMAT: "learned_imm_gru"}
+        if meta.get("format") in legacy:
+            return legacy[meta["format"]], str(man)
+        raise ValueError(f"{man}: no field 'kind' (one of {list(KINDS)})")
+    zip_file = Path(file) if file is not None and Path(file).suffix == ".zip" else folder / "policy.zip"
+    if zip_file.is_file():
+        # a training run of an SB3 model before this layout: its config.json (here, or one up for best/) names
+        # the algorithm; the env config says whether it drives the IMM
+        algo = "ppo"
+        for cfg in (folder / "config.json", folder.parent / "config.json"):
+            if cfg.is_file():
+                try:
+                    algo = json.loads(cfg.read_text()).get("algo", algo)
+                except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+                    pass
+                break
+        env = {}
+        if (folder / "env_config.json").is_file():
+            env = _read_json(folder / "env_config.json")
+        try:
+            return sb3_kind(algo, env if isinstance(env, dict) else {}), str(zip_file)
+        except ValueError as e:
+            raise ValueError(f"{zip_file}: {e}") from None
+    raise ValueError(f"{folder}: not a learned tracker folder (no {MANIFEST} naming its kind, no policy.zip)")
+
+
+def resolve_learned(path_or_name):
+    """``(folder, file, bundled_name)`` for a bundled name (:data:`BUNDLED_LEARNED`), a folder, or a file inside
+    one (``policy.zip``, ``policy.npz``, ``policy.json``: the old options took files). ``file`` is the weights
+    file named, else ``None``; ``bundled_name`` is set when the folder is a bundled one. ``ValueError`` (one line)
+    when it is neither a bundled name nor an existing path."""
+    s = str(path_or_name)
+    if s in BUNDLED_LEARNED and not Path(s).exists():
+        return BUNDLED_LEARNED[s], None, s
+    p = Path(s)
+    if not p.exists():
+        raise ValueError(f"{s!r} is neither a bundled learned tracker ({', '.join(BUNDLED_LEARNED)}) nor an "
+                         "existing folder or file")
+    folder, file = (p, None) if p.is_dir() else (p.parent, p if p.suffix in (".zip", ".npz") else None)
+    bundled = next((n for n, d in BUNDLED_LEARNED.items() if d.exists() and d.resolve() == folder.resolve()), None)
+    return folder, file, bundled
+
+
+def learned_label(folder, bundled_name=None):
+    """The tracker name a learned tracker is reported under: its bundled name, else its folder's name (a training
+    run's ``best/`` takes the run's name, ``<run>_best``)."""
+    if bundled_name is not None:
+        return bundled_name
+    folder = Path(folder).resolve()
+    return f"{folder.parent.name}_best" if folder.name == "best" else folder.name
+
+
+@dataclasses.dataclass
+class LearnedTracker:
+    """A loaded learned tracker, as the evaluation runs it.
+
+    Attributes:
+        kind: one of :data:`KINDS` (from its ``policy.json``).
+        name: the tracker name it is reported under (:func:`learned_label`, or the caller's).
+        folder: its folder.
+        file: the file the per-kind loader read (``policy.zip`` for an SB3 kind, whose numpy export runs when
+            current; ``policy.npz`` otherwise).
+        env_config: the :class:`radar_env.envs.env.EnvConfig` it was trained with.
+        policy: what :func:`agents.policies.loading.load_policy` returned: a ``choose_q`` (a q-policy) or a
+            tracker object with ``run`` (a learned IMM).
+    """
+
+    kind: str
+    name: str
+    folder: Path
+    file: Path
+    env_config: object
+    policy: object
+
+    def run(self, episodes):
+        """``TrackRun`` of this tracker on ``episodes`` (labelled :attr:`name`)."""
+        from agents.evaluation.runner import run_policy
+        return run_policy(self.name, episodes, self.policy, self.env_config)
+
+    def input_files(self):
+        """The files it is read from (an evaluation's outputs must not replace them)."""
+        names = ("policy.zip", "policy.npz", MANIFEST, "env_config.json")
+        return [self.folder / n for n in names if (self.folder / n).is_file()]
+
+
+def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
+    """Load a learned tracker by bundled name or path, by its kind.
+
+    Args:
+        path_or_name: a bundled name (:data:`BUNDLED_LEARNED`), a tracker folder, or a weights file in one.
+        name: the tracker name to report it under (default :func:`learned_label`).
+        kinds: if given, the kinds accepted here; another kind is refused (how the old per-tracker options keep a
+            learned IMM from running as a q-policy).
+    Returns:
+        LearnedTracker
+    Raises:
+        ValueError: one line naming the file and the field: not a learned tracker folder, an unknown or refused
+            kind, or whatever the per-kind loader refuses (:func:`agents.policies.loading.load_policy`).
+
+    An SB3 kind whose numpy export is out of date unpickles its zip: it runs code. Load only folders you trust.
+    """
+    from agents.policies.loading import load_policy
+    folder, file, bundled = resolve_learned(path_or_name)
+    kind, source = read_kind(folder, file)
+    if kinds is not None and kind not in kinds:
+        raise ValueError(f"{source}: kind {kind!r} ({KINDS[kind]}), expected {' or '.join(map(repr, kinds))}")
+    if file is None or (kind in _SB3_KINDS and file.suffix != ".zip"):
+        file = folder / ("policy.zip" if kind in _SB3_KINDS else "policy.npz")
+    policy, cfg = load_policy(file)
+    # the per-kind loader looks at the files; the kind must agree with what it found
+    is_imm = bool(getattr(policy, "is_tracker", False))
+    if is_imm != (kind in IMM_KINDS):
+        raise ValueError(f"{source}: kind {kind!r}, but {file.name} holds a "
+                         f"{'learned IMM' if is_imm else 'q-policy'}")
+    return LearnedTracker(kind, name or learned_label(folder, bundled), folder, file, cfg, policy)
+
+
+def sb3_architecture(npz_path):
+    """The architecture of an SB3 model's numpy export, for ``policy.json``: layer sizes, activations, head."""
+    import numpy as np
+    with np.load(npz_path, allow_pickle=False) as z:
+        n = len(z["activation"])
+        sizes = [int(z["W0"].shape[1])] + [int(z[f"W{i}"].shape[0]) for i in range(n)]
+        return {"algo": str(z["algo"]), "layers": sizes, "activations": [str(a) for a in z["activation"]],
+                "head": str(z["head"])}
+
+
+def write_manifest(folder, kind, architecture=None):
+    """Write ``policy.json`` for an SB3 kind into ``folder`` (``format``, ``version``, ``kind``, ``architecture``:
+    from the numpy export ``policy.npz`` when not given). The recurrent kinds' ``policy.json`` is written by their
+    own savers (with ``kind``). Returns its path."""
+    if kind not in _SB3_KINDS:
+        raise ValueError(f"kind {kind!r}: write_manifest writes the stable-baselines3 kinds {list(_SB3_KINDS)}")
+    folder = Path(folder)
+    if architecture is None and (folder / "policy.npz").is_file():
+        architecture = sb3_architecture(folder / "policy.npz")
+    meta = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "kind": kind, "architecture": architecture,
+            "weights": "policy.npz", "sb3_model": "policy.zip"}
+    (folder / MANIFEST).write_text(json.dumps(meta, indent=1) + "\n")
+    return folder / MANIFEST
+
+
+def write_records(folder, training=None, choice=None):
+    """Write the training record (``training.json``) and the choice record (``choice.json``) into ``folder``;
+    ``None`` leaves a record unwritten."""
+    folder = Path(folder)
+    for fname, rec in (("training.json", training), ("choice.json", choice)):
+        if rec is not None:
+            (folder / fname).write_text(json.dumps(rec, indent=1, allow_nan=False) + "\n")
