@@ -32,7 +32,7 @@ from radar_env.sim.radar import atc_radar
 from radar_env.sim.episode import stack_episodes
 
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F401 (BUNDLED_POLICY: part of this API)
-from agents.policies.learned import BUNDLED_LEARNED, load_learned, resolve_learned, learned_label
+from agents.policies.learned import BUNDLED_LEARNED, learned_label, load_learned, read_kind, resolve_learned
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
@@ -476,10 +476,17 @@ def _learned_sources(args):
         given = getattr(args, t)
         if given is None:
             continue
-        print(f"note: {opt} is deprecated and will be removed in the next release; use --learned {given}",
-              file=sys.stderr)
+        print(f"note: {opt} is deprecated and will be removed in the next release; use --learned "
+              f"{Path(given).parent}", file=sys.stderr)
         if not Path(given).is_file():
             raise SystemExit(f"error: {opt}: file {given!r} does not exist (or is not a file)")
+        try:    # the kind, now (JSON only): the file is refused even where --trackers does not run it
+            kind, where = read_kind(Path(given).parent, given)
+        except ValueError:
+            kind = None         # not a learned tracker folder: the loader says why, when the tracker is loaded
+        if kind is not None and kind not in OLD_OPTION_KINDS[t]:
+            raise SystemExit(f"error: {opt}: {where}: kind {kind!r}, but {opt} takes "
+                             f"{' or '.join(OLD_OPTION_KINDS[t])}; use --learned {Path(given).parent}")
         sources[t] = (opt, given, OLD_OPTION_KINDS[t])
     for spec in args.learned or []:
         try:
