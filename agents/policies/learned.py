@@ -28,7 +28,7 @@ from pathlib import Path
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST", "LearnedTracker",
            "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
-           "learned_label"]
+           "learned_label", "write_run_layout"]
 
 MANIFEST = "policy.json"
 """The file naming a learned tracker's kind, beside its weights."""
@@ -237,7 +237,7 @@ def write_manifest(folder, kind, architecture=None):
     if architecture is None and (folder / "policy.npz").is_file():
         architecture = sb3_architecture(folder / "policy.npz")
     meta = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "kind": kind, "architecture": architecture,
-            "weights": "policy.npz", "sb3_model": "policy.zip"}
+            "weights": "policy.npz" if (folder / "policy.npz").is_file() else None, "sb3_model": "policy.zip"}
     (folder / MANIFEST).write_text(json.dumps(meta, indent=1) + "\n")
     return folder / MANIFEST
 
@@ -249,3 +249,37 @@ def write_records(folder, training=None, choice=None):
     for fname, rec in (("training.json", training), ("choice.json", choice)):
         if rec is not None:
             (folder / fname).write_text(json.dumps(rec, indent=1, allow_nan=False) + "\n")
+
+
+def write_run_layout(run, kind, summary):
+    """Give a training run folder (and its ``best/``, if written) the learned-tracker layout, after training:
+    ``policy.json`` (an SB3 kind: written here, with the numpy export ``policy.npz`` when the model's structure
+    allows one; a recurrent kind: already written by its saver), ``training.json`` (the run's ``config.json``,
+    ``command.txt`` and ``summary``) and ``choice.json`` (the final weights at the root; ``best/``: the lowest
+    selection ratio, with its ``selection.json``), so that :func:`load_learned` reads either folder by its kind.
+
+    Args:
+        run: the run folder (``config.json``, ``command.txt`` and the final weights in it).
+        kind: one of :data:`KINDS`.
+        summary: the run's summary (what ``summary.json`` holds).
+    """
+    run = Path(run)
+    training = {"config": _read_json(run / "config.json") if (run / "config.json").is_file() else None,
+                "command": (run / "command.txt").read_text().strip() if (run / "command.txt").is_file() else None,
+                "summary": summary}
+    folders = [(run, {"rule": "the final weights (end of training)", "chosen": "final",
+                      "timesteps": summary.get("timesteps", summary.get("steps"))})]
+    if (run / "best" / "env_config.json").is_file():
+        sel = run / "best" / "selection.json"
+        folders.append((run / "best", {"rule": "the lowest selection ratio of the validations during training "
+                                               "(training-range selection seeds)", "chosen": "best",
+                                       "selection": _read_json(sel) if sel.is_file() else None}))
+    for folder, choice in folders:
+        if kind in _SB3_KINDS and (folder / "policy.zip").is_file():
+            from agents.policies.numpy_policy import save_export
+            try:
+                save_export(folder / "policy.zip")
+            except ValueError:
+                pass        # no numpy export for this structure: the zip runs through SB3 (policy.json says so)
+            write_manifest(folder, kind)
+        write_records(folder, training=training, choice=choice)
