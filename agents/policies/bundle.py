@@ -1,6 +1,6 @@
 """The env a saved policy was trained in, from the ``env_config.json`` beside its zip.
 
-A policy only runs in an env with its own spaces: the bundled one (``agents/bundled/policy.zip``) chooses among
+A policy only runs in an env with its own spaces: the bundled one (``agents/bundled/policy/policy.zip``) chooses among
 15 q levels from four stacked observations (``frame_stack=4``), while ``gym.make("RadarTrack-v0")`` has 13 levels
 and one observation, so ``PPO.load(...).predict`` on the default env fails on the observation size (or picks the
 wrong levels). Use::

@@ -382,7 +382,7 @@ def _tb_scalars(run, tags):
 
 
 def _bundled_stages(cfg):
-    """``[(label, selection_history, selected_timesteps)]`` of a bundled ``train_config.json``, first stage first
+    """``[(label, selection_history, selected_timesteps)]`` of a bundled ``training.json``, first stage first
     (each fine-tuning stage's record nests the one it started from under ``fine_tuned_from``)."""
     chain = []
     while cfg:
@@ -406,7 +406,7 @@ def plot_training_curve(run, png=None):
     Args:
         run: a run folder (``summary.json``, ``config.json``, ``best/selection.json``, ``tb/``): one stage, titled
             with the run's name and whether it was trained from scratch or fine-tuned (``init_from``); or a bundled
-            ``train_config.json`` (``agents/bundled/``): every stage of its ``fine_tuned_from`` chain end to end,
+            ``training.json`` (``agents/bundled/policy/``): every stage of its ``fine_tuned_from`` chain end to end,
             from the selection histories it records (the bundle keeps no TensorBoard logs, so no return panel).
         png: output path (default ``training_curve.png`` beside ``run``).
     """
