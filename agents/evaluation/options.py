@@ -84,8 +84,9 @@ def build_parser(prog="radar-track evaluate"):
                          "folder (policy.npz, policy.json naming its kind, env_config.json: as radar-track train "
                          "writes), repeatable; its kind decides how it runs; a folder is reported under its name "
                          "(a training run's best/ as <run>_best), which must not be a built-in tracker's. Added to "
-                         "--trackers (or to the default list). A folder with a policy.zip may unpickle it: load "
-                         "only folders you trust (default: the bundled ones present)")
+                         "--trackers (or to the default list). A policy.zip in a folder is a pickle: loading it (when "
+                         "its numpy export is not current) runs the code inside; load only folders you trust "
+                         "(default: the bundled ones present)")
     for t, opt in OLD_OPTIONS.items():
         ap.add_argument(opt, dest=t, metavar="FILE",
                         help=f"deprecated alias (for one release) of --learned for the '{t}' tracker: a file in a "

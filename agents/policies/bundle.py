@@ -134,7 +134,8 @@ def ship_policy(policy_path, dest_dir):
     the moments, as it does for any saved model. A recurrent policy (``policy.npz``, trained by backpropagation) is
     copied with its ``policy.json`` and ``env_config.json`` (it holds no optimizer state). A PPO zip's numpy export
     (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written beside it, so the evaluation runs it without
-    torch. Returns the new policy file's path."""
+    torch, with the ``policy.json`` naming its kind (:mod:`agents.policies.learned`). Returns the new policy file's
+    path."""
     import shutil
 
     src = Path(policy_path)
@@ -153,5 +154,7 @@ def ship_policy(policy_path, dest_dir):
     embed_env_config(dest / "policy.zip", json.loads((dest / "env_config.json").read_text()))
     from agents.policies.numpy_policy import save_export
     save_export(dest / "policy.zip", model)      # after the embedding: the export records the final zip's SHA-256
+    from agents.policies.learned import sb3_kind, write_manifest
+    write_manifest(dest, sb3_kind("ppo", json.loads((dest / "env_config.json").read_text())))   # its kind
     return dest / "policy.zip"
 
