@@ -154,7 +154,7 @@ def ship_policy(policy_path, dest_dir):
     embed_env_config(dest / "policy.zip", json.loads((dest / "env_config.json").read_text()))
     from agents.policies.numpy_policy import save_export
     save_export(dest / "policy.zip", model)      # after the embedding: the export records the final zip's SHA-256
-    from agents.policies.learned import sb3_kind, write_manifest
+    from agents.policies.layout import sb3_kind, write_manifest
     write_manifest(dest, sb3_kind("ppo", json.loads((dest / "env_config.json").read_text())))   # its kind
     return dest / "policy.zip"
 

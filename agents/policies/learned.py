@@ -26,56 +26,18 @@ import dataclasses
 import json
 from pathlib import Path
 
+from agents.policies.layout import (IMM_KINDS, KINDS, MANIFEST, Q_POLICY_KINDS, SB3_KINDS, read_json, sb3_kind,
+                                    write_manifest, write_records)
+
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST", "LearnedTracker",
            "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
            "learned_label", "write_run_layout"]
-
-MANIFEST = "policy.json"
-"""The file naming a learned tracker's kind, beside its weights."""
-MANIFEST_FORMAT = "radar-track-learned-tracker"
-"""``format`` of the ``policy.json`` of a stable-baselines3 kind (the recurrent kinds keep their own formats)."""
-MANIFEST_VERSION = 1
-
-KINDS = {
-    "ppo_q_policy": "a q-policy trained with PPO (stable-baselines3 MLP; policy.zip + its numpy export policy.npz)",
-    "dqn_q_policy": "a q-policy trained with DQN (stable-baselines3; policy.zip + its numpy export policy.npz)",
-    "sac_q_policy": "a q-policy trained with SAC (stable-baselines3; policy.zip + its numpy export policy.npz)",
-    "gru_q_policy": "a recurrent (GRU) q-policy trained by backpropagation through the tracker (policy.npz)",
-    "learned_imm_gru": "a learned IMM: a GRU choosing the CV/CT IMM's parameters, trained by backpropagation "
-                       "(policy.npz)",
-    "learned_imm_ppo": "a learned IMM: an MLP choosing the CV/CT IMM's parameters, trained with PPO on "
-                       "tracker='imm_cv_ct' (policy.zip + its numpy export policy.npz)",
-    "learned_imm_sac": "a learned IMM trained with SAC on tracker='imm_cv_ct' (policy.zip + policy.npz)",
-}
-"""Every kind :func:`load_learned` runs -> what it is."""
-Q_POLICY_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "gru_q_policy")
-"""Kinds that choose the CV filter's q (run by :func:`baselines.trackers.run_q_policy`)."""
-IMM_KINDS = ("learned_imm_gru", "learned_imm_ppo", "learned_imm_sac")
-"""Kinds that choose the CV/CT IMM's parameters (run by their own ``run``)."""
-_SB3_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "learned_imm_ppo", "learned_imm_sac")
 
 BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
 """Where the bundled learned trackers live, one folder each."""
 BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / "backprop",
                    "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo"}
 """The registry: bundled learned tracker name -> its folder."""
-
-
-def sb3_kind(algo, env_kwargs):
-    """The kind of a stable-baselines3 model trained with ``algo`` (``"ppo"``, ``"dqn"``, ``"sac"``) on an env with
-    ``env_kwargs`` (a learned IMM when ``tracker="imm_cv_ct"``). ``ValueError`` for a pair no kind describes."""
-    imm = (env_kwargs or {}).get("tracker") == "imm_cv_ct"
-    kind = f"learned_imm_{algo}" if imm else f"{algo}_q_policy"
-    if kind not in KINDS:
-        raise ValueError(f"no learned-tracker kind for algo {algo!r} with tracker={(env_kwargs or {}).get('tracker')!r}")
-    return kind
-
-
-def _read_json(path):
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: not readable as JSON ({e})") from None
 
 
 def read_kind(folder, file=None):
@@ -92,7 +54,7 @@ def read_kind(folder, file=None):
     folder = Path(folder)
     man = folder / MANIFEST
     if man.is_file():
-        meta = _read_json(man)
+        meta = read_json(man)
         if not isinstance(meta, dict):
             raise ValueError(f"{man}: must hold a JSON object with a 'kind' field, got {type(meta).__name__}")
         if "kind" in meta:
@@ -118,7 +80,7 @@ def read_kind(folder, file=None):
                 break
         env = {}
         if (folder / "env_config.json").is_file():
-            env = _read_json(folder / "env_config.json")
+            env = read_json(folder / "env_config.json")
         try:
             return sb3_kind(algo, env if isinstance(env, dict) else {}), str(zip_file)
         except ValueError as e:
@@ -176,8 +138,10 @@ class LearnedTracker:
 
     def run(self, episodes):
         """``TrackRun`` of this tracker on ``episodes`` (labelled :attr:`name`)."""
-        from agents.evaluation.runner import run_policy
-        return run_policy(self.name, episodes, self.policy, self.env_config)
+        if getattr(self.policy, "is_tracker", False):      # a learned IMM runs itself
+            return self.policy.run(episodes, self.name)
+        from baselines.trackers import run_q_policy
+        return run_q_policy(episodes, self.policy, self.name, self.env_config)
 
     def input_files(self):
         """The files it is read from (an evaluation's outputs must not replace them)."""
@@ -206,8 +170,8 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
     kind, source = read_kind(folder, file)
     if kinds is not None and kind not in kinds:
         raise ValueError(f"{source}: kind {kind!r} ({KINDS[kind]}), expected {' or '.join(map(repr, kinds))}")
-    if file is None or (kind in _SB3_KINDS and file.suffix != ".zip"):
-        file = folder / ("policy.zip" if kind in _SB3_KINDS else "policy.npz")
+    if file is None or (kind in SB3_KINDS and file.suffix != ".zip"):
+        file = folder / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
     policy, cfg = load_policy(file)
     # the per-kind loader looks at the files; the kind must agree with what it found
     is_imm = bool(getattr(policy, "is_tracker", False))
@@ -215,40 +179,6 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
         raise ValueError(f"{source}: kind {kind!r}, but {file.name} holds a "
                          f"{'learned IMM' if is_imm else 'q-policy'}")
     return LearnedTracker(kind, name or learned_label(folder, bundled), folder, file, cfg, policy)
-
-
-def sb3_architecture(npz_path):
-    """The architecture of an SB3 model's numpy export, for ``policy.json``: layer sizes, activations, head."""
-    import numpy as np
-    with np.load(npz_path, allow_pickle=False) as z:
-        n = len(z["activation"])
-        sizes = [int(z["W0"].shape[1])] + [int(z[f"W{i}"].shape[0]) for i in range(n)]
-        return {"algo": str(z["algo"]), "layers": sizes, "activations": [str(a) for a in z["activation"]],
-                "head": str(z["head"])}
-
-
-def write_manifest(folder, kind, architecture=None):
-    """Write ``policy.json`` for an SB3 kind into ``folder`` (``format``, ``version``, ``kind``, ``architecture``:
-    from the numpy export ``policy.npz`` when not given). The recurrent kinds' ``policy.json`` is written by their
-    own savers (with ``kind``). Returns its path."""
-    if kind not in _SB3_KINDS:
-        raise ValueError(f"kind {kind!r}: write_manifest writes the stable-baselines3 kinds {list(_SB3_KINDS)}")
-    folder = Path(folder)
-    if architecture is None and (folder / "policy.npz").is_file():
-        architecture = sb3_architecture(folder / "policy.npz")
-    meta = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "kind": kind, "architecture": architecture,
-            "weights": "policy.npz" if (folder / "policy.npz").is_file() else None, "sb3_model": "policy.zip"}
-    (folder / MANIFEST).write_text(json.dumps(meta, indent=1) + "\n")
-    return folder / MANIFEST
-
-
-def write_records(folder, training=None, choice=None):
-    """Write the training record (``training.json``) and the choice record (``choice.json``) into ``folder``;
-    ``None`` leaves a record unwritten."""
-    folder = Path(folder)
-    for fname, rec in (("training.json", training), ("choice.json", choice)):
-        if rec is not None:
-            (folder / fname).write_text(json.dumps(rec, indent=1, allow_nan=False) + "\n")
 
 
 def write_run_layout(run, kind, summary):
@@ -264,7 +194,7 @@ def write_run_layout(run, kind, summary):
         summary: the run's summary (what ``summary.json`` holds).
     """
     run = Path(run)
-    training = {"config": _read_json(run / "config.json") if (run / "config.json").is_file() else None,
+    training = {"config": read_json(run / "config.json") if (run / "config.json").is_file() else None,
                 "command": (run / "command.txt").read_text().strip() if (run / "command.txt").is_file() else None,
                 "summary": summary}
     folders = [(run, {"rule": "the final weights (end of training)", "chosen": "final",
@@ -273,9 +203,9 @@ def write_run_layout(run, kind, summary):
         sel = run / "best" / "selection.json"
         folders.append((run / "best", {"rule": "the lowest selection ratio of the validations during training "
                                                "(training-range selection seeds)", "chosen": "best",
-                                       "selection": _read_json(sel) if sel.is_file() else None}))
+                                       "selection": read_json(sel) if sel.is_file() else None}))
     for folder, choice in folders:
-        if kind in _SB3_KINDS and (folder / "policy.zip").is_file():
+        if kind in SB3_KINDS and (folder / "policy.zip").is_file():
             from agents.policies.numpy_policy import save_export
             try:
                 save_export(folder / "policy.zip")
