@@ -35,6 +35,12 @@ def test_bundled_folders_share_one_layout_and_load_by_kind(name):
     assert bool(getattr(lt.policy, "is_tracker", False)) == (lt.kind in IMM_KINDS)
     # by folder path: the same tracker, reported under its bundled name
     assert load_learned(str(folder)).name == name
+    # its own run is the evaluation's run of it (the same numbers, under its name)
+    from agents.evaluation.runner import run_policy
+    from agents.evaluation.suites import draw_suite
+    eps = draw_suite("kim_lee_accel", 2)
+    mine, evals = lt.run(eps), run_policy(name, eps, lt.policy, lt.env_config)
+    assert mine.name == name and np.isfinite(mine.x).all() and np.array_equal(mine.x, evals.x)
     # the chosen seed's weights are the bundled ones (the choice record says which)
     choice = json.loads((folder / "choice.json").read_text())
     if (folder / "seeds").is_dir():
