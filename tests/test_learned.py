@@ -49,7 +49,7 @@ def test_bundled_folders_share_one_layout_and_load_by_kind(name):
 
 
 @needs_bundle
-def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path):
+def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path, monkeypatch):
     d = tmp_path / "my_imm"
     shutil.copytree(BUNDLED_LEARNED["policy_imm_bp"], d, ignore=shutil.ignore_patterns("seeds"))
     with pytest.raises(ValueError, match=r"my_imm/policy.json: kind 'learned_imm_gru'") as e:
@@ -67,6 +67,11 @@ def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path):
         read_kind(d)
     with pytest.raises(ValueError, match=r"neither a bundled learned tracker"):
         resolve_learned(tmp_path / "missing")
+    # a bundled name means the bundled tracker even beside a folder of that name (given as ./policy_bp)
+    (tmp_path / "policy_bp").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert resolve_learned("policy_bp") == (BUNDLED_LEARNED["policy_bp"], None, "policy_bp")
+    assert resolve_learned("./policy_bp")[0].resolve() == (tmp_path / "policy_bp").resolve()
     assert set(Q_POLICY_KINDS) | set(IMM_KINDS) == set(KINDS)
 
 

@@ -90,11 +90,12 @@ def read_kind(folder, file=None):
 
 def resolve_learned(path_or_name):
     """``(folder, file, bundled_name)`` for a bundled name (:data:`BUNDLED_LEARNED`), a folder, or a file inside
-    one (``policy.zip``, ``policy.npz``, ``policy.json``: the old options took files). ``file`` is the weights
+    one (``policy.zip``, ``policy.npz``, ``policy.json``: the old options took files); a bundled name is never
+    read as a path (a folder named like one is given as ``./NAME``). ``file`` is the weights
     file named, else ``None``; ``bundled_name`` is set when the folder is a bundled one. ``ValueError`` (one line)
     when it is neither a bundled name nor an existing path."""
     s = str(path_or_name)
-    if s in BUNDLED_LEARNED and not Path(s).exists():
+    if s in BUNDLED_LEARNED:    # a bundled name always means the bundled tracker (a folder so named: ./NAME)
         return BUNDLED_LEARNED[s], None, s
     p = Path(s)
     if not p.exists():

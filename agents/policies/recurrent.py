@@ -181,14 +181,9 @@ class RecurrentQPolicy:
 # ------------------------------------------------------------------------------------------------ checkpoints
 def is_recurrent_checkpoint(path):
     """Whether ``path`` names a recurrent-policy checkpoint: an ``.npz`` with its ``policy.json`` beside it (the
-    ``policy.npz`` beside an SB3 zip, its numpy export, has a ``policy.json`` of another format)."""
+    ``policy.npz`` beside an SB3 zip is that zip's numpy export: its folder's ``policy.json`` names an SB3 kind)."""
     path = Path(path)
-    if path.suffix != ".npz" or not path.with_suffix(".json").is_file():
-        return False
-    try:
-        return json.loads(path.with_suffix(".json").read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
+    return path.suffix == ".npz" and path.with_suffix(".json").is_file() and not path.with_suffix(".zip").is_file()
 
 
 def save_recurrent_policy(directory, weights, config, env_kwargs):
