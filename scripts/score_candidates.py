@@ -1,5 +1,5 @@
 """Score candidate policies for the choice of the bundle, on TRAINING-range seeds only (issue 20's rule, recorded in
-agents/bundled/train_config.json "final_choice"):
+agents/bundled/policy/choice.json):
 
     python scripts/score_candidates.py NAME=path/to/policy.zip [NAME=...] [--out scores.json]
 

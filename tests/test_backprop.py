@@ -366,6 +366,12 @@ def test_train_cli_method_backprop(tmp_path, capsys):
                 "--hp", 'eval_scenarios={"random": 2, "random_radars": 2}'])
     assert (run / "policy.npz").is_file()
     assert "--method backprop" in (run / "command.txt").read_text()
+    from agents.policies.learned import load_learned     # the run folder in the learned-tracker layout
+    lt = load_learned(run)
+    assert (lt.kind, lt.name, lt.file) == ("gru_q_policy", "cli", run / "policy.npz")
+    training = json.loads((run / "training.json").read_text())
+    assert training["command"] == (run / "command.txt").read_text().strip() and training["summary"]["steps"] == 1
+    assert json.loads((run / "choice.json").read_text())["chosen"] == "final"
 
 
 # ------------------------------------------------------------------------------------------------ a policy everywhere

@@ -56,7 +56,7 @@ def _copy_policy(tmp_path, with_record=False):
     shutil.copy(BUNDLED_POLICY, d / "policy.zip")
     shutil.copy(BUNDLED_POLICY.with_name("env_config.json"), d / "env_config.json")
     if with_record:
-        shutil.copy(BUNDLED_POLICY.with_name("train_config.json"), d / "train_config.json")
+        shutil.copy(BUNDLED_POLICY.with_name("training.json"), d / "training.json")
     return d
 
 
@@ -81,7 +81,7 @@ def test_reordered_features_are_refused_by_the_stored_observation_bounds(tmp_pat
 @needs_bundle
 @pytest.mark.parametrize("record", ["train_config", "embedded"])
 def test_other_q_levels_of_the_same_count_are_refused_by_the_training_record(tmp_path, record):
-    """The bounds cannot see the q levels; the record of the training env can (the bundle's train_config.json, or
+    """The bounds cannot see the q levels; the record of the training env can (the bundle's training.json, or
     the copy training embeds in the zip)."""
     d = _copy_policy(tmp_path, with_record=record == "train_config")
     if record == "embedded":

@@ -22,7 +22,7 @@ from radar_env.sim.episode import stack_episodes  # noqa: E402
 
 TRACKERS = ("kf_low", "cmin", "clairvoyant")
 UNIT = re.compile(r"\(.+\)|\[.+\]")
-BUNDLED_CONFIG = Path(__file__).resolve().parents[1] / "agents" / "bundled" / "train_config.json"
+BUNDLED_CONFIG = Path(__file__).resolve().parents[1] / "agents" / "bundled" / "policy" / "training.json"
 
 
 @pytest.fixture(scope="module")

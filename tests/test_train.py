@@ -17,6 +17,7 @@ from agents.training.callbacks import ImmRatioEvalCallback  # noqa: E402
 from agents.cli import main as cli_main  # noqa: E402
 from agents.training.sb3_vec import make_sb3_vec_env  # noqa: E402
 from agents.training.train import load_hyperparams, main as train_main, train  # noqa: E402
+from agents.policies.learned import load_learned  # noqa: E402
 from radar_env.envs.env import RadarTrackEnv  # noqa: E402
 from radar_env.envs.observation import DEFAULT_FEATURES  # noqa: E402
 
@@ -104,6 +105,13 @@ def test_train_end_to_end_and_evaluate(algo, tmp_path, capsys):
                        "--trackers", "policy,imm2"])
         m = res["random"]["trackers"]["policy"]
         assert np.isfinite(m["pos_rmse_m"]) and m["runs"] == 2
+        # the run and its best/ are learned-tracker folders: one loader reads them by the kind training wrote
+        lt = load_learned(p.parent)
+        assert lt.kind == f"{algo}_q_policy"
+        assert lt.name == (f"{algo}_best" if p.parent.name == "best" else algo)     # the run is named algo
+        assert {"policy.json", "env_config.json", "training.json", "choice.json"} <= {f.name for f in p.parent.iterdir()}
+        assert json.loads((p.parent / "choice.json").read_text())["chosen"] == ("best" if p.parent.name == "best"
+                                                                                else "final")
     capsys.readouterr()
 
 

@@ -32,12 +32,13 @@ from radar_env.sim.radar import atc_radar
 from radar_env.sim.episode import stack_episodes
 
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F401 (BUNDLED_POLICY: part of this API)
+from agents.policies.learned import BUNDLED_LEARNED, learned_label, load_learned, read_kind, resolve_learned
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
                                        jsonable, ratio_ci, score_run)
-from agents.evaluation.options import DEFAULT_TRACKERS, build_parser
+from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser
 from agents.evaluation.scores import REFERENCE_RMSE_M, normalised_score
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
@@ -55,7 +56,7 @@ the ADS-B suites fly each of their flights once; the held-out families 200); oth
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None):
+             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None, learned=None):
     """Run ``trackers`` on every suite.
 
     Args:
@@ -73,6 +74,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             every run (named in ``common_excluded_failed_everywhere``).
         loaded_policy, loaded_policies: ``load_policy(policy_path)``'s result (``{name: load_policy(
             policy_paths[name])}``) if the caller has it already (not loaded again).
+        learned: ``{tracker name: LearnedTracker}`` (:func:`agents.policies.learned.load_learned`): learned
+            trackers by any name, each run as its kind says; a name here takes precedence over the file arguments.
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
@@ -87,8 +90,12 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     given = {t: (loaded_policies or {}).get(t) for t in POLICY_TRACKERS}
     given["policy"] = loaded_policy
     policies = {}                           # tracker -> (choose_q, env config)
-    for t in POLICY_TRACKERS:
+    learned = dict(learned or {})
+    for t, lt in learned.items():
         if t in trackers:
+            policies[t], paths[t] = (lt.policy, lt.env_config), lt.file
+    for t in POLICY_TRACKERS:
+        if t in trackers and t not in learned:
             if paths[t] is None and given[t] is None:
                 raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
             policies[t] = given[t] if given[t] is not None else load_policy(paths[t])
@@ -455,12 +462,50 @@ def _check_cost(plan, trackers, seed):
 
 def _input_files(args, policies=()):
     """The files this run reads (outputs must not replace them): trajectory CSVs, ADS-B flight files given by path,
-    tracker-module files, the policy files and the policy.json / env_config.json beside them."""
+    tracker-module files, and ``policies``: the learned trackers' files (:meth:`LearnedTracker.input_files`)."""
     files = list(args.trajectory or []) + [m for m in args.tracker_module or [] if m.endswith(".py")]
     files += [n[len("adsb:"):] for n in args.scenario or [] if n.startswith("adsb:")]
-    for p in policies:
-        files += [p, str(Path(p).with_suffix(".json")), str(Path(p).with_name("env_config.json"))]
+    files += [str(p) for p in policies]
     return [f for f in files if Path(f).is_file()]
+
+
+def _learned_sources(args):
+    """``{tracker name: (option, name or path, kinds)}`` of the learned trackers this run may load: each
+    ``--learned`` (its label: :func:`agents.policies.learned.learned_label`), each old per-tracker option (a
+    deprecated alias, with the kinds it accepts, :data:`agents.evaluation.options.OLD_OPTION_KINDS`), and the
+    bundled ones present that neither names (``kinds`` ``None``: any). ``SystemExit`` (one line) for a path that
+    does not exist or a tracker given twice."""
+    sources = {}
+    for t, opt in OLD_OPTIONS.items():
+        given = getattr(args, t)
+        if given is None:
+            continue
+        print(f"note: {opt} is deprecated and will be removed in the next release; use --learned "
+              f"{Path(given).parent}", file=sys.stderr)
+        if not Path(given).is_file():
+            raise SystemExit(f"error: {opt}: file {given!r} does not exist (or is not a file)")
+        try:    # the kind, now (JSON only): the file is refused even where --trackers does not run it
+            kind, where = read_kind(Path(given).parent, given)
+        except ValueError:
+            kind = None         # not a learned tracker folder: the loader says why, when the tracker is loaded
+        if kind is not None and kind not in OLD_OPTION_KINDS[t]:
+            raise SystemExit(f"error: {opt}: {where}: kind {kind!r}, but {opt} takes "
+                             f"{' or '.join(OLD_OPTION_KINDS[t])}; use --learned {Path(given).parent}")
+        sources[t] = (opt, given, OLD_OPTION_KINDS[t])
+    for spec in args.learned or []:
+        try:
+            folder, _, bundled = resolve_learned(spec)
+        except ValueError as e:
+            raise SystemExit(f"error: --learned: {e}") from None
+        label = learned_label(folder, bundled)
+        if label in sources:
+            raise SystemExit(f"error: --learned: {spec!r} is the tracker {label!r}, already given by "
+                             f"{sources[label][0]} {sources[label][1]!r}")
+        sources[label] = ("--learned", spec, None)
+    for t in BUNDLED_LEARNED:
+        if t not in sources and BUNDLED_POLICIES[t].is_file():
+            sources[t] = ("the bundled folder", t, None)
+    return sources
 
 
 def main(argv=None, prog="radar-track evaluate"):
@@ -481,13 +526,7 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
     if args.workers < 1:
         raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
-    policy_files = {}                   # learned tracker -> its file: the option's, else the bundled one if shipped
-    for t, bundled in BUNDLED_POLICIES.items():
-        given = getattr(args, t)
-        if given is not None and not Path(given).is_file():
-            raise SystemExit(f"error: --{t.replace('_', '-')}: file {given!r} does not exist (or is not a file)")
-        policy_files[t] = given if given is not None else (str(bundled) if bundled.is_file() else None)
-    policy = policy_files["policy"]
+    sources = _learned_sources(args)    # learned tracker name -> (option, name or path, kinds it may have)
     for spec in args.tracker_module or []:
         try:
             import_tracker_module(spec)
@@ -497,30 +536,44 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit("error: --tracker-module: user trackers are registered in this process only and cannot run "
                          f"on Ray workers; use --workers 1 without --address (got --workers {args.workers})")
     known = tracker_names()
+    user_learned = [n for n, (opt, _, _) in sources.items() if opt == "--learned" and n not in POLICY_TRACKERS]
+    for n in user_learned:
+        if n in known:      # a folder named like a built-in tracker would be reported as that tracker
+            raise SystemExit(f"error: --learned: {sources[n][1]}: its label {n!r} (the folder's name) is a built-in "
+                             "tracker's name; rename the folder")
+    # --learned adds to the list: named in --trackers or not, a tracker asked for by --learned runs
+    asked = [n for n, (opt, _, _) in sources.items() if opt == "--learned"]
     if args.trackers is not None:
         trackers = [t.strip() for t in args.trackers.split(",") if t.strip()]
         if not trackers:
             raise SystemExit(f"error: --trackers: no tracker named in {args.trackers!r}; give comma-separated names "
                              f"from {list(known)}")
-        bad = [t for t in trackers if t not in known]
+        bad = [t for t in trackers if t not in known and t not in user_learned]
         if bad:
             raise SystemExit(f"error: --trackers: unknown tracker(s) {bad}; valid: {list(known)}"
                              + ("" if args.tracker_module else " (user trackers need --tracker-module)"))
         for t in POLICY_TRACKERS:
-            if t in trackers and policy_files[t] is None:
-                raise SystemExit(f"error: tracker {t!r} needs --{t.replace('_', '-')} PATH (no bundled policy found)")
+            if t in trackers and t not in sources:
+                raise SystemExit(f"error: tracker {t!r} needs --learned PATH (no bundled policy found)")
         if len(set(trackers)) != len(trackers):
             raise SystemExit(f"error: --trackers: a tracker is named twice in {args.trackers!r}")
+        trackers += [n for n in asked if n not in trackers]
     else:
-        trackers = [t for t in DEFAULT_TRACKERS if t not in POLICY_TRACKERS or policy_files[t] is not None]
-    loaded = {}
-    for t in POLICY_TRACKERS:       # load once, now: a file that is not a usable policy is a user error
-        if t in trackers:
-            _say(args, f"loading the policy {policy_files[t]} ({t}) ...")
+        trackers = [t for t in DEFAULT_TRACKERS if t not in POLICY_TRACKERS or t in sources]
+        n = sum(t in POLICY_TRACKERS for t in trackers)
+        trackers[n:n] = user_learned        # the user's learned trackers after the bundled ones
+    learned = {}
+    for t in trackers:      # load once, now: a file that is not a usable tracker of its kind is a user error
+        if t in sources:
+            option, spec, kinds = sources[t]
+            _say(args, f"loading the learned tracker {spec} ({t}) ...")
             try:
-                loaded[t] = load_policy(policy_files[t])
+                learned[t] = load_learned(spec, name=t, kinds=kinds)
             except ValueError as e:
-                raise SystemExit(f"error: --{t.replace('_', '-')}: {e}") from None
+                raise SystemExit(f"error: {option}: {e}") from None
+    policy_files = {t: (sources[t][1] if sources[t][0] in OLD_OPTIONS.values() else str(learned[t].file))
+                    if t in learned else None for t in POLICY_TRACKERS}      # as the JSON's meta named them
+    policy = policy_files["policy"]
     radar, radar_range_m = None, None
     if args.radar_site is not None or args.radar_range_km is not None:
         if not args.trajectory:
@@ -537,7 +590,7 @@ def main(argv=None, prog="radar-track evaluate"):
         if not 0.0 < lo_km < hi_km:
             raise SystemExit(f"error: --radar-range-km: expected 0 < LO < HI (km), got {args.radar_range_km!r}")
         radar_range_m = (lo_km * 1e3, hi_km * 1e3)
-    inputs = _input_files(args, [policy_files[t] for t in POLICY_TRACKERS if t in trackers])
+    inputs = _input_files(args, [f for lt in learned.values() for f in lt.input_files()])
     _check_outputs(args, inputs)
     names = list(args.scenario or ([] if args.trajectory else DEFAULT_SUITES))
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -562,17 +615,16 @@ def main(argv=None, prog="radar-track evaluate"):
             raise SystemExit(f"error: {option}: {e}") from None
     t0 = time.time()
     try:
-        results, runs = evaluate(suites, trackers, policy, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed, loaded_policy=loaded.get("policy"),
-                                 policy_paths=policy_files, loaded_policies=loaded)
+        results, runs = evaluate(suites, trackers, progress=not args.quiet, workers=args.workers,
+                                 address=args.address, seed=args.seed, learned=learned)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),
-                "policy": policy, **{t: policy_files[t] if t in trackers else None for t in POLICY_TRACKERS
-                                     if t != "policy"},
+                "policy": policy, **{t: policy_files[t] for t in POLICY_TRACKERS if t != "policy"},
+                "learned": {t: {"kind": lt.kind, "folder": str(lt.folder)} for t, lt in learned.items()},
                 "suites": [s for s, _ in suites],
                 "trajectories": {n: {"file": f, "key": suite_key(f)} for n, f in
                                  zip(file_names, args.trajectory or [])},

@@ -10,11 +10,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_POLICIES,
-                                    BUNDLED_POLICY)
+from agents.policies.bundle import BUNDLED_POLICIES
+from agents.policies.learned import BUNDLED_LEARNED
 from baselines.seeds import EVAL_SEED_BASE
 
-__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "build_parser", "first_line"]
+__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "OLD_OPTIONS", "OLD_OPTION_KINDS", "build_parser", "first_line"]
+
+OLD_OPTIONS = {"policy": "--policy", "policy_bp": "--policy-bp", "policy_imm_bp": "--policy-imm-bp",
+               "policy_imm_ppo": "--policy-imm-ppo"}
+"""The per-tracker options before ``--learned`` (aliases for one release): tracker name -> option."""
+OLD_OPTION_KINDS = {"policy": ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "gru_q_policy"),
+                    "policy_bp": ("gru_q_policy", "ppo_q_policy", "dqn_q_policy", "sac_q_policy"),
+                    "policy_imm_bp": ("learned_imm_gru",), "policy_imm_ppo": ("learned_imm_ppo", "learned_imm_sac")}
+"""The kinds each old option accepts (the q-policy options took either q-policy before; a learned IMM given to one
+of them, or a q-policy to an IMM option, is refused naming its kind)."""
 
 DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup",
                     "kf_tuned", "cmin", "clairvoyant")
@@ -36,9 +45,9 @@ def build_parser(prog="radar-track evaluate"):
     lo_km, hi_km = RADAR_RANGE_HELP_KM
     ap = argparse.ArgumentParser(prog=prog, description="Compare trackers and learned policies on identical "
                                  "measurement streams (common random numbers): a table per suite, figures in --out.",
-                                 epilog="Security: --policy files (stable-baselines3 zips) and --tracker-module "
-                                        "files are code: loading them runs what their author wrote. Use only files "
-                                        "you trust.")
+                                 epilog="Security: a policy.zip (stable-baselines3) in a --learned folder and "
+                                        "--tracker-module files are code: loading them runs what their author "
+                                        "wrote. Use only files you trust.")
     ap.add_argument("--scenario", action="append", metavar="NAME",
                     help="suite to run, repeatable: random, random_radars, a paper's scenario (e.g. bizup2002), a "
                          "held-out family (e.g. sharp_turns), encounters (conflict warnings), adsb_calibration, "
@@ -70,25 +79,19 @@ def build_parser(prog="radar-track evaluate"):
                          "(found in the current directory, which is not left on sys.path, or installed) or a .py file; it "
                          "registers its trackers with baselines.registry.register_tracker (repeatable; see "
                          "docs/evaluation.md). It runs as code (default: none)")
-    ap.add_argument("--policy", metavar="FILE",
-                    help="saved policy for the 'policy' tracker: a stable-baselines3 model (.zip) or a recurrent "
-                         "policy trained by backpropagation (policy.npz), with its env_config.json beside it "
-                         f"(default: the bundled {BUNDLED_POLICY.relative_to(Path(__file__).parents[2])} if present). A "
-                         "policy zip is a pickle: loading it runs the code inside; load only files you trust")
-    ap.add_argument("--policy-bp", metavar="FILE",
-                    help="saved policy for the 'policy_bp' tracker (policy.npz with policy.json and env_config.json "
-                         "beside it, or an SB3 .zip) (default: the bundled "
-                         f"{BUNDLED_BP_POLICY.relative_to(Path(__file__).parents[2])} if present)")
-    ap.add_argument("--policy-imm-bp", metavar="FILE",
-                    help="saved learned IMM for the 'policy_imm_bp' tracker (policy.npz with policy.json and "
-                         "env_config.json beside it, as radar-track train --method backprop --tracker imm_cv_ct "
-                         "writes) (default: the bundled "
-                         f"{BUNDLED_LEARNED_IMM.relative_to(Path(__file__).parents[2])} if present)")
-    ap.add_argument("--policy-imm-ppo", metavar="FILE",
-                    help="saved learned IMM for the 'policy_imm_ppo' tracker: an SB3 zip trained on RadarTrack-v0 "
-                         "with tracker='imm_cv_ct' (its env_config.json beside it says so; a pickle: load only files "
-                         "you trust) (default: the bundled "
-                         f"{BUNDLED_IMM_PPO.relative_to(Path(__file__).parents[2])} if present)")
+    ap.add_argument("--learned", action="append", metavar="NAME|DIR",
+                    help="a learned tracker to run, by bundled name (" + ", ".join(BUNDLED_LEARNED) + ") or "
+                         "folder (policy.npz, policy.json naming its kind, env_config.json: as radar-track train "
+                         "writes), repeatable; its kind decides how it runs; a folder is reported under its name "
+                         "(a training run's best/ as <run>_best), which must not be a built-in tracker's. Added to "
+                         "--trackers (or to the default list). A policy.zip in a folder is a pickle: loading it (when "
+                         "its numpy export is not current) runs the code inside; load only folders you trust "
+                         "(default: the bundled ones present)")
+    for t, opt in OLD_OPTIONS.items():
+        ap.add_argument(opt, dest=t, metavar="FILE",
+                        help=f"deprecated alias (for one release) of --learned for the '{t}' tracker: a file in a "
+                             f"learned tracker folder, of kind {' or '.join(OLD_OPTION_KINDS[t])} (default: the "
+                             f"bundled {BUNDLED_POLICIES[t].relative_to(Path(__file__).parents[2])} if present)")
     ap.add_argument("--out", default="results", metavar="DIR",
                     help="directory for the figures (PNG; created if missing; a link inside it is replaced, never "
                          "followed) (default: ./results)")
@@ -119,7 +122,9 @@ def first_line(args):
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
                 else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t) or BUNDLED_POLICIES[t].is_file())
                                                  for t in BUNDLED_POLICIES))
+    trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED])     # user folders add one each
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
-            + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers) else "")
+            + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers
+                                                     or args.learned) else "")
             + " ...")

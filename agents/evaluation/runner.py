@@ -17,12 +17,12 @@ __all__ = ["run_one", "run_policy", "failed_track_run"]
 
 
 def run_one(tracker, episodes, choose_q=None, policy_cfg=None):
-    """Run one tracker (a learned policy, ``policy``, ``policy_bp`` or ``policy_imm_bp``: through ``choose_q`` with
-    its env config ``policy_cfg``, or, for a learned IMM, ``choose_q.run``) on a suite's episodes. A tracker that raises does not stop the evaluation: it gets a
+    """Run one tracker (a learned one, bundled or a user's folder under its label: through ``choose_q`` with its env
+    config ``policy_cfg``, or, for a learned IMM, ``choose_q.run``) on a suite's episodes. A tracker that raises does not stop the evaluation: it gets a
     :class:`TrackRun` of NaN (so every run counts as failed) with the exception in ``error``, reported in its metrics
     and on stderr; the other trackers are scored as usual."""
     try:
-        if tracker in POLICY_TRACKERS:
+        if tracker in POLICY_TRACKERS or choose_q is not None:     # a learned tracker under any name
             return run_policy(tracker, episodes, choose_q, policy_cfg)
         return run_tracker(tracker, episodes)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError, FloatingPointError, RuntimeWarning) as e:

@@ -1,6 +1,6 @@
 """The env a saved policy was trained in, from the ``env_config.json`` beside its zip.
 
-A policy only runs in an env with its own spaces: the bundled one (``agents/bundled/policy.zip``) chooses among
+A policy only runs in an env with its own spaces: the bundled one (``agents/bundled/policy/policy.zip``) chooses among
 15 q levels from four stacked observations (``frame_stack=4``), while ``gym.make("RadarTrack-v0")`` has 13 levels
 and one observation, so ``PPO.load(...).predict`` on the default env fails on the observation size (or picks the
 wrong levels). Use::
@@ -29,7 +29,7 @@ __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLE
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
-BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy.zip"
+BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy" / "policy.zip"
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
 BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop" / "policy.npz"
 """The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
@@ -83,8 +83,9 @@ def embed_env_config(zip_path, env_kwargs):
 def recorded_env_kwargs(policy_path):
     """``(kwargs, where)``: the record of the env a policy was trained in, independent of the ``env_config.json``
     beside it: the zip's embedded copy (:func:`embed_env_config`), else the run's hyperparameters (``config.json``
-    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``train_config.json``).
-    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled)."""
+    of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``training.json``).
+    ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled). A bundled folder's training record
+    is ``training.json`` (``train_config.json`` before the one-folder layout, still read)."""
     path = Path(policy_path)
     try:
         with zipfile.ZipFile(path) as z:
@@ -94,7 +95,8 @@ def recorded_env_kwargs(policy_path):
                     return env_kwargs_from_json(kw), f"{path} (its {ENV_CONFIG_ENTRY})"
     except (OSError, zipfile.BadZipFile, UnicodeDecodeError, json.JSONDecodeError):
         pass
-    for cand, key in ((path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
+    for cand, key in ((path.with_name("training.json"), ("hyperparams", "env_kwargs")),
+                      (path.with_name("train_config.json"), ("hyperparams", "env_kwargs")),
                       (path.with_name("config.json"), ("env_kwargs",)),
                       (path.parent.with_name("config.json"), ("env_kwargs",))):
         if not cand.is_file():
@@ -132,7 +134,8 @@ def ship_policy(policy_path, dest_dir):
     the moments, as it does for any saved model. A recurrent policy (``policy.npz``, trained by backpropagation) is
     copied with its ``policy.json`` and ``env_config.json`` (it holds no optimizer state). A PPO zip's numpy export
     (``policy.npz``, :mod:`agents.policies.numpy_policy`) is written beside it, so the evaluation runs it without
-    torch. Returns the new policy file's path."""
+    torch, with the ``policy.json`` naming its kind (:mod:`agents.policies.learned`). Returns the new policy file's
+    path."""
     import shutil
 
     src = Path(policy_path)
@@ -151,5 +154,7 @@ def ship_policy(policy_path, dest_dir):
     embed_env_config(dest / "policy.zip", json.loads((dest / "env_config.json").read_text()))
     from agents.policies.numpy_policy import save_export
     save_export(dest / "policy.zip", model)      # after the embedding: the export records the final zip's SHA-256
+    from agents.policies.layout import sb3_kind, write_manifest
+    write_manifest(dest, sb3_kind("ppo", json.loads((dest / "env_config.json").read_text())))   # its kind
     return dest / "policy.zip"
 

@@ -175,7 +175,7 @@ def save_learned_imm(directory, weights, config, env_kwargs):
     """Write a checkpoint folder (module docstring); returns the ``policy.npz`` path."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    cfg = {"format": FORMAT, "version": VERSION, **config}
+    cfg = {"kind": "learned_imm_gru", "format": FORMAT, "version": VERSION, **config}   # kind: agents.policies.learned
     np.savez(d / POLICY_FILE, **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
     (d / "policy.json").write_text(json.dumps(cfg, indent=1, allow_nan=False))
     (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))

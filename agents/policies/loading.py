@@ -13,7 +13,7 @@ and the policy then runs without torch or SB3. A recurrent policy trained by bac
 different observation size or action space, observation bounds that differ entry by entry from the env's (other or
 reordered ``features``, another ``frame_stack``), and an ``env_config.json`` that disagrees with the record of the
 training env (the copy training embeds in the zip, or the run's ``config.json`` / the bundle's
-``train_config.json``: e.g. other ``q_levels_g`` with the same count).
+``training.json``: e.g. other ``q_levels_g`` with the same count).
 """
 
 from __future__ import annotations

@@ -181,9 +181,9 @@ class RecurrentQPolicy:
 # ------------------------------------------------------------------------------------------------ checkpoints
 def is_recurrent_checkpoint(path):
     """Whether ``path`` names a recurrent-policy checkpoint: an ``.npz`` with its ``policy.json`` beside it (the
-    ``policy.npz`` beside an SB3 zip, its numpy export, has none)."""
+    ``policy.npz`` beside an SB3 zip is that zip's numpy export: its folder's ``policy.json`` names an SB3 kind)."""
     path = Path(path)
-    return path.suffix == ".npz" and path.with_suffix(".json").is_file()
+    return path.suffix == ".npz" and path.with_suffix(".json").is_file() and not path.with_suffix(".zip").is_file()
 
 
 def save_recurrent_policy(directory, weights, config, env_kwargs):
@@ -194,7 +194,7 @@ def save_recurrent_policy(directory, weights, config, env_kwargs):
     d.mkdir(parents=True, exist_ok=True)
     arrays = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
     np.savez(d / POLICY_FILE, **arrays)
-    meta = {"format": FORMAT, "version": VERSION, **config}
+    meta = {"kind": "gru_q_policy", "format": FORMAT, "version": VERSION, **config}   # kind: agents.policies.learned
     (d / "policy.json").write_text(json.dumps(meta, indent=1))
     (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
     return d / POLICY_FILE

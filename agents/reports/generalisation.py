@@ -49,7 +49,7 @@ FAMILY_RUNS = 60
 """Runs per family for the family table (``hindsight_q`` costs about a CPU-second per episode); ``adsb_heldout``
 flies each of its 12 flights once."""
 NAMED_SUITES = ("bizup2002", "adrian_flower", "kim_lee_accel", "seed002_course_changes", "seed002_two_radars")
-RECIPE_DIR = Path(__file__).resolve().parents[1] / "bundled" / "recipe"
+RECIPE_DIR = BUNDLED_POLICY.parent / "recipe"
 """Every trained seed of this round's recipes: ``<recipe>_s<seed>/policy.zip`` with its ``env_config.json``."""
 BP_RECIPE_DIR = BUNDLED_BP_POLICY.parent / "seeds"
 """Every trained seed of the backprop recipe: ``<recipe>_s<seed>/policy.npz`` with its ``policy.json`` and
@@ -80,7 +80,7 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
-rule chose (agents/bundled/train_config.json, final_choice)."""
+rule chose (agents/bundled/policy/choice.json)."""
 
 
 def _runs(suite, family_runs):
@@ -501,7 +501,7 @@ def main(argv=None):
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
         if names:
             data["recipes"][r] = {"description": what, "seeds": names}
-    cfg_file = BUNDLED_POLICY.with_name("train_config.json")
+    cfg_file = BUNDLED_POLICY.with_name("training.json")
     if cfg_file.is_file():
         data["bundle_recipe"] = json.loads(cfg_file.read_text()).get("recipe")
     for suite in HELDOUT_FAMILY_SUITES:

@@ -316,7 +316,7 @@ def main(argv=None):
         f"Position RMSE pooled over runs and looks after the track start; 95% intervals from 2000 bootstrap "
         f"resamples of runs (paired for the ratio column). Regions: maneuver = the truth turns or changes speed, "
         f"after = within 60 s after a maneuver, straight = the rest. Policy: "
-        f"{'the bundled policy `agents/bundled/policy.zip`' if policy else 'none bundled'}"
+        f"{'the bundled policy `agents/bundled/policy/policy.zip`' if policy else 'none bundled'}"
         f"{'; policy_bp: `agents/bundled/backprop/policy.npz` (trained by backpropagation)' if 'policy_bp' in learned else ''}"
         f"{'; policy_imm_bp: `agents/bundled/learned_imm/policy.npz` (the learned IMM)' if 'policy_imm_bp' in learned else ''}"
         f"{'; policy_imm_ppo: `agents/bundled/learned_imm_ppo/policy.zip` (the learned IMM, PPO)' if 'policy_imm_ppo' in learned else ''}. "

@@ -43,7 +43,9 @@ default hyperparameter file (:data:`HP_FILES`).
 
 The run folder (``<out>/<name>.partial/`` until complete, then ``<out>/<name>/``), as ``radar-track train``'s:
 ``config.json``, ``args.json``, ``command.txt``, ``env_config.json``, ``policy.npz`` + ``policy.json`` (final
-weights), ``best/`` (the best validation checkpoint and its ``selection.json``), ``checkpoints/last.npz`` +
+weights; kind ``gru_q_policy`` or ``learned_imm_gru``), ``training.json`` + ``choice.json`` (the learned-tracker
+layout, :mod:`agents.policies.learned`: ``radar-track evaluate --learned <run>`` reads it), ``best/`` (the best
+validation checkpoint, its ``selection.json``, ``training.json`` and ``choice.json``), ``checkpoints/last.npz`` +
 ``last.json`` (weights, Adam moments, step, history: what a resume needs), ``tb/`` (TensorBoard scalars),
 ``summary.json``. A run that fails or is killed stays ``<name>.partial/``; running the same command again resumes it
 from its last checkpoint (the same configuration is required, else a one-line refusal); a finished ``<name>/`` is
@@ -599,6 +601,8 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
                        verbose, on_selection)
         _save_policy(part, model, cfg, env_kwargs)
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
+        from agents.policies.learned import read_kind, write_run_layout
+        write_run_layout(part, read_kind(part)[0], jsonable(summary))      # training.json, choice.json
     except BaseException:
         mark_failed(part, lock)
         raise

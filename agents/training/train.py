@@ -22,10 +22,12 @@ A DQN/SAC run whose ``n_timesteps`` do not exceed ``learning_starts`` warns that
 (``summary.json`` records ``n_updates``, the number of gradient updates). The run folder
 ``<out>/<algo>_<action>_s<seed>_<time>/`` holds:
 
-* ``policy.zip`` (final model) and ``env_config.json`` beside it (``radar-track evaluate --policy`` reads both);
-* ``best/policy.zip`` + ``best/env_config.json`` + ``best/selection.json``: the model with the lowest position
-  RMSE ratio to the tuned IMM on the selection suite (training-range seeds 900_000 + i, see
-  :mod:`agents.training.callbacks`);
+* the final model as a learned-tracker folder (:mod:`agents.policies.learned`; ``radar-track evaluate --learned
+  <run>`` reads it): ``policy.zip``, its numpy export ``policy.npz`` (where the structure allows one),
+  ``policy.json`` (kind ``ppo_q_policy``, ``dqn_q_policy``, ``sac_q_policy``, or ``learned_imm_ppo`` /
+  ``learned_imm_sac`` on ``tracker="imm_cv_ct"``), ``env_config.json``, ``training.json``, ``choice.json``;
+* ``best/``: the same files (plus ``selection.json``) for the model with the lowest position RMSE ratio to the
+  tuned IMM on the selection suite (training-range seeds 900_000 + i, see :mod:`agents.training.callbacks`);
 * ``config.json`` (hyperparameters used), ``args.json``, ``command.txt``, ``summary.json`` (wall time, env share of
   wall time, selection history), ``checkpoints/``, ``tb/`` (TensorBoard), ``vecnormalize.pkl`` if rewards were
   normalised (rewards only: the observation is already scaled, so evaluation needs no statistics).
@@ -325,6 +327,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         }
         from agents.evaluation.metrics import jsonable    # inf (a failed selection evaluation) -> null, never 'Infinity'
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
+        from agents.policies.learned import sb3_kind, write_run_layout
+        write_run_layout(part, sb3_kind(algo, env_kwargs), jsonable(summary))    # policy.json, training/choice.json
         env.close()
     except BaseException:
         mark_failed(part, lock)
@@ -378,7 +382,7 @@ def _tb_scalars(run, tags):
 
 
 def _bundled_stages(cfg):
-    """``[(label, selection_history, selected_timesteps)]`` of a bundled ``train_config.json``, first stage first
+    """``[(label, selection_history, selected_timesteps)]`` of a bundled ``training.json``, first stage first
     (each fine-tuning stage's record nests the one it started from under ``fine_tuned_from``)."""
     chain = []
     while cfg:
@@ -402,7 +406,7 @@ def plot_training_curve(run, png=None):
     Args:
         run: a run folder (``summary.json``, ``config.json``, ``best/selection.json``, ``tb/``): one stage, titled
             with the run's name and whether it was trained from scratch or fine-tuned (``init_from``); or a bundled
-            ``train_config.json`` (``agents/bundled/``): every stage of its ``fine_tuned_from`` chain end to end,
+            ``training.json`` (``agents/bundled/policy/``): every stage of its ``fine_tuned_from`` chain end to end,
             from the selection histories it records (the bundle keeps no TensorBoard logs, so no return panel).
         png: output path (default ``training_curve.png`` beside ``run``).
     """

@@ -1,0 +1,131 @@
+"""One learned-tracker interface (agents.policies.learned): the bundled folders share one layout, one loader reads
+any of them by the kind its policy.json names, and ``radar-track evaluate --learned`` runs them by that kind."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from agents.evaluation import evaluate as ev
+from agents.policies.bundle import BUNDLED_POLICIES
+from agents.policies.learned import (BUNDLED_LEARNED, IMM_KINDS, KINDS, Q_POLICY_KINDS, load_learned, read_kind,
+                                     resolve_learned)
+
+EXPECTED_KIND = {"policy": "ppo_q_policy", "policy_bp": "gru_q_policy", "policy_imm_bp": "learned_imm_gru",
+                 "policy_imm_ppo": "learned_imm_ppo"}
+LAYOUT = {"policy.npz", "policy.json", "env_config.json", "training.json", "choice.json"}
+QUICK = ["--scenario", "random", "--runs", "2", "--no-plots", "--quiet"]
+
+needs_bundle = pytest.mark.skipif(not all(p.is_file() for p in BUNDLED_POLICIES.values()),
+                                  reason="no bundled learned trackers")
+
+
+@needs_bundle
+@pytest.mark.parametrize("name", list(BUNDLED_LEARNED))
+def test_bundled_folders_share_one_layout_and_load_by_kind(name):
+    folder = BUNDLED_LEARNED[name]
+    assert LAYOUT <= {f.name for f in folder.iterdir()}, name
+    assert json.loads((folder / "policy.json").read_text())["kind"] == EXPECTED_KIND[name]
+    assert BUNDLED_POLICIES[name].parent == folder       # the old per-file constants point into the same folder
+    lt = load_learned(name)
+    assert (lt.kind, lt.name, lt.folder) == (EXPECTED_KIND[name], name, folder)
+    assert bool(getattr(lt.policy, "is_tracker", False)) == (lt.kind in IMM_KINDS)
+    # by folder path: the same tracker, reported under its bundled name
+    assert load_learned(str(folder)).name == name
+    # its own run is the evaluation's run of it (the same numbers, under its name)
+    from agents.evaluation.runner import run_policy
+    from agents.evaluation.suites import draw_suite
+    eps = draw_suite("kim_lee_accel", 2)
+    mine, evals = lt.run(eps), run_policy(name, eps, lt.policy, lt.env_config)
+    assert mine.name == name and np.isfinite(mine.x[:, -1]).all()          # NaN before a track starts only
+    assert np.array_equal(mine.x, evals.x, equal_nan=True)
+    # the chosen seed's weights are the bundled ones (the choice record says which)
+    choice = json.loads((folder / "choice.json").read_text())
+    if (folder / "seeds").is_dir():
+        assert (folder / "seeds" / choice["chosen"] / "policy.npz").read_bytes() == (folder / "policy.npz").read_bytes()
+
+
+@needs_bundle
+def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path, monkeypatch):
+    d = tmp_path / "my_imm"
+    shutil.copytree(BUNDLED_LEARNED["policy_imm_bp"], d, ignore=shutil.ignore_patterns("seeds"))
+    with pytest.raises(ValueError, match=r"my_imm/policy.json: kind 'learned_imm_gru'") as e:
+        load_learned(d, kinds=Q_POLICY_KINDS)
+    assert "\n" not in str(e.value)
+    meta = json.loads((d / "policy.json").read_text())
+    (d / "policy.json").write_text(json.dumps({**meta, "kind": "nope"}))
+    with pytest.raises(ValueError, match=r"policy.json: field 'kind' is 'nope'"):
+        read_kind(d)
+    (d / "policy.json").write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"policy.json: must hold a JSON object with a 'kind' field"):
+        read_kind(d)
+    (d / "policy.json").unlink()
+    with pytest.raises(ValueError, match=r"not a learned tracker folder"):
+        read_kind(d)
+    with pytest.raises(ValueError, match=r"neither a bundled learned tracker"):
+        resolve_learned(tmp_path / "missing")
+    # a bundled name means the bundled tracker even beside a folder of that name (given as ./policy_bp)
+    (tmp_path / "policy_bp").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert resolve_learned("policy_bp") == (BUNDLED_LEARNED["policy_bp"], None, "policy_bp")
+    assert resolve_learned("./policy_bp")[0].resolve() == (tmp_path / "policy_bp").resolve()
+    assert set(Q_POLICY_KINDS) | set(IMM_KINDS) == set(KINDS)
+
+
+def test_folders_before_the_layout_get_their_kind_from_their_files(tmp_path):
+    """A training run written before policy.json named the kind: an SB3 zip (algo from config.json, the IMM from
+    env_config.json), a recurrent checkpoint (its policy.json's format)."""
+    from agents.policies import learned_imm, recurrent
+    run = tmp_path / "run"
+    (run / "best").mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"algo": "sac"}))
+    (run / "best" / "policy.zip").write_bytes(b"")
+    (run / "best" / "env_config.json").write_text(json.dumps({"tracker": "imm_cv_ct"}))
+    assert read_kind(run / "best")[0] == "learned_imm_sac"
+    (run / "best" / "env_config.json").write_text("{}")
+    assert read_kind(run / "best")[0] == "sac_q_policy"
+    for fmt, kind in ((recurrent.FORMAT, "gru_q_policy"), (learned_imm.FORMAT, "learned_imm_gru")):
+        (run / "policy.json").write_text(json.dumps({"format": fmt, "version": 1}))
+        assert read_kind(run) == (kind, str(run / "policy.json"))
+
+
+@needs_bundle
+def test_evaluate_learned_by_name_and_by_user_folder(tmp_path, capsys):
+    """``--learned`` takes bundled names and folders; a user folder runs as its kind under its folder's name with
+    the same numbers as the bundled tracker it copies; the old option is an alias with a note on stderr."""
+    mine = tmp_path / "my_bp"
+    shutil.copytree(BUNDLED_LEARNED["policy_bp"], mine, ignore=shutil.ignore_patterns("seeds"))
+    out = tmp_path / "r.json"
+    res = ev.main(["--learned", "policy_bp", "--learned", str(mine), "--trackers", "imm2", "--json", str(out), *QUICK])
+    t = res["random"]["trackers"]
+    assert list(t) == ["imm2", "policy_bp", "my_bp"]
+    assert t["my_bp"]["pos_rmse_m"] == t["policy_bp"]["pos_rmse_m"] and np.isfinite(t["my_bp"]["pos_rmse_m"])
+    meta = json.loads(out.read_text())["meta"]
+    assert meta["learned"]["my_bp"] == {"kind": "gru_q_policy", "folder": str(mine)}
+    capsys.readouterr()
+    res = ev.main(["--policy-bp", str(mine / "policy.npz"), "--trackers", "policy_bp", *QUICK])
+    assert res["random"]["trackers"]["policy_bp"]["pos_rmse_m"] == t["policy_bp"]["pos_rmse_m"]
+    err = capsys.readouterr().err
+    assert "--policy-bp is deprecated" in err and len([ln for ln in err.splitlines() if "deprecated" in ln]) == 1
+
+
+@needs_bundle
+def test_evaluate_refuses_a_wrong_kind_a_clashing_label_and_a_tracker_given_twice(tmp_path):
+    imm = tmp_path / "my_imm"
+    shutil.copytree(BUNDLED_LEARNED["policy_imm_bp"], imm, ignore=shutil.ignore_patterns("seeds"))
+    cases = [(["--policy-bp", str(imm / "policy.npz"), "--trackers", "imm2"],
+              "error: --policy-bp: ", "kind 'learned_imm_gru'"),
+             (["--policy-imm-ppo", str(BUNDLED_POLICIES["policy"]), "--trackers", "imm2"],
+              "error: --policy-imm-ppo: ", "kind 'ppo_q_policy'"),
+             (["--learned", str(shutil.copytree(imm, tmp_path / "imm2")), "--trackers", "kf_tuned"],
+              "error: --learned: ", "'imm2' (the folder's name) is a built-in tracker's name"),
+             (["--learned", "policy_bp", "--learned", str(BUNDLED_LEARNED["policy_bp"]), "--trackers", "imm2"],
+              "error: --learned: ", "already given by --learned 'policy_bp'")]
+    for args, start, what in cases:
+        with pytest.raises(SystemExit) as e:
+            ev.main(args + QUICK)
+        msg = str(e.value)
+        assert msg.startswith(start) and what in msg and "\n" not in msg, (args, msg)
