@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from radar_env.sim.episode import stack_episodes
+from radar_env.sim.looks import padded_looks
 from radar_env.filters.imm_cv_ct import (  # noqa: F401
     DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
     _init_modes, _kernel, _step_kernel, check_look_parameters, ct_jacobian, ct_motion, detector_inputs,
@@ -77,23 +78,6 @@ def _modes_from_arrays(is_ct, q_m_s2, log_Pi, log_mu0):
         np.ascontiguousarray(log_mu0, dtype=np.float64).reshape(M)
 
 
-def _looks_arrays(t_s, z_m, R_m2, detected, n_looks, k_start):
-    t = np.ascontiguousarray(t_s, dtype=np.float64)
-    B, K = t.shape
-    z = np.ascontiguousarray(np.nan_to_num(np.asarray(z_m, dtype=np.float64)))
-    det = np.ascontiguousarray(detected, dtype=np.bool_)
-    R = np.ascontiguousarray(np.where(det[..., None, None], np.nan_to_num(np.asarray(R_m2, dtype=np.float64)),
-                                      np.eye(2)))
-    n = np.ascontiguousarray(n_looks, dtype=np.int64).reshape(B)
-    ks = np.ascontiguousarray(k_start, dtype=np.int64).reshape(B)
-    if z.shape != (B, K, 2) or R.shape != (B, K, 2, 2) or det.shape != (B, K):
-        raise ValueError(f"t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K) must agree; got "
-                         f"{t.shape}, {z.shape}, {R.shape}, {det.shape}")
-    if np.any(ks < 1) or np.any(n > K) or np.any(ks > n):
-        raise ValueError(f"k_start must be in [1, n_looks] and n_looks <= K = {K}; got k_start {ks}, n_looks {n}")
-    return t, z, R, det, n, ks
-
-
 def _bounds(spec):
     return spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
 
@@ -117,7 +101,7 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
             ``params[b, k]``), replacing the spec's constants; not with ``modes``.
     """
     spec = spec or DEFAULT_IMM_CV_CT
-    t, z, R, det, n, ks = _looks_arrays(t_s, z_m, R_m2, detected, n_looks, k_start)
+    t, z, R, det, n, ks = padded_looks(t_s, z_m, R_m2, detected, n_looks, k_start)
     B, K = t.shape
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 5)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 5, 5)
@@ -174,7 +158,7 @@ class IMMCVCTStepper:
 
     def __init__(self, t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None):
         self.spec = spec = spec or DEFAULT_IMM_CV_CT
-        self._t, self._z, self._R, self._det, self.n_looks, ks = _looks_arrays(t_s, z_m, R_m2, detected, n_looks,
+        self._t, self._z, self._R, self._det, self.n_looks, ks = padded_looks(t_s, z_m, R_m2, detected, n_looks,
                                                                                k_start)
         B = self.B = self._t.shape[0]
         self.is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())

@@ -42,6 +42,7 @@ import numpy as np
 from ..common.units import DEG, G0_M_S2, KNOT_M_S
 from ..common.validate import check_number
 from ..sim.draws import _u01
+from ..sim.looks import padded_looks
 from ..sim.scenario import RandomScenarioConfig
 from .imm_cv_ct import _abat, _add_cv_noise, _ct_predict, _moments
 from .kernels import _gain_update, _logsumexp, _rdot_update, _symmetrize
@@ -453,19 +454,8 @@ def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: 
             radial velocity or std is not finite, or whose std is not positive, updates on its position only).
     Returns ``(x (B, K, 4), P (B, K, 4, 4), maneuver_probability (B, K), turn_rate_rad_s (B, K), ess (B, K))``,
     NaN outside the filtered looks."""
-    t = np.ascontiguousarray(t_s, dtype=np.float64)
+    t, z, R, det, n, ks = padded_looks(t_s, z_m, R_m2, detected, n_looks, k_start)
     B, K = t.shape
-    det = np.ascontiguousarray(detected, dtype=np.bool_)
-    z = np.ascontiguousarray(np.nan_to_num(np.asarray(z_m, dtype=np.float64)))
-    R = np.ascontiguousarray(np.where(det[..., None, None], np.nan_to_num(np.asarray(R_m2, dtype=np.float64)),
-                                      np.eye(2)))
-    n = np.ascontiguousarray(n_looks, dtype=np.int64).reshape(B)
-    ks = np.ascontiguousarray(k_start, dtype=np.int64).reshape(B)
-    if z.shape != (B, K, 2) or R.shape != (B, K, 2, 2) or det.shape != (B, K):
-        raise ValueError(f"t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K) must agree; got "
-                         f"{t.shape}, {z.shape}, {R.shape}, {det.shape}")
-    if np.any(ks < 1) or np.any(n > K) or np.any(ks > n):
-        raise ValueError(f"k_start must be in [1, n_looks] and n_looks <= K = {K}")
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 4)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 4, 4)
     keys = np.ascontiguousarray(keys, dtype=np.uint64).reshape(B)

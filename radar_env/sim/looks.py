@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LOOK_COLUMNS", "W_LOOK", "W_IT", "I_K", "I_N", "init_looks", "looks_for_track_start"]
+__all__ = ["LOOK_COLUMNS", "W_LOOK", "W_IT", "I_K", "I_N", "init_looks", "looks_for_track_start", "padded_looks"]
 
 # ---------------------------------------------------------------------------------------------- look row layout
 L_T, L_SITE, L_RANGE, L_RSTD, L_BSTD, L_RDSTD = 0, 1, 3, 4, 5, 6
@@ -50,3 +50,24 @@ def looks_for_track_start(detected, t_s, warmup_scans):
     except ValueError:
         return None
     return i2 + 2 + int(warmup_scans)
+
+
+def padded_looks(t_s, z_m, R_m2, detected, n_looks, k_start):
+    """B padded look sequences as the per-look filter kernels take them: contiguous float64 ``t (B, K)``, ``z (B, K,
+    2)`` with NaN as 0, ``R (B, K, 2, 2)`` with the identity where missed, ``det (B, K)`` bool, ``n_looks (B,)`` and
+    ``k_start (B,)`` int64 (the first look filtered; ``k_start - 1`` is the start). ``ValueError`` for shapes that
+    disagree or ``k_start`` outside ``[1, n_looks]``, ``n_looks`` above K."""
+    t = np.ascontiguousarray(t_s, dtype=np.float64)
+    B, K = t.shape
+    z = np.ascontiguousarray(np.nan_to_num(np.asarray(z_m, dtype=np.float64)))
+    det = np.ascontiguousarray(detected, dtype=np.bool_)
+    R = np.ascontiguousarray(np.where(det[..., None, None], np.nan_to_num(np.asarray(R_m2, dtype=np.float64)),
+                                      np.eye(2)))
+    n = np.ascontiguousarray(n_looks, dtype=np.int64).reshape(B)
+    ks = np.ascontiguousarray(k_start, dtype=np.int64).reshape(B)
+    if z.shape != (B, K, 2) or R.shape != (B, K, 2, 2) or det.shape != (B, K):
+        raise ValueError(f"t_s (B, K), z_m (B, K, 2), R_m2 (B, K, 2, 2), detected (B, K) must agree; got "
+                         f"{t.shape}, {z.shape}, {R.shape}, {det.shape}")
+    if np.any(ks < 1) or np.any(n > K) or np.any(ks > n):
+        raise ValueError(f"k_start must be in [1, n_looks] and n_looks <= K = {K}; got k_start {ks}, n_looks {n}")
+    return t, z, R, det, n, ks
