@@ -167,3 +167,12 @@ def test_off_its_prior_it_stays_finite_positive_definite_and_on_track(suite):
     assert np.isfinite(run.x[used]).all() and np.isfinite(run.P[used]).all()
     assert np.all(np.linalg.eigvalsh(run.P[used]) > 0)
     assert not s.lost.any() and not s.failed.any()
+
+
+def test_the_parameter_table_and_the_spec_agree():
+    """RBPF_PARAMS (ranges and documentation) names every tuned field of RBPFSpec with its default."""
+    spec = RBPFSpec()
+    names = {f.name for f in dataclasses.fields(RBPFSpec)} - {"prior", "flight_start_known", "radial_velocity"}
+    assert {p[0] for p in K.RBPF_PARAMS} == names
+    for name, default, lo, hi, _ in K.RBPF_PARAMS:
+        assert getattr(spec, name) == default and lo <= default <= hi, name
