@@ -41,14 +41,15 @@ saying so. Example: docs/stonesoup.md.
 from __future__ import annotations
 
 import datetime as _dt
-import importlib.util
 import math
 
 import numpy as np
 
-if importlib.util.find_spec("stonesoup") is None:
+try:
+    import stonesoup  # noqa: F401
+except ImportError as _err:
     raise ImportError('baselines.stonesoup_components needs Stone Soup: pip install -e ".[stonesoup]" (or pip install '
-                      '"stonesoup>=1.2")')
+                      '"stonesoup>=1.2")') from _err
 
 from stonesoup.base import Property  # noqa: E402
 from stonesoup.models.measurement.base import MeasurementModel  # noqa: E402
@@ -60,7 +61,7 @@ from stonesoup.types.angle import Bearing  # noqa: E402
 from stonesoup.types.array import CovarianceMatrix, StateVector  # noqa: E402
 from stonesoup.types.detection import Detection  # noqa: E402
 from stonesoup.types.prediction import Prediction  # noqa: E402
-from stonesoup.types.state import GaussianState  # noqa: E402
+from stonesoup.types.state import GaussianState, State, StateMutableSequence  # noqa: E402
 from stonesoup.types.update import Update  # noqa: E402
 from stonesoup.updater.kalman import ExtendedKalmanUpdater  # noqa: E402
 
@@ -268,7 +269,10 @@ class IMMCVCTPredictor(Predictor):
             raise ValueError(f"IMMCVCTPredictor.spec must be an IMMCVCTSpec, got {type(self.spec).__name__}")
 
     def predict(self, prior, timestamp=None, **kwargs) -> IMMCVCTStatePrediction:
-        """Predict ``prior`` to ``timestamp`` (a ``datetime``; ``None``: the prior's time, dt = 0)."""
+        """Predict ``prior`` (a state or a track: its last state) to ``timestamp`` (a ``datetime``; ``None`` with a
+        prior without one: dt = 0)."""
+        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
+            prior = prior.state     # a Track (Stone Soup's hypothesisers pass the track): its last state
         if not isinstance(prior, IMMCVCTState):
             prior = IMMCVCTState.from_gaussian(prior, self.spec)
         elif prior.spec is not None and prior.spec != self.spec:
