@@ -268,3 +268,28 @@ def test_docs_example_runs():
     namespace = {}
     exec(compile(blocks[0], "docs/stonesoup.md", "exec"), namespace)
     assert len(namespace["track"]) > 10
+
+
+def test_multitarget_example_small(tmp_path):
+    """A short run of baselines.stonesoup_example: both filters track, OSPA is in [0, c] on the same scans; the
+    IMM's tracks carry IMM states; the table and the figure are written."""
+    from baselines import stonesoup_example as X
+
+    truths, scans, _ = X.scenario(n_steps=15, seed=3)
+    assert len(truths) == 4 and len(scans) == 15
+    assert any(type(d).__name__ == "Clutter" for _, dets in scans for d in dets)
+    tracks = X.run_tracker(scans, "imm_cv_ct")
+    assert tracks and all(isinstance(t.state, (S.IMMCVCTStateUpdate, S.IMMCVCTStatePrediction)) for t in tracks)
+    result = X.run(n_steps=15, seed=3, filters=["ekf_q20", "imm_cv_ct"])
+    for name in ("ekf_q20", "imm_cv_ct"):
+        r = result[name]
+        assert r["n_tracks"] > 0 and r["t_s"].size > 5
+        assert np.all((r["ospa_m"] >= 0) & (r["ospa_m"] <= X.OSPA_C_M))
+        # every target tracked at some scans: OSPA far below what one missing target of four costs (c / 4)
+        assert r["ospa_m"].min() < X.OSPA_C_M / 10
+    np.testing.assert_array_equal(result["ekf_q20"]["t_s"], result["imm_cv_ct"]["t_s"])
+    text = X.table(result, every_s=25.0)
+    assert "| mean |" in text and "imm_cv_ct OSPA (m)" in text
+    assert X.figure(result, tmp_path / "f.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="filter_name must be"):
+        X.run_tracker(scans, "kf")
