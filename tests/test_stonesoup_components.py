@@ -267,7 +267,11 @@ def test_docs_example_runs():
     assert len(blocks) == 1
     namespace = {}
     exec(compile(blocks[0], "docs/stonesoup.md", "exec"), namespace)
-    assert len(namespace["track"]) > 10
+    assert len(namespace["track"]) == 40
+    # the simulated 3 deg/s counter-clockwise turn: detected, and negative in our clockwise-positive convention
+    state = namespace["state"]
+    assert state.maneuver_probability > 0.5
+    assert np.degrees(state.turn_rate_rad_s) == pytest.approx(-3.0, abs=0.5)
 
 
 def test_multitarget_example_small(tmp_path):
