@@ -256,8 +256,9 @@ class IMMCVCTPredictor(Predictor):
     4-state ``GaussianState`` (a new track: started as :meth:`IMMCVCTState.from_gaussian`), returns an
     :class:`IMMCVCTStatePrediction`."""
 
-    transition_model: TransitionModel = Property(default=None, doc="Not used (the IMM's modes are its transition model); kept for "
-                                                  "Stone Soup's Predictor interface")
+    transition_model: TransitionModel = Property(
+        default=None, doc="Not used (the IMM's modes are its transition model); kept for Stone Soup's Predictor "
+                          "interface")
     spec: IMMCVCTSpec = Property(default=None, doc="the IMM's parameters (None: the tuned imm_cv_ct's, "
                                                    "baselines.imm_cv_ct_runner.tuned_imm_cv_ct_spec)")
 
@@ -306,8 +307,9 @@ class IMMCVCTUpdater(ExtendedKalmanUpdater):
     :meth:`predict_measurement` is the extended Kalman updater's on the combined Gaussian (for gating and
     association, in the detection's space). The IMM parameters come with the prediction (its ``spec``)."""
 
-    measurement_model: MeasurementModel = Property(default=None, doc="used for detections that carry no measurement model: a "
-                                                   "CartesianToBearingRange or LinearGaussian (plot_from_detection)")
+    measurement_model: MeasurementModel = Property(
+        default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange or "
+                          "LinearGaussian (plot_from_detection)")
 
     def update(self, hypothesis, **kwargs) -> IMMCVCTStateUpdate:
         """Update ``hypothesis.prediction`` with ``hypothesis.measurement`` (a ``MissedDetection``: the kernel's
