@@ -565,3 +565,57 @@ def test_per_look_parameters_are_checked(two_site_episodes):
     with pytest.raises(ValueError, match="modes or params"):
         I.imm_cv_ct_filter(*args, spec, params=p, modes=_ct_only(spec, 1.0))
     assert I.look_parameter_names(I.IMMCVCTSpec(q_high_g=None)) == I.LOOK_PARAMS[:5]
+
+
+@pytest.mark.parametrize("three_modes", [True, False], ids=["three_modes", "two_modes"])
+def test_split_look_equals_the_kernel_bit_for_bit(two_site_episodes, three_modes):
+    """predict_modes then update_modes (the kernel's two halves, one track at a time; missed looks through
+    update_modes(z=None)) give the filter's modes and combination bit for bit, from initial_modes."""
+    from radar_env.filters.imm_cv_ct import initial_modes, predict_modes, update_modes
+
+    spec = I.tuned_imm_cv_ct_spec() if three_modes else I.IMMCVCTSpec(q_high_g=None)
+    eps = two_site_episodes
+    batch, k0, x4, P4 = I.common_start(eps)
+    _, args = _filter_args(eps, spec)
+    ref = I.imm_cv_ct_filter(*args, spec, keep_modes=True)
+    n_missed = 0
+    for b, e in enumerate(eps):
+        xm, Pm, log_mu = initial_modes(spec, x4[b], P4[b])
+        for k in range(k0[b] + 1, e.n_looks):
+            pred = predict_modes(spec, xm, Pm, log_mu, e.t_s[k] - e.t_s[k - 1])
+            det = bool(e.detected[k])
+            n_missed += not det
+            up = update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, e.z_m[k] if det else None,
+                              e.R_m2[k] if det else None)
+            xm, Pm, log_mu = up.x_modes, up.P_modes, up.log_mu
+            np.testing.assert_array_equal(up.x, ref.x[b, k])
+            np.testing.assert_array_equal(up.P, ref.P[b, k])
+            np.testing.assert_array_equal(up.mu, ref.mu[b, k])
+            np.testing.assert_array_equal(up.x_modes, ref.x_modes[b, k])
+            np.testing.assert_array_equal(up.P_modes, ref.P_modes[b, k])
+            assert up.nis == ref.nis[b, k] and up.omega_rad_s == ref.omega_rad_s[b, k]
+            # the combined prediction is the c-weighted moments of the predicted modes' 4-state marginals
+            c = np.exp(pred.log_c - np.logaddexp.reduce(pred.log_c))
+            mean = c @ pred.x_modes[:, :4]
+            d = pred.x_modes[:, :4] - mean
+            cov = np.einsum("m,mij->ij", c, pred.P_modes[:, :4, :4] + d[:, :, None] * d[:, None, :])
+            np.testing.assert_allclose(pred.x, mean, rtol=1e-12)
+            np.testing.assert_allclose(pred.P, cov, rtol=1e-9, atol=1e-9 * np.abs(cov).max())
+    assert n_missed > 0      # the missed-look branch was exercised
+
+
+def test_split_look_checks_its_inputs():
+    from radar_env.filters.imm_cv_ct import initial_modes, predict_modes, update_modes
+
+    spec = I.tuned_imm_cv_ct_spec()
+    xm, Pm, log_mu = initial_modes(spec, np.array([0.0, 1e4, 100.0, 0.0]), np.eye(4) * 100.0)
+    with pytest.raises(ValueError, match="dt_s must be a finite number >= 0"):
+        predict_modes(spec, xm, Pm, log_mu, -1.0)
+    with pytest.raises(ValueError, match="M = 2"):
+        predict_modes(I.IMMCVCTSpec(q_high_g=None), xm, Pm, log_mu, 1.0)
+    pred = predict_modes(spec, xm, Pm, log_mu, 0.0)          # dt = 0 works: mixing only
+    assert np.isfinite(pred.x).all() and np.isfinite(pred.P).all()
+    with pytest.raises(ValueError, match=r"z must be \(2,\) and R \(2, 2\)"):
+        update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 2.0], None)
+    with pytest.raises(ValueError, match="finite"):
+        update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [np.nan, 2.0], np.eye(2))

@@ -92,6 +92,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -102,7 +103,8 @@ from ..common.validate import check_known_keys, check_number
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
-           "ct_motion", "ct_jacobian", "detector_names", "detector_inputs", "initial_detectors"]
+           "ct_motion", "ct_jacobian", "initial_modes", "predict_modes", "update_modes", "ModePrediction",
+           "ModeUpdate", "detector_names", "detector_inputs", "initial_detectors"]
 
 SERIES_THETA = 0.1
 """Below this |omega dt| (rad) the CT coefficients are evaluated by their Taylor series."""
@@ -385,12 +387,10 @@ def _init_modes(x_init, P_init, is_ct, sig_w0_2, log_mu0, xm, Pm, log_mu):
 
 
 @numba.njit(cache=True)
-def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work, x_out,
-          P_out, mu_out):
-    """One look of one row with this look's parameters ``q (M,)``, ``sig_w2``, ``log_Pi (M, M)``: mixing,
-    mode-matched prediction and update, mode probabilities. Updates ``xm, Pm, log_mu`` in place, writes the
-    combination of the modes' 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``;
-    returns ``(NIS of the combined prediction, combined turn rate, its variance)``."""
+def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work):
+    """The first half of :func:`_look`: mixing and mode-matched prediction of the posterior modes ``xm (M, 5)``,
+    ``Pm (M, 5, 5)``, ``log_mu (M,)`` (read only) over ``dt``. Writes the predicted modes and the log mixing
+    normalisers (the predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
     # ---- mixing (log space): a[i, j] = log Pi_ij + log mu_i, log c_j = logsumexp_i a[i, j], in 5 states
@@ -423,6 +423,28 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
         if is_ct[j]:
             Pp[j, 4, 4] += sig_w2 * dt
         _symmetrize(Pp[j])
+
+
+@numba.njit(cache=True)
+def _predicted_combination(xp, Pp, log_c, w, xc, Pc):
+    """The combined prediction: the moments of the predicted modes' 4-state marginals with weights ``c_j``
+    normalised, into ``xc[:4]``, ``Pc[:4, :4]`` (``w``: scratch of M)."""
+    M = log_c.shape[0]
+    lse = _logsumexp(log_c, M)
+    for j in range(M):
+        w[j] = math.exp(log_c[j] - lse)
+    _moments(w, xp, Pp, 4, xc, Pc)
+
+
+@numba.njit(cache=True)
+def _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out):
+    """The second half of :func:`_look`: the mode-matched update of the predicted modes in ``work``
+    (``xp``, ``Pp``, ``log_c``, read only; from :func:`_look_predict`) with the plot ``z``, ``R`` (``det`` False: a
+    missed look), the mode probabilities and the outputs. Writes the posterior modes into ``xm, Pm, log_mu``, the
+    combination of their 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``; returns
+    ``(NIS of the combined prediction, combined turn rate, its variance)``."""
+    x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
+    M = is_ct.shape[0]
     # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
     for j in range(M):
         if det:
@@ -441,10 +463,7 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     for j in range(M):
         log_mu[j] = ll[j] - lse
     # ---- NIS of the combined prediction (weights c_j normalised), as radar_env.filters.kalman.imm_step
-    lse = _logsumexp(log_c, M)
-    for j in range(M):
-        w[j] = math.exp(log_c[j] - lse)
-    _moments(w, xp, Pp, 4, xc, Pc)
+    _predicted_combination(xp, Pp, log_c, w, xc, Pc)
     nis = (_plot_nis(Pc[0, 0], 0.5 * (Pc[0, 1] + Pc[1, 0]), Pc[1, 1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1],
                      z[0] - xc[0], z[1] - xc[1])[0] if det else 0.0)
     # ---- combination of the 4-state marginals; combined turn rate (a CV mode's is 0) and its variance
@@ -462,6 +481,18 @@ def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_ma
     x_out[:] = xc[:4]
     P_out[:, :] = Pc[:4, :4]
     return nis, om, om_var
+
+
+@numba.njit(cache=True)
+def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work, x_out,
+          P_out, mu_out):
+    """One look of one row with this look's parameters ``q (M,)``, ``sig_w2``, ``log_Pi (M, M)``: mixing,
+    mode-matched prediction and update, mode probabilities (:func:`_look_predict` then :func:`_look_update`).
+    Updates ``xm, Pm, log_mu`` in place, writes the combination of the modes' 4-state marginals into ``x_out (4,)``,
+    ``P_out (4, 4)`` and ``mu_out (M,)``; returns ``(NIS of the combined prediction, combined turn rate, its
+    variance)``."""
+    _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work)
+    return _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out)
 
 
 @numba.njit(cache=True)
@@ -518,6 +549,113 @@ def _step_kernel(rows, t, z, R, det, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_m
             omega_max, accel_max, xm[r], Pm[r], log_mu[r], work, out_x[i], out_P[i], out_mu[i])
         t_last[r] = t[r, kk]
         k[r] = kk + 1
+
+
+# ------------------------------------------------------------------------------------------------ one track, split look
+class ModePrediction(NamedTuple):
+    """:func:`predict_modes`' output: the predicted modes and their combination."""
+
+    x_modes: np.ndarray     # (M, 5) predicted mode means
+    P_modes: np.ndarray     # (M, 5, 5)
+    log_c: np.ndarray       # (M,) log predicted mode probabilities (the mixing normalisers)
+    x: np.ndarray           # (4,) combined prediction [x, y, vx, vy]
+    P: np.ndarray           # (4, 4)
+
+
+class ModeUpdate(NamedTuple):
+    """:func:`update_modes`' output: the posterior modes and their combination (what :func:`_look` gives)."""
+
+    x_modes: np.ndarray     # (M, 5) posterior mode means
+    P_modes: np.ndarray     # (M, 5, 5)
+    log_mu: np.ndarray      # (M,) log mode probabilities
+    mu: np.ndarray          # (M,) mode probabilities (the kernel's exp(log_mu))
+    x: np.ndarray           # (4,) combined estimate
+    P: np.ndarray           # (4, 4)
+    nis: float              # NIS of the combined prediction (0 for a missed look)
+    omega_rad_s: float      # combined turn rate
+    omega_var: float        # its variance
+
+
+def _spec_constants(spec):
+    sig_w0 = spec.sigma_omega0_deg_s * DEG
+    return sig_w0 * sig_w0, spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
+
+
+def _modes_in(x_modes, P_modes, log_p, M):
+    x = np.array(x_modes, dtype=np.float64, order="C")      # copies: the kernel halves write in place
+    P = np.array(P_modes, dtype=np.float64, order="C")
+    lp = np.array(log_p, dtype=np.float64, order="C")
+    if x.shape != (M, 5) or P.shape != (M, 5, 5) or lp.shape != (M,):
+        raise ValueError(f"the modes must be x_modes (M, 5), P_modes (M, 5, 5), log probabilities (M,) with "
+                         f"M = {M} (the spec's modes); got {x.shape}, {P.shape}, {lp.shape}")
+    return x, P, lp
+
+
+def initial_modes(spec: IMMCVCTSpec, x, P):
+    """Every mode at the 4-state start ``x (4,)``, ``P (4, 4)`` as :func:`baselines.imm_cv_ct_runner.run_imm_cv_ct`
+    starts them (turn rate 0 with variance ``sigma_omega0^2``; mode probabilities ``mu0``): ``(x_modes (M, 5),
+    P_modes (M, 5, 5), log_mu (M,))``."""
+    x4 = np.asarray(x, dtype=np.float64).reshape(-1)
+    P4 = np.asarray(P, dtype=np.float64)
+    if x4.shape != (4,) or P4.shape != (4, 4):
+        raise ValueError(f"x must be (4,) and P (4, 4) ([x, y, vx, vy]); got {x4.shape}, {P4.shape}")
+    sig_w0_2 = _spec_constants(spec)[0]
+    x5 = np.append(x4, 0.0)
+    P5 = np.zeros((5, 5))
+    P5[:4, :4] = P4
+    P5[4, 4] = sig_w0_2
+    is_ct, _, _, log_mu0 = spec.mode_arrays()
+    M = is_ct.size
+    xm, Pm, log_mu = np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M)
+    _init_modes(x5, P5, np.ascontiguousarray(is_ct), sig_w0_2, log_mu0, xm, Pm, log_mu)
+    return xm, Pm, log_mu
+
+
+def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s) -> ModePrediction:
+    """The prediction half of one look of the compiled kernel (:func:`_look_predict`, the same code), for one track
+    at ``spec``'s constant parameters: mixing, then every mode predicted over ``dt_s`` (>= 0; 0 still mixes, as the
+    kernel does at a look with dt 0). The inputs are not modified."""
+    dt = float(dt_s)
+    if not (math.isfinite(dt) and dt >= 0.0):
+        raise ValueError(f"dt_s must be a finite number >= 0 (s), got {dt_s!r}")
+    is_ct = np.ascontiguousarray(spec.mode_arrays()[0])
+    M = is_ct.size
+    xm, Pm, lm = _modes_in(x_modes, P_modes, log_mu, M)
+    q, sig_w2, log_Pi = kernel_parameters(spec)
+    sig_w0_2, omega_max, accel_max = _spec_constants(spec)
+    work = _work(M)
+    _look_predict(dt, is_ct, q[0, 0], sig_w2[0, 0], log_Pi[0, 0], sig_w0_2, omega_max, accel_max, xm, Pm, lm, work)
+    xp, Pp, log_c, w, xc, Pc = work[2].copy(), work[3].copy(), work[4].copy(), work[6], work[10], work[11]
+    _predicted_combination(xp, Pp, log_c, w, xc, Pc)
+    return ModePrediction(xp, Pp, log_c, xc[:4].copy(), Pc[:4, :4].copy())
+
+
+def update_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_c, z=None, R=None) -> ModeUpdate:
+    """The update half of one look of the compiled kernel (:func:`_look_update`, the same code): the predicted modes
+    of :func:`predict_modes` updated with the Cartesian plot ``z (2,)`` (m), covariance ``R (2, 2)`` (m^2); ``z=None``
+    is a missed look (the kernel's: posterior = prediction, mode probabilities renormalised). The inputs are not
+    modified. :func:`predict_modes` then :func:`update_modes` equals one look of :func:`_look` bit for bit."""
+    is_ct = np.ascontiguousarray(spec.mode_arrays()[0])
+    M = is_ct.size
+    xp, Pp, lc = _modes_in(x_modes, P_modes, log_c, M)
+    det = z is not None
+    if det:
+        z = np.array(z, dtype=np.float64).reshape(-1)
+        R = np.array(R, dtype=np.float64) if R is not None else None
+        if z.shape != (2,) or R is None or R.shape != (2, 2):
+            raise ValueError(f"z must be (2,) and R (2, 2) (a Cartesian plot, m and m^2); got {z.shape}, "
+                             f"{None if R is None else R.shape}")
+        if not (np.isfinite(z).all() and np.isfinite(R).all()):
+            raise ValueError(f"z and R must be finite; got z {z}, R {R.tolist()}")
+    else:
+        z, R = np.zeros(2), np.eye(2)      # what the kernel reads at a missed look (unused but for shape)
+    _, omega_max, accel_max = _spec_constants(spec)
+    work = _work(M)
+    work[2][:], work[3][:], work[4][:] = xp, Pp, lc
+    xm, Pm, log_mu = np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M)
+    x, P, mu = np.empty(4), np.empty((4, 4)), np.empty(M)
+    nis, om, om_var = _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x, P, mu)
+    return ModeUpdate(xm, Pm, log_mu, mu, x, P, float(nis), float(om), float(om_var))
 
 
 # ------------------------------------------------------------------------------------------------ per-look parameters

@@ -1,0 +1,334 @@
+r"""Stone Soup components for ``imm_cv_ct``, the tuned CV / CT-EKF IMM: a predictor, an updater and the state types
+they exchange, so the IMM runs inside Stone Soup's trackers, hypothesisers, associators and metrics.
+
+Stone Soup (1.9) has no Gaussian IMM in its release. These components wrap ours, not a second copy of it: the
+predictor runs the prediction half of the compiled per-look kernel (mixing and mode-matched prediction,
+:func:`radar_env.filters.imm_cv_ct.predict_modes`), the updater the update half
+(:func:`radar_env.filters.imm_cv_ct.update_modes`); one predict and one update equal one look of
+:func:`baselines.imm_cv_ct_runner.run_imm_cv_ct` (tests/test_stonesoup_components.py checks every look of whole
+episodes).
+
+Conventions (Stone Soup's on the outside, ours inside):
+
+* State order. Stone Soup's ``[x, vx, y, vy]`` (m, m/s) for the combined mean and covariance
+  (``state_vector``, ``covar``: what gaters, associators and metrics read); the modes' 5-state means and
+  covariances in the same order plus the turn rate, ``[x, vx, y, vy, omega]`` (omega in rad/s, positive =
+  clockwise = right turn, our convention). Ours is ``[x, y, vx, vy(, omega)]``: the components permute (exactly).
+* Measurements. A :class:`~stonesoup.types.detection.Detection` with Stone Soup's polar
+  :class:`~stonesoup.models.measurement.nonlinear.CartesianToBearingRange` (``mapping=(0, 2)``, the site as
+  ``translation_offset``, no rotation, noise ``diag(sigma_bearing^2, sigma_range^2)``), or a Cartesian
+  :class:`~stonesoup.models.measurement.linear.LinearGaussian` with ``mapping=(0, 2)``. Stone Soup's bearing is
+  ``atan2(y - sy, x - sx)``, counter-clockwise from the x axis (east); ours (:mod:`radar_env.sim.radar`) is
+  ``atan2(x - sx, y - sy)``, clockwise from north: ``ours = pi/2 - stone_soup``. A polar plot is converted inside
+  the updater exactly as our episodes convert theirs (:func:`radar_env.sim.radar.cartesian_from_polar`,
+  :func:`radar_env.sim.radar.converted_covariance` at the measured range and bearing), then the IMM's update.
+* Gating. :meth:`IMMCVCTUpdater.predict_measurement` is Stone Soup's extended-Kalman one on the combined Gaussian
+  (the IMM's moment-matched prediction): a hypothesiser gates in the detection's own (polar) space with the
+  linearised innovation covariance. The update itself uses the converted plot, as our chain does; the two
+  innovations agree to first order.
+* Time. Stone Soup passes ``datetime`` timestamps; ``dt = (timestamp - prior.timestamp).total_seconds()``,
+  ``dt = 0`` allowed (the IMM still mixes, as our kernel does at a look with dt 0), a negative ``dt`` rejected.
+  :func:`stamp` turns our seconds into datetimes (1 microsecond resolution).
+* Missed looks. Stone Soup's trackers keep the prediction when a track gets no detection; that is what
+  ``run_imm_cv_ct`` does too up to rounding. The updater also accepts a
+  :class:`~stonesoup.types.detection.MissedDetection` hypothesis and then runs the kernel's missed-look branch
+  (posterior = prediction, mode probabilities renormalised): bit for bit the runner's.
+
+Needs Stone Soup (``pip install -e ".[stonesoup]"``); importing this module without it raises an ``ImportError``
+saying so. Example: docs/stonesoup.md.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+
+import numpy as np
+
+try:
+    import stonesoup  # noqa: F401
+except ImportError as _err:
+    raise ImportError('baselines.stonesoup_components needs Stone Soup: pip install -e ".[stonesoup]" (or pip install '
+                      '"stonesoup>=1.2")') from _err
+
+from stonesoup.base import Property  # noqa: E402
+from stonesoup.models.measurement.base import MeasurementModel  # noqa: E402
+from stonesoup.models.transition.base import TransitionModel  # noqa: E402
+from stonesoup.models.measurement.linear import LinearGaussian  # noqa: E402
+from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402
+from stonesoup.predictor.base import Predictor  # noqa: E402
+from stonesoup.types.angle import Bearing  # noqa: E402
+from stonesoup.types.array import CovarianceMatrix, StateVector  # noqa: E402
+from stonesoup.types.detection import Detection  # noqa: E402
+from stonesoup.types.prediction import Prediction  # noqa: E402
+from stonesoup.types.state import GaussianState, State, StateMutableSequence  # noqa: E402
+from stonesoup.types.update import Update  # noqa: E402
+from stonesoup.updater.kalman import ExtendedKalmanUpdater  # noqa: E402
+
+from radar_env.filters.imm_cv_ct import IMMCVCTSpec, initial_modes, predict_modes, update_modes  # noqa: E402
+from radar_env.sim.radar import cartesian_from_polar, converted_covariance  # noqa: E402
+
+__all__ = ["IMMCVCTState", "IMMCVCTStatePrediction", "IMMCVCTStateUpdate", "IMMCVCTPredictor", "IMMCVCTUpdater",
+           "plot_from_detection", "polar_detection", "detections_from_episode", "gaussian_state", "ours_from_state",
+           "stamp", "EPOCH", "SS_FROM_OURS"]
+
+EPOCH = _dt.datetime(2000, 1, 1)
+"""The datetime of our ``t_s = 0`` (:func:`stamp`)."""
+
+SS_FROM_OURS = np.array([0, 2, 1, 3])
+"""Index from our ``[x, y, vx, vy]`` to Stone Soup's ``[x, vx, y, vy]`` (the permutation is its own inverse)."""
+_P5 = np.array([0, 2, 1, 3, 4])         # the same with the turn rate last in both
+
+
+def stamp(t_s) -> _dt.datetime:
+    """Our time ``t_s`` (seconds) as a Stone Soup timestamp: :data:`EPOCH` + ``t_s``, rounded to 1 microsecond."""
+    t = float(t_s)
+    if not math.isfinite(t):
+        raise ValueError(f"t_s must be a finite number of seconds, got {t_s!r}")
+    return EPOCH + _dt.timedelta(seconds=t)
+
+
+def _tuned_spec():
+    from .imm_cv_ct_runner import tuned_imm_cv_ct_spec
+    return tuned_imm_cv_ct_spec()
+
+
+# ------------------------------------------------------------------------------------------------ state types
+class IMMCVCTState(GaussianState):
+    """An ``imm_cv_ct`` posterior as a Stone Soup Gaussian: ``state_vector (4, 1)`` and ``covar (4, 4)`` are the
+    moment-matched combination of the modes (Stone Soup's order ``[x, vx, y, vy]``), what hypothesisers, gaters and
+    metrics see; the modes ride along.
+
+    Build one from a plain :class:`~stonesoup.types.state.GaussianState` with :meth:`from_gaussian` (as the
+    runner starts its modes) or let :class:`IMMCVCTPredictor` do it on the first prediction."""
+
+    mode_state_vectors: np.ndarray = Property(
+        default=None, doc="(M, 5) the modes' means, order [x, vx, y, vy, omega] (m, m/s, rad/s; omega > 0 clockwise)")
+    mode_covars: np.ndarray = Property(default=None, doc="(M, 5, 5) the modes' covariances, the same order")
+    log_mode_probabilities: np.ndarray = Property(
+        default=None, doc="(M,) log mode probabilities, modes CV, CT[, high-noise CV] (carried as logs, as the "
+                          "kernel does)")
+    spec: IMMCVCTSpec = Property(default=None, doc="the IMM's parameters (None: the tuned imm_cv_ct's)")
+
+    @property
+    def mode_probabilities(self) -> np.ndarray:
+        """(M,) mode probabilities, ``exp(log_mode_probabilities)``."""
+        return np.exp(np.asarray(self.log_mode_probabilities, dtype=np.float64))
+
+    @property
+    def maneuver_probability(self) -> float:
+        """``1 - mu_cv``: the probability of the CT and high-noise modes (the runner's ``maneuver_probability``)."""
+        return 1.0 - float(self.mode_probabilities[0])
+
+    @property
+    def turn_rate_rad_s(self) -> float:
+        """The combined turn rate ``sum_j mu_j omega_j`` over the CT modes (a CV mode's turn rate is 0)."""
+        is_ct = self.spec_or_tuned.mode_arrays()[0]
+        return float(np.sum(self.mode_probabilities[is_ct] * np.asarray(self.mode_state_vectors)[is_ct, 4]))
+
+    @property
+    def spec_or_tuned(self) -> IMMCVCTSpec:
+        return self.spec if self.spec is not None else _tuned_spec()
+
+    @classmethod
+    def from_gaussian(cls, state: GaussianState, spec: IMMCVCTSpec | None = None):
+        """Every mode at ``state``'s mean and covariance (4-state, Stone Soup's order), turn rate 0 with variance
+        ``sigma_omega0^2``, mode probabilities ``mu0``: how :func:`baselines.imm_cv_ct_runner.run_imm_cv_ct` starts
+        from the common track start."""
+        spec = spec if spec is not None else _tuned_spec()
+        x, P = _gaussian_ours(state, "state")
+        xm, Pm, log_mu = initial_modes(spec, x, P)
+        return cls(StateVector(state.state_vector), CovarianceMatrix(state.covar), timestamp=state.timestamp,
+                   mode_state_vectors=xm[:, _P5], mode_covars=Pm[:, _P5][:, :, _P5], log_mode_probabilities=log_mu,
+                   spec=spec)
+
+
+class IMMCVCTStatePrediction(Prediction, IMMCVCTState):
+    """An ``imm_cv_ct`` prediction: the predicted modes, their combination and the predicted mode probabilities
+    (the mixing normalisers ``c_j``)."""
+
+
+class IMMCVCTStateUpdate(Update, IMMCVCTState):
+    """An ``imm_cv_ct`` posterior after an update (with the hypothesis used)."""
+
+
+def _gaussian_ours(state, name):
+    """``(x (4,), P (4, 4))`` in our order from a 4-state Gaussian in Stone Soup's."""
+    x = np.asarray(state.state_vector, dtype=np.float64).reshape(-1)
+    P = np.asarray(getattr(state, "covar", None), dtype=np.float64)
+    if x.shape != (4,) or P.shape != (4, 4):
+        raise ValueError(f"{name} must be a 4-state Gaussian [x, vx, y, vy] (state_vector (4, 1), covar (4, 4)); "
+                         f"got {x.shape} and {P.shape}")
+    return x[SS_FROM_OURS], P[np.ix_(SS_FROM_OURS, SS_FROM_OURS)]
+
+
+def gaussian_state(x, P, t_s) -> GaussianState:
+    """A Stone Soup :class:`~stonesoup.types.state.GaussianState` from our ``x (4,) [x, y, vx, vy]``, ``P (4, 4)``
+    at our time ``t_s`` (seconds)."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    P = np.asarray(P, dtype=np.float64)
+    if x.shape != (4,) or P.shape != (4, 4):
+        raise ValueError(f"x must be (4,) and P (4, 4) ([x, y, vx, vy]); got {x.shape}, {P.shape}")
+    return GaussianState(StateVector(x[SS_FROM_OURS]), CovarianceMatrix(P[np.ix_(SS_FROM_OURS, SS_FROM_OURS)]),
+                         timestamp=stamp(t_s))
+
+
+def ours_from_state(state) -> tuple[np.ndarray, np.ndarray]:
+    """``(x (4,), P (4, 4))`` in our order ``[x, y, vx, vy]`` from a Stone Soup 4-state Gaussian."""
+    return _gaussian_ours(state, "state")
+
+
+# ------------------------------------------------------------------------------------------------ measurements
+def plot_from_detection(detection, measurement_model=None) -> tuple[np.ndarray, np.ndarray]:
+    """The Cartesian plot ``z (2,)`` (m) and its covariance ``R (2, 2)`` (m^2) our chain filters, from a Stone Soup
+    detection.
+
+    ``CartesianToBearingRange`` (``[bearing, range]``, Stone Soup's bearing counter-clockwise from east): converted
+    as our episodes convert plots (:func:`radar_env.sim.radar.cartesian_from_polar`,
+    :func:`radar_env.sim.radar.converted_covariance` at the measured values, our bearing ``pi/2 -`` Stone Soup's).
+    ``LinearGaussian`` with ``mapping=(0, 2)``: the detection is already the plot, its noise ``R``.
+
+    Args:
+        detection: a :class:`~stonesoup.types.detection.Detection`.
+        measurement_model: used when the detection carries none.
+    Raises:
+        ValueError: a model other than those two, a mapping other than ``(0, 2)`` (x and y of ``[x, vx, y, vy]``),
+            a rotated or non-diagonal polar model, a non-finite measurement.
+    """
+    model = detection.measurement_model if detection.measurement_model is not None else measurement_model
+    if model is None:
+        raise ValueError("detection has no measurement_model and none was given (measurement_model)")
+    if tuple(int(i) for i in model.mapping) != (0, 2):
+        raise ValueError(f"measurement_model.mapping must be (0, 2) (x and y of [x, vx, y, vy]), got "
+                         f"{tuple(model.mapping)}")
+    y = np.asarray(detection.state_vector, dtype=np.float64).reshape(-1)
+    noise = np.asarray(model.covar(), dtype=np.float64)
+    if y.shape != (2,) or not np.isfinite(y).all():
+        raise ValueError(f"detection.state_vector must be 2 finite numbers, got {y.tolist()}")
+    if isinstance(model, CartesianToBearingRange):
+        if np.any(np.asarray(model.rotation_offset, dtype=np.float64) != 0.0):
+            raise ValueError(f"CartesianToBearingRange.rotation_offset must be zero (a bearing measured from east), "
+                             f"got {np.asarray(model.rotation_offset).ravel().tolist()}")
+        if noise[0, 1] != 0.0 or noise[1, 0] != 0.0:
+            raise ValueError(f"CartesianToBearingRange.noise_covar must be diagonal (independent bearing and range "
+                             f"noise, as our converted covariance assumes), got {noise.tolist()}")
+        site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)[:2]
+        bearing = 0.5 * math.pi - y[0]         # Stone Soup's (from east, counter-clockwise) -> ours (from north, cw)
+        z = cartesian_from_polar(y[1], bearing, site)
+        R = converted_covariance(y[1], bearing, math.sqrt(noise[1, 1]), math.sqrt(noise[0, 0]))
+        return z, R
+    if isinstance(model, LinearGaussian):
+        return y, noise
+    raise ValueError(f"measurement_model must be a CartesianToBearingRange or a LinearGaussian, got "
+                     f"{type(model).__name__}")
+
+
+def polar_detection(range_m, bearing_rad, site_xy_m, range_noise_std_m, bearing_noise_std_rad, t_s,
+                    ndim_state=4) -> Detection:
+    """One of our polar plots (bearing ours: clockwise from north) as a Stone Soup ``Detection`` with a
+    ``CartesianToBearingRange`` model (Stone Soup's bearing ``pi/2 - ours``, the site as ``translation_offset``)."""
+    model = CartesianToBearingRange(
+        ndim_state=ndim_state, mapping=(0, 2),
+        noise_covar=CovarianceMatrix(np.diag([float(bearing_noise_std_rad) ** 2, float(range_noise_std_m) ** 2])),
+        translation_offset=StateVector(np.asarray(site_xy_m, dtype=np.float64).reshape(2)))
+    return Detection(StateVector([Bearing(0.5 * math.pi - float(bearing_rad)), float(range_m)]),
+                     timestamp=stamp(t_s), measurement_model=model)
+
+
+def detections_from_episode(episode):
+    """Our episode's plots as Stone Soup detections, one per look: ``[Detection or None]`` (None where missed)."""
+    return [polar_detection(episode.range_m[k], episode.bearing_rad[k], episode.site_xy_m[k],
+                            episode.range_noise_std_m[k], episode.bearing_noise_std_rad[k], episode.t_s[k])
+            if episode.detected[k] else None for k in range(episode.n_looks)]
+
+
+# ------------------------------------------------------------------------------------------------ predictor, updater
+def _modes_ours(state):
+    xs = np.asarray(state.mode_state_vectors, dtype=np.float64)
+    Ps = np.asarray(state.mode_covars, dtype=np.float64)
+    return xs[:, _P5], Ps[:, _P5][:, :, _P5]
+
+
+class IMMCVCTPredictor(Predictor):
+    """Stone Soup predictor of ``imm_cv_ct``: mixing and mode-matched prediction (the kernel's first half).
+
+    ``predict(prior, timestamp)`` takes an :class:`IMMCVCTState` (a previous prediction or update) or a plain
+    4-state ``GaussianState`` (a new track: started as :meth:`IMMCVCTState.from_gaussian`), returns an
+    :class:`IMMCVCTStatePrediction`."""
+
+    transition_model: TransitionModel = Property(
+        default=None, doc="Not used (the IMM's modes are its transition model); kept for Stone Soup's Predictor "
+                          "interface")
+    spec: IMMCVCTSpec = Property(default=None, doc="the IMM's parameters (None: the tuned imm_cv_ct's, "
+                                                   "baselines.imm_cv_ct_runner.tuned_imm_cv_ct_spec)")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if self.spec is None:
+            self.spec = _tuned_spec()
+        elif not isinstance(self.spec, IMMCVCTSpec):
+            raise ValueError(f"IMMCVCTPredictor.spec must be an IMMCVCTSpec, got {type(self.spec).__name__}")
+
+    def predict(self, prior, timestamp=None, **kwargs) -> IMMCVCTStatePrediction:
+        """Predict ``prior`` (a state or a track: its last state) to ``timestamp`` (a ``datetime``; ``None`` with a
+        prior without one: dt = 0)."""
+        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
+            prior = prior.state     # a Track (Stone Soup's hypothesisers pass the track): its last state
+        if not isinstance(prior, IMMCVCTState):
+            prior = IMMCVCTState.from_gaussian(prior, self.spec)
+        elif prior.spec is not None and prior.spec != self.spec:
+            raise ValueError("prior.spec differs from IMMCVCTPredictor.spec: the state was made with other IMM "
+                             "parameters")
+        if timestamp is None or prior.timestamp is None:
+            if timestamp is not None or prior.timestamp is not None:
+                raise ValueError(f"timestamp ({timestamp}) and prior.timestamp ({prior.timestamp}) must both be "
+                                 "datetimes, or both None (dt = 0)")
+            dt = 0.0
+        else:
+            dt = (timestamp - prior.timestamp).total_seconds()
+            if dt < 0:
+                raise ValueError(f"timestamp {timestamp} is before prior.timestamp {prior.timestamp}: the IMM "
+                                 "predicts forward only")
+        xm, Pm = _modes_ours(prior)
+        p = predict_modes(self.spec, xm, Pm, prior.log_mode_probabilities, dt)
+        return Prediction.from_state(
+            prior, state_vector=StateVector(p.x[SS_FROM_OURS]),
+            covar=CovarianceMatrix(p.P[np.ix_(SS_FROM_OURS, SS_FROM_OURS)]),
+            timestamp=timestamp if timestamp is not None else prior.timestamp,
+            mode_state_vectors=p.x_modes[:, _P5], mode_covars=p.P_modes[:, _P5][:, :, _P5],
+            log_mode_probabilities=p.log_c, spec=self.spec, prior=prior, transition_model=None,
+            target_type=IMMCVCTStatePrediction)
+
+
+class IMMCVCTUpdater(ExtendedKalmanUpdater):
+    """Stone Soup updater of ``imm_cv_ct``: the mode-matched updates with the converted plot, the mode
+    probabilities and the combination (the kernel's second half), on an :class:`IMMCVCTStatePrediction`.
+
+    :meth:`predict_measurement` is the extended Kalman updater's on the combined Gaussian (for gating and
+    association, in the detection's space). The IMM parameters come with the prediction (its ``spec``)."""
+
+    measurement_model: MeasurementModel = Property(
+        default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange or "
+                          "LinearGaussian (plot_from_detection)")
+
+    def update(self, hypothesis, **kwargs) -> IMMCVCTStateUpdate:
+        """Update ``hypothesis.prediction`` with ``hypothesis.measurement`` (a ``MissedDetection``: the kernel's
+        missed look)."""
+        pred = hypothesis.prediction
+        if not isinstance(pred, IMMCVCTStatePrediction):
+            raise ValueError(f"hypothesis.prediction must be an IMMCVCTStatePrediction (from IMMCVCTPredictor), got "
+                             f"{type(pred).__name__}")
+        spec = pred.spec_or_tuned
+        xm, Pm = _modes_ours(pred)
+        if hypothesis:
+            z, R = plot_from_detection(hypothesis.measurement, self.measurement_model)
+            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities, z, R)
+            when = hypothesis.measurement.timestamp
+        else:
+            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities)
+            when = pred.timestamp
+        return Update.from_state(
+            pred, state_vector=StateVector(u.x[SS_FROM_OURS]),
+            covar=CovarianceMatrix(u.P[np.ix_(SS_FROM_OURS, SS_FROM_OURS)]),
+            timestamp=when, mode_state_vectors=u.x_modes[:, _P5], mode_covars=u.P_modes[:, _P5][:, :, _P5],
+            log_mode_probabilities=u.log_mu, spec=spec, hypothesis=hypothesis, target_type=IMMCVCTStateUpdate)
