@@ -32,10 +32,11 @@ from radar_env.sim.looks import padded_looks
 from radar_env.filters.imm_cv_ct import (  # noqa: F401
     DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
     _init_modes, _kernel, _step_kernel, check_look_parameters, ct_jacobian, ct_motion, detector_inputs,
-    imm_cv_ct_spec_from_params, initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector)
+    imm_cv_ct_spec_from_params, initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector,
+    range_rate_block)
 from radar_env.common.units import DEG, G0_M_S2
 
-from .trackers import TrackRun, _tracker, observation_layout
+from .trackers import TrackRun, _tracker, _with_range_rate, observation_layout
 
 __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "IMMCVCTStepper", "IMMCVCTStep",
@@ -43,12 +44,13 @@ __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS"
            "run_imm_cv_ct", "run_imm_lockstep", "ct_motion", "ct_jacobian"]
 
 
-def tuned_imm_cv_ct_spec() -> IMMCVCTSpec:
-    """The spec of the registered ``imm_cv_ct``: ``baselines/tuned.json``'s ``imm_cv_ct`` entry (its parameter
-    names; other keys such as the tuning RMSE are ignored) if present, else :data:`DEFAULT_IMM_CV_CT`."""
+def tuned_imm_cv_ct_spec(key="imm_cv_ct") -> IMMCVCTSpec:
+    """The spec of the registered ``imm_cv_ct`` (``key`` ``"imm_cv_ct_rdot"``: of ``imm_cv_ct_rdot``):
+    ``baselines/tuned.json``'s entry ``key`` (its parameter names; other keys such as the tuning RMSE are ignored)
+    if present, else :data:`DEFAULT_IMM_CV_CT`."""
     from .tuned_params import TUNED_PATH, tuned_parameters
 
-    entry = tuned_parameters().get("imm_cv_ct") if TUNED_PATH.is_file() else None
+    entry = tuned_parameters().get(key) if TUNED_PATH.is_file() else None
     if entry is None:
         return DEFAULT_IMM_CV_CT
     names = {p[0] for p in IMM_CV_CT_PARAMS}
@@ -83,7 +85,8 @@ def _bounds(spec):
 
 
 def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None,
-                     keep_modes=False, modes=None, params=None):
+                     keep_modes=False, modes=None, params=None, radial_velocity_m_s=None, site_xy_m=None,
+                     radial_velocity_std_m_s=None):
     """Run the IMM on B padded look sequences (the compiled kernel; no track start of its own).
 
     Args:
@@ -99,6 +102,10 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
         params: per-look values of :func:`look_parameter_names` (``(B, K, n_par)``, or broadcastable as
             :func:`check_look_parameters` says; look ``k`` of row ``b`` predicts and mixes with
             ``params[b, k]``), replacing the spec's constants; not with ``modes``.
+        radial_velocity_m_s (B, K), site_xy_m (B, K, 2), radial_velocity_std_m_s (B, K): optional; given, every
+            mode also updates on the plot's radial velocity after its position, and that likelihood joins the
+            mode's (:func:`radar_env.filters.imm_cv_ct._look_update`; a look whose value or std is not finite
+            updates on its position only).
     """
     spec = spec or DEFAULT_IMM_CV_CT
     t, z, R, det, n, ks = padded_looks(t_s, z_m, R_m2, detected, n_looks, k_start)
@@ -126,7 +133,8 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
     out_xm = np.full(shape_m + (M, 5), np.nan)
     out_Pm = np.full(shape_m + (M, 5, 5), np.nan)
     sig_w0 = spec.sigma_omega0_deg_s * DEG
-    _kernel(t, z, R, det, n, ks, x0, P0, is_ct, q, sig_w2, sig_w0 * sig_w0, log_Pi, log_mu0, *_bounds(spec), out_x,
+    rr = range_rate_block((B, K), radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
+    _kernel(t, z, R, det, rr, n, ks, x0, P0, is_ct, q, sig_w2, sig_w0 * sig_w0, log_Pi, log_mu0, *_bounds(spec), out_x,
             out_P, out_mu, out_w, out_wv, out_nis, bool(keep_modes), out_xm, out_Pm)
     return IMMCVCTResult(out_x, out_P, out_mu, out_w, out_nis, out_xm if keep_modes else None,
                          out_Pm if keep_modes else None, np.sqrt(out_wv))
@@ -156,11 +164,13 @@ class IMMCVCTStepper:
     ``n_looks (B,)``.
     """
 
-    def __init__(self, t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None):
+    def __init__(self, t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: IMMCVCTSpec | None = None,
+                 radial_velocity_m_s=None, site_xy_m=None, radial_velocity_std_m_s=None):
         self.spec = spec = spec or DEFAULT_IMM_CV_CT
         self._t, self._z, self._R, self._det, self.n_looks, ks = padded_looks(t_s, z_m, R_m2, detected, n_looks,
                                                                                k_start)
         B = self.B = self._t.shape[0]
+        self._rr = range_rate_block(self._t.shape, radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
         self.is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())
         M = self.is_ct.size
         sig_w0 = spec.sigma_omega0_deg_s * DEG
@@ -190,7 +200,7 @@ class IMMCVCTStepper:
         M = self.is_ct.size
         out = IMMCVCTStep(self.k[rows].copy(), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M)),
                           np.empty(n), np.empty(n), np.empty(n), None)
-        _step_kernel(rows, self._t, self._z, self._R, self._det, self.is_ct, q, sig_w2, self._sig_w0_2, log_Pi,
+        _step_kernel(rows, self._t, self._z, self._R, self._det, self._rr, self.is_ct, q, sig_w2, self._sig_w0_2, log_Pi,
                      *_bounds(self.spec), self.x_modes, self.P_modes, self.log_mu, self.k, self.t_last, out.x,
                      out.P, out.mu, out.omega_rad_s, out.omega_std_rad_s, out.nis)
         np.sqrt(out.omega_std_rad_s, out=out.omega_std_rad_s)
@@ -207,6 +217,12 @@ def _start_state(spec, x4, P4):
     P5[:, :4, :4] = P4
     P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
     return x5, P5
+
+
+def _batch_range_rate(batch):
+    """The range-rate arguments of the filters from a stacked episode batch."""
+    return {"radial_velocity_m_s": batch.radial_velocity_m_s, "site_xy_m": batch.site_xy_m,
+            "radial_velocity_std_m_s": batch.radial_velocity_noise_std_m_s}
 
 
 def _declared(p_man):
@@ -226,15 +242,18 @@ def common_start(episodes, cfg=None):
 
 
 def run_imm_cv_ct(episodes, spec: IMMCVCTSpec | None = None, name="imm_cv_ct", cfg=None,
-                  start=None):
+                  start=None, radial_velocity=False):
     """``imm_cv_ct`` on recorded episodes, from the common track start (every mode at the warm-up estimate, turn
     rate 0 with variance ``sigma_omega0^2``). Returns a :class:`baselines.trackers.TrackRun` with extra series
-    ``maneuver_probability`` and ``turn_rate_deg_s``; ``start``: a :func:`common_start` result to reuse (tuning)."""
+    ``maneuver_probability`` and ``turn_rate_deg_s``; ``start``: a :func:`common_start` result to reuse (tuning,
+    made with the same ``radial_velocity``). ``radial_velocity``: every mode also updates on the plots' radial
+    velocity (the track start too)."""
     spec = spec or DEFAULT_IMM_CV_CT
-    batch, k0, x4, P4 = start if start is not None else common_start(episodes, cfg)
+    batch, k0, x4, P4 = start if start is not None else common_start(episodes, _with_range_rate(cfg, radial_velocity))
     B, K = batch.t_s.shape
     x5, P5 = _start_state(spec, x4, P4)
-    res = imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
+    res = imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec,
+                           **(_batch_range_rate(batch) if radial_velocity else {}))
     rows = np.arange(B)
     x, P = res.x, res.P
     x[rows, k0], P[rows, k0] = x4, P4      # the start look, as every tracker records it
@@ -265,7 +284,8 @@ def run_imm_lockstep(episodes, choose, cfg, spec, feature_q_m_s2, name):
     K = batch.t_s.shape[1]
     k0 = np.asarray(out.look_index, dtype=np.int64)
     x5, P5 = _start_state(spec, tr.x, tr.P)
-    imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec)
+    imm = IMMCVCTStepper(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec,
+                         **(_batch_range_rate(batch) if cfg.track_start.radial_velocity else {}))
     x, P = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan)
     rows0 = np.arange(B)
     x[rows0, k0], P[rows0, k0] = tr.x, tr.P          # the start look, as every tracker records it

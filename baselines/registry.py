@@ -4,6 +4,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct_runner`),
+``kf_tuned_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot`` (the same three also updating on each plot's radial velocity,
+tuned on their own: :func:`radar_env.filters.kernels._rdot_update`),
 ``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
 knowing the flight's start: the causal reference on ``random``), ``rbpf_rdot`` (``rbpf`` also updating on the radial
 velocity),
@@ -20,13 +22,14 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 
 from . import trackers as T
 from .imm_cv_ct_runner import run_imm_cv_ct, tuned_imm_cv_ct_spec
 from .policies import make_policy
 from .rbpf import RBPF_RDOT, RBPF_REF, run_rbpf
 from .trackers import imm2_spec_from_params
-from .tuned_params import TUNED_PATH, tuned_parameters
+from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
 __all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "POLICY_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters",
@@ -35,8 +38,16 @@ __all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "POLICY_TRACKERS", "DESIGN_ENVELOP
 
 
 def tuned_imm2_spec(key="imm2"):
-    """The tuned 2-mode IMM (``key`` ``"imm2"``, or ``"imm2_grid"``: the earlier grid search's) from tuned.json."""
+    """The tuned 2-mode IMM (``key`` ``"imm2"``, ``"imm2_rdot"``, or ``"imm2_grid"``: the earlier grid search's) from
+    tuned.json."""
     return imm2_spec_from_params(tuned_parameters()[key])
+
+
+def _kf_rdot(episodes, cfg):
+    """``kf_tuned_rdot``: the constant-q KF also updating on the radial velocity, at its own tuned q."""
+    q = kf_q_m_s2_from_params(tuned_parameters()["kf_rdot"])
+    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf_tuned_rdot",
+                          T._with_range_rate(cfg, True), features=())
 
 
 def _policy_run(name):
@@ -62,6 +73,11 @@ _RUNNERS = {
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
     "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
+    "kf_tuned_rdot": _kf_rdot,
+    "imm2_rdot": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec("imm2_rdot"), "imm2_rdot", cfg,
+                                            radial_velocity=True),
+    "imm_cv_ct_rdot": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec("imm_cv_ct_rdot"), "imm_cv_ct_rdot",
+                                                     cfg, radial_velocity=True),
     "rbpf": lambda eps, cfg: run_rbpf(eps, name="rbpf", cfg=cfg),
     "rbpf_ref": lambda eps, cfg: run_rbpf(eps, RBPF_REF, name="rbpf_ref", cfg=cfg),
     "rbpf_rdot": lambda eps, cfg: run_rbpf(eps, RBPF_RDOT, name="rbpf_rdot", cfg=cfg),

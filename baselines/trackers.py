@@ -74,6 +74,19 @@ def _start(cfg):
     return cfg if isinstance(cfg, TrackStart) else cfg.track_start
 
 
+def _with_range_rate(cfg, radial_velocity):
+    """``cfg``'s track start, with the range-rate update switched on if ``radial_velocity`` (else ``cfg``)."""
+    return _start(cfg)._replace(radial_velocity=True) if radial_velocity else cfg
+
+
+def range_rate_looks(tr, K):
+    """The range-rate arguments of the filters (``radial_velocity_m_s``, ``site_xy_m``, ``radial_velocity_std_m_s``)
+    from the first ``K`` looks of the started tracker ``tr``."""
+    return {"radial_velocity_m_s": tr.look_data("radial_velocity_m_s")[:, :K],
+            "site_xy_m": tr.look_data("site_xy_m")[:, :K],
+            "radial_velocity_std_m_s": tr.look_data("radial_velocity_noise_std_m_s")[:, :K]}
+
+
 _LAST_START = [None]
 """The last track start (:func:`_tracker`): ``(key, episodes, tracker, out)``."""
 
@@ -251,10 +264,12 @@ IMM3_CT = IMMSpec(q_m_s2=(0.03 * G0_M_S2, 0.1 * G0_M_S2, 0.1 * G0_M_S2),
 0.1 g CT as in Adrian's KF) and the transition matrix are our choices."""
 
 
-def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
+def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None, radial_velocity=False):
     """IMM on the recorded looks; starts from the common track start (all modes at the warm-up estimate), then
     runs as a separate filter on the chain's looks: every look of every row in one compiled call
-    (:func:`radar_env.filters.kalman.imm_filter`, the look-by-look :func:`radar_env.filters.kalman.imm_step` bit for bit)."""
+    (:func:`radar_env.filters.kalman.imm_filter`, the look-by-look :func:`radar_env.filters.kalman.imm_step` bit for bit).
+    ``radial_velocity``: every mode also updates on the plots' radial velocity (the track start too)."""
+    cfg = _with_range_rate(cfg, radial_velocity)
     tr, out = _tracker(episodes, cfg)
     B, K, M = tr.B, int(tr.n_looks.max()), len(spec.q_m_s2)
     rows = np.arange(B)
@@ -262,9 +277,10 @@ def run_imm(episodes, spec: IMMSpec, name="imm", cfg=None):
     log_mu0 = np.log(np.tile(np.asarray(spec.mu0, dtype=np.float64), (B, 1)))
     with np.errstate(divide="ignore"):
         log_Pi = np.log(np.asarray(spec.Pi, dtype=np.float64))
+    rr = range_rate_looks(tr, K) if radial_velocity else {}
     x, P, log_mu = imm_filter(look["t_s"], look["z_m"], look["R_m2"], look["detected"], tr.n_looks, tr.k, tr.t_last,
                               log_mu0, np.repeat(tr.x[:, None], M, axis=1), np.repeat(tr.P[:, None], M, axis=1),
-                              log_Pi, spec.q_m_s2, spec.turn_rate_rad_s)
+                              log_Pi, spec.q_m_s2, spec.turn_rate_rad_s, **rr)
     x[rows, out.look_index], P[rows, out.look_index] = out.x, out.P     # the start look, as every tracker records it
     p_man = np.exp(log_mu[..., list(spec.maneuver_modes)]).sum(axis=-1)     # NaN where not filtered
     return TrackRun(name, x, P, out.look_index + 1, np.full((B, K), np.nan), declared=p_man > 0.5,

@@ -1,6 +1,6 @@
 """Tune the classical baselines on the training scenario distribution (never on evaluation seeds).
 
-``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct]`` draws ``N`` random-scenario episodes with
+``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot]`` draws ``N`` random-scenario episodes with
 tuning seeds (:data:`baselines.seeds.TUNING_SEEDS`, disjoint from the evaluation's held-out seeds) and, for each
 tuned tracker, minimises the pooled position RMSE after the track start over its parameters with a continuous
 optimizer (:func:`minimize_with_restarts`):
@@ -16,7 +16,9 @@ optimizer (:func:`minimize_with_restarts`):
 
 Tuned trackers (:data:`TUNED_TRACKERS`): ``kf`` (``kf_tuned``'s constant q), ``imm2`` (the 2-mode CV IMM's two mode
 noises and two stay probabilities), ``imm_cv_ct`` (from ``baselines.imm_cv_ct_runner``; skipped with a message if that
-module or its tuning interface is not there). The 2-mode IMM as tuned by the grid search of earlier versions is
+module or its tuning interface is not there), and ``kf_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot``: the same trackers also
+updating on each plot's radial velocity, tuned on their own over the same parameters (first start: their
+position-only sibling's values). The 2-mode IMM as tuned by the grid search of earlier versions is
 kept as ``imm2_grid`` (:data:`IMM2_GRID_PARAMS`, its RMSE re-measured on each run), so a change is visible.
 
 Writes ``baselines/tuned.json``: per tracker the optimum, its tuning RMSE, the bounds and transforms, whether each
@@ -45,7 +47,7 @@ from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes
 from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params
-from .tuning_options import build_parser
+from .tuning_options import TUNABLE, build_parser
 
 __all__ = ["Param", "TunedTracker", "TUNED_TRACKERS", "IMM2_GRID_PARAMS", "minimize_with_restarts", "tune",
            "pooled_rmse", "main"]
@@ -168,24 +170,53 @@ def minimize_with_restarts(f, params, x0, starts=3, seed=0, xatol=1e-2, fatol=1e
             "evaluations": len(cache), "names": names}
 
 
+def _used(batch, run):
+    K = run.x.shape[1]
+    return batch.valid[:, :K] & (np.arange(K)[None, :] >= run.start_index[:, None])
+
+
 def pooled_rmse(batch, run):
     """Pooled position RMSE (m) over the valid looks at and after each run's track start: the tuning criterion."""
     K = run.x.shape[1]
-    used = batch.valid[:, :K] & (np.arange(K)[None, :] >= run.start_index[:, None])
     e2 = np.sum((run.x[..., :2] - batch.truth[:, :K, :2]) ** 2, axis=-1)
-    return float(np.sqrt(np.mean(e2[used])))
+    return float(np.sqrt(np.mean(e2[_used(batch, run)])))
+
+
+def pooled_anees(batch, run):
+    """The average NEES over the same looks, over the 4 states (1 for a consistent tracker); inf if a covariance
+    there is not positive definite."""
+    K = run.x.shape[1]
+    used = _used(batch, run)
+    d = (run.x - batch.truth[:, :K])[used]
+    try:
+        L = np.linalg.cholesky(run.P[used])
+    except np.linalg.LinAlgError:
+        return math.inf
+    y = np.linalg.solve(L, d[..., None])[..., 0]
+    return float(np.mean(np.sum(y * y, axis=-1)) / 4.0)
+
+
+def criterion(batch, run, max_anees=None):
+    """The tuning criterion: :func:`pooled_rmse`, times ``(ANEES / max_anees)^4`` where :func:`pooled_anees` exceeds
+    ``max_anees`` (a consistency constraint as a steep penalty; None: none)."""
+    v = pooled_rmse(batch, run)
+    if max_anees is not None:
+        v *= max(1.0, pooled_anees(batch, run) / max_anees) ** 4
+    return v
 
 
 # ------------------------------------------------------------------------------------------------ tuned trackers
 @dataclass(frozen=True)
 class TunedTracker:
     """A tunable tracker: ``run(params_dict, episodes, cfg) -> TrackRun`` (the tracker factory applied to
-    episodes), its :class:`Param` box, and the first start when no previous tuned values exist."""
+    episodes), its :class:`Param` box, the first start when no previous tuned values exist, and the consistency
+    constraint of its :func:`criterion` (None: RMSE alone)."""
 
     name: str
     params: tuple
     run: Callable
     default_x0: dict
+    max_anees: float | None = None
 
 
 _NEGLIGIBLE_Q = ("1e-4 g: negligible process noise (the noise-free CV model in effect: 1e-3 m dt^2 per look against "
@@ -201,29 +232,43 @@ def _cfg_levels(cfg):
     return float(cfg.q_levels_g[0]), float(cfg.q_levels_g[-1])
 
 
-def _kf_run(params, episodes, cfg):
+def _kf_run(params, episodes, cfg, radial_velocity=False):
     q = kf_q_m_s2_from_params(params)
-    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", cfg, features=())
+    return T.run_q_policy(episodes, lambda o: np.full(o.shape[0], q), "kf", T._with_range_rate(cfg, radial_velocity),
+                          features=())
 
 
-def _imm2_run(params, episodes, cfg):
-    return T.run_imm(episodes, imm2_spec_from_params(params), "imm2", cfg)
+def _imm2_run(params, episodes, cfg, radial_velocity=False):
+    return T.run_imm(episodes, imm2_spec_from_params(params), "imm2", cfg, radial_velocity=radial_velocity)
+
+
+def _with_rdot(run):
+    return lambda params, episodes, cfg: run(params, episodes, cfg, radial_velocity=True)
 
 
 _QMIN, _QMAX = _cfg_levels(EnvConfig())
+RDOT_MAX_ANEES = 2.0
+"""The range-rate trackers are tuned for RMSE subject to ANEES <= 2 on the tuning episodes (:func:`criterion`): by
+RMSE alone ``imm_cv_ct_rdot`` chose a CV-mode noise of 3e-5 g and an ANEES of 10 (its RMSE 2 % lower than at
+ANEES 1.9): a covariance ten times too small on a real flight's straight legs, which are never noise-free."""
+_KF_PARAMS = (Param("q_g", _QMIN, _QMAX, "log", _ACTION_MIN, _ACTION_MAX),)
+_IMM2_PARAMS = (
+    Param("q_low_g", 1e-4, 1.0, "log", _NEGLIGIBLE_Q,
+          "search bound: 1 g, where the high mode's range starts (keeps the two modes' roles apart)"),
+    Param("q_high_g", 1.0, _QMAX, "log", "search bound: 1 g, where the low mode's range ends", _ACTION_MAX),
+    Param("p_stay_low", 0.01, 0.999, "logit", _STAY_MIN, _STAY_MAX),
+    Param("p_stay_high", 0.01, 0.999, "logit", _STAY_MIN, _STAY_MAX))
+_IMM2_X0 = {"q_low_g": 0.001, "q_high_g": 4.0, "p_stay_low": 0.995, "p_stay_high": 0.98}
 
 TUNED_TRACKERS = {
-    "kf": TunedTracker("kf", (Param("q_g", _QMIN, _QMAX, "log", _ACTION_MIN, _ACTION_MAX),), _kf_run,
-                       {"q_g": 0.75}),
-    "imm2": TunedTracker("imm2", (
-        Param("q_low_g", 1e-4, 1.0, "log", _NEGLIGIBLE_Q,
-              "search bound: 1 g, where the high mode's range starts (keeps the two modes' roles apart)"),
-        Param("q_high_g", 1.0, _QMAX, "log", "search bound: 1 g, where the low mode's range ends", _ACTION_MAX),
-        Param("p_stay_low", 0.01, 0.999, "logit", _STAY_MIN, _STAY_MAX),
-        Param("p_stay_high", 0.01, 0.999, "logit", _STAY_MIN, _STAY_MAX)), _imm2_run,
-        {"q_low_g": 0.001, "q_high_g": 4.0, "p_stay_low": 0.995, "p_stay_high": 0.98}),
+    "kf": TunedTracker("kf", _KF_PARAMS, _kf_run, {"q_g": 0.75}),
+    "imm2": TunedTracker("imm2", _IMM2_PARAMS, _imm2_run, _IMM2_X0),
+    "kf_rdot": TunedTracker("kf_rdot", _KF_PARAMS, _with_rdot(_kf_run), {"q_g": 0.75}, RDOT_MAX_ANEES),
+    "imm2_rdot": TunedTracker("imm2_rdot", _IMM2_PARAMS, _with_rdot(_imm2_run), _IMM2_X0, RDOT_MAX_ANEES),
 }
-"""The trackers :func:`tune` knows, by their key in ``tuned.json`` (``kf`` is the registry's ``kf_tuned``)."""
+"""The trackers :func:`tune` knows, by their key in ``tuned.json`` (``kf`` is the registry's ``kf_tuned``; a
+``_rdot`` key is the same tracker also updating on the radial velocity, tuned on its own), besides ``imm_cv_ct`` and
+``imm_cv_ct_rdot`` (:func:`tuned_tracker`)."""
 
 IMM2_GRID_PARAMS = {"q_low_g": 0.001, "q_high_g": 4.0, "p_stay_low": 0.995, "p_stay_high": 0.98}
 """``imm2`` as tuned before the continuous tuner: the best of a 5 x 6 x 5 x 5 grid (q_low 0.001-0.1 g, q_high 1-32 g,
@@ -231,7 +276,7 @@ stay low 0.9-0.995, stay high 0.7-0.98) on the same 200 tuning episodes, on the 
 Registered as ``imm2_grid``."""
 
 
-def _imm_cv_ct_entry():
+def _imm_cv_ct_entry(radial_velocity=False):
     """The ``imm_cv_ct`` entry, built from ``baselines.imm_cv_ct_runner`` (engineer I's module) if it offers:
     ``imm_cv_ct_spec_from_params(dict)``, ``run_imm_cv_ct(episodes, spec, name, cfg[, start])``, the parameter
     table ``IMM_CV_CT_PARAMS`` (rows ``(name, unit, low, high, log_scale)``: ``log`` space if ``log_scale``, else
@@ -259,33 +304,39 @@ def _imm_cv_ct_entry():
         key = id(episodes)
         if key not in starts:      # the common start once per episode list (it does not depend on p)
             starts.clear()
-            starts[key] = mod.common_start(episodes, cfg) if hasattr(mod, "common_start") else None
-        kw = {} if starts[key] is None else {"start": starts[key]}
-        return mod.run_imm_cv_ct(episodes, mod.imm_cv_ct_spec_from_params(p), "imm_cv_ct", cfg, **kw)
+            starts[key] = mod.common_start(episodes, T._with_range_rate(cfg, radial_velocity))
+        return mod.run_imm_cv_ct(episodes, mod.imm_cv_ct_spec_from_params(p), "imm_cv_ct", cfg, start=starts[key],
+                                 radial_velocity=radial_velocity)
 
-    return TunedTracker("imm_cv_ct", params, run, x0), None
+    return TunedTracker("imm_cv_ct_rdot" if radial_velocity else "imm_cv_ct", params, run, x0,
+                        RDOT_MAX_ANEES if radial_velocity else None), None
 
 
 def tuned_tracker(name):
-    """The :class:`TunedTracker` ``name`` (``kf``, ``imm2``, ``imm_cv_ct``); ``(None, reason)`` semantics of
-    :func:`_imm_cv_ct_entry` for ``imm_cv_ct``, ``ValueError`` for an unknown name."""
-    if name == "imm_cv_ct":
-        return _imm_cv_ct_entry()
+    """The :class:`TunedTracker` ``name`` (:data:`TUNABLE`); ``(None, reason)`` semantics of
+    :func:`_imm_cv_ct_entry` for ``imm_cv_ct`` and ``imm_cv_ct_rdot``, ``ValueError`` for an unknown name."""
+    if name in ("imm_cv_ct", "imm_cv_ct_rdot"):
+        return _imm_cv_ct_entry(name == "imm_cv_ct_rdot")
     if name not in TUNED_TRACKERS:
-        raise ValueError(f"unknown tuned tracker {name!r}; valid: {list(TUNED_TRACKERS) + ['imm_cv_ct']}")
+        raise ValueError(f"unknown tuned tracker {name!r}; valid: {list(TUNABLE)}")
     return TUNED_TRACKERS[name], None
 
 
 def tune(entry: TunedTracker, episodes, batch, cfg, x0=None, starts=3, seed=0, progress=None):
-    """Tune ``entry`` on ``episodes`` (criterion :func:`pooled_rmse`); returns the ``tuned.json`` entry: the optimum's
-    parameters at top level, ``pos_rmse_m``, and ``optimizer`` (bounds, interior flags, every start)."""
+    """Tune ``entry`` on ``episodes`` (:func:`criterion`: :func:`pooled_rmse`, with ``entry.max_anees`` its ANEES
+    constraint); returns the ``tuned.json`` entry: the optimum's parameters at top level, ``pos_rmse_m`` (and with
+    a constraint ``anees``, ``max_anees``), and ``optimizer`` (bounds, interior flags, every start)."""
     t0 = time.time()
     first = dict(entry.default_x0)
     first.update({k: v for k, v in (x0 or {}).items() if k in first})
-    res = minimize_with_restarts(lambda p: pooled_rmse(batch, entry.run(p, episodes, cfg)), entry.params, first,
-                                 starts=starts, seed=seed, progress=progress)
+    res = minimize_with_restarts(lambda p: criterion(batch, entry.run(p, episodes, cfg), entry.max_anees),
+                                 entry.params, first, starts=starts, seed=seed, progress=progress)
     out = dict(res["params"])
-    out["pos_rmse_m"] = res["value"]
+    best = entry.run(res["params"], episodes, cfg)
+    out["pos_rmse_m"] = pooled_rmse(batch, best)
+    if entry.max_anees is not None:
+        out["anees"] = pooled_anees(batch, best)
+        out["max_anees"] = entry.max_anees
     out["optimizer"] = {"method": "scipy.optimize.minimize Nelder-Mead (bounded) in log/logit space, restarts",
                         "starts": starts, "seed": seed, "parameters": res["parameters"], "runs": res["starts"],
                         "evaluations": res["evaluations"], "seconds": round(time.time() - t0, 1)}
@@ -301,7 +352,7 @@ def main(argv=None, prog="radar-track tune"):
     if args.starts < 1:
         raise SystemExit(f"error: --starts must be >= 1, got {args.starts}")
     names = [t.strip() for t in args.trackers.split(",") if t.strip()]
-    valid = list(TUNED_TRACKERS) + ["imm_cv_ct"]
+    valid = list(TUNABLE)
     bad = [t for t in names if t not in valid]
     if bad or not names:
         raise SystemExit(f"error: --trackers: expected names from {valid}, got {args.trackers!r}")
@@ -328,12 +379,15 @@ def main(argv=None, prog="radar-track tune"):
             if n % 25 == 0:
                 print(f"  {name}: {n} evaluations, last {v:.2f} m ({time.time() - t0:.0f} s)", flush=True)
 
-        res = tune(entry, episodes, batch, cfg, x0=old.get(name), starts=args.starts, progress=progress)
+        # a range-rate variant's first start: its own previous values, else its position-only sibling's
+        x0 = old.get(name) or old.get(name.removesuffix("_rdot"))
+        res = tune(entry, episodes, batch, cfg, x0=x0, starts=args.starts, progress=progress)
         out[name] = res
         flags = ", ".join(f"{k} {v['value']:.4g}" + ("" if v["interior"] else f" (at {v['at']} bound)")
                           for k, v in res["optimizer"]["parameters"].items())
-        print(f"{name}: {flags}; pos RMSE {res['pos_rmse_m']:.2f} m ({res['optimizer']['evaluations']} evaluations, "
-              f"{res['optimizer']['seconds']:.0f} s)", flush=True)
+        anees = f", ANEES {res['anees']:.2f} (at most {res['max_anees']})" if "anees" in res else ""
+        print(f"{name}: {flags}; pos RMSE {res['pos_rmse_m']:.2f} m{anees} ({res['optimizer']['evaluations']} "
+              f"evaluations, {res['optimizer']['seconds']:.0f} s)", flush=True)
     grid = dict(IMM2_GRID_PARAMS)
     grid["pos_rmse_m"] = pooled_rmse(batch, T.run_imm(episodes, imm2_spec_from_params(grid), "imm2_grid", cfg))
     grid["note"] = ("imm2 as tuned by the earlier 5x6x5x5 grid search (on its edge in q_low, p_stay_low, p_stay_high); "

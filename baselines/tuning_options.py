@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["build_parser", "first_line"]
+__all__ = ["build_parser", "first_line", "TUNABLE"]
+
+TUNABLE = ("kf", "imm2", "imm_cv_ct", "kf_rdot", "imm2_rdot", "imm_cv_ct_rdot")
+"""The tuned trackers' keys in ``tuned.json`` (:func:`baselines.tuning.tuned_tracker`)."""
 
 
 def build_parser(prog="radar-track tune"):
@@ -16,9 +19,10 @@ def build_parser(prog="radar-track tune"):
     ap.add_argument("--runs", type=int, default=200, metavar="N",
                     help="random-scenario episodes to tune on, >= 1 (default 200; about 7.5 min for kf and imm2 on "
                          "an idle 2-core machine)")
-    ap.add_argument("--trackers", default="kf,imm2,imm_cv_ct", metavar="A,B,...",
-                    help="comma-separated trackers to tune, from kf, imm2, imm_cv_ct; the others keep their entry "
-                         "in the existing file (default: kf,imm2,imm_cv_ct)")
+    ap.add_argument("--trackers", default=",".join(TUNABLE), metavar="A,B,...",
+                    help="comma-separated trackers to tune, from " + ", ".join(TUNABLE) + " (a _rdot name: the "
+                         "same tracker also updating on the radial velocity, tuned on its own); the others keep "
+                         "their entry in the existing file (default: all)")
     ap.add_argument("--starts", type=int, default=3, metavar="N",
                     help="optimizer starts per tracker, >= 1: the previous tuned values, then random points in "
                          "the search box (default 3)")

@@ -4,7 +4,7 @@ The sub-packages follow the chain, each importing only the ones before it: ``com
 cache) -> ``sim`` (flights, radar, episodes, packed looks) -> ``filters`` (compiled chain: Kalman, IMM, feature
 bank, preview; torch forward) -> ``envs`` (Gymnasium layer); ``applications`` and ``render`` sit beside them.
 
-Importing the package registers ``RadarTrack-v0`` (idempotent); ``gym.make("radar_env:RadarTrack-v0")`` works
+Importing the package registers ``RadarTrack-v0`` and its variants (:data:`ENV_VARIANTS`; idempotent); ``gym.make("radar_env:RadarTrack-v0")`` works
 without importing it first. Only the Gymnasium layer (``radar_env.envs.env``, ``single_env``, ``vector_env``) needs
 gymnasium: without it the package still imports, registers nothing, and the simulation, filter, tracking and
 feature modules (and the env's configuration and batched core) work. The old flat module paths
@@ -19,12 +19,19 @@ def _register():
         from gymnasium.envs.registration import register, registry
     except ImportError:   # no Gymnasium: nothing to register with; the modules below the env layer need none
         return
-    if "RadarTrack-v0" not in registry:
-        register(
-            id="RadarTrack-v0",
-            entry_point="radar_env.envs.env:RadarTrackEnv",
-            vector_entry_point="radar_env.envs.env:RadarTrackVectorEnv",
-        )
+    for env_id, kwargs in ENV_VARIANTS.items():
+        if env_id not in registry:
+            register(id=env_id, entry_point="radar_env.envs.env:RadarTrackEnv",
+                     vector_entry_point="radar_env.envs.env:RadarTrackVectorEnv", kwargs=dict(kwargs))
+
+
+ENV_VARIANTS = {
+    "RadarTrack-v0": {},
+    "RadarTrackDoppler-v0": {"radial_velocity": True},
+}
+"""The registered environment ids and the arguments each fixes (any may still be overridden in ``gym.make``):
+``RadarTrackDoppler-v0`` is ``RadarTrack-v0`` whose filter also updates on each plot's radial velocity (the
+radar's Doppler measurement), observation and reward as v0's."""
 
 
 _register()

@@ -59,10 +59,11 @@ def _synthetic_episodes(rng, t_s, q_m_s2, omega_rad_s, detected, range_noise_std
             for n in range(N)]
 
 
-def _monte_carlo(seed, N, K, q_m_s2, omega_rad_s, filter_omega_rad_s):
+def _monte_carlo(seed, N, K, q_m_s2, omega_rad_s, filter_omega_rad_s, radial_velocity=False, errors=False):
     """N runs of K looks (irregular dt 2-8 s, Pd 0.85, the first two looks detected); truth at the warm-up q during
     the warm-up, then at ``q_m_s2`` turning at ``omega_rad_s``; the chain stepped with the true q and
-    ``filter_omega_rad_s`` (None: CV). Returns per-look NEES (N, K') and NIS (N, K') with NaN where missed."""
+    ``filter_omega_rad_s`` (None: CV), on position plots or also on the radial velocity. Returns per-look NEES
+    (N, K') and NIS (N, K') with NaN where missed (and with ``errors`` the position errors (N, K') in m)."""
     rng = np.random.default_rng(seed)
     start = 2 + WARMUP_SCANS
     t = np.concatenate([np.zeros((N, 1)), np.cumsum(rng.uniform(2.0, 8.0, (N, K - 1)), axis=1)], axis=1)
@@ -72,18 +73,19 @@ def _monte_carlo(seed, N, K, q_m_s2, omega_rad_s, filter_omega_rad_s):
     det = rng.random((N, K)) < 0.85
     det[:, :2] = True
     eps = _synthetic_episodes(rng, t, q, w, det)
-    tr = Tracker(N)
+    tr = Tracker(N, radial_velocity=radial_velocity)
     out = tr.load(np.arange(N), eps)
     np.testing.assert_array_equal(out.q_m_s2, WARMUP_Q_M_S2)   # the warm-up level the truth was drawn with
     np.testing.assert_array_equal(out.look_index, start - 1)
-    nees, nis = [], []
+    nees, nis, err = [], [], []
     for _ in range(K - start):
         w = None if filter_omega_rad_s is None else np.full(N, filter_omega_rad_s)
         o = tr.step(np.full(N, q_m_s2), turn_rate_rad_s=w)
         e = o.truth - o.x
         nees.append(np.einsum("bi,bij,bj->b", e, np.linalg.inv(o.P), e))
         nis.append(np.where(o.detected, o.nis, np.nan))
-    return np.array(nees).T, np.array(nis).T
+        err.append(np.hypot(e[:, 0], e[:, 1]))
+    return (np.array(nees).T, np.array(nis).T) + ((np.array(err).T,) if errors else ())
 
 
 def _assert_consistent(nees, nis):
@@ -105,6 +107,18 @@ def _assert_consistent(nees, nis):
 def test_tracker_nees_nis_consistent_on_cv_truth_with_true_q():
     nees, nis = _monte_carlo(seed=41, N=250, K=70, q_m_s2=0.5 * G0_M_S2, omega_rad_s=0.0, filter_omega_rad_s=None)
     _assert_consistent(nees, nis)
+
+
+def test_tracker_with_range_rate_nees_nis_consistent_and_more_accurate_on_cv_truth():
+    """The chain's range-rate EKF update (Tracker(radial_velocity=True)) with the true noises stays consistent (the
+    measurement is nonlinear: the EKF is consistent to first order at 60 km, short dt) and, on the same runs, gives
+    a smaller position RMSE than position plots alone."""
+    nees, nis, err = _monte_carlo(seed=43, N=250, K=70, q_m_s2=0.5 * G0_M_S2, omega_rad_s=0.0,
+                                  filter_omega_rad_s=None, radial_velocity=True, errors=True)
+    _assert_consistent(nees, nis)
+    _, _, err0 = _monte_carlo(seed=43, N=250, K=70, q_m_s2=0.5 * G0_M_S2, omega_rad_s=0.0, filter_omega_rad_s=None,
+                              errors=True)
+    assert np.sqrt(np.mean(err ** 2)) < 0.95 * np.sqrt(np.mean(err0 ** 2))      # measured: 0.92
 
 
 def test_tracker_nees_nis_consistent_on_ct_truth_with_true_turn_rate():
@@ -133,21 +147,24 @@ _N_STEPS = 26
     sb_deg=st.floats(0.001, 5.0),
     omega_deg_s=st.one_of(st.none(), st.floats(-30.0, 30.0)),
     truth_q_g=st.floats(0.0, 10.0),
+    radial_velocity=st.booleans(),
+    rdot_std=st.floats(0.01, 100.0),
 )
 def test_tracker_any_q_dt_and_R_keeps_state_finite_and_spd(seed, q_g, dts, det, range_m, sr, sb_deg, omega_deg_s,
-                                                          truth_q_g):
+                                                          truth_q_g, radial_velocity, rdot_std):
     """q in [0, 100 g] (MAX_Q_M_S2 included), coincident looks (dt = 0), missed looks, R from near-singular (0.5 m
-    range, 5 deg bearing at 400 km: condition ~1e9) to huge, CV or CT prediction: every StepOutput finite, the
-    covariances symmetric positive definite, every feature finite."""
+    range, 5 deg bearing at 400 km: condition ~1e9) to huge, CV or CT prediction, with or without the range-rate
+    update (its noise 0.01-100 m/s): every StepOutput finite, the covariances symmetric positive definite, every
+    feature finite."""
     rng = np.random.default_rng(seed)
     t = np.concatenate([[0.0, 5.0], 5.0 + np.cumsum(dts)])
     K = t.size
     detected = np.concatenate([[True, True], det])
     w = np.zeros(K) if omega_deg_s is None else np.full(K, np.radians(omega_deg_s))
     ep, = _synthetic_episodes(rng, t[None], np.full((1, K), truth_q_g * G0_M_S2), w[None], detected[None],
-                              range_noise_std_m=sr, bearing_noise_std_rad=np.radians(sb_deg),
+                              range_noise_std_m=sr, bearing_noise_std_rad=np.radians(sb_deg), rdot_std_m_s=rdot_std,
                               start=(0.3 * range_m, 0.95 * range_m, 200.0, 0.0))
-    tr = Tracker(1)
+    tr = Tracker(1, radial_velocity=radial_velocity)
     outs = [tr.load([0], [ep])]
     q = np.minimum(np.array(q_g) * G0_M_S2, MAX_Q_M_S2)
     for k in range(_N_STEPS):

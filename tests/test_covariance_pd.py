@@ -51,10 +51,11 @@ def _log_uniform(lo, hi):
     detection_probability=st.floats(0.05, 1.0),
     action_type=st.sampled_from(["discrete", "continuous"]),
     seed=st.integers(0, 2**31 - 1),
+    radial_velocity=st.booleans(),
 )
 def test_every_documented_radar_keeps_the_covariance_positive_definite(
         scan_period_s, range_noise_std_m, bearing_noise_std_rad, radial_velocity_noise_std_m_s,
-        detection_probability, action_type, seed):
+        detection_probability, action_type, seed, radial_velocity):
     soak = _soak_module()
     site = RadarSite(scan_period_s=scan_period_s, range_noise_std_m=range_noise_std_m,
                      bearing_noise_std_rad=bearing_noise_std_rad,
@@ -62,7 +63,7 @@ def test_every_documented_radar_keeps_the_covariance_positive_definite(
                      detection_probability=detection_probability)
     slow = scan_period_s > 60.0
     env = RadarTrackEnv(radar=Radar(site), scenario=soak.scenario_for(scan_period_s), action_type=action_type,
-                        reward_nees_weight=1.0, warmup_scans=1 if slow else 12)
+                        reward_nees_weight=1.0, warmup_scans=1 if slow else 12, radial_velocity=radial_velocity)
     rng = np.random.default_rng(seed)
     obs, info = env.reset(seed=seed)
     batch = lambda i: {k: (np.asarray([v]) if not isinstance(v, dict) else  # noqa: E731

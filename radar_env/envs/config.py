@@ -58,6 +58,7 @@ class EnvConfig:
     n_adrian: int = 4
     window_kim_lee: int = 12
     fma_weight: float = 0.1
+    radial_velocity: bool = False
     render_mode: object = None
     tracker: str = "cv"
     imm_action_levels: object = None
@@ -88,7 +89,7 @@ class EnvConfig:
         except ValueError as e:   # unknown / repeated names: say which argument they came from
             raise ValueError(f"{p}features: {e}") from None
         check_number(p + "frame_stack", self.frame_stack, 1, 64, integer=True)
-        self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight
+        self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight, radial_velocity
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
         check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
         check_number(p + "reward_nees_weight", self.reward_nees_weight, 0.0, 1e3)
@@ -115,7 +116,8 @@ class EnvConfig:
     def track_start(self):
         """The track-start and feature parameters (:class:`radar_env.filters.tracking.TrackStart`) the env and every tracker
         share."""
-        return TrackStart(self.warmup_scans, self.warmup_q_g, self.n_adrian, self.window_kim_lee, self.fma_weight)
+        return TrackStart(self.warmup_scans, self.warmup_q_g, self.n_adrian, self.window_kim_lee, self.fma_weight,
+                          self.radial_velocity)
 
     def observation_bounds(self, layout):
         """``(low, high)`` of the observation Box: ``layout``'s bounds, tiled ``frame_stack`` times."""

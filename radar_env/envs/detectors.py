@@ -37,7 +37,7 @@ from numba import njit
 
 from . import env_kernels as _ek
 from ..filters import kernels as _k
-from ..filters.imm_cv_ct import _look, _work, imm_cv_ct_spec_from_params, kernel_parameters
+from ..filters.imm_cv_ct import _look, _no_range_rate, _work, imm_cv_ct_spec_from_params, kernel_parameters
 from .imm_env import imm_env_defaults, k_imm_start
 from .observation import DETECTOR_FEATURES
 from ..common.units import DEG, G0_M_S2
@@ -122,6 +122,7 @@ def k_detectors_step(rows, act, ep, looks, it, is_ct_a, q_a, sw2_a, log_Pi_a, lo
         if it[r, _k.I_K] >= it[r, _k.I_N]:
             return _ek.ST_ENDED
     work_a, work_b = _work(is_ct_a.shape[0]), _work(2)
+    rr = _no_range_rate()       # the detectors' IMMs update on position plots
     x, P = np.empty(4), np.empty((4, 4))
     mu_a, mu_b = np.empty(is_ct_a.shape[0]), np.empty(2)
     for i in range(rows.shape[0]):
@@ -132,9 +133,9 @@ def k_detectors_step(rows, act, ep, looks, it, is_ct_a, q_a, sw2_a, log_Pi_a, lo
         z = lk[_k.L_Z:_k.L_Z + 2]
         R = lk[_k.L_R:_k.L_R + 4].reshape((2, 2))
         det = lk[_k.L_DET] != 0.0
-        _, om, _ = _look(dt, z, R, det, is_ct_a, q_a, sw2_a, log_Pi_a, sig_w0_2, omega_max, accel_max, xa[r], Pa[r],
+        _, om, _ = _look(dt, z, R, det, rr, is_ct_a, q_a, sw2_a, log_Pi_a, sig_w0_2, omega_max, accel_max, xa[r], Pa[r],
                          lma[r], work_a, x, P, mu_a)
-        _look(dt, z, R, det, is_ct_b, q_b, 0.0, log_Pi_b, sig_w0_2, omega_max, accel_max, xb[r], Pb[r], lmb[r],
+        _look(dt, z, R, det, rr, is_ct_b, q_b, 0.0, log_Pi_b, sig_w0_2, omega_max, accel_max, xb[r], Pb[r], lmb[r],
               work_b, x, P, mu_b)
         values[r, 0] = mu_a[1]
         values[r, 1] = om / DEG

@@ -96,8 +96,8 @@ class _IMMCore(_Core):
         obs, fo, fs, bo = blocks
         m, tr = self.action_map, self.tracker
         par, x, P, mu, om, om_var, elapsed = self._scratch   # the IMM's look, copied into the blocks below
-        status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._sig_w0_2, *self._bounds, tr._looks,
-                            tr._it, self.xm, self.Pm, self.log_mu, par, x, P, mu, om, om_var)
+        status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._sig_w0_2, *self._bounds,
+                            1.0 if tr.radial_velocity else 0.0, tr._looks, tr._it, self.xm, self.Pm, self.log_mu, par, x, P, mu, om, om_var)
         if status != _ek.ST_OK:
             self._refuse(status, action)
         elapsed[:] = self.elapsed

@@ -36,7 +36,7 @@ from numba import njit
 
 from . import env_kernels as _ek
 from ..filters import kernels as _k
-from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _work, imm_cv_ct_spec_from_params,
+from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _look_range_rate, _work, imm_cv_ct_spec_from_params,
                                  look_parameter_names, look_parameter_vector)
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_number
@@ -225,12 +225,14 @@ def k_imm_start(rows, st, is_ct, sig_w0_2, p_w0, log_mu0, xm, Pm, log_mu):
 
 
 @njit(cache=True)
-def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_max, looks, it, xm, Pm, log_mu,
-               par, x, P, mu, om, om_var):
+def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_max, rdot_scale, looks, it, xm, Pm,
+               log_mu, par, x, P, mu, om, om_var):
     """The IMM's next look of every row (the look the chain processes next, ``it[r, I_K]``) with the parameters of
     action ``act[r]``: ``par (n, n_par)``, the combined ``x (n, 4)``, ``P (n, 4, 4)``, ``mu (n, M)``, turn rate
     ``om`` and its variance ``om_var``; the modes ``xm, Pm, log_mu`` in place. The per-look arrays are those of
-    ``radar_env.filters.imm_cv_ct.kernel_parameters`` (same operations). Returns a status ``ST_*`` (nothing changed unless
+    ``radar_env.filters.imm_cv_ct.kernel_parameters`` (same operations). ``rdot_scale`` > 0: the modes also update
+    on the look's radial velocity, its noise std the radar's times ``rdot_scale`` (0: position only). Returns a
+    status ``ST_*`` (nothing changed unless
     ST_OK)."""
     s = _check_actions(act, discrete, levels)
     if s != _ek.ST_OK:
@@ -241,6 +243,7 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
             return _ek.ST_ENDED
     M = is_ct.shape[0]
     work = _work(M)
+    rr = np.empty(4)
     q = np.empty(M)
     stay = np.empty(M)
     log_Pi = np.empty((M, M))
@@ -260,8 +263,9 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
         k = it[r, _k.I_K]
         lk = looks[r, k]
         R = lk[_k.L_R:_k.L_R + 4].reshape((2, 2))
+        _look_range_rate(lk, rdot_scale, rr)
         _, om[r], om_var[r] = _look(lk[_k.L_T] - looks[r, k - 1, _k.L_T], lk[_k.L_Z:_k.L_Z + 2], R,
-                                    lk[_k.L_DET] != 0.0, is_ct, q, sw * sw, log_Pi, sig_w0_2, omega_max, accel_max,
+                                    lk[_k.L_DET] != 0.0, rr, is_ct, q, sw * sw, log_Pi, sig_w0_2, omega_max, accel_max,
                                     xm[r], Pm[r], log_mu[r], work, x[r], P[r], mu[r])
     return _ek.ST_OK
 

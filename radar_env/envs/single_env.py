@@ -161,6 +161,10 @@ class RadarTrackEnv(gym.Env):
     * ``reward_type`` (``"squared"``), ``reward_clip`` (100), ``reward_nees_weight`` (0, in [0, 1000]),
       ``track_loss_gate_sigma`` (30).
     * ``n_adrian`` (4), ``window_kim_lee`` (12), ``fma_weight`` (0.1): feature parameters.
+    * ``radial_velocity`` (False): the filter also updates on each detected plot's radial velocity after its
+      position (an EKF update, the radar's noise; warm-up included), with ``tracker="imm_cv_ct"`` every IMM mode
+      too; the observation's features are computed from that filter. ``RadarTrackDoppler-v0`` is this env with
+      ``radial_velocity=True``.
     * ``tracker``: ``"cv"`` (default: this env) or ``"imm_cv_ct"``: the filter is the CV / CT-EKF IMM of the
       ``imm_cv_ct`` tracker and the action its per-look parameters, ``Box(-1, 1, (7,))`` or
       ``MultiDiscrete([imm_action_levels] * 7)`` (a = 0: the tuned ``imm_cv_ct``); the observation appends the IMM's

@@ -97,7 +97,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .kernels import _gain_update, _logsumexp, _pd_floor, _plot_nis, _symmetrize
+from .kernels import _gain_update, _logsumexp, _pd_floor, _plot_nis, _rdot_update, _symmetrize
+from ..sim.looks import L_DET, L_RDOT, L_RDSTD, L_SITE, range_rate_inputs
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_known_keys, check_number
 
@@ -359,6 +360,37 @@ def _plot_update(x, P, z, R, x_out, P_out):
     return -0.5 * (nis + 2.0 * _LOG_2PI + math.log(d))
 
 
+NO_RANGE_RATE = (0.0, np.inf, 0.0, 0.0)
+"""The range-rate input of a look without one (:func:`_look_update`'s ``rr``: infinite variance)."""
+
+
+@numba.njit(cache=True)
+def _look_range_rate(lk, scale, rr):
+    """``rr`` of the packed look row ``lk`` (:mod:`radar_env.sim.looks`): its radial velocity, the variance of the
+    radar's noise std times ``scale``, its site; the variance inf (no range-rate update) for ``scale`` 0, a missed
+    look, or a value or std that is not finite and positive."""
+    rd, sd = lk[L_RDOT], lk[L_RDSTD] * scale
+    ok = scale > 0.0 and lk[L_DET] != 0.0 and math.isfinite(rd) and math.isfinite(sd) and sd > 0.0
+    rr[0], rr[1] = (rd, sd * sd) if ok else (0.0, np.inf)
+    rr[2], rr[3] = lk[L_SITE], lk[L_SITE + 1]
+
+
+@numba.njit(cache=True)
+def _no_range_rate():
+    """A fresh ``rr`` array of :data:`NO_RANGE_RATE` (for the kernels whose looks update on position only)."""
+    rr = np.empty(4)
+    rr[0], rr[1], rr[2], rr[3] = 0.0, np.inf, 0.0, 0.0
+    return rr
+
+
+def range_rate_block(shape, radial_velocity_m_s=None, site_xy_m=None, radial_velocity_std_m_s=None,
+                     noise_scale=1.0):
+    """The kernels' range-rate inputs ``rr (*shape, 4)`` = (radial velocity, its variance, site x, site y) of
+    :func:`radar_env.sim.looks.range_rate_inputs` (no radial velocity given: every variance inf)."""
+    rd, var, site = range_rate_inputs(shape, radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s, noise_scale)
+    return np.ascontiguousarray(np.concatenate([rd[..., None], var[..., None], site], axis=-1))
+
+
 @numba.njit(cache=True)
 def _set_cv_augmentation(x, P, sig_w0_2):
     x[4] = 0.0
@@ -437,10 +469,12 @@ def _predicted_combination(xp, Pp, log_c, w, xc, Pc):
 
 
 @numba.njit(cache=True)
-def _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out):
+def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out):
     """The second half of :func:`_look`: the mode-matched update of the predicted modes in ``work``
     (``xp``, ``Pp``, ``log_c``, read only; from :func:`_look_predict`) with the plot ``z``, ``R`` (``det`` False: a
-    missed look), the mode probabilities and the outputs. Writes the posterior modes into ``xm, Pm, log_mu``, the
+    missed look) and, where ``rr = (radial velocity, its variance, site x, site y)`` has a finite variance, the
+    radial velocity after the position (:func:`radar_env.filters.kernels._rdot_update`; its likelihood joins the
+    mode's; :data:`NO_RANGE_RATE`: none), the mode probabilities and the outputs. Writes the posterior modes into ``xm, Pm, log_mu``, the
     combination of their 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``; returns
     ``(NIS of the combined prediction, combined turn rate, its variance)``."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
@@ -449,6 +483,10 @@ def _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x
     for j in range(M):
         if det:
             ll[j] = _plot_update(xp[j], Pp[j], z, R, xm[j], Pm[j])
+            if rr[1] < math.inf:    # xc, Pc: scratch until the combination below
+                ll[j] += _rdot_update(xm[j], Pm[j], 5, rr[0], rr[2], rr[3], rr[1], xc, Pc)
+                xm[j] = xc
+                Pm[j] = Pc
             if is_ct[j]:
                 _clip_omega(xm[j], omega_max, accel_max)
         else:
@@ -484,21 +522,23 @@ def _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x
 
 
 @numba.njit(cache=True)
-def _look(dt, z, R, det, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work, x_out,
-          P_out, mu_out):
+def _look(dt, z, R, det, rr, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work,
+          x_out, P_out, mu_out):
     """One look of one row with this look's parameters ``q (M,)``, ``sig_w2``, ``log_Pi (M, M)``: mixing,
-    mode-matched prediction and update, mode probabilities (:func:`_look_predict` then :func:`_look_update`).
+    mode-matched prediction and update (``rr``: the range-rate input of :func:`_look_update`), mode probabilities
+    (:func:`_look_predict` then :func:`_look_update`).
     Updates ``xm, Pm, log_mu`` in place, writes the combination of the modes' 4-state marginals into ``x_out (4,)``,
     ``P_out (4, 4)`` and ``mu_out (M,)``; returns ``(NIS of the combined prediction, combined turn rate, its
     variance)``."""
     _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work)
-    return _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out)
+    return _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out)
 
 
 @numba.njit(cache=True)
-def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
+def _row(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
          accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
-    """One track: looks ``k_start .. n_looks - 1`` (the previous one, ``k_start - 1``, is the start). The
+    """One track: looks ``k_start .. n_looks - 1`` (the previous one, ``k_start - 1``, is the start; ``rr (K, 4)``
+    their range-rate inputs, :func:`_look_update`). The
     parameters ``q (Kp, M)``, ``sig_w2 (Kp,)``, ``log_Pi (Kp, M, M)`` are per look (``Kp`` = K, indexed by the
     look) or the same for every look (``Kp`` = 1)."""
     M = is_ct.shape[0]
@@ -512,8 +552,8 @@ def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w
     for k in range(k_start, n_looks):
         i = min(k, last)
         out_nis[k], out_omega[k], out_omega_var[k] = _look(
-            t[k] - t_last, z[k], R[k], det[k], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2, omega_max, accel_max,
-            xm, Pm, log_mu, work, out_x[k], out_P[k], out_mu[k])
+            t[k] - t_last, z[k], R[k], det[k], rr[k], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2, omega_max,
+            accel_max, xm, Pm, log_mu, work, out_x[k], out_P[k], out_mu[k])
         if keep_modes:
             out_xm[k] = xm
             out_Pm[k] = Pm
@@ -521,22 +561,22 @@ def _row(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w
 
 
 @numba.njit(cache=True, parallel=True)
-def _kernel(t, z, R, det, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
-            accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
+def _kernel(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0,
+            omega_max, accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
     last = q.shape[0] - 1           # parameters (Bp, Kp, ...): Bp = B (per row) or 1 (every row)
     for b in numba.prange(t.shape[0]):
         i = min(np.int64(b), last)  # (the prange index is unsigned: min with an int64 would be a float)
         # without keep_modes the per-mode outputs are (1, 1, ...) placeholders
         xm_b = out_xm[b] if keep_modes else out_xm[0]
         Pm_b = out_Pm[b] if keep_modes else out_Pm[0]
-        _row(t[b], z[b], R[b], det[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, q[i], sig_w2[i],
+        _row(t[b], z[b], R[b], det[b], rr[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, q[i], sig_w2[i],
              sig_w0_2, log_Pi[i], log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b], out_omega[b],
              out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
 
 
 @numba.njit(cache=True)
-def _step_kernel(rows, t, z, R, det, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm, log_mu, k,
-                 t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
+def _step_kernel(rows, t, z, R, det, rr, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm, log_mu,
+                 k, t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
     """The next look ``k[r]`` of each row ``r = rows[i]`` with that row's parameters ``q[i]``, ``sig_w2[i]``,
     ``log_Pi[i]``; the modes ``xm, Pm, log_mu (B, ...)`` and cursors ``k, t_last (B,)`` are updated in place.
     Serial, one scratch set per call: a look is microseconds per row, less than a thread pool's start."""
@@ -545,7 +585,7 @@ def _step_kernel(rows, t, z, R, det, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_m
         r = rows[i]
         kk = k[r]
         out_nis[i], out_omega[i], out_omega_var[i] = _look(
-            t[r, kk] - t_last[r], z[r, kk], R[r, kk], det[r, kk], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2,
+            t[r, kk] - t_last[r], z[r, kk], R[r, kk], det[r, kk], rr[r, kk], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2,
             omega_max, accel_max, xm[r], Pm[r], log_mu[r], work, out_x[i], out_P[i], out_mu[i])
         t_last[r] = t[r, kk]
         k[r] = kk + 1
@@ -654,7 +694,8 @@ def update_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_c, z=None, R=None) -> 
     work[2][:], work[3][:], work[4][:] = xp, Pp, lc
     xm, Pm, log_mu = np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M)
     x, P, mu = np.empty(4), np.empty((4, 4)), np.empty(M)
-    nis, om, om_var = _look_update(z, R, det, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x, P, mu)
+    nis, om, om_var = _look_update(z, R, det, np.array(NO_RANGE_RATE), is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x, P,
+                                   mu)
     return ModeUpdate(xm, Pm, log_mu, mu, x, P, float(nis), float(om), float(om_var))
 
 

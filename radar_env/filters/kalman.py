@@ -60,6 +60,7 @@ import numpy as np
 
 from . import kernels as _k
 from ..sim.motion import _as_batch, _flat, transition_ct, transition_cv  # noqa: F401  (the motion model)
+from ..sim.looks import range_rate_inputs
 
 __all__ = [
     "transition_cv",
@@ -227,7 +228,8 @@ class IMMResult(NamedTuple):
     S: np.ndarray  # (B,2,2) its covariance
 
 
-def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMMResult:
+def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None, radial_velocity_m_s=None, site_xy_m=None,
+             radial_velocity_std_m_s=None) -> IMMResult:
     """One full IMM cycle: mix, mode-matched predict and update, mode probabilities, combination.
 
     Args:
@@ -235,6 +237,9 @@ def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMM
         log_Pi: (M,M) or (B,M,M) log transition matrix.
         F, Q: per-mode transition and process noise, (B,M,4,4) (or broadcastable, e.g. (M,4,4)).
         z (B,2), R (B,2,2), detected (B,) or None: the plot.
+        radial_velocity_m_s (B,), site_xy_m (B,2), radial_velocity_std_m_s (B,): optional; given, each mode also
+            updates on the radial velocity after the position, and its likelihood joins the mode's
+            (:func:`radar_env.filters.kernels._rdot_update`; a look whose value or std is not finite is skipped).
 
     ``nis``, ``nu``, ``S`` are those of the combined prediction (the moment-matched mixture of the mode-matched
     predictions): what the IMM "saw", a maneuver feature.
@@ -248,12 +253,13 @@ def imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, detected=None) -> IMM
     _k.k_imm_step(log_mu, _flat(x_modes, (B, M), (4,)).reshape(B, M, 4),
                   _flat(P_modes, (B, M), (4, 4)).reshape(B, M, 4, 4), _log_pi(log_Pi, B, M),
                   _flat(F, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(Q, (B, M), (4, 4)).reshape(B, M, 4, 4),
-                  _flat(z, (B,), (2,)), _flat(R, (B,), (2, 2)), det, *out)
+                  _flat(z, (B,), (2,)), _flat(R, (B,), (2, 2)), det,
+                  *range_rate_inputs((B,), radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s), *out)
     return IMMResult(*out)
 
 
 def imm_filter(t_s, z_m, R_m2, detected, n_looks, k_start, t_start_s, log_mu0, x0, P0, log_Pi, q_m_s2,
-               turn_rate_rad_s):
+               turn_rate_rad_s, radial_velocity_m_s=None, site_xy_m=None, radial_velocity_std_m_s=None):
     """:func:`imm_step` over every look of B padded look sequences, in one compiled call: mode ``m`` predicts with
     ``transition_ct(dt, turn_rate_rad_s[m])`` (0 = CV) and ``process_noise(dt, q_m_s2[m])``; the results are those
     of calling ``imm_step`` look by look, bit for bit.
@@ -264,6 +270,8 @@ def imm_filter(t_s, z_m, R_m2, detected, n_looks, k_start, t_start_s, log_mu0, x
         t_start_s (B,): time of the mode states below (the look before ``k_start``).
         log_mu0 (B, M), x0 (B, M, 4), P0 (B, M, 4, 4): the IMM state at ``t_start_s``.
         log_Pi (M, M): log transition matrix; q_m_s2 (M,), turn_rate_rad_s (M,): the modes.
+        radial_velocity_m_s (B, K), site_xy_m (B, K, 2), radial_velocity_std_m_s (B, K): optional, as
+            :func:`imm_step`'s.
     Returns:
         ``(x (B, K, 4), P (B, K, 4, 4), log_mu (B, K, M))``: the combined estimate and the posterior log mode
         probabilities of every filtered look, NaN elsewhere.
@@ -277,7 +285,8 @@ def imm_filter(t_s, z_m, R_m2, detected, n_looks, k_start, t_start_s, log_mu0, x
         raise ValueError(f"imm_filter: need 0 <= k_start <= n_looks <= K = {K} per row; got k_start {ks}, n_looks {n}")
     x, P, log_mu = np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.full((B, K, M), np.nan)
     _k.k_imm_run(t, _flat(z_m, (B, K), (2,)).reshape(B, K, 2), _flat(R_m2, (B, K), (2, 2)).reshape(B, K, 2, 2),
-                 _k.c_array(np.broadcast_to(detected, (B, K)), np.bool_), n, ks,
+                 _k.c_array(np.broadcast_to(detected, (B, K)), np.bool_),
+                 *range_rate_inputs((B, K), radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s), n, ks,
                  _k.c_array(t_start_s, np.float64), log_mu0, _flat(x0, (B, M), (4,)).reshape(B, M, 4),
                  _flat(P0, (B, M), (4, 4)).reshape(B, M, 4, 4), _flat(log_Pi, (M,), (M,)),
                  _flat(q_m_s2, (M,), ()), _flat(turn_rate_rad_s, (M,), ()), x, P, log_mu)

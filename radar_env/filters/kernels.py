@@ -72,9 +72,10 @@ W_BANK_I = 7
 BB_NU, BB_A1, BB_KL = 0, 1, 2
 W_BANK_B = 3
 
-# bank parameters (float64 vector)
-PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT = range(7)
-W_PAR = 7
+# chain parameters (float64 vector): the feature bank's, then the filter's range-rate option (PAR_RDOT: the scale of
+# the radar's radial-velocity noise std used in the update; 0 = position only)
+PAR_N, PAR_NKL, PAR_KLMIN, PAR_FMA_W, PAR_FM_W, PAR_SD2, PAR_MIN_DT, PAR_RDOT = range(8)
+W_PAR = 8
 
 # packed tracker state: floats ``st (B, W_ST)`` (posterior x, P, time of the last processed look) and ints
 # ``it (B, W_IT)`` (next look to process, looks in the episode; I_K, I_N, W_IT from sim.looks): few kernel arguments
@@ -354,6 +355,23 @@ def _rdot_update(x, P, n, rdot, sx, sy, var, xo, Po):
             Po[j, i] = v
     _pd_floor(Po, n, P)
     return -0.5 * (nu * nu / s + math.log(2.0 * math.pi * s))
+
+
+@njit(cache=True)
+def _rdot_look(x, P, lk, scale, xs, Ps):
+    """The range-rate update of the chain's 4-state ``(x, P)`` in place with look ``lk``'s radial velocity, its site
+    and the radar's noise std times ``scale`` (:func:`_rdot_update`; a look whose radial velocity or std is not
+    finite, or whose std is not positive, leaves the estimate as it is). ``xs (4,)``, ``Ps (4, 4)``: scratch.
+    Returns the update's log-likelihood (0 without one)."""
+    rd, sd = lk[L_RDOT], lk[L_RDSTD] * scale
+    if not (math.isfinite(rd) and math.isfinite(sd) and sd > 0.0):
+        return 0.0
+    ll = _rdot_update(x, P, 4, rd, lk[L_SITE], lk[L_SITE + 1], sd * sd, xs, Ps)
+    for i in range(4):
+        x[i] = xs[i]
+        for j in range(4):
+            P[i, j] = Ps[i, j]
+    return ll
 
 
 @njit(cache=True)
@@ -712,6 +730,8 @@ def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, 
         for j in range(2):
             R[i, j] = lk[L_R + 2 * i + j]
     nis, _ = _update(xp, Pp, zz, R, det, xo, Po, nu, S)
+    if det and par[PAR_RDOT] > 0.0:     # the radial velocity after the position (xh, FP: free scratch here)
+        _rdot_look(xo, Po, lk, par[PAR_RDOT], xh, FP)
     # feature bank: plot inputs zeroed where missed (held features ignore them)
     if not det:
         zz[0] = zz[1] = 0.0
@@ -973,10 +993,11 @@ def k_imm_combine(log_mu, x, P, xc, Pc):
 
 
 @njit(cache=True)
-def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x, o_P, o_xc, o_Pc, o_loglik, o_nis,
-               o_nu, o_S):
-    """One IMM cycle per row (see filters.imm_step): mix, mode-matched predict and update, mode probabilities,
-    combination, and the innovation of the combined prediction."""
+def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, rdot, rdot_var, site, o_log_mu, o_x, o_P, o_xc,
+               o_Pc, o_loglik, o_nis, o_nu, o_S):
+    """One IMM cycle per row (see filters.imm_step): mix, mode-matched predict and update (the position, then, where
+    ``rdot_var[b]`` is finite, the radial velocity ``rdot[b]`` from ``site[b]``: its likelihood joins the mode's),
+    mode probabilities, combination, and the innovation of the combined prediction (of the position)."""
     B, M = log_mu.shape
     a = np.empty((M, M))
     col = np.empty(M)
@@ -992,11 +1013,17 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x,
     lc = np.empty(M)
     xpc = np.empty(4)
     Ppc = np.empty((4, 4))
+    xs = np.empty(4)
     for b in range(B):
         _imm_mix(log_mu[b], log_Pi[b], x_modes[b], P_modes[b], x0, P0, log_c, a, col)
         for m in range(M):
             _predict(x0[m], P0[m], F[b, m], Q[b, m], u, False, xp[m], Pp[m], FP)
             _, o_loglik[b, m] = _update(xp[m], Pp[m], z[b], R[b], det[b], o_x[b, m], o_P[b, m], nu, S)
+            if det[b] and rdot_var[b] < math.inf:
+                o_loglik[b, m] += _rdot_update(o_x[b, m], o_P[b, m], 4, rdot[b], site[b, 0], site[b, 1], rdot_var[b],
+                                               xs, FP)
+                o_x[b, m] = xs
+                o_P[b, m] = FP
         for m in range(M):
             o_log_mu[b, m] = log_c[m] + o_loglik[b, m]
         s = _logsumexp(o_log_mu[b], M)
@@ -1026,11 +1053,13 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, o_log_mu, o_x,
 
 
 @njit(cache=True)
-def k_imm_run(t, z, R, det, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, q, w, o_x, o_P, o_log_mu):
+def k_imm_run(t, z, R, det, rdot, rdot_var, site, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, q, w, o_x, o_P,
+              o_log_mu):
     """The IMM over every look of every row (filters.imm_filter): row b filters looks ``k_start[b] ..
     n_looks[b] - 1`` from the mode states ``log_mu0[b]`` (M,), ``x0[b]`` (M, 4), ``P0[b]`` (M, 4, 4) at time
     ``t_start[b]``; mode m predicts with ``F_ct(dt, w[m])`` and ``Q(dt, q[m])``, exactly as transition_ct and
-    process_noise, and each look is one k_imm_step on a one-row view. Writes the combined estimate ``o_x[b, k]``,
+    process_noise, and each look is one k_imm_step on a one-row view (``rdot``, ``rdot_var``, ``site``: the
+    range-rate inputs, ``rdot_var`` inf for none). Writes the combined estimate ``o_x[b, k]``,
     ``o_P[b, k]`` and the posterior log mode probabilities ``o_log_mu[b, k]`` of every filtered look."""
     M = q.shape[0]
     F = np.empty((1, M, 4, 4))
@@ -1059,8 +1088,8 @@ def k_imm_run(t, z, R, det, n_looks, k_start, t_start, log_mu0, x0, P0, log_Pi, 
             for m in range(M):
                 _transition(dt, w[m], True, F[0, m])
                 _process_noise(dt, q[m], Q[0, m])
-            k_imm_step(lm, xm, Pm, lPi, F, Q, z[b, k:k + 1], R[b, k:k + 1], det[b, k:k + 1], n_lm, n_xm, n_Pm,
-                       xc, Pc, ll, nis, nu, S)
+            k_imm_step(lm, xm, Pm, lPi, F, Q, z[b, k:k + 1], R[b, k:k + 1], det[b, k:k + 1], rdot[b, k:k + 1],
+                       rdot_var[b, k:k + 1], site[b, k:k + 1], n_lm, n_xm, n_Pm, xc, Pc, ll, nis, nu, S)
             lm[:] = n_lm
             xm[:] = n_xm
             Pm[:] = n_Pm

@@ -42,7 +42,7 @@ import numpy as np
 from ..common.units import DEG, G0_M_S2, KNOT_M_S
 from ..common.validate import check_number
 from ..sim.draws import _u01
-from ..sim.looks import padded_looks
+from ..sim.looks import padded_looks, range_rate_inputs
 from ..sim.scenario import RandomScenarioConfig
 from .imm_cv_ct import _abat, _add_cv_noise, _ct_predict, _moments
 from .kernels import _gain_update, _logsumexp, _rdot_update, _symmetrize
@@ -459,18 +459,11 @@ def rbpf_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, keys, spec: 
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 4)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 4, 4)
     keys = np.ascontiguousarray(keys, dtype=np.uint64).reshape(B)
-    if spec.radial_velocity:
-        if radial_velocity_m_s is None or site_xy_m is None or radial_velocity_std_m_s is None:
-            raise ValueError("rbpf_filter: spec.radial_velocity needs radial_velocity_m_s, site_xy_m and "
-                             "radial_velocity_std_m_s")
-        rd = np.asarray(radial_velocity_m_s, dtype=np.float64).reshape(B, K)
-        sd = np.asarray(radial_velocity_std_m_s, dtype=np.float64).reshape(B, K) * spec.rdot_noise_scale
-        ok = np.isfinite(rd) & np.isfinite(sd) & (sd > 0)
-        # a look without a usable radial velocity: an infinite variance makes its update the identity
-        rdot, var = np.where(ok, rd, 0.0), np.where(ok, sd * sd, np.inf)
-        site = np.ascontiguousarray(np.nan_to_num(np.asarray(site_xy_m, dtype=np.float64)).reshape(B, K, 2))
-    else:
-        rdot, var, site = np.zeros((B, K)), np.full((B, K), np.inf), np.zeros((B, K, 2))
+    if spec.radial_velocity and (radial_velocity_m_s is None or site_xy_m is None or radial_velocity_std_m_s is None):
+        raise ValueError("rbpf_filter: spec.radial_velocity needs radial_velocity_m_s, site_xy_m and "
+                         "radial_velocity_std_m_s")
+    rdot, var, site = range_rate_inputs((B, K), *((radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
+                                                  if spec.radial_velocity else ()), noise_scale=spec.rdot_noise_scale)
     out = (np.full((B, K, 4), np.nan), np.full((B, K, 4, 4), np.nan), np.full((B, K), np.nan),
            np.full((B, K), np.nan), np.full((B, K), np.nan))
     _kernel(t, z, R, det, np.ascontiguousarray(rdot), site, np.ascontiguousarray(var), n, ks, x0, P0, keys,

@@ -12,6 +12,7 @@ One step of row ``b`` processes the next look ``k`` of its episode::
     Q         = q^2 Gamma Gamma^T    (q from the caller: the agent's action, a rule, or the warm-up level)
     x-, P-    = predict(x, P, F, Q [, u])               (u: known input, only for the clairvoyant bound)
     x+, P+    = update(x-, P-, z[k], R[k], detected[k]) (a missed look predicts through)
+    x+, P+    = update_rdot(x+, P+, rdot[k], site[k])   (only with radial_velocity=True: the EKF range-rate update)
     features  = FeatureBank.update(...)                 (normalised innovations, c_min, turn rates, ...)
     preview   = preview_next_plot(x+, P+, look k+1)      (the next plot against the q-free prediction)
 
@@ -183,10 +184,13 @@ class Tracker:
             observation needs the features of one filtered look).
         warmup_q_m_s2: process-noise level during warm-up (Bizup: 0.03 g).
         n_adrian, window_kim_lee, fma_weight: passed to :class:`radar_env.filters.features.FeatureBank`.
+        radial_velocity: after the position update, an EKF update with the plot's radial velocity (its noise the
+            radar's; :func:`radar_env.filters.kernels._rdot_update`), warm-up included. Default False: position
+            plots only, as every result before the range-rate trackers.
     """
 
     def __init__(self, batch_size, warmup_scans=12, warmup_q_m_s2=0.03 * G0_M_S2, n_adrian=4, window_kim_lee=12,
-                 fma_weight=0.1):
+                 fma_weight=0.1, radial_velocity=False):
         self.B = int(batch_size)
         if self.B < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
@@ -197,6 +201,8 @@ class Tracker:
         if not 0.0 <= self.warmup_q_m_s2 <= MAX_Q_M_S2:
             raise ValueError(f"warmup_q_m_s2 must be in [0, {MAX_Q_M_S2}], got {warmup_q_m_s2!r}")
         self.bank = FeatureBank(self.B, n_adrian=n_adrian, window_kim_lee=window_kim_lee, fma_weight=fma_weight)
+        self.radial_velocity = bool(radial_velocity)
+        self.bank._par[_k.PAR_RDOT] = 1.0 if self.radial_velocity else 0.0   # the chain's option (kernels.PAR_RDOT)
         self._cap = 0
         self._looks = np.zeros((self.B, 0, _k.W_LOOK))   # packed look rows (B, K_cap, W_LOOK)
         # packed state (kernels.S_* / I_*): x, P, t_last and k, n_looks are views into these two arrays
@@ -397,13 +403,16 @@ class TrackStart(NamedTuple):
     """The parameters of the common track start and of the chain's features, shared by the env and every tracker
     (see the module docstring): ``warmup_scans`` looks at ``warmup_q_g`` after the two-hit start, and the
     :class:`radar_env.filters.features.FeatureBank` parameters ``n_adrian``, ``window_kim_lee``, ``fma_weight``. Checked
-    by :meth:`checked`; :class:`radar_env.envs.config.EnvConfig` builds one from its arguments (``track_start``)."""
+    by :meth:`checked`; :class:`radar_env.envs.config.EnvConfig` builds one from its arguments (``track_start``).
+    ``radial_velocity``: the filter also updates on each detected plot's radial velocity (from the warm-up on;
+    :class:`Tracker`)."""
 
     warmup_scans: int = 12
     warmup_q_g: float = 0.03
     n_adrian: int = 4
     window_kim_lee: int = 12
     fma_weight: float = 0.1
+    radial_velocity: bool = False
 
     def checked(self, prefix=""):
         """``self`` if every field is in range; else ``ValueError`` naming the field (after ``prefix``)."""
@@ -413,6 +422,8 @@ class TrackStart(NamedTuple):
         check_number(prefix + "n_adrian", self.n_adrian, 1, 50, integer=True)
         check_number(prefix + "window_kim_lee", self.window_kim_lee, 1, 1000, integer=True)
         check_number(prefix + "fma_weight", self.fma_weight, 1e-6, 1.0)
+        if not isinstance(self.radial_velocity, (bool, np.bool_)):
+            raise ValueError(f"{prefix}radial_velocity must be True or False, got {self.radial_velocity!r}")
         return self
 
     @property
@@ -422,4 +433,5 @@ class TrackStart(NamedTuple):
     def tracker(self, batch_size):
         """A :class:`Tracker` of ``batch_size`` rows with these parameters."""
         return Tracker(batch_size, warmup_scans=self.warmup_scans, warmup_q_m_s2=self.warmup_q_m_s2,
-                       n_adrian=self.n_adrian, window_kim_lee=self.window_kim_lee, fma_weight=self.fma_weight)
+                       n_adrian=self.n_adrian, window_kim_lee=self.window_kim_lee, fma_weight=self.fma_weight,
+                       radial_velocity=bool(self.radial_velocity))

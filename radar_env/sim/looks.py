@@ -71,3 +71,21 @@ def padded_looks(t_s, z_m, R_m2, detected, n_looks, k_start):
     if np.any(ks < 1) or np.any(n > K) or np.any(ks > n):
         raise ValueError(f"k_start must be in [1, n_looks] and n_looks <= K = {K}; got k_start {ks}, n_looks {n}")
     return t, z, R, det, n, ks
+
+
+def range_rate_inputs(shape, radial_velocity_m_s=None, site_xy_m=None, radial_velocity_std_m_s=None,
+                      noise_scale=1.0):
+    """The per-look range-rate inputs of the filter kernels, for looks of ``shape`` (e.g. ``(B, K)``): contiguous
+    float64 ``rdot``, ``var`` (the variance used, ``(noise_scale x std)^2``) and ``site (*shape, 2)``. A look whose
+    radial velocity or std is not finite, or whose std is not positive, gets ``var = inf``: its range-rate update is
+    the identity (position only). With ``radial_velocity_m_s`` None every look has ``var = inf``."""
+    shape = tuple(shape)
+    if radial_velocity_m_s is None:
+        return np.zeros(shape), np.full(shape, np.inf), np.zeros(shape + (2,))
+    if site_xy_m is None or radial_velocity_std_m_s is None:
+        raise ValueError("range-rate inputs need site_xy_m and radial_velocity_std_m_s with radial_velocity_m_s")
+    rd = np.asarray(radial_velocity_m_s, dtype=np.float64).reshape(shape)
+    sd = np.asarray(radial_velocity_std_m_s, dtype=np.float64).reshape(shape) * float(noise_scale)
+    ok = np.isfinite(rd) & np.isfinite(sd) & (sd > 0)
+    site = np.ascontiguousarray(np.nan_to_num(np.asarray(site_xy_m, dtype=np.float64)).reshape(shape + (2,)))
+    return (np.ascontiguousarray(np.where(ok, rd, 0.0)), np.ascontiguousarray(np.where(ok, sd * sd, np.inf)), site)
