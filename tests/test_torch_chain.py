@@ -419,3 +419,33 @@ def test_bench_runs_with_tiny_settings(tmp_path, capsys):
     assert "row-looks/s" in capsys.readouterr().out and (tmp_path / "b.json").is_file()
     with pytest.raises(SystemExit):
         mod.main(["--modes", "nope"])
+
+
+# ------------------------------------------------------------------------------------------------ range rate
+@pytest.mark.parametrize("suite", ["random_radars", "two_sites_same_time", "three_sites_irregular", "missed_looks"])
+def test_range_rate_run_equals_the_numba_chain_with_range_rate(suite):
+    """The looks of a Tracker(radial_velocity=True) carry the range-rate inputs and the torch chain updates on them
+    as the numba chain does (every look's posterior to 1e-9); torch's own track start too."""
+    sc, radar, n = SUITES[suite]
+    eps = _episodes(sc, n, seed=9, radar=radar)
+    ts = TrackStart(radial_velocity=True)
+    tr = ts.tracker(len(eps))
+    out = tr.load(np.arange(len(eps)), eps)
+    state, looks = tc.handover(tr)
+    assert looks.rdot is not None and torch.isfinite(looks.rdot[1][looks.detected]).all()
+    s_state, s_looks = tc.start_tracks(stack_episodes(eps), ts)
+    assert _err_x(s_state.x.numpy(), tr.x) < TOL and _err_P(s_state.P.numpy(), tr.P) < TOL
+    q, _ = _schedules(looks.B, looks.J, seed=3)
+    run = tc.run(state, looks, torch.tensor(q))
+    _compare(run, _numba_chain(tr, out, q), looks)
+    assert s_looks.rdot is not None
+
+
+def test_range_rate_gradcheck():
+    eps = _episodes("random_radars", 2, seed=5, max_looks=40)
+    tr = TrackStart(radial_velocity=True).tracker(2)
+    tr.load(np.arange(2), eps)
+    state, looks = tc.handover(tr)
+    looks = looks.chunk(0, 6)
+    q0 = torch.full((2, 6), 0.5 * G0_M_S2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda q: tc.run(state, looks, q).x, (q0,), eps=1e-4, atol=1e-6)

@@ -212,3 +212,26 @@ def test_ct_jacobian_column_equals_the_numba_one_and_is_smooth(theta):
                                atol=1e-13 * abs(J[:2, 4]).max())
     assert torch.autograd.gradcheck(lambda v: tc.ct_omega_partials(torch.tensor([dt], dtype=torch.float64), v),
                                     (w,), eps=1e-7, atol=1e-7, rtol=1e-5)
+
+
+@pytest.mark.parametrize("suite", ["random_radars", "three_sites_irregular", "missed_looks"])
+def test_torch_imm_with_range_rate_equals_the_numba_kernel(suite):
+    """Every mode updates on the radial velocity after the position, its likelihood joining the mode's: the torch
+    IMM on the looks of a Tracker(radial_velocity=True) equals imm_cv_ct_filter with the same inputs to 1e-9."""
+    from radar_env.filters.tracking import TrackStart
+    sc, radar, n = SUITES[suite]
+    eps = _episodes(sc, n, seed=13, radar=radar)
+    tr = TrackStart(radial_velocity=True).tracker(len(eps))
+    tr.load(np.arange(len(eps)), eps)
+    state, looks = tc.handover(tr)
+    out = ti.run(ti.start(state, _consts(SPEC)), looks, _torch_params(SPEC, looks), _consts(SPEC), with_nis=True)
+    batch, k0 = I.stack_episodes(eps), tr.k - 1
+    B = len(eps)
+    x5, P5 = np.c_[tr.x, np.zeros(B)], np.zeros((B, 5, 5))
+    P5[:, :4, :4], P5[:, 4, 4] = tr.P, (SPEC.sigma_omega0_deg_s * DEG) ** 2
+    res = I.imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, SPEC,
+                             keep_modes=True, **I._batch_range_rate(batch))
+    _compare(out, res, looks)
+    plain = ti.run(ti.start(state, _consts(SPEC)), looks._replace(rdot=None), _torch_params(SPEC, looks),
+                   _consts(SPEC))
+    assert float((plain.x - out.x).abs().max()) > 1.0       # the range rate changed the estimates

@@ -413,7 +413,7 @@ class StreamingTrainer:
         cut = np.minimum(tr.n_looks, k0 + self.C)
         get = tr.look_data
         looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
-                                     tr.t_last)
+                                     tr.t_last, **tc.range_rate_args(get, tr.radial_velocity))
         active = looks.scored.numpy()                              # (J, B): the row has a look at column j
         x = lockstep(self.model, tr, self.layout, self.obs, looks)
         self.row_looks += self.B * looks.J
@@ -465,7 +465,7 @@ def forward_episodes(model, episodes, cfg, on_look=None):
     model.begin_chunk(tr)
     get = tr.look_data
     looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), tr.n_looks,
-                                 tr.k.copy(), tr.t_last)
+                                 tr.k.copy(), tr.t_last, **tc.range_rate_args(get, tr.radial_velocity))
     return lockstep(model, tr, layout, obs, looks, on_look), looks
 
 

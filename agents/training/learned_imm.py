@@ -127,7 +127,7 @@ class LearnedIMMModel(ChainModel):
         delta, self.h = self.offsets(obs, self.h)
         q, sig_w2, log_Pi = self.imm_parameters(delta)
         self.state, rec = ti.look(self.state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j],
-                                     looks.mask[j], q, sig_w2, log_Pi, self.consts)
+                                     looks.mask[j], q, sig_w2, log_Pi, self.consts, rr=looks.rdot_at(j))
         mu = torch.exp(rec.modes.log_mu[self._inverse]).T
         self.det = detector_inputs(mu, rec.omega, torch.sqrt(rec.omega_var), torch).detach()
         self.record, self.delta = rec, delta

@@ -11,6 +11,7 @@ Per look ``j`` of a row::
     Q       = q_j^2 Gamma Gamma^T                (Gamma = [dt^2/2, dt]^T per axis)
     x-, P-  = F x, sym(F P F^T + Q)
     x+, P+  = Joseph-form update with the converted plot z[j], R[j]; a missed look predicts through
+    x+, P+  = EKF range-rate update (only with the looks' range-rate inputs: the chain's radial_velocity=True)
 
 Data flow (see docs/training.md, "The differentiable chain")::
 
@@ -49,12 +50,14 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from .kernels import MIN_RANGE_FOR_RDOT_M
 from .tracking import MAX_Q_M_S2, TrackStart
+from ..sim.looks import range_rate_inputs
 
 __all__ = ["ChainState", "ChainLooks", "StepRecord", "ChainRun", "handover", "start_tracks", "looks_from_arrays",
            "run", "step", "collect", "transition", "ct_entries", "process_noise", "gamma_gamma_t", "predict",
-           "predict_cv", "propagate", "ct_omega_partials", "update", "nis", "log_likelihood", "two_point_init",
-           "position_sq_error", "pooled_position_mse", "SERIES_THETA", "SERIES_THETA_PARTIALS"]
+           "predict_cv", "propagate", "ct_omega_partials", "update", "update_rdot", "nis", "log_likelihood", "two_point_init",
+           "position_sq_error", "pooled_position_mse", "range_rate_args", "SERIES_THETA", "SERIES_THETA_PARTIALS"]
 
 DTYPE = torch.float64
 LOG_2PI = math.log(2.0 * math.pi)
@@ -126,6 +129,9 @@ class ChainLooks(NamedTuple):
         start_index: (B,) numpy int64, the look index of column 0.
         n_looks: (B,) numpy int64, the episodes' lengths (absolute).
         cols: (B, J) numpy int64, column -> look index clipped into the stored arrays (for :meth:`align`).
+        rdot: None, or the range-rate inputs ``(rdot (J, B), var (J, B), site (J, 2, B))``: each detected look's
+            radial velocity, its noise variance (inf: no range-rate update) and the site that looked; given, every
+            look's position update is followed by :func:`update_rdot` (the chain's ``radial_velocity=True``).
     """
 
     dt_s: torch.Tensor
@@ -139,6 +145,7 @@ class ChainLooks(NamedTuple):
     start_index: np.ndarray
     n_looks: np.ndarray
     cols: np.ndarray
+    rdot: tuple | None = None
 
     @property
     def B(self) -> int:
@@ -169,7 +176,12 @@ class ChainLooks(NamedTuple):
         j0 = range(self.J)[s].start if self.J else 0
         return self._replace(dt_s=self.dt_s[s], detected=self.detected[s], mask=self.mask[s], z_m=self.z_m[s],
                              R_m2=self.R_m2[s], truth=self.truth[s], scored=self.scored[s], G=self.G[s],
-                             start_index=self.start_index + j0, cols=self.cols[:, s])
+                             start_index=self.start_index + j0, cols=self.cols[:, s],
+                             rdot=None if self.rdot is None else tuple(a[s] for a in self.rdot))
+
+    def rdot_at(self, j):
+        """The range-rate inputs of column ``j`` (``(rdot (B,), var (B,), site (2, B))``), or None."""
+        return None if self.rdot is None else tuple(a[j] for a in self.rdot)
 
     def align(self, a, dtype=DTYPE) -> torch.Tensor:
         """A per-look array ``a (B, K, ...)`` of the same rows (e.g. ``tracker.look_data("truth_turn_rate_rad_s")``
@@ -178,7 +190,8 @@ class ChainLooks(NamedTuple):
         return _t(a[np.arange(self.B)[:, None], self.cols], dtype)
 
 
-def looks_from_arrays(t_s, detected, z_m, R_m2, truth, n_looks, start, t_last_s) -> ChainLooks:
+def looks_from_arrays(t_s, detected, z_m, R_m2, truth, n_looks, start, t_last_s, radial_velocity_m_s=None,
+                      site_xy_m=None, radial_velocity_std_m_s=None) -> ChainLooks:
     """:class:`ChainLooks` from batch-first numpy arrays of B episodes, from look ``start[b]`` on.
 
     Args:
@@ -186,6 +199,9 @@ def looks_from_arrays(t_s, detected, z_m, R_m2, truth, n_looks, start, t_last_s)
             allowed where not detected or past ``n_looks``).
         n_looks: (B,) looks of each episode; start: (B,) first look; t_last_s: (B,) time of the look the state
             belongs to (``dt`` of column 0 is ``t_s[start] - t_last_s``).
+        radial_velocity_m_s (B, K), site_xy_m (B, K, 2), radial_velocity_std_m_s (B, K): optional; given, the
+            looks carry the range-rate inputs (``ChainLooks.rdot``; a look whose value or std is not finite and
+            positive, a missed look or padding gets none).
     """
     t_s, detected = np.asarray(t_s, np.float64), np.asarray(detected, bool)
     n_looks, start = np.asarray(n_looks, np.int64).reshape(-1), np.asarray(start, np.int64).reshape(-1)
@@ -205,11 +221,22 @@ def looks_from_arrays(t_s, detected, z_m, R_m2, truth, n_looks, start, t_last_s)
     R = np.where(det[..., None, None], np.asarray(R_m2, np.float64)[rows, cols], np.eye(2))
     R = 0.5 * (R + np.swapaxes(R, -1, -2))     # exact for the plots' (symmetric) covariances
     dt_c = _t(dt.T)
+    rr = None
+    if radial_velocity_m_s is not None:
+        rd, var, site = range_rate_inputs((B, K), radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
+        var = np.where(det, var[rows, cols], np.inf)
+        rr = (_t(np.where(det, rd[rows, cols], 0.0).T), _t(var.T), _comp_first(site[rows, cols], 1))
     return ChainLooks(dt_s=dt_c, detected=_t(det.T, torch.bool), mask=_t(det.T.astype(np.float64)),
                       z_m=_comp_first(z, 1), R_m2=_comp_first(R, 2),
                       truth=_comp_first(np.asarray(truth, np.float64)[rows, cols], 1), scored=_t(valid.T, torch.bool),
                       G=gamma_gamma_t(dt_c).movedim(2, 0).contiguous(), start_index=start.copy(),
-                      n_looks=n_looks.copy(), cols=cols)
+                      n_looks=n_looks.copy(), cols=cols, rdot=rr)
+
+
+def range_rate_args(get, on):
+    """The range-rate arguments of :func:`looks_from_arrays` from a field getter, if ``on``."""
+    return {"radial_velocity_m_s": get("radial_velocity_m_s"), "site_xy_m": get("site_xy_m"),
+            "radial_velocity_std_m_s": get("radial_velocity_noise_std_m_s")} if on else {}
 
 
 def handover(tracker, rows=None):
@@ -221,7 +248,8 @@ def handover(tracker, rows=None):
     rows = np.arange(tracker.B) if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
     get = lambda f: tracker.look_data(f)[rows]   # noqa: E731
     looks = looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"),
-                              tracker.n_looks[rows], tracker.k[rows], tracker.t_last[rows])
+                              tracker.n_looks[rows], tracker.k[rows], tracker.t_last[rows],
+                              **range_rate_args(get, tracker.radial_velocity))
     return ChainState.from_xP(tracker.x[rows], tracker.P[rows]), looks
 
 
@@ -266,7 +294,8 @@ def start_tracks(batch, track_start=None):
     pick = lambda a, i, nt: _t(np.moveaxis(a[rows, i], 0, -1) if nt else a[rows, i])   # noqa: E731
     x0, P0 = two_point_init(pick(batch.z_m, i1, 1), pick(batch.R_m2, i1, 2), pick(t, i1, 0),
                             pick(batch.z_m, i2, 1), pick(batch.R_m2, i2, 2), pick(t, i2, 0))
-    looks = looks_from_arrays(t, det, batch.z_m, batch.R_m2, batch.truth, n, i2 + 1, t[rows, i2])
+    looks = looks_from_arrays(t, det, batch.z_m, batch.R_m2, batch.truth, n, i2 + 1, t[rows, i2],
+                              **range_rate_args(lambda f: getattr(batch, f), ts.radial_velocity))
     warm = run(ChainState(x0, P0), looks.chunk(0, W), torch.full((B, W), ts.warmup_q_m_s2, dtype=DTYPE))
     return warm.state, looks.chunk(W)
 
@@ -385,6 +414,33 @@ def update(x, P, z, R, mask):
     return xo, 0.5 * (Po + Po.transpose(0, 1)), nu, S, S_inv
 
 
+def update_rdot(x, P, rdot, var, site, mask):
+    """The EKF range-rate update after the position update, as kernels._rdot_update: ``h(x) = u . v`` with ``u`` the
+    unit line of sight from ``site``, Jacobian row ``[(v - h u) / r, u, 0...]``.
+
+    Args:
+        x (n, *b), P (n, n, *b): after the position update (n >= 4: position, velocity, ...). rdot (*b): the
+            measured radial velocity (m/s); var (*b): its noise variance, inf for none; site (2, *b); mask (*b): 1.0
+            detected. No update where masked, where ``var`` is not finite, or within ``MIN_RANGE_FOR_RDOT_M`` of the
+            site.
+    Returns:
+        ``(x+, P+, log-likelihood)`` (the log-likelihood 0 where there was no update).
+    """
+    d = x[:2] - site
+    r = torch.sqrt(d[0] * d[0] + d[1] * d[1])
+    ok = mask * ((r >= MIN_RANGE_FOR_RDOT_M) & torch.isfinite(var)).to(DTYPE)
+    r_s = torch.where(ok > 0.0, r, 1.0)
+    u = d / r_s
+    h = (u * x[2:4]).sum(0)
+    row = torch.cat(((x[2:4] - h * u) / r_s, u))               # (4, *b)
+    phi = (P[:, :4] * row[None]).sum(1)                         # P H^T (n, *b)
+    s = (row * phi[:4]).sum(0) + torch.where(ok > 0.0, var, 1.0)
+    nu = (rdot - h) * ok
+    k = phi / s * ok
+    Po = 0.5 * (P + P.transpose(0, 1)) - k[:, None] * phi[None]
+    return x + k * nu, Po, -0.5 * (nu * nu / s + torch.log(2.0 * math.pi * s)) * ok
+
+
 def nis(nu, S_inv) -> torch.Tensor:
     """Normalised innovation squared ``nu^T S^-1 nu`` (*b) of ``nu (2, *b)``, ``S_inv (2, 2, *b)``."""
     return (nu[:, None] * S_inv * nu[None]).sum((0, 1))
@@ -479,6 +535,8 @@ def step(state: ChainState, looks: ChainLooks, j: int, q_m_s2, omega_rad_s=None)
         F = transition(looks.dt_s[j], _checked("omega_rad_s", omega_rad_s, (B,)))
         xp, Pp = predict(state.x_c, state.P_c, F, Q)
     x, P, nu, S, S_inv = update(xp, Pp, looks.z_m[j], looks.R_m2[j], looks.mask[j])
+    if looks.rdot is not None:
+        x, P, _ = update_rdot(x, P, *looks.rdot_at(j), looks.mask[j])
     return ChainState(x, P), StepRecord(xp, Pp, x, P, nu, S, S_inv)
 
 
@@ -518,6 +576,8 @@ def run(state: ChainState, looks: ChainLooks, q_m_s2, omega_rad_s=None) -> Chain
         else:
             xp, Pp = predict(x, P, Fs[j], Qs[j])
         x, P, nu, S, S_inv = update(xp, Pp, looks.z_m[j], looks.R_m2[j], looks.mask[j])
+        if looks.rdot is not None:
+            x, P, _ = update_rdot(x, P, *looks.rdot_at(j), looks.mask[j])
         records.append(StepRecord(xp, Pp, x, P, nu, S, S_inv))
     return ChainRun(records, ChainState(x, P))
 

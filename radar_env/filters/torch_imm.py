@@ -219,18 +219,20 @@ def step(state: IMMState, looks: tc.ChainLooks, j: int, q_m_s2, sig_w2, log_Pi, 
     spec's order: ``q_m_s2 (M, B)``, ``sig_w2 (B,)``, ``log_Pi (M, M, B)``. Returns ``(new_state, IMMRecord)``;
     ``with_nis``: also the NIS of the combined prediction (diagnostics; the loss does not need it)."""
     return look(state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j], q_m_s2, sig_w2,
-                log_Pi, consts, with_nis)
+                log_Pi, consts, with_nis, looks.rdot_at(j))
 
 
-def look(state: IMMState, dt_s, G, z_m, R_m2, mask, q_m_s2, sig_w2, log_Pi, consts: IMMConstants, with_nis=False):
+def look(state: IMMState, dt_s, G, z_m, R_m2, mask, q_m_s2, sig_w2, log_Pi, consts: IMMConstants, with_nis=False,
+         rr=None):
     """:func:`step` on one look's tensors (``dt_s (B,)``, ``G (4, 4, B)``, ``z_m (2, B)``, ``R_m2 (2, 2, B)``,
-    ``mask (B,)``: column ``j`` of a :class:`radar_env.filters.torch_chain.ChainLooks`), for a caller that compiles it
-    (``torch.compile``: tensors and constants only)."""
+    ``mask (B,)``, ``rr``: None or the range-rate inputs ``(rdot (B,), var (B,), site (2, B))``: column ``j`` of a
+    :class:`radar_env.filters.torch_chain.ChainLooks`), for a caller that compiles it (``torch.compile``: tensors
+    and constants only)."""
     o = consts.order
-    return _step(state, dt_s, G, z_m, R_m2, mask, q_m_s2[o], sig_w2, log_Pi[o][:, o], consts, with_nis)
+    return _step(state, dt_s, G, z_m, R_m2, mask, q_m_s2[o], sig_w2, log_Pi[o][:, o], consts, with_nis, rr)
 
 
-def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis):
+def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis, rr=None):
     """:func:`step` with the parameters in the grouped order (CV modes, then CT modes)."""
     n_cv = consts.n_cv
     # ---- mixing (log space) in 5 states; a CV mode enters as [x, 0], blockdiag(P, sig_w0_2)
@@ -262,6 +264,12 @@ def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis):
     ll_cv = tc.log_likelihood(nu, S, S_inv, mb)
     x_ct, P_ct, nu, S, S_inv = tc.update(xp_ct, Pp_ct, zb, Rb, mb)
     ll_ct = tc.log_likelihood(nu, S, S_inv, mb)
+    if rr is not None:      # then the radial velocity, its likelihood joining the position's (as the kernel)
+        rd, var, site = rr[0][None], rr[1][None], rr[2][:, None]
+        x_cv, P_cv, l_r = tc.update_rdot(x_cv, P_cv, rd, var, site, mb)
+        ll_cv = ll_cv + l_r
+        x_ct, P_ct, l_r = tc.update_rdot(x_ct, P_ct, rd, var, site, mb)
+        ll_ct = ll_ct + l_r
     x_ct = torch.where(mb > 0.0, clip_turn_rate(x_ct, consts), x_ct)
     # ---- mode probabilities
     t = torch.cat((ll_cv, ll_ct)) + log_c
@@ -347,6 +355,6 @@ def run(state: IMMState, looks: tc.ChainLooks, params: IMMParams, consts: IMMCon
     records = []
     for j, (qj, swj, lpj) in enumerate(zip(q.unbind(0), sw.unbind(0), lp.unbind(0))):
         state, rec = _step(state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j], qj, swj,
-                           lpj, consts, with_nis)
+                           lpj, consts, with_nis, looks.rdot_at(j))
         records.append(rec)
     return IMMRun(records, state, consts)
