@@ -1,87 +1,58 @@
-"""The generated blocks of README.md and docs/*.md equal what their generators render from the committed JSON alone, so the text
-and the numbers cannot drift apart.
+"""The generated blocks of README.md and docs/*.md equal what their renderers give from the committed JSON and the
+code alone, so the text and the numbers cannot drift apart, and the paragraph above each block names the command
+that makes it.
 
-Generators called, by name: ``agents.reports.report.headline(results, has_policy)`` and
-``agents.reports.report.downstream_tables(results, trackers)`` on ``docs/results.json`` and ``headline`` on
-``docs/bounds.json`` for ``bounds`` (the hindsight bounds, on the first runs of three suites), and
-``agents.reports.report.downstream_tables(results, trackers)`` on ``docs/results.json`` (trackers as ``agents.reports.report.main``
-passes them: ``policy`` if evaluated, then ``REPORT_TRACKERS``), and ``agents.reports.paper_checks.readme_block(data)`` on
-``docs/paper_checks.json``, and ``agents.reports.report.per_flight_table(results["adsb_calibration"]["per_flight"])``
-for ``adsb-flights``, ``agents.reports.report.scores_table(results[, HEADLINE_TRACKERS])`` for ``scores`` and
-``headline-scores``, and ``agents.reports.generalisation``'s ``families_table``, ``spread_table``, ``targets_table`` and
-``track_start_table`` on ``docs/generalisation.json`` for ``families``, ``seed-spread``, ``targets`` and
-``track-start``.
+The renderers and commands are :data:`agents.reports.readme_blocks.RENDERERS` and ``COMMANDS``: the results'
+blocks from ``docs/results.json`` and ``docs/bounds.json`` (``agents.reports.report``'s ``headline``,
+``scores_table``, ``downstream_tables``, ``per_flight_table``) and ``docs/generalisation.json``
+(``agents.reports.generalisation``'s tables), the evaluation's defaults (trackers, suites and their runs, figures per
+suite, the first line it prints) from ``agents.evaluation``. ``python -m agents.reports.readme_blocks`` rewrites
+every block.
 """
-
-import json
-from pathlib import Path
 
 import pytest
 
-from agents.reports import report
-from agents.reports.readme_blocks import block_file, block_names, read_block, replace_block
-
-ROOT = Path(__file__).resolve().parents[1]
-README = ROOT / "README.md"
+from agents.reports.readme_blocks import (COMMANDS, RENDERERS, block_file, block_names, main, read_block,
+                                          replace_block)
 
 
-def _results():
-    return json.loads((ROOT / "docs" / "results.json").read_text())
-
-
-def _has_policy(results):
-    return any("policy" in r["trackers"] for r in results.values())
-
-
-def _headline():
-    res = _results()
-    return report.headline(res, _has_policy(res))
-
-
-def _downstream():
-    res = _results()
-    learned = [t for t in ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo")
-               if any(t in r["trackers"] for r in res.values())]
-    return report.downstream_tables(res, learned + list(report.REPORT_TRACKERS))
-
-
-def _adsb_flights():
-    return report.per_flight_table(_results()["adsb_calibration"]["per_flight"])
-
-
-def _scores(names=None):
-    return lambda: report.scores_table(_results(), names)
-
-
-def _bounds():
-    res = json.loads((ROOT / "docs" / "bounds.json").read_text())
-    return report.headline(res, _has_policy(res))
-
-
-def _generalisation(render):
-    def f():
-        from agents.reports import generalisation
-        return getattr(generalisation, render)(json.loads((ROOT / "docs" / "generalisation.json").read_text()))
-    return f
-
-
-RENDERERS = {"bounds": _bounds, "headline": _headline, "downstream": _downstream, "scores": _scores(),
-             "headline-scores": _scores(report.HEADLINE_TRACKERS),
-             "adsb-flights": _adsb_flights, "families": _generalisation("families_table"),
-             "seed-spread": _generalisation("spread_table"), "targets": _generalisation("targets_table"),
-             "track-start": _generalisation("track_start_table"), "imm-targets": _generalisation("imm_targets_readme")}
-
-
-def test_every_generated_block_has_a_generator():
+def test_every_generated_block_has_a_renderer_and_a_command():
     names = block_names()      # README.md and every docs/*.md
     assert len(names) == len(set(names)), f"duplicate blocks: {names}"
-    assert set(names) == set(RENDERERS)
+    assert set(names) == set(RENDERERS) == set(COMMANDS)
 
 
 @pytest.mark.parametrize("name", sorted(RENDERERS))
-def test_generated_block_equals_generator_output(name):
+def test_generated_block_equals_renderer_output(name):
     assert read_block(name) == RENDERERS[name]().strip(), (
-        f"block {name!r} ({block_file(name).name}) differs from its generator's output on the committed JSON; regenerate it")
+        f"block {name!r} ({block_file(name).name}) differs from its renderer's output on the committed JSON and "
+        f"code; regenerate it: python -m agents.reports.readme_blocks")
+
+
+def _paragraph_above(name):
+    """The paragraph right above block ``name``'s start marker (blank lines between them skipped): its lines up to
+    the blank line or block end before it."""
+    s = block_file(name).read_text()
+    lines = s[:s.index(f"<!-- {name}:start -->")].rstrip().split("\n")
+    out = []
+    for line in reversed(lines):
+        if not line.strip() or line.strip().endswith(":end -->"):
+            break
+        out.append(line)
+    return " ".join(reversed(out))
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_each_block_names_its_command(name):
+    assert f"`{COMMANDS[name]}`" in _paragraph_above(name) + read_block(name), (
+        f"block {name!r} ({block_file(name).name}): the paragraph above it does not name `{COMMANDS[name]}`")
+
+
+def test_check_lists_nothing_on_the_committed_pages(capsys):
+    main(["--check", "evaluation-defaults", "evaluation-first-line"])
+    assert capsys.readouterr().out.startswith("0 of 2 block(s) differ")
+    with pytest.raises(SystemExit, match="no renderer"):
+        main(["--check", "no-such-block"])
 
 
 def test_read_and_replace_block_round_trip(tmp_path):

@@ -46,12 +46,20 @@ from baselines.seeds import EVAL_SEED_BASE
 from agents.evaluation.suites import (DEFAULT_RADAR_RANGE_M, DEFAULT_SUITES, EXTRA_SUITES, draw_suite, run_scenario,
                                       suite_key, trajectory_suite_names)
 
-__all__ = ["evaluate", "main", "format_table", "write_plots", "DEFAULT_TRACKERS", "DEFAULT_RUNS"]
+__all__ = ["evaluate", "main", "format_table", "write_plots", "DEFAULT_TRACKERS", "DEFAULT_RUNS", "default_runs"]
 
 DEFAULT_RUNS = {"random": 200, "random_radars": 100, "adrian_flower": 10, "adsb_calibration": 24, "adsb_dev": 12,
                 "adsb_heldout": 12, "encounters": 100, **{f: 200 for f in FAMILIES}}
 """Runs per suite when ``--runs`` is not given (the flower has 1561 looks per run, random radars up to ~1500;
 the ADS-B suites fly each of their flights once; the held-out families 200); others: 50 (``adsb:<flight>``: 10)."""
+
+
+def default_runs(suite, trajectory=False):
+    """Runs of ``suite`` when ``--runs`` is not given: :data:`DEFAULT_RUNS`, else 10 for ``adsb:<flight>`` and 50 for
+    any other suite or a ``--trajectory`` file (``trajectory=True``)."""
+    if trajectory:
+        return 50
+    return DEFAULT_RUNS.get(suite, 10 if suite.startswith("adsb:") else 50)
 
 
 # ------------------------------------------------------------------------------------------------ evaluation
@@ -602,10 +610,9 @@ def main(argv=None, prog="radar-track evaluate"):
         file_names = trajectory_suite_names(files, taken=names)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    plan = [("--scenario", n, n, args.runs or DEFAULT_RUNS.get(n, 10 if n.startswith("adsb:") else 50), {})
-            for n in names]
-    plan += [("--trajectory", n, f, args.runs or 50, {"radar": radar, "radar_range_m": radar_range_m})
-             for n, f in zip(file_names, files)]
+    plan = [("--scenario", n, n, args.runs or default_runs(n), {}) for n in names]
+    plan += [("--trajectory", n, f, args.runs or default_runs(n, trajectory=True),
+              {"radar": radar, "radar_range_m": radar_range_m}) for n, f in zip(file_names, files)]
     _check_cost(plan, trackers, args.seed)
     _say(args, f"drawing the episodes: {sum(p[3] for p in plan)} runs of {len(plan)} suite(s) ...")
     for option, n, source, runs, kw in plan:

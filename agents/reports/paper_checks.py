@@ -1,10 +1,9 @@
 """Check our implementation against the papers' own numbers and definitions (``python -m agents.reports.paper_checks``).
 
 Writes ``docs/paper_checks.json`` (every number), ``docs/paper_checks.md`` (rendered from that JSON alone by
-:func:`render_markdown`), the figures ``docs/figures/paper_*.png`` and the README block ``paper-checks``
-(:func:`readme_block`, also from the JSON alone; ``tests/test_readme_blocks.py`` checks that README and JSON
-agree). Every table has the columns ``paper | ours under the paper's definition | ours, our definition |
-verdict``; the papers' values are quoted from the seeds, every other number is computed here, and every verdict
+:func:`render_markdown`; ``tests/test_paper_checks.py`` checks that page and JSON agree) and the figures
+``docs/figures/paper_*.png``. Every table has the columns ``paper | ours under the paper's definition | ours, our
+definition | verdict``; the papers' values are quoted from the seeds, every other number is computed here, and every verdict
 is a rule on the computed numbers (stated beside the table).
 
 * Bizup (seed 000): c_min > 0.5 g as a detector (section 3.2, 20 runs); his figures 7 and 8 and the claims drawn

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.evaluation.evaluate import DEFAULT_RUNS, evaluate, table_notes
+from agents.evaluation.evaluate import default_runs, evaluate, table_notes
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY
 from agents.evaluation.metrics import FEW_RUNS
@@ -290,7 +290,7 @@ def main(argv=None):
     learned = (["policy"] if policy else []) + [t for t in ("policy_bp", "policy_imm_bp", "policy_imm_ppo")
                                                   if BUNDLED_POLICIES[t].is_file()]
     trackers = learned + list(REPORT_TRACKERS)
-    suites = [(n, draw_suite(n, DEFAULT_RUNS.get(n, 50), seed=args.seed))
+    suites = [(n, draw_suite(n, default_runs(n), seed=args.seed))
               for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
     results, runs = evaluate(suites, trackers, policy)
     seconds = time.time() - t0
