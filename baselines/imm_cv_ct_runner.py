@@ -200,7 +200,8 @@ class IMMCVCTStepper:
         M = self.is_ct.size
         out = IMMCVCTStep(self.k[rows].copy(), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M)),
                           np.empty(n), np.empty(n), np.empty(n), None)
-        _step_kernel(rows, self._t, self._z, self._R, self._det, self._rr, self.is_ct, q, sig_w2, self._sig_w0_2, log_Pi,
+        _step_kernel(rows, self._t, self._z, self._R, self._det, self._rr, self.is_ct, q, sig_w2, self._sig_w0_2,
+                     log_Pi,
                      *_bounds(self.spec), self.x_modes, self.P_modes, self.log_mu, self.k, self.t_last, out.x,
                      out.P, out.mu, out.omega_rad_s, out.omega_std_rad_s, out.nis)
         np.sqrt(out.omega_std_rad_s, out=out.omega_std_rad_s)

@@ -11,7 +11,9 @@ knowing the flight's start: the causal reference on ``random``), ``rbpf_rdot`` (
 velocity),
 ``hindsight_q``, ``hindsight_q_turn`` (the hindsight bounds, :mod:`baselines.hindsight`: seconds per episode, so
 in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
-``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
+``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO), ``policy_bp_rdot``
+and ``policy_imm_bp_rdot`` (``policy_bp``'s and ``policy_imm_bp``'s recipes on the range-rate filter) are resolved by
+the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
 trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
@@ -100,7 +102,7 @@ _RUNNERS = {
     "hindsight_q_turn": lambda eps, cfg: _hindsight().run_hindsight_q_turn(eps, cfg=cfg),
 }
 
-POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo")
+POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "policy_bp_rdot", "policy_imm_bp_rdot")
 """Tracker names of learned policies, each run by the evaluation from its file: a q-policy through
 :func:`baselines.trackers.run_q_policy`, a learned IMM by its own ``run``."""
 

@@ -1,9 +1,9 @@
 """Tune the classical baselines on the training scenario distribution (never on evaluation seeds).
 
-``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot]`` draws ``N`` random-scenario episodes with
-tuning seeds (:data:`baselines.seeds.TUNING_SEEDS`, disjoint from the evaluation's held-out seeds) and, for each
-tuned tracker, minimises the pooled position RMSE after the track start over its parameters with a continuous
-optimizer (:func:`minimize_with_restarts`):
+``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot]`` draws ``N``
+random-scenario episodes with tuning seeds (:data:`baselines.seeds.TUNING_SEEDS`, disjoint from the evaluation's
+held-out seeds) and, for each tuned tracker, minimises the pooled position RMSE after the track start over its
+parameters with a continuous optimizer (:func:`minimize_with_restarts`):
 
 * every parameter is searched in a transformed space, ``log`` for noise levels, ``logit`` for probabilities, inside
   bounds that are documented limits (:class:`Param`: why each bound is where it is);

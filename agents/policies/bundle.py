@@ -23,7 +23,8 @@ import json
 import zipfile
 from pathlib import Path
 
-__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+__all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
            "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
@@ -40,8 +41,14 @@ BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned
 BUNDLED_IMM_PPO = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm_ppo" / "policy.zip"
 """The bundled learned IMM trained with PPO on ``RadarTrack-v0`` with ``tracker="imm_cv_ct"`` (the tracker
 ``policy_imm_ppo``; its ``env_config.json`` and numpy export ``policy.npz`` beside it)."""
+BUNDLED_BP_RDOT = BUNDLED_BP_POLICY.parents[1] / "backprop_rdot" / "policy.npz"
+"""``policy_bp``'s recipe trained on the range-rate filter (``RadarTrackDoppler-v0``): the tracker
+``policy_bp_rdot``."""
+BUNDLED_LEARNED_IMM_RDOT = BUNDLED_BP_POLICY.parents[1] / "learned_imm_rdot" / "policy.npz"
+"""``policy_imm_bp``'s recipe trained on the range-rate filter: the tracker ``policy_imm_bp_rdot``."""
 BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
-                    "policy_imm_ppo": BUNDLED_IMM_PPO}
+                    "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
+                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 

@@ -36,7 +36,9 @@ __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "BUNDLED_DIR", "BUNDLED_LEARN
 BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
 """Where the bundled learned trackers live, one folder each."""
 BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / "backprop",
-                   "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo"}
+                   "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo",
+                   "policy_bp_rdot": BUNDLED_DIR / "backprop_rdot",
+                   "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot"}
 """The registry: bundled learned tracker name -> its folder."""
 
 

@@ -114,6 +114,13 @@ def _generalisation(render):
     return f
 
 
+def _range_rate(render):
+    def f():
+        from agents.reports import range_rate
+        return getattr(range_rate, render)(_json("range_rate.json"))
+    return f
+
+
 def evaluation_defaults():
     """``radar-track evaluate``'s defaults, from the code: its trackers, suites with their runs, figures per suite."""
     from agents.evaluation.evaluate import default_runs
@@ -151,15 +158,18 @@ RENDERERS = {"bounds": _headline("bounds.json"), "headline": _headline(), "downs
              "families": _generalisation("families_table"), "seed-spread": _generalisation("spread_table"),
              "targets": _generalisation("targets_table"), "track-start": _generalisation("track_start_table"),
              "imm-targets": _generalisation("imm_targets_readme"), "evaluation-defaults": evaluation_defaults,
-             "evaluation-first-line": evaluation_first_line, "evaluation-more-suites": evaluation_more_suites}
-"""Block name -> function returning its text (from ``docs/results.json``, ``bounds.json``, ``generalisation.json``
-or the code)."""
+             "evaluation-first-line": evaluation_first_line, "evaluation-more-suites": evaluation_more_suites,
+             "range-rate": _range_rate("table"), "range-rate-targets": _range_rate("targets_table")}
+"""Block name -> function returning its text (from ``docs/results.json``, ``bounds.json``, ``generalisation.json``,
+``range_rate.json`` or the code)."""
 
 REPORT, GENERALISATION, BLOCKS = ("python -m agents.reports.report", "python -m agents.reports.generalisation",
                                   "python -m agents.reports.readme_blocks")
+RANGE_RATE = "python -m agents.reports.range_rate"
 COMMANDS = {**{n: REPORT for n in ("bounds", "headline", "downstream", "scores", "headline-scores", "adsb-flights")},
             **{n: GENERALISATION for n in ("families", "seed-spread", "targets", "track-start", "imm-targets")},
-            **{n: BLOCKS for n in ("evaluation-defaults", "evaluation-first-line", "evaluation-more-suites")}}
+            **{n: BLOCKS for n in ("evaluation-defaults", "evaluation-first-line", "evaluation-more-suites")},
+            **{n: RANGE_RATE for n in ("range-rate", "range-rate-targets")}}
 """Block name -> the command that makes what it shows (the report and the generalisation run the evaluation and
 write the JSON and their blocks; this module's command renders the blocks taken from the code)."""
 

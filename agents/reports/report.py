@@ -26,7 +26,7 @@ __all__ = ["main", "markdown_tables"]
 
 REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
-                   "oracle_q", "clairvoyant")
+                   "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "oracle_q", "clairvoyant")
 FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 """The trackers of the figures: the main job's (the strongest classical tracker, imm_cv_ct, included)."""
 PER_FLIGHT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")
@@ -81,8 +81,16 @@ def markdown_tables(results, reference="imm2"):
     return "\n".join(out)
 
 
+LEARNED_WHAT = {"policy_bp": "trained by backpropagation", "policy_imm_bp": "the learned IMM",
+                "policy_imm_ppo": "the learned IMM, PPO",
+                "policy_bp_rdot": "policy_bp's recipe on the range-rate filter",
+                "policy_imm_bp_rdot": "policy_imm_bp's recipe on the range-rate filter"}
+"""What each bundled learned tracker is, for the results page's header."""
+ROOT = Path(__file__).resolve().parents[2]
+
 HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "rbpf", "kf_tuned", "cmin",
-                     "hindsight_q", "hindsight_q_turn", "clairvoyant")
+                     "policy_bp_rdot", "policy_imm_bp_rdot", "imm_cv_ct_rdot", "hindsight_q", "hindsight_q_turn",
+                     "clairvoyant")
 
 
 BOUNDS_SUITES = ("random", "bizup2002", "kim_lee_accel")
@@ -287,8 +295,8 @@ def main(argv=None):
     docs = Path(args.docs)
     t0 = time.time()
     policy = str(BUNDLED_POLICY) if BUNDLED_POLICY.is_file() else None
-    learned = (["policy"] if policy else []) + [t for t in ("policy_bp", "policy_imm_bp", "policy_imm_ppo")
-                                                  if BUNDLED_POLICIES[t].is_file()]
+    learned = (["policy"] if policy else []) + [t for t in BUNDLED_POLICIES if t != "policy"
+                                                  and BUNDLED_POLICIES[t].is_file()]
     trackers = learned + list(REPORT_TRACKERS)
     suites = [(n, draw_suite(n, default_runs(n), seed=args.seed))
               for n in DEFAULT_SUITES + ("encounters", "adsb_calibration")]
@@ -317,9 +325,8 @@ def main(argv=None):
         f"resamples of runs (paired for the ratio column). Regions: maneuver = the truth turns or changes speed, "
         f"after = within 60 s after a maneuver, straight = the rest. Policy: "
         f"{'the bundled policy `agents/bundled/policy/policy.zip`' if policy else 'none bundled'}"
-        f"{'; policy_bp: `agents/bundled/backprop/policy.npz` (trained by backpropagation)' if 'policy_bp' in learned else ''}"
-        f"{'; policy_imm_bp: `agents/bundled/learned_imm/policy.npz` (the learned IMM)' if 'policy_imm_bp' in learned else ''}"
-        f"{'; policy_imm_ppo: `agents/bundled/learned_imm_ppo/policy.zip` (the learned IMM, PPO)' if 'policy_imm_ppo' in learned else ''}. "
+        + "".join(f"; {t}: `{BUNDLED_POLICIES[t].relative_to(ROOT)}` ({LEARNED_WHAT[t]})" for t in learned
+                  if t != "policy") + ". "
         f"Computed in {seconds:.0f} s.",
         "",
         markdown_tables(results),

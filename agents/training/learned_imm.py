@@ -161,7 +161,9 @@ class LearnedIMMModel(ChainModel):
 
     @classmethod
     def build(cls, hp, cfg):
-        """Around the registered imm_cv_ct's tuned spec, the observation's chain at kf_tuned's q."""
+        """Around the registered imm_cv_ct's tuned spec, the observation's chain at kf_tuned's q (with
+        ``radial_velocity``: imm_cv_ct_rdot's and kf_tuned_rdot's, the trackers with the same measurements)."""
         from baselines.tuned_params import tuned_parameters
-        return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec(),
-                   tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+        rd = "_rdot" if cfg.radial_velocity else ""
+        return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec("imm_cv_ct" + rd),
+                   tuned_parameters()["kf" + rd]["q_g"] * G0_M_S2)

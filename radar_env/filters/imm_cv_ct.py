@@ -474,9 +474,9 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
     (``xp``, ``Pp``, ``log_c``, read only; from :func:`_look_predict`) with the plot ``z``, ``R`` (``det`` False: a
     missed look) and, where ``rr = (radial velocity, its variance, site x, site y)`` has a finite variance, the
     radial velocity after the position (:func:`radar_env.filters.kernels._rdot_update`; its likelihood joins the
-    mode's; :data:`NO_RANGE_RATE`: none), the mode probabilities and the outputs. Writes the posterior modes into ``xm, Pm, log_mu``, the
-    combination of their 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and ``mu_out (M,)``; returns
-    ``(NIS of the combined prediction, combined turn rate, its variance)``."""
+    mode's; :data:`NO_RANGE_RATE`: none), the mode probabilities and the outputs. Writes the posterior modes into
+    ``xm, Pm, log_mu``, the combination of their 4-state marginals into ``x_out (4,)``, ``P_out (4, 4)`` and
+    ``mu_out (M,)``; returns ``(NIS of the combined prediction, combined turn rate, its variance)``."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = is_ct.shape[0]
     # ---- mode-matched update, log-likelihoods (a missed look: posterior = prior, log-likelihood 0)
