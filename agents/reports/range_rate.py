@@ -160,7 +160,7 @@ def main(argv=None):
     (docs / "range_rate.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"range-rate": table(data), "range-rate-targets": targets_table(data)}
     if args.readme:
-        from agents.reports.readme_blocks import replace_block
+        from agents.reports.blocks import replace_block
         for name, text in blocks.items():
             replace_block(name, text)
     print("\n\n".join(blocks.values()))
