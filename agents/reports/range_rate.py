@@ -24,13 +24,13 @@ from agents.evaluation.metrics import FEW_RUNS, evaluate_run, jsonable, ratio_ci
 from agents.evaluation.runner import run_policy
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 from agents.policies.learned import BUNDLED_LEARNED, load_learned
-from baselines.registry import run_tracker
+from baselines.registry import RANGE_RATE_TRACKERS, run_tracker
 from radar_env.sim.episode import stack_episodes
 
 __all__ = ["PAIRS", "CLASSICAL_RDOT", "SUITES", "learned_rdot", "learned_seeds", "evaluate_suite", "table",
            "seeds_table", "targets_table", "main"]
 
-PAIRS = {"kf_tuned_rdot": "kf_tuned", "imm2_rdot": "imm2", "imm_cv_ct_rdot": "imm_cv_ct", "rbpf_rdot": "rbpf"}
+PAIRS = {t: t.removesuffix("_rdot") for t in RANGE_RATE_TRACKERS}
 """Each range-rate tracker and its position-only self."""
 CLASSICAL_RDOT = tuple(PAIRS)
 """The classical field of the range-rate trackers (the learned range-rate trackers are compared with its best)."""
