@@ -79,7 +79,7 @@ from radar_env.sim.radar import cartesian_from_polar, converted_covariance  # no
 
 __all__ = ["IMMCVCTState", "IMMCVCTStatePrediction", "IMMCVCTStateUpdate", "IMMCVCTPredictor", "IMMCVCTUpdater",
            "plot_from_detection", "range_rate_from_detection", "polar_detection", "detections_from_episode",
-           "gaussian_state", "ours_from_state", "stamp", "EPOCH", "SS_FROM_OURS"]
+           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "EPOCH", "SS_FROM_OURS"]
 
 EPOCH = _dt.datetime(2000, 1, 1)
 """The datetime of our ``t_s = 0`` (:func:`stamp`)."""
@@ -95,6 +95,13 @@ def stamp(t_s) -> _dt.datetime:
     if not math.isfinite(t):
         raise ValueError(f"t_s must be a finite number of seconds, got {t_s!r}")
     return EPOCH + _dt.timedelta(seconds=t)
+
+
+def seconds(timestamp) -> float:
+    """A Stone Soup timestamp as our time (seconds since :data:`EPOCH`), the inverse of :func:`stamp`."""
+    if not isinstance(timestamp, _dt.datetime):
+        raise ValueError(f"timestamp must be a datetime, got {timestamp!r}")
+    return (timestamp - EPOCH).total_seconds()
 
 
 def _tuned_spec():
@@ -214,6 +221,28 @@ def range_rate_from_detection(detection, measurement_model=None):
     ``CartesianToBearingRangeRate2D`` detection; None for a detection without range rate. Raises as
     :func:`plot_from_detection`."""
     return _measurement(detection, measurement_model)[2]
+
+
+def look_from_detection(detection, measurement_model=None) -> dict:
+    """A polar detection as our look fields (:data:`radar_env.sim.looks.LOOK_COLUMNS` names): ``t_s`` (seconds,
+    :func:`seconds`), ``detected`` True, ``z_m``, ``R_m2`` (:func:`plot_from_detection`), ``site_xy_m``,
+    ``range_m``, ``bearing_rad`` (ours: clockwise from north), ``radial_velocity_m_s``, the noise stds
+    ``range_noise_std_m``, ``bearing_noise_std_rad``, ``radial_velocity_noise_std_m_s`` (the range-rate ones NaN
+    for a ``CartesianToBearingRange``). ``ValueError`` for a ``LinearGaussian`` (no polar values) and as
+    :func:`plot_from_detection`."""
+    model = detection.measurement_model if detection.measurement_model is not None else measurement_model
+    z, R, rr = _measurement(detection, measurement_model)
+    if not isinstance(model, (CartesianToBearingRange, CartesianToBearingRangeRate2D)):
+        raise ValueError(f"measurement_model must be polar (CartesianToBearingRange[Rate2D]) for a look with range "
+                         f"and bearing, got {type(model).__name__}")
+    y = np.asarray(detection.state_vector, dtype=np.float64).reshape(-1)
+    noise = np.asarray(model.covar(), dtype=np.float64)
+    site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)[:2].copy()
+    return {"t_s": seconds(detection.timestamp), "detected": True, "z_m": z, "R_m2": R, "site_xy_m": site,
+            "range_m": float(y[1]), "bearing_rad": 0.5 * math.pi - float(y[0]),
+            "radial_velocity_m_s": math.nan if rr is None else rr[0],
+            "range_noise_std_m": math.sqrt(noise[1, 1]), "bearing_noise_std_rad": math.sqrt(noise[0, 0]),
+            "radial_velocity_noise_std_m_s": math.nan if rr is None else math.sqrt(rr[1])}
 
 
 def _measurement(detection, measurement_model):

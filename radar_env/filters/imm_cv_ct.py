@@ -651,17 +651,20 @@ def initial_modes(spec: IMMCVCTSpec, x, P):
     return xm, Pm, log_mu
 
 
-def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s) -> ModePrediction:
+def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s, params=None) -> ModePrediction:
     """The prediction half of one look of the compiled kernel (:func:`_look_predict`, the same code), for one track
-    at ``spec``'s constant parameters: mixing, then every mode predicted over ``dt_s`` (>= 0; 0 still mixes, as the
-    kernel does at a look with dt 0). The inputs are not modified."""
+    at ``spec``'s constant parameters (or this look's ``params``, ``(n_par,)`` values of
+    :func:`look_parameter_names`, as :class:`baselines.imm_cv_ct_runner.IMMCVCTStepper` takes them): mixing, then
+    every mode predicted over ``dt_s`` (>= 0; 0 still mixes, as the kernel does at a look with dt 0). The inputs are
+    not modified."""
     dt = float(dt_s)
     if not (math.isfinite(dt) and dt >= 0.0):
         raise ValueError(f"dt_s must be a finite number >= 0 (s), got {dt_s!r}")
     is_ct = np.ascontiguousarray(spec.mode_arrays()[0])
     M = is_ct.size
     xm, Pm, lm = _modes_in(x_modes, P_modes, log_mu, M)
-    q, sig_w2, log_Pi = kernel_parameters(spec)
+    p = None if params is None else check_look_parameters(spec, np.asarray(params, dtype=np.float64).reshape(-1), 1, 1)
+    q, sig_w2, log_Pi = kernel_parameters(spec, p)
     sig_w0_2, omega_max, accel_max = _spec_constants(spec)
     work = _work(M)
     _look_predict(dt, is_ct, q[0, 0], sig_w2[0, 0], log_Pi[0, 0], sig_w0_2, omega_max, accel_max, xm, Pm, lm, work)
