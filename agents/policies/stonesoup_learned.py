@@ -250,10 +250,13 @@ def track_starts(episodes, model: LearnedIMM | None = None):
 class LearnedIMMPredictor(Predictor):
     """Stone Soup predictor of the learned IMM: the look with the network's parameters for a missed look (module
     docstring). ``predict(prior, timestamp)`` takes a :class:`LearnedIMMState` (an update, a start, or a
-    prediction a tracker kept for a missed look: its missed-look posterior) or a track."""
+    prediction a tracker kept for a missed look: its missed-look posterior), a track, or an initiator's 4-state
+    Gaussian update (started with :meth:`LearnedIMMState.from_gaussian` from its detection)."""
 
     transition_model: TransitionModel = Property(
         default=None, doc="Not used (the learned IMM's modes are its transition model); Stone Soup's interface")
+    model: LearnedIMM = Property(default=None, doc="the checkpoint for tracks it starts (None: the bundled "
+                                                    "policy_imm_bp); a LearnedIMMState carries its own")
 
     def predict(self, prior, timestamp=None, **kwargs) -> LearnedIMMStatePrediction:
         if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
@@ -262,9 +265,14 @@ class LearnedIMMPredictor(Predictor):
             ctx = prior.missed_context
         elif isinstance(prior, LearnedIMMState):
             ctx = prior.context
+        elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
+            if self.model is None:
+                self.model = bundled_learned_imm()
+            ctx = LearnedIMMState.from_gaussian(prior, self.model).context
         else:
             raise ValueError(f"prior must be a LearnedIMMState (start one with track_starts or "
-                             f"LearnedIMMState.from_gaussian), got {type(prior).__name__}")
+                             f"LearnedIMMState.from_gaussian) or an initiator's Gaussian update with its detection, "
+                             f"got {type(prior).__name__}")
         if timestamp is None:
             raise ValueError("timestamp must be a datetime (the learned IMM's chain needs times)")
         pred, up, after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
