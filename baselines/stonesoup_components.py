@@ -401,6 +401,9 @@ class IMMCVCTUpdater(ExtendedKalmanUpdater):
     measurement_model: MeasurementModel = Property(
         default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange[Rate2D] "
                           "or LinearGaussian (plot_from_detection)")
+    use_range_rate: bool = Property(
+        default=True, doc="update on a detection's range rate when it has one (False: its position only, the "
+                          "position-only imm_cv_ct on range-rate detections)")
 
     def update(self, hypothesis, **kwargs) -> IMMCVCTStateUpdate:
         """Update ``hypothesis.prediction`` with ``hypothesis.measurement`` (a ``MissedDetection``: the kernel's
@@ -413,7 +416,8 @@ class IMMCVCTUpdater(ExtendedKalmanUpdater):
         xm, Pm = _modes_ours(pred)
         if hypothesis:
             z, R, rr = _measurement(hypothesis.measurement, self.measurement_model)
-            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities, z, R, range_rate=rr)
+            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities, z, R,
+                             range_rate=rr if self.use_range_rate else None)
             when = hypothesis.measurement.timestamp
         else:
             u = update_modes(spec, xm, Pm, pred.log_mode_probabilities)

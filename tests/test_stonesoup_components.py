@@ -112,6 +112,24 @@ def test_stonesoup_chain_equals_run_imm_cv_ct_on_every_look(which, radial_veloci
     assert max(np.abs(x - run.x[0, k]).max() for k, x, *_ in other) > 1.0
 
 
+def test_range_rate_detections_position_only():
+    """IMMCVCTUpdater(use_range_rate=False) on range-rate detections is the position-only imm_cv_ct."""
+    eps = _episodes("bizup2002")[:1]
+    spec = tuned_imm_cv_ct_spec()
+    start = common_start(eps)
+    run = run_imm_cv_ct(eps, spec, start=start)
+    _, k0, x4, P4 = start
+    e = eps[0]
+    predictor, updater = S.IMMCVCTPredictor(spec=spec), S.IMMCVCTUpdater(use_range_rate=False)
+    dets = S.detections_from_episode(e, radial_velocity=True)
+    state = S.gaussian_state(x4[0], P4[0], e.t_s[k0[0]])
+    for k in range(k0[0] + 1, e.n_looks):
+        pred = predictor.predict(state, timestamp=S.stamp(e.t_s[k]))
+        state = updater.update(SingleHypothesis(pred, dets[k])) if dets[k] is not None else pred
+        x, P = S.ours_from_state(state)
+        np.testing.assert_allclose(x, run.x[0, k], rtol=0, atol=REL * np.abs(run.x[0, k]).max())
+
+
 def test_missed_detection_update_is_the_kernels_missed_look():
     """Cartesian plots (LinearGaussian, our z and R) and MissedDetection updates: the runner's numbers to rounding
     (no polar conversion in between), so the missed-look branch is the kernel's."""

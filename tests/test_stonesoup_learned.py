@@ -187,3 +187,21 @@ def test_errors_name_the_parameter(model):
         from stonesoup.models.measurement.linear import LinearGaussian
         S.look_from_detection(Detection(StateVector([1.0, 2.0]), timestamp=S.stamp(0.0),
                                         measurement_model=LinearGaussian(4, (0, 2), np.eye(2))))
+
+
+def test_multitarget_example_with_the_learned_imm_small(model):
+    """A short range-rate run of the multi-target example with policy_imm_bp added: Stone Soup's initiator starts
+    the learned tracks (from its EKF updates), the tracks carry learned states, OSPA is in [0, c]."""
+    from baselines import stonesoup_example as X
+
+    truths, scans, _ = X.scenario(n_steps=15, seed=3, range_rate=True)
+    assert all(len(d.state_vector) == 3 for _, dets in scans for d in dets)
+    tracks = X.run_tracker(scans, "policy_imm_bp", L.learned_pair(model))
+    assert tracks and all(isinstance(t.state, (L.LearnedIMMStateUpdate, L.LearnedIMMStatePrediction))
+                          for t in tracks)
+    result = X.run(n_steps=15, seed=3, filters=["imm_cv_ct"], range_rate=True,
+                   extra={"policy_imm_bp": lambda: L.learned_pair(model)})
+    for name in ("imm_cv_ct", "policy_imm_bp"):
+        r = result[name]
+        assert r["n_tracks"] > 0 and np.all((r["ospa_m"] >= 0) & (r["ospa_m"] <= X.OSPA_C_M))
+        assert r["ospa_m"].min() < X.OSPA_C_M / 10

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import copy
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -313,3 +314,28 @@ class LearnedIMMUpdater(ExtendedKalmanUpdater):
             timestamp=pred.timestamp, mode_state_vectors=after.x_modes[:, _P5],
             mode_covars=after.P_modes[:, _P5][:, :, _P5], log_mode_probabilities=after.log_mu, spec=after.model.spec,
             context=after, hypothesis=hypothesis, target_type=LearnedIMMStateUpdate)
+
+
+# ------------------------------------------------------------------------------------------------ the example
+FIGURE = Path(__file__).resolve().parents[2] / "docs" / "figures" / "stonesoup_multitarget_learned.png"
+
+
+def learned_pair(model: LearnedIMM | None = None):
+    """A fresh ``(LearnedIMMPredictor, LearnedIMMUpdater)`` of ``model`` (default the bundled ``policy_imm_bp``)."""
+    return LearnedIMMPredictor(model=model if model is not None else bundled_learned_imm()), LearnedIMMUpdater()
+
+
+def main(argv=None):
+    """``python -m agents.policies.stonesoup_learned``: :mod:`baselines.stonesoup_example` with range rate, the
+    learned IMM added (``policy_imm_bp``); the same options."""
+    from baselines import stonesoup_example
+    argv = list(argv if argv is not None else __import__("sys").argv[1:])
+    if "--range-rate" not in argv:
+        argv.append("--range-rate")        # the learned IMM needs the range rate
+    model = bundled_learned_imm()
+    return stonesoup_example.main(argv, extra={"policy_imm_bp": lambda: learned_pair(model)},
+                                  prog="python -m agents.policies.stonesoup_learned", figure_path=FIGURE)
+
+
+if __name__ == "__main__":
+    main()
