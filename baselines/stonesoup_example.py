@@ -185,12 +185,13 @@ def ospa(tracks, truths):
 
 
 def run(n_steps=80, seed=7, filters=None, range_rate=False, extra=None):
-    """The example: ``{filter: {"t_s", "ospa_m", "n_tracks"}}`` plus ``"_truths"`` (the number of targets).
+    """The example: ``{filter: {"t_s", "ospa_m", "n_tracks"}}`` plus ``"_truths"`` (the number of targets) and
+    ``"_range_rate"``.
     ``extra``: ``{name: make}`` more filters, ``make()`` giving a fresh ``(predictor, updater)``."""
     truths, scans, _ = scenario(n_steps, seed, range_rate=range_rate)
     filters = filters or [f"ekf_q{q:g}" for q in EKF_Q] + ["imm_cv_ct"] + (["imm_cv_ct_rdot"] if range_rate else [])
     extra = dict(extra or {})
-    out = {"_truths": len(truths)}
+    out = {"_truths": len(truths), "_range_rate": bool(range_rate)}
     for f in list(filters) + list(extra):
         tracks = run_tracker(scans, f, extra[f]() if f in extra else None)
         t, v = ospa(tracks, truths)
@@ -223,7 +224,8 @@ def figure(result, path=FIGURE):
             ax.plot(r["t_s"], r["ospa_m"], label=f"{name} (mean {r['ospa_m'].mean():.0f} m)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"OSPA (m), c = {OSPA_C_M:g} m, p = {OSPA_P}")
-    ax.set_title(f"{result['_truths']} maneuvering targets, Pd 0.9, clutter: Stone Soup GNN tracker")
+    rr = ", range rate" if result.get("_range_rate") else ""
+    ax.set_title(f"{result['_truths']} maneuvering targets, Pd 0.9, clutter{rr}: Stone Soup GNN tracker")
     ax.legend()
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
