@@ -51,7 +51,6 @@ from typing import NamedTuple
 import numpy as np
 
 from baselines import stonesoup_components as _ss
-from baselines.imm_cv_ct_runner import _start_state
 from radar_env.filters.imm_cv_ct import (detector_inputs, initial_detectors, initial_modes, predict_modes,
                                          update_modes)
 from radar_env.filters.tracking import StepOutput, Tracker, preview_next_plot
@@ -69,7 +68,7 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from agents.policies.learned_imm import LearnedIMM, load_learned_imm, BUNDLED_LEARNED_IMM
 
 __all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
-           "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm"]
+           "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair"]
 
 _P5 = np.array([0, 2, 1, 3, 4])
 _SS4 = _ss.SS_FROM_OURS
@@ -232,10 +231,9 @@ def track_starts(episodes, model: LearnedIMM | None = None):
     tr = model.cfg.track_start.tracker(B)
     out = tr.load(np.arange(B), episodes)
     k0 = np.asarray(out.look_index, dtype=np.int64)
-    x5, P5 = _start_state(model.spec, tr.x, tr.P)
     states = []
     for b, e in enumerate(episodes):
-        xm, Pm, log_mu = initial_modes(model.spec, x5[b, :4], P5[b, :4, :4])
+        xm, Pm, log_mu = initial_modes(model.spec, tr.x[b], tr.P[b])     # as run_imm_lockstep's _start_state
         k = int(k0[b])
         radar = (*e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
                  e.radial_velocity_noise_std_m_s[k])
