@@ -16,7 +16,7 @@ short. ``gym.make(id, max_episode_steps=n)`` (and ``gym.make_vec``) still add Gy
 
 from __future__ import annotations
 
-__all__ = ["ENV_VARIANTS", "PINNED_FEATURES", "TRAINING_Q_LEVELS_G", "TRAINING_RANDOM_CONFIG"]
+__all__ = ["ENV_VARIANTS", "ENV_VARIANTS_DOC", "PINNED_FEATURES", "TRAINING_Q_LEVELS_G", "TRAINING_RANDOM_CONFIG"]
 
 PINNED_FEATURES = (
     "nu_along", "nu_cross", "nis", "c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s", "fma_innovation_km",
@@ -53,17 +53,23 @@ ENV_VARIANTS = {
     "RadarTrackIMM-v0": {**_CONTINUOUS, "tracker": "imm_cv_ct"},
     "RadarTrackIMMDoppler-v0": {**_CONTINUOUS, "radial_velocity": True, "tracker": "imm_cv_ct"},
 }
-"""The registered environment ids and the arguments each fixes (any may still be overridden in ``gym.make``):
+"""The registered environment ids and the arguments each fixes (any may still be overridden in ``gym.make``);
+what each is for: :data:`ENV_VARIANTS_DOC`."""
 
-* ``RadarTrack-v0``: the defaults (random flights, Adrian's ATC radar, ``Discrete(13)`` q levels).
-* ``RadarTrackDoppler-v0``: v0 whose filter also updates on each plot's radial velocity (the radar's Doppler
-  measurement); observation and reward as v0's.
-* ``RadarTrackContinuous-v0``: the env of the bundled q-policy ``policy_bp`` (``agents/bundled/backprop``):
-  ``Box(-1, 1, (1,))`` over the 15 training q levels' range, the 27 pinned features, the training flights on
-  ``random_radars``.
-* ``RadarTrackContinuousDoppler-v0``: the same with ``radial_velocity=True`` (``policy_bp_rdot``).
-* ``RadarTrackIMM-v0``: the learned IMM's env (``policy_imm_bp``, ``agents/bundled/learned_imm``): the CV /
-  CT-EKF IMM whose 7 per-look parameters are the action (``Box(-1, 1, (7,))``; a = 0 is the tuned ``imm_cv_ct``),
-  the 27 pinned features of the CV chain at ``kf``'s q plus the IMM's 5 detectors, the same training flights.
-* ``RadarTrackIMMDoppler-v0``: the same with ``radial_velocity=True`` (``policy_imm_bp_rdot``).
-"""
+ENV_VARIANTS_DOC = {
+    "RadarTrack-v0": "the defaults: random flights seen by Adrian's ATC radar, 13 discrete q levels.",
+    "RadarTrackDoppler-v0": "v0 whose filter also updates on each plot's radial velocity (the radar's Doppler "
+                            "measurement); observation and reward as v0's.",
+    "RadarTrackContinuous-v0": "the env of the bundled q-policy `policy_bp` (`agents/bundled/backprop`): a "
+                               "continuous q over the 15 training levels' range, the 27 pinned features, the "
+                               "training flights on `random_radars`. The bundled PPO `policy` was trained in it "
+                               "with `action_type=\"discrete\", frame_stack=4`.",
+    "RadarTrackContinuousDoppler-v0": "the same with `radial_velocity=True`: the env of `policy_bp_rdot`.",
+    "RadarTrackIMM-v0": "the learned IMM's env (`policy_imm_bp`, `agents/bundled/learned_imm`): the CV / CT-EKF "
+                        "IMM whose 7 per-look parameters are the action (a = 0: the tuned `imm_cv_ct`), the 27 "
+                        "pinned features of a CV chain at `kf`'s q plus the IMM's 5 detectors, the training "
+                        "flights. `policy_imm_ppo` has its observation (trained on earlier flights: its "
+                        "`random_config`).",
+    "RadarTrackIMMDoppler-v0": "the same with `radial_velocity=True`: the env of `policy_imm_bp_rdot`.",
+}
+"""What each id is for (Markdown; rendered on docs/env_reference.md)."""
