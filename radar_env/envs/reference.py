@@ -122,7 +122,6 @@ def render():
     """The page's text."""
     import gymnasium as gym
 
-    import radar_env  # noqa: F401 - registers the ids
     from radar_env.filters.imm_cv_ct import IMM_CV_CT_PARAMS
     from radar_env.sim.catalog import SCENARIO_NAMES
     from radar_env.sim.scenario import RandomScenarioConfig
