@@ -74,6 +74,8 @@ def test_the_other_bundles_are_one_override_away():
     assert ppo["random_config"] != imm["random_config"]     # the earlier flights
     assert ppo["reward_type"] == "squared" == radar_env.envs.config.EnvConfig.reward_type   # the default
     assert set(BUNDLED_ENV_IDS) | {"policy", "policy_imm_ppo"} == set(BUNDLED_POLICIES)
+    with pytest.raises(ValueError, match="unknown bundled policy 'policy_x'.*policy_bp"):
+        bundled_env_kwargs("policy_x")
 
 
 def test_make_accepts_overrides_and_refuses_unknown_keys():

@@ -81,6 +81,10 @@ def _num(v):
     return f"{float(v):.4g}"
 
 
+def _rng(pair):
+    return f"{pair[0]:g}-{pair[1]:g}"
+
+
 def _space(sp):
     return f"`{sp}`"
 
@@ -226,9 +230,11 @@ def render():
           "NEES against its 2-dof 99 % bound). The terms are in `info[\"reward_terms\"]`; the evaluation's metrics "
           "do not use the reward.", ""]
 
+    rc = RandomScenarioConfig()
     L += ["## Starting state", "",
-          "`reset(seed=s)` draws the episode from the seed (`RadarTrack-v0`: random flights, 100-600 kt, 3-6 legs, "
-          "turns of 0.5-7 g, 10-150 km from Adrian's ATC radar, T = 5 s; `random_radars`: the flights seen by a "
+          f"`reset(seed=s)` draws the episode from the seed (`RadarTrack-v0`: random flights, {_rng(rc.speed_kt)} kt, "
+          f"{_rng(rc.n_legs)} legs, turns of {_rng(rc.turn_accel_g)} g, {_rng(rc.range_km)} km from Adrian's ATC "
+          "radar, T = 5 s (`RandomScenarioConfig`'s defaults); `random_radars`: the flights seen by a "
           "random radar, 1-12 s scans, sometimes a second site). The track starts from the first two detected plots, "
           f"then `warmup_scans` looks ({d.warmup_scans}) are filtered at `warmup_q_g` ({d.warmup_q_g:g} g) before "
           "the agent acts; the first observation describes the last warm-up look. A random flight too short for "
