@@ -14,7 +14,9 @@ wrong levels). Use::
     action, _ = model.predict(obs, deterministic=True)
 
 ``make_policy_env(scenario="bizup2002")`` changes an argument; ``make_policy_env(num_envs=64)`` returns the native
-vector env with the same arguments.
+vector env with the same arguments. The bundled learned trackers' envs are also registered ids
+(:data:`BUNDLED_ENV_IDS`: ``gym.make("RadarTrackContinuous-v0")`` is ``policy_bp``'s, ``gym.make("RadarTrackIMM-v0")``
+the learned IMM's; docs/env_reference.md).
 """
 
 from __future__ import annotations
