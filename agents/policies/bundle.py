@@ -26,7 +26,7 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
            "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
@@ -48,9 +48,12 @@ BUNDLED_BP_RDOT = BUNDLED_BP_POLICY.parents[1] / "backprop_rdot" / "policy.npz"
 ``policy_bp_rdot``."""
 BUNDLED_LEARNED_IMM_RDOT = BUNDLED_BP_POLICY.parents[1] / "learned_imm_rdot" / "policy.npz"
 """``policy_imm_bp``'s recipe trained on the range-rate filter: the tracker ``policy_imm_bp_rdot``."""
+BUNDLED_LEARNED_IMM_PRIOR = BUNDLED_BP_POLICY.parents[1] / "learned_imm_prior" / "policy.npz"
+"""``policy_imm_bp``'s recipe trained on the ``random`` suites' own flights (the laws ``rbpf`` assumes), not the
+broad ones: the tracker ``policy_imm_bp_prior`` (agents/bundled/learned_imm_prior/CHOICE.md)."""
 BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
                     "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
-                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT}
+                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",
