@@ -64,7 +64,8 @@ def default_runs(suite, trajectory=False):
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None, learned=None):
+             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None, learned=None,
+             allow_pickle=False):
     """Run ``trackers`` on every suite.
 
     Args:
@@ -84,6 +85,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             policy_paths[name])}``) if the caller has it already (not loaded again).
         learned: ``{tracker name: LearnedTracker}`` (:func:`agents.policies.learned.load_learned`): learned
             trackers by any name, each run as its kind says; a name here takes precedence over the file arguments.
+        allow_pickle: let a policy file given by path be unpickled (an SB3 zip without a current numpy export);
+            refused in one line otherwise.
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
@@ -106,7 +109,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         if t in trackers and t not in learned:
             if paths[t] is None and given[t] is None:
                 raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
-            policies[t] = given[t] if given[t] is not None else load_policy(paths[t])
+            policies[t] = given[t] if given[t] is not None else load_policy(paths[t], allow_pickle=allow_pickle)
     default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
@@ -576,7 +579,7 @@ def main(argv=None, prog="radar-track evaluate"):
             option, spec, kinds = sources[t]
             _say(args, f"loading the learned tracker {spec} ({t}) ...")
             try:
-                learned[t] = load_learned(spec, name=t, kinds=kinds)
+                learned[t] = load_learned(spec, name=t, kinds=kinds, allow_pickle=args.allow_pickle)
             except ValueError as e:
                 raise SystemExit(f"error: {option}: {e}") from None
     policy_files = {t: (sources[t][1] if sources[t][0] in OLD_OPTIONS.values() else str(learned[t].file))

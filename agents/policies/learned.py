@@ -104,6 +104,9 @@ def resolve_learned(path_or_name):
         raise ValueError(f"{s!r} is neither a bundled learned tracker ({', '.join(BUNDLED_LEARNED)}) nor an "
                          "existing folder or file")
     folder, file = (p, None) if p.is_dir() else (p.parent, p if p.suffix in (".zip", ".npz") else None)
+    if file is not None and file.suffix == ".npz":    # policy.json describes policy.npz: never load a neighbour
+        from agents.policies.checks import check_policy_file
+        check_policy_file(file)
     bundled = next((n for n, d in BUNDLED_LEARNED.items() if d.exists() and d.resolve() == folder.resolve()), None)
     return folder, file, bundled
 
@@ -152,7 +155,7 @@ class LearnedTracker:
         return [self.folder / n for n in names if (self.folder / n).is_file()]
 
 
-def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
+def load_learned(path_or_name, name=None, kinds=None, allow_pickle=False) -> LearnedTracker:
     """Load a learned tracker by bundled name or path, by its kind.
 
     Args:
@@ -160,13 +163,15 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
         name: the tracker name to report it under (default :func:`learned_label`).
         kinds: if given, the kinds accepted here; another kind is refused (how the old per-tracker options keep a
             learned IMM from running as a q-policy).
+        allow_pickle: unpickle an SB3 ``policy.zip`` whose numpy export is missing or stale (runs its author's
+            code); without it such a folder is refused in one line.
     Returns:
         LearnedTracker
     Raises:
         ValueError: one line naming the file and the field: not a learned tracker folder, an unknown or refused
             kind, or whatever the per-kind loader refuses (:func:`agents.policies.loading.load_policy`).
 
-    An SB3 kind whose numpy export is out of date unpickles its zip: it runs code. Load only folders you trust.
+    Nothing is unpickled without ``allow_pickle``; every file is checked by :mod:`agents.policies.checks` first.
     """
     from agents.policies.loading import load_policy
     folder, file, bundled = resolve_learned(path_or_name)
@@ -175,7 +180,7 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
         raise ValueError(f"{source}: kind {kind!r} ({KINDS[kind]}), expected {' or '.join(map(repr, kinds))}")
     if file is None or (kind in SB3_KINDS and file.suffix != ".zip"):
         file = folder / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
-    policy, cfg = load_policy(file)
+    policy, cfg = load_policy(file, allow_pickle=allow_pickle)
     # the per-kind loader looks at the files; the kind must agree with what it found
     is_imm = bool(getattr(policy, "is_tracker", False))
     if is_imm != (kind in IMM_KINDS):
@@ -211,7 +216,7 @@ def write_run_layout(run, kind, summary):
         if kind in SB3_KINDS and (folder / "policy.zip").is_file():
             from agents.policies.numpy_policy import save_export
             try:
-                save_export(folder / "policy.zip")
+                save_export(folder / "policy.zip", allow_pickle=True)     # the zip this training run wrote
             except ValueError:
                 pass        # no numpy export for this structure: the zip runs through SB3 (policy.json says so)
             write_manifest(folder, kind)
