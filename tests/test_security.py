@@ -1,0 +1,283 @@
+"""Issue 40: no file runs code unless the user says so, every loader checks what it loads, every fault is one line.
+
+Every refusal here is a one-line ``ValueError`` / ``SystemExit`` naming the file (or option) and the field."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from agents.evaluation import evaluate as ev
+from agents.policies.learned import BUNDLED_LEARNED, load_learned
+from agents.policies.loading import load_policy
+
+QUICK = ["--no-plots", "--quiet", "--scenario", "kim_lee_accel", "--runs", "1"]
+KINDS_ON_DISK = [n for n in ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo") if BUNDLED_LEARNED[n].is_dir()]
+
+
+def _one_line(excinfo, *words):
+    msg = str(excinfo.value)
+    assert "\n" not in msg and "Traceback" not in msg, msg
+    for w in words:
+        assert w in msg, (w, msg)
+    return msg
+
+
+def _copy(tmp_path, name, dest="t"):
+    """A copy of the bundled tracker ``name``'s files (no subfolders)."""
+    d = tmp_path / dest
+    d.mkdir()
+    for f in BUNDLED_LEARNED[name].iterdir():
+        if f.is_file() and f.suffix in (".npz", ".json", ".zip"):
+            shutil.copy(f, d / f.name)
+    return d
+
+
+def _edit_json(f, fn):
+    v = json.loads(f.read_text())
+    v = fn(v)
+    f.write_text(json.dumps(v))
+
+
+# ------------------------------------------------------------------------------------------------ 1. no pickle
+@pytest.mark.parametrize("name", [n for n in ("policy", "policy_imm_ppo") if n in KINDS_ON_DISK])
+def test_a_zip_without_its_export_is_not_unpickled_without_the_opt_in(tmp_path, name):
+    d = _copy(tmp_path, name)
+    (d / "policy.npz").unlink()
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, "policy.zip", "pickle", "--allow-pickle")
+    with pytest.raises(ValueError) as e:
+        load_policy(d / "policy.zip")
+    _one_line(e, "--allow-pickle")
+
+
+@pytest.mark.parametrize("option", ["--policy", "--policy-bp", "--policy-imm-ppo", "--learned"])
+def test_every_policy_option_refuses_a_pickle_in_one_line(tmp_path, option):
+    name = "policy_imm_ppo" if option == "--policy-imm-ppo" else "policy"
+    if name not in KINDS_ON_DISK:
+        pytest.skip("no bundled SB3 policy")
+    d = _copy(tmp_path, name)
+    (d / "policy.npz").unlink()
+    with pytest.raises(SystemExit) as e:
+        ev.main([option, str(d if option == "--learned" else d / "policy.zip"), *QUICK])
+    _one_line(e, option, "pickle", "--allow-pickle")
+
+
+def test_a_stale_export_is_not_a_way_to_the_pickle(tmp_path):
+    if "policy" not in KINDS_ON_DISK:
+        pytest.skip("no bundled SB3 policy")
+    d = _copy(tmp_path, "policy")
+    with open(d / "policy.zip", "ab") as f:        # the zip changed since its export
+        f.write(b"\0")
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, "another file", "--allow-pickle")
+
+
+def test_a_torch_checkpoint_is_refused_as_a_pickle(tmp_path):
+    f = tmp_path / "model.pt"
+    f.write_bytes(b"\x80\x04\x95 not really a pickle")
+    (tmp_path / "env_config.json").write_text("{}")
+    with pytest.raises(ValueError) as e:
+        load_policy(f)
+    _one_line(e, "model.pt", "pickle", "--allow-pickle")
+
+
+def test_the_export_command_needs_the_opt_in(tmp_path):
+    from agents.policies.numpy_policy import main as export_main
+    with pytest.raises(SystemExit) as e:
+        export_main([str(tmp_path / "policy.zip")])
+    _one_line(e, "--allow-pickle")
+
+
+@pytest.mark.parametrize("name", KINDS_ON_DISK)
+def test_the_bundled_trackers_load_without_pickle(name, monkeypatch):
+    import pickle
+    monkeypatch.setattr(pickle, "loads", lambda *a, **k: pytest.fail("unpickled"))
+    monkeypatch.setattr(pickle, "load", lambda *a, **k: pytest.fail("unpickled"))
+    assert load_learned(name).name == name
+
+
+def test_train_init_from_needs_the_opt_in(tmp_path):
+    from agents.training.train import main as train_main
+    z = tmp_path / "policy.zip"
+    z.write_bytes(b"PK")
+    with pytest.raises(SystemExit) as e:
+        train_main(["--algo", "ppo", "--timesteps", "1", "--quiet", "--out", str(tmp_path), "--hp",
+                    f"init_from={z}"])
+    _one_line(e, "init_from", "--allow-pickle")
+
+
+# ------------------------------------------------------------------------------------------------ 2. one validation path
+NPZ_KINDS = [n for n in ("policy_bp", "policy_imm_bp") if n in KINDS_ON_DISK]
+
+
+@pytest.mark.parametrize("name", KINDS_ON_DISK)
+@pytest.mark.parametrize("damage", ["empty", "truncated", "garbage"])
+def test_a_damaged_npz_is_refused_in_one_line(tmp_path, name, damage):
+    d = _copy(tmp_path, name)
+    data = (d / "policy.npz").read_bytes()
+    (d / "policy.npz").write_bytes({"empty": b"", "truncated": data[:len(data) // 2], "garbage": b"x" * 99}[damage])
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, "policy.npz")
+
+
+def _rewrite_weights(d, fn):
+    with np.load(d / "policy.npz") as z:
+        w = {k: z[k] for k in z.files}
+    np.savez(d / "policy.npz", **fn(w))
+
+
+@pytest.mark.parametrize("name", NPZ_KINDS)
+@pytest.mark.parametrize("case,words", [
+    ("inf", ["gru.weight_hh", "non-finite"]), ("nan", ["gru.weight_hh", "non-finite"]),
+    ("int32", ["gru.weight_hh", "float64"]), ("float32", ["gru.weight_hh", "float64"]),
+    ("shape", ["gru.weight_hh", "shape"]), ("missing", ["missing", "gru.weight_hh"]),
+    ("extra", ["unexpected", "evil"])])
+def test_bad_weights_are_refused_naming_the_array(tmp_path, name, case, words):
+    d = _copy(tmp_path, name)
+
+    def damage(w):
+        k = "gru.weight_hh"
+        if case == "inf":
+            w[k] = w[k].copy(); w[k][0, 0] = np.inf          # noqa: E702
+        elif case == "nan":
+            w[k] = w[k].copy(); w[k][1, 1] = np.nan          # noqa: E702
+        elif case in ("int32", "float32"):
+            w[k] = w[k].astype(case)
+        elif case == "shape":
+            w[k] = w[k][:, :-1]
+        elif case == "missing":
+            del w[k]
+        else:
+            w["evil"] = np.zeros(1)
+        return w
+    _rewrite_weights(d, damage)
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, "policy.npz", *words)
+
+
+JSON_CASES = {
+    "policy.json is a list": ("policy.json", lambda v: [v], ["policy.json"]),
+    "architecture a list": ("policy.json", lambda v: {**v, "architecture": [1, 2]}, ["policy.json", "architecture"]),
+    "architecture sizes strings": ("policy.json", lambda v: {**v, "architecture": {
+        **v["architecture"], "hidden_size": "32"}}, ["policy.json", "architecture"]),
+    "input_features a number": ("policy.json", lambda v: {**v, "input_features": 3}, ["input_features"]),
+    "env_config a list": ("env_config.json", lambda v: [], ["env_config.json", "object"]),
+    "env_config unknown key": ("env_config.json", lambda v: {**v, "evil": 1}, ["env_config.json", "evil"]),
+    "env_config a string": ("env_config.json", lambda v: "x", ["env_config.json", "object"]),
+}
+IMM_JSON_CASES = {
+    "base parameters NaN": ("policy.json", lambda v: {**v, "base_parameters": {
+        **v["base_parameters"], next(iter(v["base_parameters"])): float("nan")}}, ["policy.json", "NaN"]),
+    "base parameters a list": ("policy.json", lambda v: {**v, "base_parameters": [1]}, ["base_parameters"]),
+    "parameters a number": ("policy.json", lambda v: {**v, "parameters": 7}, ["parameters"]),
+    "feature_q_g infinite": ("policy.json", lambda v: {**v, "feature_q_g": 1e999}, ["policy.json"]),
+    "n_par missing": ("policy.json", lambda v: {**v, "architecture": {
+        k: x for k, x in v["architecture"].items() if k != "n_par"}}, ["n_par"]),
+}
+
+
+@pytest.mark.parametrize("name", NPZ_KINDS)
+@pytest.mark.parametrize("case", list(JSON_CASES) + list(IMM_JSON_CASES))
+def test_malformed_json_is_refused_naming_the_file_and_field(tmp_path, name, case):
+    if case in IMM_JSON_CASES and name != "policy_imm_bp":
+        pytest.skip("a learned IMM field")
+    fname, fn, words = {**JSON_CASES, **IMM_JSON_CASES}[case]
+    d = _copy(tmp_path, name)
+    (d / fname).write_text(json.dumps(fn(json.loads((d / fname).read_text()))).replace("1e+999", "1e999"))
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, *words)
+
+
+@pytest.mark.parametrize("name", NPZ_KINDS)
+def test_the_file_named_is_the_file_loaded(tmp_path, name):
+    d = _copy(tmp_path, name)
+    shutil.copy(d / "policy.npz", d / "other.npz")
+    with pytest.raises(ValueError) as e:
+        load_learned(d / "other.npz")
+    _one_line(e, "other.npz", "policy.npz")
+    opt = "--policy-imm-bp" if name == "policy_imm_bp" else "--policy-bp"
+    with pytest.raises(SystemExit) as e:
+        ev.main([opt, str(d / "other.npz"), *QUICK])
+    _one_line(e, opt, "other.npz")
+
+
+@pytest.mark.skipif(not set(NPZ_KINDS) >= {"policy_bp", "policy_imm_bp"}, reason="bundled checkpoints")
+@pytest.mark.parametrize("name,option,kind", [("policy_bp", "--policy-imm-bp", "gru_q_policy"),
+                                              ("policy_imm_bp", "--policy-bp", "learned_imm_gru"),
+                                              ("policy_imm_bp", "--policy", "learned_imm_gru")])
+def test_a_checkpoint_of_another_kind_is_refused_with_its_kind(tmp_path, name, option, kind):
+    d = _copy(tmp_path, name)
+    with pytest.raises(SystemExit) as e:
+        ev.main([option, str(d / "policy.npz"), *QUICK])
+    _one_line(e, option, kind)
+
+
+@pytest.mark.skipif("policy_bp" not in NPZ_KINDS, reason="bundled checkpoint")
+def test_a_legacy_policy_json_of_another_kind_is_refused(tmp_path):
+    """A recurrent policy.json without 'kind' whose format says learned IMM: the loader of that format refuses."""
+    d = _copy(tmp_path, "policy_bp")
+    _edit_json(d / "policy.json", lambda v: {**{k: x for k, x in v.items() if k != "kind"},
+                                             "format": "radar-track-learned-imm"})
+    with pytest.raises(SystemExit) as e:
+        ev.main(["--policy-imm-bp", str(d), *QUICK])
+    _one_line(e, "--policy-imm-bp")
+
+
+# ------------------------------------------------------------------------------------------------ 7. property test
+def _fingerprint(lt):
+    pol = lt.policy
+    w = getattr(pol, "w", None)
+    if w is None:      # a NumpyPolicy inside a choose_q closure: compare the files read instead
+        return None
+    return {k: v.tobytes() for k, v in w.items()}, repr(lt.env_config)
+
+
+@pytest.mark.parametrize("name", NPZ_KINDS)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_corruptions_of_the_weights_are_refused_or_harmless(tmp_path_factory, name, data):
+    """Any byte corruption of a valid checkpoint's policy.npz: a one-line ValueError, or the very same tracker
+    (the zip's CRC catches a changed array; a changed header field that does not matter loads the same)."""
+    ref = _fingerprint(load_learned(name))
+    d = _copy(tmp_path_factory.mktemp("c"), name)
+    raw = bytearray((d / "policy.npz").read_bytes())
+    n = data.draw(st.integers(1, 8))
+    for _ in range(n):
+        i = data.draw(st.integers(0, len(raw) - 1))
+        raw[i] = data.draw(st.integers(0, 255))
+    cut = data.draw(st.one_of(st.none(), st.integers(0, len(raw))))
+    (d / "policy.npz").write_bytes(bytes(raw[:cut] if cut is not None else raw))
+    try:
+        lt = load_learned(d)
+    except ValueError as e:
+        assert "\n" not in str(e) and "policy.npz" in str(e), str(e)
+        return
+    assert _fingerprint(lt) == ref
+
+
+@pytest.mark.parametrize("name", NPZ_KINDS)
+@pytest.mark.parametrize("fname", ["policy.json", "env_config.json"])
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_corruptions_of_the_json_are_refused_in_one_line_or_load(tmp_path_factory, name, fname, data):
+    """A corrupted JSON file that still parses may be a legitimate edit; anything else is a one-line refusal."""
+    d = _copy(tmp_path_factory.mktemp("j"), name)
+    raw = bytearray((d / fname).read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(st.integers(0, 255))
+    (d / fname).write_bytes(bytes(raw))
+    try:
+        load_learned(d)
+    except ValueError as e:
+        assert "\n" not in str(e), str(e)
