@@ -281,3 +281,100 @@ def test_random_corruptions_of_the_json_are_refused_in_one_line_or_load(tmp_path
         load_learned(d)
     except ValueError as e:
         assert "\n" not in str(e), str(e)
+
+
+# ------------------------------------------------------------------------------------------------ 5. tune's output
+@pytest.fixture
+def shipped(tmp_path, monkeypatch):
+    """A copy of the shipped tuned.json standing in for it; the working folder is tmp_path."""
+    import baselines.tuning as tuning
+    f = tmp_path / "shipped" / "tuned.json"
+    f.parent.mkdir()
+    shutil.copy(tuning.TUNED_PATH, f)
+    monkeypatch.setattr(tuning, "TUNED_PATH", f)
+    monkeypatch.chdir(tmp_path)
+    return f
+
+
+TUNE = ["--runs", "1", "--trackers", "kf", "--starts", "1"]
+
+
+def test_tune_writes_a_run_folder_by_default_and_the_shipped_file_only_when_asked(shipped, tmp_path, capsys):
+    from baselines.tuning import main as tune_main
+    before = shipped.read_bytes()
+    tune_main(TUNE)
+    written = list((tmp_path / "runs").glob("tune_*/tuned.json"))
+    assert len(written) == 1 and shipped.read_bytes() == before
+    new = json.loads(written[0].read_text())
+    assert set(json.loads(before)) <= set(new)        # the other trackers' entries kept from the shipped file
+    assert "replaced" not in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:               # the shipped file by path: refused without the option
+        tune_main([*TUNE, "--out", str(shipped)])
+    _one_line(e, "--out", "--replace-shipped")
+    assert shipped.read_bytes() == before
+    tune_main([*TUNE, "--replace-shipped"])
+    out = capsys.readouterr().out
+    assert f"wrote {shipped}" in out and "replaced the parameters of" in out and "kf " in out
+    assert json.loads(shipped.read_text())["tuning"]["runs"] == 1
+
+
+@pytest.mark.parametrize("target", ["/dev/null", "fifo", "link", "missing-folder"])
+def test_tune_out_refuses_what_is_not_a_regular_file(shipped, tmp_path, target):
+    import os
+    from baselines.tuning import main as tune_main
+    path = target
+    if target == "fifo":
+        os.mkfifo(tmp_path / "fifo")
+    elif target == "link":
+        (tmp_path / "link").symlink_to(shipped)
+    elif target == "missing-folder":
+        path = str(tmp_path / "nope" / "x.json")
+    with pytest.raises(SystemExit) as e:
+        tune_main([*TUNE, "--out", path])
+    _one_line(e, "--out")
+    assert not (tmp_path / "runs").exists()
+
+
+# ------------------------------------------------------------------------------------------------ 3. outputs
+@pytest.mark.parametrize("kind", ["device", "fifo", "socket", "link"])
+def test_evaluate_json_and_out_refuse_special_files(tmp_path, kind):
+    import os
+    import socket
+    target = tmp_path / "t"
+    sock = None
+    if kind == "device":
+        target = Path("/dev/null")
+    elif kind == "fifo":
+        os.mkfifo(target)
+    elif kind == "socket":
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(target))
+    else:
+        (tmp_path / "real").mkdir()
+        target.symlink_to(tmp_path / "real")
+    try:
+        base = ["--scenario", "kim_lee_accel", "--runs", "1", "--trackers", "kf_low", "--quiet"]
+        with pytest.raises(SystemExit) as e:
+            ev.main([*base, "--no-plots", "--json", str(target)])
+        _one_line(e, "--json")
+        with pytest.raises(SystemExit) as e:
+            ev.main([*base, "--out", str(target)])
+        _one_line(e, "--out")
+    finally:
+        if sock is not None:
+            sock.close()
+    assert Path("/dev/null").is_char_device()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "link"])
+def test_train_out_refuses_special_files(tmp_path, kind):
+    import os
+    from agents.training.runs import open_run_folder
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "out")
+    else:
+        (tmp_path / "real").mkdir()
+        (tmp_path / "out").symlink_to(tmp_path / "real")
+    with pytest.raises(ValueError) as e:
+        open_run_folder(tmp_path / "out" / "run", tmp_path / "out" / "run.partial")
+    _one_line(e, "--out")

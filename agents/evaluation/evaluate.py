@@ -35,7 +35,8 @@ from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F40
 from agents.policies.learned import BUNDLED_LEARNED, learned_label, load_learned, read_kind, resolve_learned
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
+from agents.evaluation.files import (check_output_dir, check_output_file, file_type, move_replacing, same_file,
+                                     write_text_replacing)
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
                                        jsonable, ratio_ci, score_run)
 from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser
@@ -388,6 +389,10 @@ def _check_outputs(args, inputs=()):
     ``--json`` is a symbolic link or one of the run's ``inputs`` (it would be overwritten)."""
     if not args.no_plots:
         out = Path(args.out)
+        try:
+            check_output_dir("--out", out)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
         if out.exists() and not out.is_dir():
             raise SystemExit(f"error: --out: {args.out!r} exists and is not a directory")
         try:
@@ -399,6 +404,9 @@ def _check_outputs(args, inputs=()):
     if args.json:
         js = Path(args.json)
         folder = js.parent
+        if file_type(js) not in (None, "file", "directory", "symbolic link"):
+            raise SystemExit(f"error: --json: {args.json!r} exists and is a {file_type(js)}; only a new path or a "
+                             "regular file is replaced")
         if js.is_dir():
             raise SystemExit(f"error: --json: {args.json!r} is a directory; give a file name")
         if not folder.is_dir():
