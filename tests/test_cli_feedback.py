@@ -102,7 +102,8 @@ def _first_line_s(args):
     (["evaluate", "--scenario", "bizup2002", "--runs", "1", "--trackers", "kf_low", "--no-plots"],
      "1 tracker(s) on 1 suite(s) (bizup2002)"),
     (["train", "--algo", "ppo", "--timesteps", "8", "--out", "/nonexistent-dir/never"], "ppo on RadarTrack-v0"),
-    (["tune", "--runs", "1", "--out", "/nonexistent-dir/never.json"], "tuning kf,imm2,imm_cv_ct on 1"),
+    (["tune", "--runs", "1", "--out", "/nonexistent-dir/never.json"],
+     "tuning kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot on 1"),
 ])
 def test_first_line_comes_before_the_slow_imports(args, words):
     base = _best_of([sys.executable, "-c", "pass"], n=2)

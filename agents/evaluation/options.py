@@ -127,7 +127,7 @@ def first_line(args):
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
-                else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t) or BUNDLED_POLICIES[t].is_file())
+                else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t, None) or BUNDLED_POLICIES[t].is_file())
                                                  for t in BUNDLED_POLICIES))
     trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED])     # user folders add one each
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")

@@ -551,7 +551,7 @@ def _write(args, docs, data):
     blocks = {"families": families_table(data), "seed-spread": spread_table(data), "targets": targets_table(data),
               "track-start": track_start_table(data), "imm-targets": imm_targets_readme(data)}
     if args.readme:
-        from agents.reports.readme_blocks import replace_block
+        from agents.reports.blocks import replace_block
         for name, text in blocks.items():
             replace_block(name, text)
     print("\n\n".join(blocks.values()))

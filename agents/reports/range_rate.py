@@ -27,7 +27,8 @@ from agents.policies.learned import BUNDLED_LEARNED, load_learned
 from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
 
-__all__ = ["PAIRS", "CLASSICAL_RDOT", "SUITES", "learned_rdot", "evaluate_suite", "table", "targets_table", "main"]
+__all__ = ["PAIRS", "CLASSICAL_RDOT", "SUITES", "learned_rdot", "learned_seeds", "evaluate_suite", "table",
+           "seeds_table", "targets_table", "main"]
 
 PAIRS = {"kf_tuned_rdot": "kf_tuned", "imm2_rdot": "imm2", "imm_cv_ct_rdot": "imm_cv_ct", "rbpf_rdot": "rbpf"}
 """Each range-rate tracker and its position-only self."""
@@ -49,6 +50,13 @@ def learned_rdot():
     return out
 
 
+def learned_seeds(learned):
+    """Every training seed of each bundled range-rate tracker's recipe (its ``seeds/`` folder, the chosen seed
+    included): ``{name: {seed run: LearnedTracker}}``."""
+    return {n: {d.name: load_learned(str(d)) for d in sorted((BUNDLED_LEARNED[n] / "seeds").iterdir()) if d.is_dir()}
+            for n in learned if (BUNDLED_LEARNED[n] / "seeds").is_dir()}
+
+
 def _runs(suite, family_runs):
     return family_runs if suite in HELDOUT_FAMILY_SUITES and suite != "adsb_heldout" else default_runs(suite)
 
@@ -58,9 +66,11 @@ def _ratio(batch, a, b):
     return [float(r), [float(lo), float(hi)]]
 
 
-def evaluate_suite(episodes, learned):
+def evaluate_suite(episodes, learned, seeds=None):
     """Every range-rate tracker, its position-only self, imm_cv_ct and the ``learned`` range-rate trackers
-    (``{name: LearnedTracker}``) on ``episodes``; the suite's JSON-able result."""
+    (``{name: LearnedTracker}``) on ``episodes``, and each learned tracker's recipe on its training ``seeds``
+    (:func:`learned_seeds`; their ratios to imm_cv_ct and to the strongest classical range-rate tracker); the
+    suite's JSON-able result."""
     batch = stack_episodes(episodes)
     names = list(dict.fromkeys(list(PAIRS) + list(PAIRS.values()) + ["imm_cv_ct"]))
     runs = {t: run_tracker(t, episodes) for t in names}
@@ -74,7 +84,16 @@ def evaluate_suite(episodes, learned):
                                                      "failed_runs", "anees")} for t in runs},
            "ratio_vs_self": {t: _ratio(batch, runs[t], runs[s]) for t, s in PAIRS.items()},
            "ratio_vs_imm_cv_ct": {t: _ratio(batch, runs[t], runs["imm_cv_ct"]) for t in runs},
-           "ratio_vs_strongest_rdot": {n: _ratio(batch, runs[n], runs[strongest]) for n in learned}}
+           "ratio_vs_strongest_rdot": {n: _ratio(batch, runs[n], runs[strongest]) for n in learned}, "seeds": {}}
+    for n, by_seed in (seeds or {}).items():
+        res["seeds"][n] = {}
+        for run_name, lt in by_seed.items():
+            r = run_policy(n, episodes, lt.policy, lt.env_config)
+            m = evaluate_run(batch, r)
+            res["seeds"][n][run_name] = {"pos_rmse_m": m["pos_rmse_m"], "anees": m["anees"],
+                                         "track_loss_rate": m["track_loss_rate"],
+                                         "ratio_vs_imm_cv_ct": _ratio(batch, r, runs["imm_cv_ct"]),
+                                         "ratio_vs_strongest_rdot": _ratio(batch, r, runs[strongest])}
     return res
 
 
@@ -102,7 +121,29 @@ def table(data):
         cells += [_r(s["ratio_vs_self"][t]) for t in PAIRS]
         cells += [_r(s["ratio_vs_imm_cv_ct"][c]) for c in ("imm_cv_ct_rdot", "rbpf_rdot", *learned)]
         out.append(f"| {suite} ({s['runs']}){few} | " + " | ".join(cells) + " |")
-    return "\n".join(out)
+    return "\n".join(out + seeds_table(data))
+
+
+def seeds_table(data):
+    """Markdown lines: the spread of each learned range-rate recipe over its training seeds, per suite (the mean and
+    the worst of the seeds' ratios to the strongest classical range-rate tracker); none without seed runs."""
+    S = data["suites"]
+    names = [n for n in data["learned"] if any(s.get("seeds", {}).get(n) for s in S.values())]
+    if not names:
+        return []
+    counts = {n: max(len(s["seeds"].get(n, {})) for s in S.values()) for n in names}
+    out = ["", "Over the training seeds of each learned recipe (" + ", ".join(
+        f"{n}: {k} seed{'s' if k != 1 else ''}" for n, k in counts.items()) + "; the bundled one is the seed with the "
+           "best validation score, chosen before any of these numbers): the mean and the worst (highest) of the "
+           "seeds' ratios to the suite's strongest classical range-rate tracker.", "",
+           "| suite | " + " | ".join(f"{n} mean / worst" for n in names) + " |", "|---" * (1 + len(names)) + "|"]
+    for suite, s in S.items():
+        cells = []
+        for n in names:
+            r = [v["ratio_vs_strongest_rdot"][0] for v in s["seeds"].get(n, {}).values()]
+            cells.append(f"{np.mean(r):.3f} / {max(r):.3f}" if r and np.all(np.isfinite(r)) else "-")
+        out.append(f"| {suite} | " + " | ".join(cells) + " |")
+    return out
 
 
 def _row(target, value, reached):
@@ -133,6 +174,12 @@ def targets_table(data):
                             "end at most 1.02)", "above on: " + (", ".join(bad) or "none"), not bad))
             out.append(_row(f"{n} at most 0.95x it on random ({rnd['strongest_classical_rdot']})", _r(rr),
                             rr[0] <= 0.95))
+            sd = rnd.get("seeds", {}).get(n, {})
+            if sd:
+                ok = [k for k, v in sd.items() if v["ratio_vs_strongest_rdot"][0] <= 0.95]
+                out.append(_row(f"{n}'s recipe: at most 0.95x it on random on at least 2 of {len(sd)} training seeds",
+                                ", ".join(f"{k} {v['ratio_vs_strongest_rdot'][0]:.3f}" for k, v in sd.items()),
+                                len(ok) >= 2))
     else:
         out.append("| the learned range-rate trackers' targets | no learned range-rate tracker is bundled | "
                    "**not reached** |")
@@ -150,17 +197,18 @@ def main(argv=None):
     args = ap.parse_args(argv)
     t0 = time.time()
     learned = learned_rdot()
+    seeds = learned_seeds(learned)
     data = {"seed": args.seed, "learned": list(learned), "suites": {}}
     for suite in [s.strip() for s in args.suites.split(",") if s.strip()]:
         eps = draw_suite(suite, _runs(suite, args.family_runs), seed=args.seed)
-        data["suites"][suite] = evaluate_suite(eps, learned)
+        data["suites"][suite] = evaluate_suite(eps, learned, seeds)
         print(f"{suite} ({time.time() - t0:.0f} s)", flush=True)
     data["seconds"] = time.time() - t0
     docs = Path(args.docs)
     (docs / "range_rate.json").write_text(json.dumps(jsonable(data), indent=1, allow_nan=False))
     blocks = {"range-rate": table(data), "range-rate-targets": targets_table(data)}
     if args.readme:
-        from agents.reports.readme_blocks import replace_block
+        from agents.reports.blocks import replace_block
         for name, text in blocks.items():
             replace_block(name, text)
     print("\n\n".join(blocks.values()))

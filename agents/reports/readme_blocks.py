@@ -13,60 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-README = ROOT / "README.md"
-
-
-def pages():
-    """The Markdown pages that may hold generated blocks: README.md and every docs/*.md."""
-    return [README] + sorted((ROOT / "docs").glob("*.md"))
-
-
-def _markers(name):
-    return f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-
-
-def block_names(path=None):
-    """Names of every generated block in ``path`` (default: all :func:`pages`), in order."""
-    return [n for p in ([path] if path is not None else pages())
-            for n in re.findall(r"<!-- ([\w-]+):start -->", Path(p).read_text())]
-
-
-def block_file(name):
-    """The page holding block ``name``; ``ValueError`` if no page or more than one holds it."""
-    start, end = _markers(name)
-    hits = [p for p in pages() if start in (s := p.read_text()) and end in s]
-    if len(hits) != 1:
-        raise ValueError(f"block {name!r}: expected in exactly one of README.md, docs/*.md; found in "
-                         f"{[str(p.relative_to(ROOT)) for p in hits] or 'none'} ({start} ... {end})")
-    return hits[0]
-
-
-def read_block(name, path=None):
-    """The text between the markers of block ``name`` (stripped), in ``path`` (default: the page holding it);
-    ``ValueError`` if the markers are missing."""
-    path = block_file(name) if path is None else Path(path)
-    s = path.read_text()
-    start, end = _markers(name)
-    if start not in s or end not in s:
-        raise ValueError(f"{path} has no {start} ... {end} block")
-    return s[s.index(start) + len(start):s.index(end)].strip()
-
-
-def replace_block(name, text, path=None):
-    """Put ``text`` between the markers of block ``name`` in ``path`` (default: the page holding it); ``ValueError``
-    if the markers are missing."""
-    path = block_file(name) if path is None else Path(path)
-    s = path.read_text()
-    start, end = _markers(name)
-    if start not in s or end not in s:
-        raise ValueError(f"{path} has no {start} ... {end} block")
-    a, b = s.index(start) + len(start), s.index(end)
-    path.write_text(s[:a] + "\n" + text.strip() + "\n" + s[b:])
+from agents.reports.blocks import (README, ROOT, _markers, block_file, block_names, pages, read_block,  # noqa: F401
+                                    replace_block)
 
 
 # ------------------------------------------------------------------------------------------------ renderers

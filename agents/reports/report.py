@@ -339,7 +339,7 @@ def main(argv=None):
     ]
     (docs / "results_tables.md").write_text("\n".join(text))
     if args.readme:
-        from agents.reports.readme_blocks import replace_block
+        from agents.reports.blocks import replace_block
         replace_block("headline", headline(results, policy is not None))
         replace_block("headline-scores", scores_table(results, HEADLINE_TRACKERS))
         replace_block("scores", scores_table(results))
