@@ -114,7 +114,7 @@ def test_train_init_from_needs_the_opt_in(tmp_path):
     _one_line(e, "init_from", "--allow-pickle")
 
 
-# ------------------------------------------------------------------------------------------------ 2. one validation path
+# ------------------------------------------------------------------------------------------------ 2. one validation
 NPZ_KINDS = [n for n in ("policy_bp", "policy_imm_bp") if n in KINDS_ON_DISK]
 
 
@@ -378,3 +378,40 @@ def test_train_out_refuses_special_files(tmp_path, kind):
     with pytest.raises(ValueError) as e:
         open_run_folder(tmp_path / "out" / "run", tmp_path / "out" / "run.partial")
     _one_line(e, "--out")
+
+
+# ------------------------------------------------------------------------------------------------ 6. Ctrl-C in train
+def test_ctrl_c_in_train_ends_in_one_line_with_the_resume_command(tmp_path, monkeypatch):
+    """SIGINT (KeyboardInterrupt) during a backprop run: one line naming the kept .partial folder and the command
+    that resumes it; that command finishes the run from its last checkpoint."""
+    import shlex
+    from agents.training import backprop as bp
+    from agents.training.train import main as train_main
+    real = bp.train_backprop
+
+    def interrupted(*a, **k):
+        def ctrl_c(row):
+            if row["timesteps"] == 2:
+                raise KeyboardInterrupt
+        return real(*a, **{**k, "on_selection": ctrl_c})
+    argv = ["--method", "backprop", "--out", str(tmp_path), "--no-progress", "--quiet", "--hp", "n_steps=4",
+            "--hp", "eval_every=2", "--hp", "batch_episodes=2", "--hp", "hidden_size=4", "--hp", "chunk_looks=5",
+            "--hp", 'eval_scenarios={"random": 2, "random_radars": 2}']
+    monkeypatch.setattr(bp, "train_backprop", interrupted)
+    with pytest.raises(SystemExit) as e:
+        train_main(argv)
+    msg = _one_line(e, "interrupted", ".partial", "resume", "--name")
+    part = next(tmp_path.glob("*.partial"))
+    assert str(part) in msg and (part / "checkpoints" / "last.json").is_file()
+    monkeypatch.setattr(bp, "train_backprop", real)
+    again = shlex.split(msg.split("last checkpoint: ", 1)[1])
+    assert again[:2] == ["radar-track", "train"]
+    run = train_main(again[2:])
+    assert run == part.with_name(part.name.removesuffix(".partial")) and not part.exists()
+    assert json.loads((run / "summary.json").read_text())["resumed_at"] == [2]
+
+
+def test_ctrl_c_in_a_ppo_run_names_the_command_to_start_again(tmp_path):
+    from agents.training.runs import RunInterrupted
+    msg = RunInterrupted(tmp_path / "x.partial", resumable=False).message("radar-track train --algo ppo")
+    assert "\n" not in msg and "start it again" in msg and msg.endswith("radar-track train --algo ppo --name x")

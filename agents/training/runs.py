@@ -174,6 +174,27 @@ def write_run_files(part, config, args, command, env_kwargs):
     (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) stopped a training run: its ``<name>.partial`` folder is kept (:func:`mark_failed`).
+    ``message(command)`` is the one line the command ends with: where the run is and the command that resumes it
+    (``resumable``) or starts it again."""
+
+    def __init__(self, part, resumable):
+        super().__init__(str(part))
+        self.part, self.resumable = Path(part), resumable
+
+    def message(self, command):
+        import shlex
+        name = self.part.name.removesuffix(".partial")
+        words = shlex.split(command or "radar-track train")
+        if "--name" not in words and not any(w.startswith("--name=") for w in words):
+            words += ["--name", name]
+        again = " ".join(map(shlex.quote, words))
+        what = ("resume it from its last checkpoint" if self.resumable
+                else "start it again (this method does not resume)")
+        return f"radar-track train: interrupted; the unfinished run is in {self.part}/; to {what}: {again}"
+
+
 def mark_failed(part, lock):
     """Write the current exception's traceback to ``<part>/FAILED`` (call it in an ``except`` block) and release the
     run's lock."""

@@ -51,7 +51,7 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides,  # noqa: F401
                                   check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
                                   run_paths, write_run_files)
 
@@ -333,6 +333,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         from agents.policies.learned import sb3_kind, write_run_layout
         write_run_layout(part, sb3_kind(algo, env_kwargs), jsonable(summary))    # policy.json, training/choice.json
         env.close()
+    except KeyboardInterrupt:
+        mark_failed(part, lock)
+        raise RunInterrupted(part, resumable=False) from None
     except BaseException:
         mark_failed(part, lock)
         raise
@@ -546,6 +549,10 @@ def main(argv=None, prog="radar-track train"):
                      allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except RunInterrupted as e:
+        raise SystemExit(e.message(command)) from None
+    except KeyboardInterrupt:
+        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
 
 
 if __name__ == "__main__":
