@@ -132,7 +132,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if i + 1 < len(jobs):
                 bar.start(i + 1)
         bar.start(0)
-        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick)
+        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick,
+                                  allow_pickle=allow_pickle)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
         suite_runs = {} if ray_runs is None else ray_runs[suite]
@@ -634,7 +635,8 @@ def main(argv=None, prog="radar-track evaluate"):
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed, learned=learned)
+                                 address=args.address, seed=args.seed, learned=learned,
+                                 allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results))
