@@ -121,6 +121,10 @@ def test_fine_tune_from_saved_model_on_random_radars(tmp_path):
     import stable_baselines3 as sb3
     hp = _tiny("ppo")
     first = train("ppo", hp, seed=3, out=tmp_path, progress=False, verbose=0, run_name="a")
+    from agents.policies.learned import load_learned
+    from agents.policies.numpy_policy import NumpyPolicy, load_export
+    assert isinstance(load_export(first / "policy.zip"), NumpyPolicy)    # exported at the save: no pickle needed
+    load_learned(first)
     src = sb3.PPO.load(first / "policy.zip", device="cpu")
     hp2 = _tiny("ppo")
     hp2.update(n_timesteps=128, n_steps=32, init_from=str(first / "policy.zip"), learning_rate=0.0,

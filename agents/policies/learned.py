@@ -214,9 +214,10 @@ def write_run_layout(run, kind, summary):
                                        "selection": read_json(sel) if sel.is_file() else None}))
     for folder, choice in folders:
         if kind in SB3_KINDS and (folder / "policy.zip").is_file():
-            from agents.policies.numpy_policy import save_export
-            try:
-                save_export(folder / "policy.zip", allow_pickle=True)     # the zip this training run wrote
+            from agents.policies.numpy_policy import load_export, save_export
+            try:    # the trainer exported each zip it saved; else export the zip this training run wrote
+                if load_export(folder / "policy.zip") is None:
+                    save_export(folder / "policy.zip", allow_pickle=True)
             except ValueError:
                 pass        # no numpy export for this structure: the zip runs through SB3 (policy.json says so)
             write_manifest(folder, kind)

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["NumpyPolicy", "export_model", "check_export", "export_path", "zip_sha256", "save_export",
-           "load_export", "load_sb3_model", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
+           "load_export", "load_sb3_model", "export_saved", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
 
 EXPORT_VERSION = 1
 ACTIVATIONS = ("identity", "tanh", "relu", "elu", "leaky_relu", "silu")
@@ -349,6 +349,16 @@ def save_export(policy_path, model=None, allow_pickle=False):
     with open(out, "wb") as f:      # np.savez on a path would append .npz to a name without it
         np.savez(f, **arrays)
     return out
+
+
+def export_saved(policy_path, model):
+    """Write the export of the zip ``model`` was just saved to (training, after each save: no unpickling, the model
+    is in memory), so that the run evaluates without ``--allow-pickle``. Returns the ``.npz`` path, or None when
+    the model's structure has no export (the zip then needs the opt-in)."""
+    try:
+        return save_export(policy_path, model)
+    except ValueError:
+        return None
 
 
 def main(argv=None):

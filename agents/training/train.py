@@ -317,6 +317,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         wall = time.perf_counter() - t0
         model.save(part / "policy.zip")
         embed_env_config(part / "policy.zip", env_kwargs)
+        from agents.policies.numpy_policy import export_saved
+        export_saved(part / "policy.zip", model)        # arrays beside the pickle: evaluated without unpickling
         if isinstance(env, VecNormalize):
             env.save(str(part / "vecnormalize.pkl"))
         eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
