@@ -415,3 +415,27 @@ def test_ctrl_c_in_a_ppo_run_names_the_command_to_start_again(tmp_path):
     from agents.training.runs import RunInterrupted
     msg = RunInterrupted(tmp_path / "x.partial", resumable=False).message("radar-track train --algo ppo")
     assert "\n" not in msg and "start it again" in msg and msg.endswith("radar-track train --algo ppo --name x")
+
+
+# ------------------------------------------------------------------------------------------------ 4. bounds
+@pytest.mark.parametrize("scenario", ["random", "bizup2002"])
+def test_a_scan_period_beyond_memory_is_refused_before_allocation(scenario):
+    import gymnasium as gym
+
+    import radar_env  # noqa: F401
+    from radar_env.sim.radar import Radar, RadarSite
+    with pytest.raises(ValueError) as e:
+        env = gym.make("RadarTrack-v0", scenario=scenario, radar=Radar((RadarSite(scan_period_s=1e-6),)))
+        env.reset(seed=0)
+    _one_line(e, "scan_period_s", "looks")
+
+
+@pytest.mark.parametrize("argv,option", [(["--algo", "ppo", "--n-envs", "100000000"], "--n-envs"),
+                                         (["--method", "backprop", "--hp", "batch_episodes=1000000000"],
+                                          "--hp batch_episodes")])
+def test_training_rows_beyond_memory_are_refused_naming_the_option(tmp_path, argv, option):
+    from agents.training.train import main as train_main
+    with pytest.raises(SystemExit) as e:
+        train_main([*argv, "--out", str(tmp_path), "--quiet"])
+    _one_line(e, option, "GiB")
+    assert not list(tmp_path.iterdir())          # no .partial folder left

@@ -361,6 +361,8 @@ def check_hp(hp):
     except (TypeError, ValueError) as e:
         raise ValueError(f"--env-kwargs: {e}") from None
     hp["env_kwargs"] = env_kwargs
+    from agents.training.runs import check_rows_fit
+    check_rows_fit("--hp batch_episodes", int(hp["batch_episodes"]))     # before any allocation
     return hp, env_kwargs, cfg
 
 

@@ -248,6 +248,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     if algo == "sac" and act != "continuous":
         raise ValueError("SAC needs action_type='continuous'")
     n_envs, n_timesteps = int(hp.get("n_envs", 16)), int(hp.get("n_timesteps", 1_000_000))
+    from agents.training.runs import check_rows_fit
+    check_rows_fit("--n-envs", n_envs)          # before the seed range and any allocation
     seed = int(seed)
     if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
         raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")

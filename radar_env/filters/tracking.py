@@ -220,6 +220,11 @@ class Tracker:
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K):
+        from ..sim.radar import MAX_LOOKS
+        if K > MAX_LOOKS:       # before any allocation: B rows x K looks x the look record's float64s
+            raise ValueError(f"RadarSite.scan_period_s: an episode of {K:,} looks exceeds {MAX_LOOKS:,} looks per "
+                             f"episode ({self.B * K * _k.W_LOOK * 8 / 2**30:.3g} GiB for its looks alone); give a "
+                             "longer scan_period_s or a shorter flight")
         if K > self._cap:
             self._grow(K)
 
