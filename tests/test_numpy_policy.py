@@ -164,13 +164,13 @@ def test_user_zip_is_exported_in_memory_and_stale_or_damaged_exports_are_ignored
     assert "exported from another file" in capsys.readouterr().err
     # a damaged export: a ValueError from load_export, a warning and SB3 from load_model
     out.write_bytes(b"not an npz")
-    with pytest.raises(ValueError, match="not a readable .npz"):
+    with pytest.raises(ValueError, match="not a numpy .npz"):
         npp.load_export(d / "policy.zip")
-    with pytest.raises(ValueError, match="not a readable .npz"):
+    with pytest.raises(ValueError, match="not a numpy .npz"):
         load_policy(d / "policy.zip")
     choose_q, _ = load_policy(d / "policy.zip", allow_pickle=True)
     err = capsys.readouterr().err
-    assert "not a readable .npz" in err and "exported from another file" not in err and callable(choose_q)
+    assert "not a numpy .npz" in err and "exported from another file" not in err and callable(choose_q)
 
 
 def test_damaged_arrays_are_refused_naming_the_problem():

@@ -439,3 +439,49 @@ def test_training_rows_beyond_memory_are_refused_naming_the_option(tmp_path, arg
         train_main([*argv, "--out", str(tmp_path), "--quiet"])
     _one_line(e, option, "GiB")
     assert not list(tmp_path.iterdir())          # no .partial folder left
+
+
+# ------------------------------------------------------------------------------------------------ 6. faults
+def _enospc(path):
+    import errno
+    import os
+
+    def fail(*a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return fail
+
+
+def test_a_full_disk_in_evaluate_is_one_line_and_leaves_no_partial_json(tmp_path, monkeypatch):
+    js = tmp_path / "m.json"
+    monkeypatch.setattr(ev, "write_text_replacing", _enospc(js))
+    with pytest.raises(SystemExit) as e:
+        ev.main(["--scenario", "kim_lee_accel", "--runs", "1", "--trackers", "kf_low", "--quiet", "--no-plots",
+                 "--json", str(js)])
+    _one_line(e, "--json", "m.json", "No space left")
+    assert not js.exists()
+    monkeypatch.setattr(ev, "write_plots", _enospc(tmp_path / "out" / "x.png"))
+    with pytest.raises(SystemExit) as e:
+        ev.main(["--scenario", "kim_lee_accel", "--runs", "1", "--trackers", "kf_low", "--quiet",
+                 "--out", str(tmp_path / "out")])
+    _one_line(e, "--out", "No space left")
+
+
+def test_a_full_disk_in_train_is_one_line_and_keeps_the_partial_run(tmp_path, monkeypatch):
+    from agents.training import backprop as bp
+    from agents.training.train import main as train_main
+    real = bp._save_policy
+    calls = []
+
+    def save(*a, **k):          # the first save (best/) works, the next hits a full disk
+        calls.append(1)
+        if len(calls) > 1:
+            _enospc(tmp_path / "x")()
+        return real(*a, **k)
+    monkeypatch.setattr(bp, "_save_policy", save)
+    with pytest.raises(SystemExit) as e:
+        train_main(["--method", "backprop", "--out", str(tmp_path), "--no-progress", "--quiet", "--hp", "n_steps=4",
+                    "--hp", "eval_every=2", "--hp", "batch_episodes=2", "--hp", "hidden_size=4", "--hp",
+                    "chunk_looks=5", "--hp", 'eval_scenarios={"random": 2, "random_radars": 2}'])
+    _one_line(e, "could not write", "No space left", ".partial")
+    part = next(tmp_path.glob("*.partial"))
+    assert (part / "checkpoints" / "last.json").is_file()

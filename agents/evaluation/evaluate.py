@@ -652,13 +652,23 @@ def main(argv=None, prog="radar-track evaluate"):
                 "radar_range_km": (None if radar is not None or not files else
                                    [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
-        write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
-                                                   allow_nan=False))
+        try:        # written beside it and renamed: a failed write leaves no partial file
+            write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
+                                                       allow_nan=False))
+        except (OSError, ValueError) as e:
+            raise SystemExit(f"error: --json: could not write {args.json} ({getattr(e, 'strerror', None) or e}); "
+                             "the table above is the run's result") from None
         print(f"metrics: {args.json}")
     if not args.no_plots:
         scenarios = {n: run_scenario(n, args.seed) for n in names}
         scenarios.update({n: run_scenario(f, args.seed) for n, f in zip(file_names, files)})
-        written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
+        try:
+            written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
+        except (OSError, ValueError) as e:
+            where = getattr(e, "filename", None)
+            raise SystemExit(f"error: --out: could not write the figures in {args.out}/ "
+                             f"({getattr(e, 'strerror', None) or e}{': ' + str(where) if where else ''}); the "
+                             "figures written before it are complete") from None
         print(f"plots: {len(written)} files in {args.out}/")
     return results
 

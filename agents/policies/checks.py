@@ -90,7 +90,7 @@ def read_npz(path):
             return {k: np.asarray(z[k]) for k in z.files}
     except Exception as e:  # noqa: BLE001 - zipfile, zlib, EOF and format errors of a damaged file: one line
         msg = str(e).splitlines()[0] if str(e) else ""
-        raise ValueError(f"{path}: not a readable .npz of plain arrays ({type(e).__name__}: {msg})") from None
+        raise ValueError(f"{path}: not a numpy .npz of plain arrays, or damaged ({type(e).__name__}: {msg})") from None
 
 
 def check_weights(path, weights, shapes):

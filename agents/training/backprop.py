@@ -738,5 +738,8 @@ def main_from_args(args, argv):
         raise SystemExit(f"error: {e}") from None
     except RunInterrupted as e:
         raise SystemExit(e.message(command)) from None
+    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
+        raise SystemExit(f"radar-track train: could not write {e.filename or args.out} ({e.strerror or e}); the "
+                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
     except KeyboardInterrupt:
         raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
