@@ -485,3 +485,13 @@ def test_a_full_disk_in_train_is_one_line_and_keeps_the_partial_run(tmp_path, mo
     _one_line(e, "could not write", "No space left", ".partial")
     part = next(tmp_path.glob("*.partial"))
     assert (part / "checkpoints" / "last.json").is_file()
+
+
+def test_a_radar_site_out_of_range_of_the_whole_flight_is_refused():
+    import gymnasium as gym
+
+    import radar_env  # noqa: F401
+    from radar_env.sim.radar import atc_radar
+    with pytest.raises(ValueError) as e:
+        gym.make("RadarTrack-v0", scenario="bizup2002", radar=atc_radar(position_m=(1e9, 0.0))).reset(seed=0)
+    _one_line(e, "RadarSite.position_m", "bizup2002", "km")
