@@ -174,9 +174,10 @@ class Radar:
         return Radar(tuple(s.replace(position_m=tuple(np.asarray(s.position_m) + off)) for s in self.sites))
 
 
-MAX_LOOKS = 200_000
-"""Most looks of one episode (all sites): the episode's per-look arrays (tens of float64 per look, times the rows of a
-batch) must fit in memory; a schedule beyond it is refused before anything is allocated."""
+MAX_LOOKS = 10_000_000
+"""Most looks of one episode (all sites; 1 s looks for 115 days): the episode's per-look arrays (tens of float64 per
+look, about 2 GB at this bound) must fit in memory; a schedule beyond it is refused before anything is allocated
+(and the tracker refuses a batch whose look arrays exceed half the machine's memory)."""
 
 
 def scan_schedule(radar, duration_s):
