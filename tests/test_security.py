@@ -495,3 +495,12 @@ def test_a_radar_site_out_of_range_of_the_whole_flight_is_refused():
     with pytest.raises(ValueError) as e:
         gym.make("RadarTrack-v0", scenario="bizup2002", radar=atc_radar(position_m=(1e9, 0.0))).reset(seed=0)
     _one_line(e, "RadarSite.position_m", "bizup2002", "km")
+
+
+@pytest.mark.parametrize("fname", ["model.pt", "env_config.json", "notes.txt"])
+def test_a_file_that_is_not_a_policy_file_is_not_swapped_for_the_folders(tmp_path, fname):
+    d = _copy(tmp_path, "policy_bp")
+    (d / fname).write_text("{}")
+    with pytest.raises(ValueError) as e:
+        load_learned(d / fname)
+    _one_line(e, fname, "give the folder")

@@ -103,6 +103,9 @@ def resolve_learned(path_or_name):
     if not p.exists():
         raise ValueError(f"{s!r} is neither a bundled learned tracker ({', '.join(BUNDLED_LEARNED)}) nor an "
                          "existing folder or file")
+    if p.is_file() and p.suffix not in (".zip", ".npz") and p.name != MANIFEST:
+        raise ValueError(f"{s}: not a learned tracker's file (policy.npz, policy.zip or {MANIFEST} in its folder); "
+                         "a file is loaded from the path given, never a neighbour: give the folder")
     folder, file = (p, None) if p.is_dir() else (p.parent, p if p.suffix in (".zip", ".npz") else None)
     if file is not None and file.suffix == ".npz":    # policy.json describes policy.npz: never load a neighbour
         from agents.policies.checks import check_policy_file
