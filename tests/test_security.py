@@ -504,3 +504,17 @@ def test_a_file_that_is_not_a_policy_file_is_not_swapped_for_the_folders(tmp_pat
     with pytest.raises(ValueError) as e:
         load_learned(d / fname)
     _one_line(e, fname, "give the folder")
+
+
+def test_a_sweep_with_init_from_needs_the_opt_in_before_ray_starts(tmp_path):
+    pytest.importorskip("ray")
+    from agents.training.sweep import main as sweep_main
+    z = tmp_path / "policy.zip"
+    z.write_bytes(b"PK")
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(f'[sweep]\nname = "s"\nalgo = "ppo"\nsearch = "grid"\n\n[base]\ninit_from = "{z}"\n\n'
+                   '[space]\nseed = [0]\n')
+    with pytest.raises(SystemExit) as e:
+        sweep_main([str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
+    _one_line(e, "init_from", "--allow-pickle")
+    assert not (tmp_path / "out").exists()
