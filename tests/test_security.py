@@ -518,3 +518,16 @@ def test_a_sweep_with_init_from_needs_the_opt_in_before_ray_starts(tmp_path):
         sweep_main([str(cfg), "--out", str(tmp_path / "out"), "--quiet"])
     _one_line(e, "init_from", "--allow-pickle")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif("policy" not in KINDS_ON_DISK, reason="no bundled SB3 policy")
+def test_a_ray_worker_unpickles_only_with_the_drivers_opt_in(tmp_path):
+    from agents.evaluation.parallel import _policy_blob, _policy_in_worker
+    d = _copy(tmp_path, "policy")
+    (d / "policy.npz").unlink()
+    blob = _policy_blob(d / "policy.zip")
+    with pytest.raises(ValueError) as e:
+        _policy_in_worker(blob)
+    _one_line(e, "--allow-pickle")
+    choose_q, cfg = _policy_in_worker(blob, allow_pickle=True)
+    assert callable(choose_q)
