@@ -531,3 +531,16 @@ def test_a_ray_worker_unpickles_only_with_the_drivers_opt_in(tmp_path):
     _one_line(e, "--allow-pickle")
     choose_q, cfg = _policy_in_worker(blob, allow_pickle=True)
     assert callable(choose_q)
+
+
+@pytest.mark.parametrize("name", [n for n in ("policy", "policy_imm_ppo") if n in KINDS_ON_DISK])
+@pytest.mark.parametrize("text,word", [("[]", "object"), ('{"scan": NaN}', "finite"), ("{", "JSON"),
+                                       ('{"evil": 1}', "evil")])
+def test_an_sb3_folders_env_config_goes_through_the_same_checks(tmp_path, name, text, word):
+    d = _copy(tmp_path, name)
+    if word == "evil":      # an unknown key beside the real ones
+        text = json.dumps({**json.loads((d / "env_config.json").read_text()), "evil": 1})
+    (d / "env_config.json").write_text(text)
+    with pytest.raises(ValueError) as e:
+        load_learned(d)
+    _one_line(e, "env_config.json", word)

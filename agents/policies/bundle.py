@@ -69,13 +69,8 @@ def policy_env_kwargs(policy_path=None):
     cfg = path.with_name("env_config.json")
     if not cfg.is_file():
         raise ValueError(f"policy_path: no env_config.json beside {str(path)!r} (looked for {str(cfg)!r})")
-    try:
-        kw = json.loads(cfg.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{cfg}: not valid JSON ({e})") from e
-    if not isinstance(kw, dict):
-        raise ValueError(f"{cfg}: must hold a JSON object of RadarTrack-v0 arguments, got {type(kw).__name__}")
-    return env_kwargs_from_json(kw)
+    from agents.policies.checks import read_json_object      # the one validation path: finite numbers only
+    return env_kwargs_from_json(read_json_object(cfg, "a JSON object of RadarTrack-v0 arguments"))
 
 
 def embed_env_config(zip_path, env_kwargs):
