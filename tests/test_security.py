@@ -236,14 +236,15 @@ def test_a_legacy_policy_json_of_another_kind_is_refused(tmp_path):
 
 # ------------------------------------------------------------------------------------------------ 7. property test
 def _fingerprint(lt):
-    pol = lt.policy
-    w = getattr(pol, "w", None)
-    if w is None:      # a NumpyPolicy inside a choose_q closure: compare the files read instead
-        return None
-    return {k: v.tobytes() for k, v in w.items()}, repr(lt.env_config)
+    """The weights the loaded tracker runs and its env config."""
+    w = getattr(lt.policy, "w", None)
+    if w is None:      # an SB3 kind: its numpy export (inside a choose_q closure or the IMM wrapper)
+        from agents.policies.numpy_policy import load_export
+        w = load_export(lt.file).arrays()
+    return {k: np.asarray(v).tobytes() for k, v in w.items()}, repr(lt.env_config)
 
 
-@pytest.mark.parametrize("name", NPZ_KINDS)
+@pytest.mark.parametrize("name", KINDS_ON_DISK)
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_corruptions_of_the_weights_are_refused_or_harmless(tmp_path_factory, name, data):

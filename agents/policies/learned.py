@@ -9,7 +9,11 @@ Every learned tracker, bundled or trained by a user, is a folder holding:
 * ``training.json``: the training record (hyperparameters, command, summary);
 * ``choice.json``: the choice record (the rule and what it chose: a seed, a checkpoint);
 * where the kind is a stable-baselines3 model, ``policy.zip`` beside the ``.npz`` (a pickle; the ``.npz`` is its
-  numpy export and is what runs when it is current, :mod:`agents.policies.numpy_policy`).
+  numpy export and is what runs when it is current, :mod:`agents.policies.numpy_policy`; without a current export
+  the zip is refused unless ``allow_pickle=True``).
+
+Every file is checked by :mod:`agents.policies.checks` before anything runs (one-line ``ValueError`` naming the file
+and the field), and a file given by path is the file loaded, never a neighbour.
 
 The kind, not the caller, decides how the tracker runs: :func:`load_learned` reads ``policy.json`` and hands the
 folder to the per-kind loader (:func:`agents.policies.loading.load_policy`). The bundled trackers are named in
