@@ -47,12 +47,9 @@ import math
 from pathlib import Path
 
 import numpy as np
-
-from radar_env.envs.config import EnvConfig
 from radar_env.envs.core import actions_to_q_m_s2
 from radar_env.common.units import G0_M_S2
 
-from agents.policies.bundle import env_kwargs_from_json
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "save_recurrent_policy",
            "load_recurrent_policy", "is_recurrent_checkpoint", "weight_shapes"]
@@ -243,7 +240,7 @@ def load_recurrent_policy(path):
     shapes = _checked_shapes(meta_file, arch)
     weights = checks.read_npz(path)
     checks.check_weights(path, weights, shapes)
-    env_kw, cfg = checks.check_env_config(env_file)
+    _, cfg = checks.check_env_config(env_file)
     feats = meta.get("input_features", list(cfg.features))
     if not isinstance(feats, list) or not all(isinstance(f, str) for f in feats):
         raise ValueError(f"{meta_file}: field 'input_features' must be a list of feature names, got {feats!r}"[:300])
