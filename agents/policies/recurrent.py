@@ -47,9 +47,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+
 from radar_env.envs.core import actions_to_q_m_s2
 from radar_env.common.units import G0_M_S2
-
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "save_recurrent_policy",
            "load_recurrent_policy", "is_recurrent_checkpoint", "weight_shapes"]
