@@ -545,3 +545,12 @@ def test_an_sb3_folders_env_config_goes_through_the_same_checks(tmp_path, name, 
     with pytest.raises(ValueError) as e:
         load_learned(d)
     _one_line(e, "env_config.json", word)
+
+
+def test_a_full_disk_in_sweep_is_one_line_with_the_resume_command(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    from agents.training import sweep
+    monkeypatch.setattr(sweep, "run_sweep", _enospc(tmp_path / "out" / "results.csv"))
+    with pytest.raises(SystemExit) as e:
+        sweep.main([str(sweep.EXAMPLE_CONFIG), "--out", str(tmp_path / "out"), "--quiet"])
+    _one_line(e, "results.csv", "No space left", "resume with: radar-track sweep")

@@ -442,6 +442,9 @@ def main(argv=None, prog="radar-track sweep"):
                                                allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except OSError as e:        # a full disk: what and where; finished trials stay in their run folders
+        raise SystemExit(f"error: could not write {e.filename or args.out} ({e.strerror or e}); finished trials "
+                         f"are kept; free space and resume with: {resume}") from None
     except KeyboardInterrupt:      # a second SIGINT: Tune's last save was skipped, its periodic one is there
         raise SystemExit(f"error: interrupted; resume with: {resume}") from None
     print(format_results(rows))
