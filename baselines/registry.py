@@ -34,8 +34,8 @@ from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params, tuned_parameters
 from .user_trackers import batch_runner, per_episode_runner
 
-__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "POLICY_TRACKERS", "DESIGN_ENVELOPES", "run_tracker", "tuned_parameters",
-           "tuned_imm2_spec", "TUNED_PATH",
+__all__ = ["TRACKER_NAMES", "BOUND_TRACKERS", "RANGE_RATE_TRACKERS", "POLICY_TRACKERS", "DESIGN_ENVELOPES",
+           "run_tracker", "tuned_parameters", "tuned_imm2_spec", "TUNED_PATH",
            "register_tracker", "tracker_names"]
 
 
@@ -141,6 +141,10 @@ def register_tracker(name, fn, overwrite=False, batch=False):
 def tracker_names():
     """Every tracker name :func:`run_tracker` and ``--trackers`` accept: the built-ins, then user trackers."""
     return POLICY_TRACKERS + tuple(_RUNNERS)
+
+RANGE_RATE_TRACKERS = ("kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "rbpf_rdot")
+"""The classical trackers that also update on each plot's radial velocity (a learned tracker does when its env
+config has ``radial_velocity``)."""
 
 BOUND_TRACKERS = ("clairvoyant", "oracle_q", "hindsight_q", "hindsight_q_turn")
 """Trackers that see the truth (its acceleration, or the whole episode): reference bounds, not causal trackers. A

@@ -22,6 +22,14 @@ Conventions (Stone Soup's on the outside, ours inside):
   ``atan2(x - sx, y - sy)``, clockwise from north: ``ours = pi/2 - stone_soup``. A polar plot is converted inside
   the updater exactly as our episodes convert theirs (:func:`radar_env.sim.radar.cartesian_from_polar`,
   :func:`radar_env.sim.radar.converted_covariance` at the measured range and bearing), then the IMM's update.
+* Range rate. A detection ``[bearing, range, range rate]`` with
+  :class:`~stonesoup.models.measurement.nonlinear.CartesianToBearingRangeRate2D` (the 2-D one: Stone Soup's
+  ``CartesianToBearingRangeRate`` needs a 6-state ``[x, vx, y, vy, z, vz]``; ``mapping=(0, 2)``,
+  ``velocity_mapping=(1, 3)``, a stationary site: ``velocity`` zero, noise ``diag(sb^2, sr^2, srdot^2)``): its
+  range rate ``(p - site) . v / |p - site|`` is ours (positive receding, the same sign). The plot converts as
+  above, then every mode updates on the range rate after its position and that likelihood joins the mode's: the
+  range-rate IMM, ``imm_cv_ct_rdot`` (``IMMCVCTPredictor(spec=tuned_imm_cv_ct_spec("imm_cv_ct_rdot"))``; equal to
+  ``run_imm_cv_ct(..., radial_velocity=True)``, tested).
 * Gating. :meth:`IMMCVCTUpdater.predict_measurement` is Stone Soup's extended-Kalman one on the combined Gaussian
   (the IMM's moment-matched prediction): a hypothesiser gates in the detection's own (polar) space with the
   linearised innovation covariance. The update itself uses the converted plot, as our chain does; the two
@@ -55,7 +63,8 @@ from stonesoup.base import Property  # noqa: E402
 from stonesoup.models.measurement.base import MeasurementModel  # noqa: E402
 from stonesoup.models.transition.base import TransitionModel  # noqa: E402
 from stonesoup.models.measurement.linear import LinearGaussian  # noqa: E402
-from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402
+from stonesoup.models.measurement.nonlinear import (  # noqa: E402
+    CartesianToBearingRange, CartesianToBearingRangeRate, CartesianToBearingRangeRate2D)
 from stonesoup.predictor.base import Predictor  # noqa: E402
 from stonesoup.types.angle import Bearing  # noqa: E402
 from stonesoup.types.array import CovarianceMatrix, StateVector  # noqa: E402
@@ -69,8 +78,8 @@ from radar_env.filters.imm_cv_ct import IMMCVCTSpec, initial_modes, predict_mode
 from radar_env.sim.radar import cartesian_from_polar, converted_covariance  # noqa: E402
 
 __all__ = ["IMMCVCTState", "IMMCVCTStatePrediction", "IMMCVCTStateUpdate", "IMMCVCTPredictor", "IMMCVCTUpdater",
-           "plot_from_detection", "polar_detection", "detections_from_episode", "gaussian_state", "ours_from_state",
-           "stamp", "EPOCH", "SS_FROM_OURS"]
+           "plot_from_detection", "range_rate_from_detection", "polar_detection", "detections_from_episode",
+           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "EPOCH", "SS_FROM_OURS"]
 
 EPOCH = _dt.datetime(2000, 1, 1)
 """The datetime of our ``t_s = 0`` (:func:`stamp`)."""
@@ -86,6 +95,13 @@ def stamp(t_s) -> _dt.datetime:
     if not math.isfinite(t):
         raise ValueError(f"t_s must be a finite number of seconds, got {t_s!r}")
     return EPOCH + _dt.timedelta(seconds=t)
+
+
+def seconds(timestamp) -> float:
+    """A Stone Soup timestamp as our time (seconds since :data:`EPOCH`), the inverse of :func:`stamp`."""
+    if not isinstance(timestamp, _dt.datetime):
+        raise ValueError(f"timestamp must be a datetime, got {timestamp!r}")
+    return (timestamp - EPOCH).total_seconds()
 
 
 def _tuned_spec():
@@ -183,63 +199,137 @@ def plot_from_detection(detection, measurement_model=None) -> tuple[np.ndarray, 
     """The Cartesian plot ``z (2,)`` (m) and its covariance ``R (2, 2)`` (m^2) our chain filters, from a Stone Soup
     detection.
 
-    ``CartesianToBearingRange`` (``[bearing, range]``, Stone Soup's bearing counter-clockwise from east): converted
-    as our episodes convert plots (:func:`radar_env.sim.radar.cartesian_from_polar`,
-    :func:`radar_env.sim.radar.converted_covariance` at the measured values, our bearing ``pi/2 -`` Stone Soup's).
-    ``LinearGaussian`` with ``mapping=(0, 2)``: the detection is already the plot, its noise ``R``.
+    ``CartesianToBearingRange`` (``[bearing, range]``, Stone Soup's bearing counter-clockwise from east) or
+    ``CartesianToBearingRangeRate2D`` (``[bearing, range, range rate]``): converted as our episodes convert plots
+    (:func:`radar_env.sim.radar.cartesian_from_polar`, :func:`radar_env.sim.radar.converted_covariance` at the
+    measured values, our bearing ``pi/2 -`` Stone Soup's). ``LinearGaussian`` with ``mapping=(0, 2)``: the
+    detection is already the plot, its noise ``R``.
 
     Args:
         detection: a :class:`~stonesoup.types.detection.Detection`.
         measurement_model: used when the detection carries none.
     Raises:
-        ValueError: a model other than those two, a mapping other than ``(0, 2)`` (x and y of ``[x, vx, y, vy]``),
-            a rotated or non-diagonal polar model, a non-finite measurement.
+        ValueError: a model other than those, a mapping other than ``(0, 2)`` (x and y of ``[x, vx, y, vy]``),
+            a rotated or non-diagonal polar model, a moving sensor, a non-finite measurement.
     """
+    return _measurement(detection, measurement_model)[:2]
+
+
+def range_rate_from_detection(detection, measurement_model=None):
+    """The range-rate input of the IMM's update (:func:`radar_env.filters.imm_cv_ct.update_modes`'s
+    ``range_rate``): ``(range rate (m/s, positive receding), its variance (m^2/s^2), site x, site y (m))`` of a
+    ``CartesianToBearingRangeRate2D`` detection; None for a detection without range rate. Raises as
+    :func:`plot_from_detection`."""
+    return _measurement(detection, measurement_model)[2]
+
+
+def look_from_detection(detection, measurement_model=None) -> dict:
+    """A polar detection as our look fields (:data:`radar_env.sim.looks.LOOK_COLUMNS` names): ``t_s`` (seconds,
+    :func:`seconds`), ``detected`` True, ``z_m``, ``R_m2`` (:func:`plot_from_detection`), ``site_xy_m``,
+    ``range_m``, ``bearing_rad`` (ours: clockwise from north), ``radial_velocity_m_s``, the noise stds
+    ``range_noise_std_m``, ``bearing_noise_std_rad``, ``radial_velocity_noise_std_m_s`` (the range-rate ones NaN
+    for a ``CartesianToBearingRange``). ``ValueError`` for a ``LinearGaussian`` (no polar values) and as
+    :func:`plot_from_detection`."""
+    model = detection.measurement_model if detection.measurement_model is not None else measurement_model
+    z, R, rr = _measurement(detection, measurement_model)
+    if not isinstance(model, (CartesianToBearingRange, CartesianToBearingRangeRate2D)):
+        raise ValueError(f"measurement_model must be polar (CartesianToBearingRange[Rate2D]) for a look with range "
+                         f"and bearing, got {type(model).__name__}")
+    y = np.asarray(detection.state_vector, dtype=np.float64).reshape(-1)
+    noise = np.asarray(model.covar(), dtype=np.float64)
+    site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)[:2].copy()
+    return {"t_s": seconds(detection.timestamp), "detected": True, "z_m": z, "R_m2": R, "site_xy_m": site,
+            "range_m": float(y[1]), "bearing_rad": 0.5 * math.pi - float(y[0]),
+            "radial_velocity_m_s": math.nan if rr is None else rr[0],
+            "range_noise_std_m": math.sqrt(noise[1, 1]), "bearing_noise_std_rad": math.sqrt(noise[0, 0]),
+            "radial_velocity_noise_std_m_s": math.nan if rr is None else math.sqrt(rr[1])}
+
+
+def _measurement(detection, measurement_model):
+    """``(z (2,), R (2, 2), range_rate or None)`` of a detection (:func:`plot_from_detection`)."""
     model = detection.measurement_model if detection.measurement_model is not None else measurement_model
     if model is None:
         raise ValueError("detection has no measurement_model and none was given (measurement_model)")
+    if isinstance(model, CartesianToBearingRangeRate):
+        raise ValueError("measurement_model CartesianToBearingRangeRate is Stone Soup's 3-D model (a 6-state "
+                         "[x, vx, y, vy, z, vz]); for the 4-state [x, vx, y, vy] use CartesianToBearingRangeRate2D")
     if tuple(int(i) for i in model.mapping) != (0, 2):
         raise ValueError(f"measurement_model.mapping must be (0, 2) (x and y of [x, vx, y, vy]), got "
                          f"{tuple(model.mapping)}")
+    with_rdot = isinstance(model, CartesianToBearingRangeRate2D)
+    n_meas = 3 if with_rdot else 2
     y = np.asarray(detection.state_vector, dtype=np.float64).reshape(-1)
     noise = np.asarray(model.covar(), dtype=np.float64)
-    if y.shape != (2,) or not np.isfinite(y).all():
-        raise ValueError(f"detection.state_vector must be 2 finite numbers, got {y.tolist()}")
-    if isinstance(model, CartesianToBearingRange):
+    if y.shape != (n_meas,) or not np.isfinite(y).all():
+        raise ValueError(f"detection.state_vector must be {n_meas} finite numbers for a {type(model).__name__}, "
+                         f"got {y.tolist()}")
+    if isinstance(model, (CartesianToBearingRange, CartesianToBearingRangeRate2D)):
+        name = type(model).__name__
         if np.any(np.asarray(model.rotation_offset, dtype=np.float64) != 0.0):
-            raise ValueError(f"CartesianToBearingRange.rotation_offset must be zero (a bearing measured from east), "
+            raise ValueError(f"{name}.rotation_offset must be zero (a bearing measured from east), "
                              f"got {np.asarray(model.rotation_offset).ravel().tolist()}")
-        if noise[0, 1] != 0.0 or noise[1, 0] != 0.0:
-            raise ValueError(f"CartesianToBearingRange.noise_covar must be diagonal (independent bearing and range "
+        if np.any(noise != np.diag(np.diag(noise))):
+            raise ValueError(f"{name}.noise_covar must be diagonal (independent bearing, range[ and range-rate] "
                              f"noise, as our converted covariance assumes), got {noise.tolist()}")
         site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)[:2]
         bearing = 0.5 * math.pi - y[0]         # Stone Soup's (from east, counter-clockwise) -> ours (from north, cw)
         z = cartesian_from_polar(y[1], bearing, site)
         R = converted_covariance(y[1], bearing, math.sqrt(noise[1, 1]), math.sqrt(noise[0, 0]))
-        return z, R
+        if not with_rdot:
+            return z, R, None
+        if tuple(int(i) for i in model.velocity_mapping) != (1, 3):
+            raise ValueError(f"{name}.velocity_mapping must be (1, 3) (vx and vy of [x, vx, y, vy]), got "
+                             f"{tuple(model.velocity_mapping)}")
+        if np.any(np.asarray(model.velocity, dtype=np.float64) != 0.0):
+            raise ValueError(f"{name}.velocity must be zero (a stationary site, as our range-rate update assumes), "
+                             f"got {np.asarray(model.velocity).ravel().tolist()}")
+        return z, R, (float(y[2]), float(noise[2, 2]), float(site[0]), float(site[1]))
     if isinstance(model, LinearGaussian):
-        return y, noise
-    raise ValueError(f"measurement_model must be a CartesianToBearingRange or a LinearGaussian, got "
-                     f"{type(model).__name__}")
+        return y, noise, None
+    raise ValueError(f"measurement_model must be a CartesianToBearingRange, CartesianToBearingRangeRate2D or "
+                     f"LinearGaussian, got {type(model).__name__}")
 
 
 def polar_detection(range_m, bearing_rad, site_xy_m, range_noise_std_m, bearing_noise_std_rad, t_s,
-                    ndim_state=4) -> Detection:
+                    ndim_state=4, radial_velocity_m_s=None, radial_velocity_noise_std_m_s=None) -> Detection:
     """One of our polar plots (bearing ours: clockwise from north) as a Stone Soup ``Detection`` with a
-    ``CartesianToBearingRange`` model (Stone Soup's bearing ``pi/2 - ours``, the site as ``translation_offset``)."""
-    model = CartesianToBearingRange(
-        ndim_state=ndim_state, mapping=(0, 2),
-        noise_covar=CovarianceMatrix(np.diag([float(bearing_noise_std_rad) ** 2, float(range_noise_std_m) ** 2])),
-        translation_offset=StateVector(np.asarray(site_xy_m, dtype=np.float64).reshape(2)))
-    return Detection(StateVector([Bearing(0.5 * math.pi - float(bearing_rad)), float(range_m)]),
-                     timestamp=stamp(t_s), measurement_model=model)
+    ``CartesianToBearingRange`` model (Stone Soup's bearing ``pi/2 - ours``, the site as ``translation_offset``);
+    with ``radial_velocity_m_s`` (and its noise std) a ``[bearing, range, range rate]`` detection with a
+    ``CartesianToBearingRangeRate2D`` model (same sign: positive receding)."""
+    site = StateVector(np.asarray(site_xy_m, dtype=np.float64).reshape(2))
+    y = [Bearing(0.5 * math.pi - float(bearing_rad)), float(range_m)]
+    var = [float(bearing_noise_std_rad) ** 2, float(range_noise_std_m) ** 2]
+    if radial_velocity_m_s is None:
+        model = CartesianToBearingRange(ndim_state=ndim_state, mapping=(0, 2),
+                                        noise_covar=CovarianceMatrix(np.diag(var)), translation_offset=site)
+    else:
+        if radial_velocity_noise_std_m_s is None:
+            raise ValueError("radial_velocity_noise_std_m_s must be given with radial_velocity_m_s")
+        y.append(float(radial_velocity_m_s))
+        var.append(float(radial_velocity_noise_std_m_s) ** 2)
+        model = CartesianToBearingRangeRate2D(ndim_state=ndim_state, mapping=(0, 2), velocity_mapping=(1, 3),
+                                              noise_covar=CovarianceMatrix(np.diag(var)), translation_offset=site)
+    return Detection(StateVector(y), timestamp=stamp(t_s), measurement_model=model)
 
 
-def detections_from_episode(episode):
-    """Our episode's plots as Stone Soup detections, one per look: ``[Detection or None]`` (None where missed)."""
-    return [polar_detection(episode.range_m[k], episode.bearing_rad[k], episode.site_xy_m[k],
-                            episode.range_noise_std_m[k], episode.bearing_noise_std_rad[k], episode.t_s[k])
-            if episode.detected[k] else None for k in range(episode.n_looks)]
+def detections_from_episode(episode, radial_velocity=False):
+    """Our episode's plots as Stone Soup detections, one per look: ``[Detection or None]`` (None where missed);
+    ``radial_velocity``: with range rate (:func:`polar_detection`) where the look has a finite one with a positive
+    noise std (else position only, as our range-rate chain treats such a look)."""
+    out = []
+    for k in range(episode.n_looks):
+        if not episode.detected[k]:
+            out.append(None)
+            continue
+        rd = sd = None
+        if radial_velocity:
+            rd, sd = float(episode.radial_velocity_m_s[k]), float(episode.radial_velocity_noise_std_m_s[k])
+            if not (math.isfinite(rd) and math.isfinite(sd) and sd > 0.0):
+                rd = sd = None
+        out.append(polar_detection(episode.range_m[k], episode.bearing_rad[k], episode.site_xy_m[k],
+                                   episode.range_noise_std_m[k], episode.bearing_noise_std_rad[k], episode.t_s[k],
+                                   radial_velocity_m_s=rd, radial_velocity_noise_std_m_s=sd))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ predictor, updater
@@ -301,15 +391,19 @@ class IMMCVCTPredictor(Predictor):
 
 
 class IMMCVCTUpdater(ExtendedKalmanUpdater):
-    """Stone Soup updater of ``imm_cv_ct``: the mode-matched updates with the converted plot, the mode
-    probabilities and the combination (the kernel's second half), on an :class:`IMMCVCTStatePrediction`.
+    """Stone Soup updater of ``imm_cv_ct``: the mode-matched updates with the converted plot (and its range rate,
+    for a ``CartesianToBearingRangeRate2D`` detection), the mode probabilities and the combination (the kernel's
+    second half), on an :class:`IMMCVCTStatePrediction`.
 
     :meth:`predict_measurement` is the extended Kalman updater's on the combined Gaussian (for gating and
     association, in the detection's space). The IMM parameters come with the prediction (its ``spec``)."""
 
     measurement_model: MeasurementModel = Property(
-        default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange or "
-                          "LinearGaussian (plot_from_detection)")
+        default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange[Rate2D] "
+                          "or LinearGaussian (plot_from_detection)")
+    use_range_rate: bool = Property(
+        default=True, doc="update on a detection's range rate when it has one (False: its position only, the "
+                          "position-only imm_cv_ct on range-rate detections)")
 
     def update(self, hypothesis, **kwargs) -> IMMCVCTStateUpdate:
         """Update ``hypothesis.prediction`` with ``hypothesis.measurement`` (a ``MissedDetection``: the kernel's
@@ -321,8 +415,9 @@ class IMMCVCTUpdater(ExtendedKalmanUpdater):
         spec = pred.spec_or_tuned
         xm, Pm = _modes_ours(pred)
         if hypothesis:
-            z, R = plot_from_detection(hypothesis.measurement, self.measurement_model)
-            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities, z, R)
+            z, R, rr = _measurement(hypothesis.measurement, self.measurement_model)
+            u = update_modes(spec, xm, Pm, pred.log_mode_probabilities, z, R,
+                             range_rate=rr if self.use_range_rate else None)
             when = hypothesis.measurement.timestamp
         else:
             u = update_modes(spec, xm, Pm, pred.log_mode_probabilities)

@@ -13,6 +13,11 @@ radar at the origin; ``SimpleDetectionSimulator`` with ``CartesianToBearingRange
 detection probability 0.9 and uniform clutter in the sector the targets fly in. The EKF is shown at two process
 noises (neither tuned: a low one that is good on the straight legs and a high one that follows the turns); the
 IMM runs at its tuned parameters (``baselines/tuned.json``), tuned on our single-target suites, not on this.
+
+``--range-rate``: the radar also measures range rate (``CartesianToBearingRangeRate2D``, 1 m/s noise; clutter
+uniform in range rate too); the EKFs and ``imm_cv_ct_rdot`` update on it, ``imm_cv_ct`` on the position only (as
+it is evaluated); ``run(..., extra=...)`` adds other predictor/updater pairs (``python -m
+agents.policies.stonesoup_learned`` adds the learned IMM this way).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .imm_cv_ct_runner import tuned_imm_cv_ct_spec
 from .stonesoup_components import EPOCH, IMMCVCTPredictor, IMMCVCTUpdater
 
 from stonesoup.base import Property  # noqa: E402
@@ -35,7 +41,9 @@ from stonesoup.initiator.simple import MultiMeasurementInitiator  # noqa: E402
 from stonesoup.measures import Euclidean, Mahalanobis  # noqa: E402
 from stonesoup.metricgenerator.manager import MultiManager  # noqa: E402
 from stonesoup.metricgenerator.ospametric import OSPAMetric  # noqa: E402
-from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402
+from stonesoup.models.base import ReversibleModel  # noqa: E402
+from stonesoup.models.measurement.nonlinear import (  # noqa: E402
+    CartesianToBearingRange, CartesianToBearingRangeRate2D)
 from stonesoup.models.transition.linear import (  # noqa: E402
     CombinedLinearGaussianTransitionModel, ConstantVelocity, KnownTurnRate)
 from stonesoup.predictor.kalman import KalmanPredictor  # noqa: E402
@@ -52,6 +60,8 @@ FIGURE = Path(__file__).resolve().parents[1] / "docs" / "figures" / "stonesoup_m
 SCAN_S = 5.0
 EKF_Q = (0.5, 20.0)
 """The EKF's process noises (Stone Soup's ConstantVelocity ``noise_diff_coeff``, m^2/s^3)."""
+RDOT_STD_M_S = 1.0
+"""The range-rate noise with ``range_rate`` (m/s; Bizup's radar: 2 kt)."""
 OSPA_C_M, OSPA_P = 2000.0, 1
 GATE = 3.0        # Mahalanobis distance (the hypothesiser's missed_distance)
 
@@ -66,9 +76,23 @@ class _Replay(DetectionReader):
         yield from self.scans
 
 
-def scenario(n_steps=80, seed=7, n_targets=4, detection_probability=0.9, clutter_rate=3.0):
+class BearingRangeRate(CartesianToBearingRangeRate2D, ReversibleModel):
+    """Stone Soup's ``CartesianToBearingRangeRate2D`` with the position inverse of ``CartesianToBearingRange`` (the
+    velocity 0), so that Stone Soup's measurement initiators accept its detections."""
+
+    def inverse_function(self, detection, **kwargs):
+        phi, rho = float(detection.state_vector[0]), float(detection.state_vector[1])
+        out = StateVector(np.zeros((self.ndim_state, 1)))
+        site = np.asarray(self.translation_offset, dtype=np.float64).ravel()
+        out[self.mapping[0], 0] = rho * math.cos(phi) + site[0]
+        out[self.mapping[1], 0] = rho * math.sin(phi) + site[1]
+        return out
+
+
+def scenario(n_steps=80, seed=7, n_targets=4, detection_probability=0.9, clutter_rate=3.0, range_rate=False):
     """One draw of the scenario (module docstring): ``(truths, scans, measurement_model)`` with ``truths`` the
-    ground-truth paths, ``scans`` ``[(time, set of detections)]`` (real and clutter)."""
+    ground-truth paths, ``scans`` ``[(time, set of detections)]`` (real and clutter); ``range_rate``: detections
+    ``[bearing, range, range rate]`` (:class:`BearingRangeRate`)."""
     rng = np.random.default_rng(seed)
     # every model that draws noise gets its own seed (a model without one draws from numpy's global generator)
     cv = CombinedLinearGaussianTransitionModel([ConstantVelocity(0.01), ConstantVelocity(0.01)], seed=seed + 1)
@@ -87,10 +111,16 @@ def scenario(n_steps=80, seed=7, n_targets=4, detection_probability=0.9, clutter
         initial_state=GaussianState(StateVector([0.0, 0.0, 0.0, 0.0]), CovarianceMatrix(np.eye(4)), EPOCH),
         timestep=_dt.timedelta(seconds=SCAN_S), number_steps=n_steps, birth_rate=0.0, death_probability=0.0,
         preexisting_states=starts, seed=seed)
-    model = CartesianToBearingRange(ndim_state=4, mapping=(0, 2),
-                                    noise_covar=CovarianceMatrix(np.diag([(0.1 * DEG) ** 2, 50.0 ** 2])),
-                                    seed=seed + 4)
-    sector = np.array([[0.0, 90.0 * DEG], [20e3, 110e3]])      # clutter: bearing (rad), range (m)
+    if range_rate:
+        model = BearingRangeRate(ndim_state=4, mapping=(0, 2), velocity_mapping=(1, 3),
+                                 noise_covar=CovarianceMatrix(np.diag([(0.1 * DEG) ** 2, 50.0 ** 2,
+                                                                       RDOT_STD_M_S ** 2])), seed=seed + 4)
+        sector = np.array([[0.0, 90.0 * DEG], [20e3, 110e3], [-300.0, 300.0]])   # clutter: + range rate (m/s)
+    else:
+        model = CartesianToBearingRange(ndim_state=4, mapping=(0, 2),
+                                        noise_covar=CovarianceMatrix(np.diag([(0.1 * DEG) ** 2, 50.0 ** 2])),
+                                        seed=seed + 4)
+        sector = np.array([[0.0, 90.0 * DEG], [20e3, 110e3]])      # clutter: bearing (rad), range (m)
     det_sim = SimpleDetectionSimulator(groundtruth=truth_sim, measurement_model=model, meas_range=sector,
                                        detection_probability=detection_probability, clutter_rate=clutter_rate,
                                        seed=seed)
@@ -117,14 +147,19 @@ def _initiator():
         updater=updater, min_points=3)
 
 
-def run_tracker(scans, filter_name):
-    """The tracks of one filter on the replayed ``scans``: ``filter_name`` ``"imm_cv_ct"`` or ``"ekf_q<q>"``."""
-    if filter_name == "imm_cv_ct":
-        predictor, updater = IMMCVCTPredictor(), IMMCVCTUpdater()
+def run_tracker(scans, filter_name, components=None):
+    """The tracks of one filter on the replayed ``scans``: ``filter_name`` ``"imm_cv_ct"``, ``"imm_cv_ct_rdot"`` or
+    ``"ekf_q<q>"``, or any name with ``components = (predictor, updater)``."""
+    if components is not None:
+        predictor, updater = components
+    elif filter_name in ("imm_cv_ct", "imm_cv_ct_rdot"):     # imm_cv_ct: position only, also on range-rate plots
+        predictor = IMMCVCTPredictor(spec=tuned_imm_cv_ct_spec(filter_name))
+        updater = IMMCVCTUpdater(use_range_rate=filter_name == "imm_cv_ct_rdot")
     elif filter_name.startswith("ekf_q"):
         predictor, updater = _ekf(float(filter_name[5:]))
     else:
-        raise ValueError(f"filter_name must be 'imm_cv_ct' or 'ekf_q<q>', got {filter_name!r}")
+        raise ValueError(f"filter_name must be 'imm_cv_ct', 'imm_cv_ct_rdot' or 'ekf_q<q>' (or components given), "
+                         f"got {filter_name!r}")
     tracker = MultiTargetTracker(
         initiator=_initiator(), deleter=UpdateTimeStepsDeleter(3), detector=_Replay(scans),
         data_associator=GNNWith2DAssignment(DistanceHypothesiser(predictor, updater, Mahalanobis(), GATE)),
@@ -149,13 +184,16 @@ def ospa(tracks, truths):
     return t[order], v[order]
 
 
-def run(n_steps=80, seed=7, filters=None):
-    """The example: ``{filter: {"t_s", "ospa_m", "n_tracks"}}`` plus ``"_truths"`` (the number of targets)."""
-    truths, scans, _ = scenario(n_steps, seed)
-    filters = filters or [f"ekf_q{q:g}" for q in EKF_Q] + ["imm_cv_ct"]
-    out = {"_truths": len(truths)}
-    for f in filters:
-        tracks = run_tracker(scans, f)
+def run(n_steps=80, seed=7, filters=None, range_rate=False, extra=None):
+    """The example: ``{filter: {"t_s", "ospa_m", "n_tracks"}}`` plus ``"_truths"`` (the number of targets) and
+    ``"_range_rate"``.
+    ``extra``: ``{name: make}`` more filters, ``make()`` giving a fresh ``(predictor, updater)``."""
+    truths, scans, _ = scenario(n_steps, seed, range_rate=range_rate)
+    filters = filters or [f"ekf_q{q:g}" for q in EKF_Q] + ["imm_cv_ct"] + (["imm_cv_ct_rdot"] if range_rate else [])
+    extra = dict(extra or {})
+    out = {"_truths": len(truths), "_range_rate": bool(range_rate)}
+    for f in list(filters) + list(extra):
+        tracks = run_tracker(scans, f, extra[f]() if f in extra else None)
         t, v = ospa(tracks, truths)
         out[f] = {"t_s": t, "ospa_m": v, "n_tracks": len(tracks)}
     return out
@@ -186,7 +224,8 @@ def figure(result, path=FIGURE):
             ax.plot(r["t_s"], r["ospa_m"], label=f"{name} (mean {r['ospa_m'].mean():.0f} m)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"OSPA (m), c = {OSPA_C_M:g} m, p = {OSPA_P}")
-    ax.set_title(f"{result['_truths']} maneuvering targets, Pd 0.9, clutter: Stone Soup GNN tracker")
+    rr = ", range rate" if result.get("_range_rate") else ""
+    ax.set_title(f"{result['_truths']} maneuvering targets, Pd 0.9, clutter{rr}: Stone Soup GNN tracker")
     ax.legend()
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -195,16 +234,18 @@ def figure(result, path=FIGURE):
     return path
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m baselines.stonesoup_example", description=__doc__.split("\n\n")[0])
+def main(argv=None, extra=None, prog="python -m baselines.stonesoup_example", figure_path=FIGURE):
+    """The command (``extra``: as :func:`run`)."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=80, help="scans (5 s apart), default 80")
     ap.add_argument("--seed", type=int, default=7, help="seed of the truths, detections and clutter, default 7")
-    ap.add_argument("--figure", default=str(FIGURE), help=f"figure path, default {FIGURE}")
+    ap.add_argument("--figure", default=str(figure_path), help=f"figure path, default {figure_path}")
+    ap.add_argument("--range-rate", action="store_true", help="the radar measures range rate (imm_cv_ct_rdot)")
     ap.add_argument("--no-figure", action="store_true", help="print the table only")
     args = ap.parse_args(argv)
     if args.steps < 5:
         ap.error(f"--steps must be >= 5 (a track needs three plots to start), got {args.steps}")
-    result = run(args.steps, args.seed)
+    result = run(args.steps, args.seed, range_rate=args.range_rate, extra=extra)
     print(table(result))
     if not args.no_figure:
         print(f"figure: {figure(result, args.figure)}")

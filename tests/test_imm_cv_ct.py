@@ -619,3 +619,13 @@ def test_split_look_checks_its_inputs():
         update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 2.0], None)
     with pytest.raises(ValueError, match="finite"):
         update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [np.nan, 2.0], np.eye(2))
+    with pytest.raises(ValueError, match="range_rate must be"):
+        update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 2.0], np.eye(2), range_rate=(1.0, 4.0))
+    # no range rate (None, an inf or a zero variance): the position-only update, bit for bit
+    ref = update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 1e4], np.eye(2) * 100.0)
+    for rr in ((-50.0, np.inf, 0.0, 0.0), (-50.0, 0.0, 0.0, 0.0)):
+        up = update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 1e4], np.eye(2) * 100.0, range_rate=rr)
+        np.testing.assert_array_equal(up.x, ref.x)
+    up = update_modes(spec, pred.x_modes, pred.P_modes, pred.log_c, [1.0, 1e4], np.eye(2) * 100.0,
+                      range_rate=(-50.0, 1.0, 0.0, 0.0))
+    assert abs(up.x[3] - ref.x[3]) > 1.0        # the range rate moves the velocity along the line of sight

@@ -156,3 +156,14 @@ def test_range_rate_trackers_run_and_beat_their_position_only_selves(name):
     assert rdot.name == name + "_rdot"
     a, b = pooled_rmse(batch, pos), pooled_rmse(batch, rdot)
     assert np.isfinite(b) and b < 0.95 * a, (a, b)
+
+
+def test_a_range_rate_tracker_does_not_unmake_a_position_only_bound():
+    """The bounds filter the position plots only: a range-rate tracker (classical, or learned by its env config)
+    below a bound leaves it a bound; a position-only tracker below it does not."""
+    from agents.evaluation.evaluate import bounds_beaten
+    trackers = {"imm_cv_ct_rdot": {"pos_rmse_m": 20.0}, "policy_x": {"pos_rmse_m": 21.0},
+                "imm_cv_ct": {"pos_rmse_m": 40.0}, "clairvoyant": {"pos_rmse_m": 30.0}}
+    assert bounds_beaten(trackers, {"imm_cv_ct_rdot", "policy_x"}) == {}
+    assert bounds_beaten(trackers, {"imm_cv_ct_rdot"})["clairvoyant"]["beaten_by"] == "policy_x"
+    assert bounds_beaten(trackers)["clairvoyant"]["beaten_by"] == "policy_x"     # the registry's classical set

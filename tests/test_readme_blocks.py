@@ -12,8 +12,8 @@ every block.
 
 import pytest
 
-from agents.reports.readme_blocks import (COMMANDS, RENDERERS, block_file, block_names, main, read_block,
-                                          replace_block)
+from agents.reports.blocks import block_file, block_names, read_block, replace_block
+from agents.reports.readme_blocks import COMMANDS, RENDERERS, main
 
 
 def test_every_generated_block_has_a_renderer_and_a_command():

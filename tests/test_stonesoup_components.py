@@ -19,7 +19,8 @@ from stonesoup.dataassociator.neighbour import GNNWith2DAssignment  # noqa: E402
 from stonesoup.hypothesiser.distance import DistanceHypothesiser  # noqa: E402
 from stonesoup.measures import Mahalanobis  # noqa: E402
 from stonesoup.models.measurement.linear import LinearGaussian  # noqa: E402
-from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402
+from stonesoup.models.measurement.nonlinear import (  # noqa: E402
+    CartesianToBearingRange, CartesianToBearingRangeRate, CartesianToBearingRangeRate2D)
 from stonesoup.types.array import CovarianceMatrix, StateVector  # noqa: E402
 from stonesoup.types.detection import Clutter, Detection, MissedDetection  # noqa: E402
 from stonesoup.types.hypothesis import SingleHypothesis  # noqa: E402
@@ -29,6 +30,7 @@ from stonesoup.types.track import Track  # noqa: E402
 from agents.evaluation.suites import draw_suite  # noqa: E402
 from baselines import stonesoup_components as S  # noqa: E402
 from baselines.imm_cv_ct_runner import IMMCVCTSpec, common_start, run_imm_cv_ct, tuned_imm_cv_ct_spec  # noqa: E402
+from baselines.trackers import _with_range_rate  # noqa: E402
 from radar_env.filters.imm_cv_ct import predict_modes  # noqa: E402
 from radar_env.sim.radar import Radar, RadarSite, polar_from_cartesian  # noqa: E402
 from radar_env.common.units import DEG  # noqa: E402
@@ -54,11 +56,11 @@ def _episodes(which):
     return draw_suite(which, 3, seed=1_000_000)
 
 
-def _run_stonesoup(e, spec, x4, P4, k0, missed="predict"):
+def _run_stonesoup(e, spec, x4, P4, k0, missed="predict", radial_velocity=False):
     """The Stone Soup chain on one episode from the common start; missed looks: keep the prediction (what Stone
     Soup's trackers do) or update with a MissedDetection. Returns per-look (x, P, maneuver probability, states)."""
     predictor, updater = S.IMMCVCTPredictor(spec=spec), S.IMMCVCTUpdater()
-    dets = S.detections_from_episode(e)
+    dets = S.detections_from_episode(e, radial_velocity=radial_velocity)
     state = S.gaussian_state(x4, P4, e.t_s[k0])
     out = []
     for k in range(k0 + 1, e.n_looks):
@@ -75,16 +77,19 @@ def _run_stonesoup(e, spec, x4, P4, k0, missed="predict"):
     return out
 
 
+@pytest.mark.parametrize("radial_velocity", [False, True], ids=["imm_cv_ct", "imm_cv_ct_rdot"])
 @pytest.mark.parametrize("which", ["bizup2002", "random", "two_sites_with_misses"])
-def test_stonesoup_chain_equals_run_imm_cv_ct_on_every_look(which):
+def test_stonesoup_chain_equals_run_imm_cv_ct_on_every_look(which, radial_velocity):
+    """Polar detections (with range rate: CartesianToBearingRangeRate2D and the range-rate IMM's tuned spec) through
+    the predictor and updater give run_imm_cv_ct(..., radial_velocity) on every look."""
     eps = _episodes(which)
-    spec = tuned_imm_cv_ct_spec()
-    start = common_start(eps)
-    run = run_imm_cv_ct(eps, spec, start=start)
+    spec = tuned_imm_cv_ct_spec("imm_cv_ct_rdot" if radial_velocity else "imm_cv_ct")
+    start = common_start(eps, _with_range_rate(None, radial_velocity))
+    run = run_imm_cv_ct(eps, spec, start=start, radial_velocity=radial_velocity)
     _, k0, x4, P4 = start
     n_checked = n_missed = 0
     for b, e in enumerate(eps):
-        for k, x, P, p_man, state in _run_stonesoup(e, spec, x4[b], P4[b], k0[b]):
+        for k, x, P, p_man, state in _run_stonesoup(e, spec, x4[b], P4[b], k0[b], radial_velocity=radial_velocity):
             ref_x, ref_P = run.x[b, k], run.P[b, k]
             # relative to each block's scale: position, velocity (a near-zero velocity component is not its scale)
             for sl in (slice(0, 2), slice(2, 4)):
@@ -100,9 +105,29 @@ def test_stonesoup_chain_equals_run_imm_cv_ct_on_every_look(which):
     assert n_checked == sum(e.n_looks - k - 1 for e, k in zip(eps, k0))
     if which == "two_sites_with_misses":
         assert n_missed > 0
-    # the test can fail: another spec gives other estimates
-    other = _run_stonesoup(eps[0], IMMCVCTSpec(q_high_g=None), x4[0], P4[0], k0[0])
+    # the test can fail: another spec, or the other measurement (with / without range rate), gives other estimates
+    other = _run_stonesoup(eps[0], IMMCVCTSpec(q_high_g=None), x4[0], P4[0], k0[0], radial_velocity=radial_velocity)
     assert max(np.abs(x - run.x[0, k]).max() for k, x, *_ in other) > 1.0
+    other = _run_stonesoup(eps[0], spec, x4[0], P4[0], k0[0], radial_velocity=not radial_velocity)
+    assert max(np.abs(x - run.x[0, k]).max() for k, x, *_ in other) > 1.0
+
+
+def test_range_rate_detections_position_only():
+    """IMMCVCTUpdater(use_range_rate=False) on range-rate detections is the position-only imm_cv_ct."""
+    eps = _episodes("bizup2002")[:1]
+    spec = tuned_imm_cv_ct_spec()
+    start = common_start(eps)
+    run = run_imm_cv_ct(eps, spec, start=start)
+    _, k0, x4, P4 = start
+    e = eps[0]
+    predictor, updater = S.IMMCVCTPredictor(spec=spec), S.IMMCVCTUpdater(use_range_rate=False)
+    dets = S.detections_from_episode(e, radial_velocity=True)
+    state = S.gaussian_state(x4[0], P4[0], e.t_s[k0[0]])
+    for k in range(k0[0] + 1, e.n_looks):
+        pred = predictor.predict(state, timestamp=S.stamp(e.t_s[k]))
+        state = updater.update(SingleHypothesis(pred, dets[k])) if dets[k] is not None else pred
+        x, P = S.ours_from_state(state)
+        np.testing.assert_allclose(x, run.x[0, k], rtol=0, atol=REL * np.abs(run.x[0, k]).max())
 
 
 def test_missed_detection_update_is_the_kernels_missed_look():
@@ -145,6 +170,65 @@ def test_bearing_convention_and_plot_conversion():
         y = np.asarray(det.measurement_model.function(truth), dtype=np.float64).ravel()
         assert abs(math.remainder(y[0] - (0.5 * math.pi - b), 2 * math.pi)) < 1e-12
         assert abs(y[1] - r) < 1e-9 * r
+
+
+def test_range_rate_convention_and_detection():
+    """Stone Soup's range rate (CartesianToBearingRangeRate2D on [x, vx, y, vy]) is ours: positive receding, the same
+    value on the truth; the detection carries our plot, its radial velocity, the variance and the site."""
+    e = _episodes("two_sites_with_misses")[2]
+    dets = S.detections_from_episode(e, radial_velocity=True)
+    for k in np.flatnonzero(e.detected)[:40]:
+        det = dets[k]
+        assert isinstance(det.measurement_model, CartesianToBearingRangeRate2D)
+        z, R = S.plot_from_detection(det)
+        np.testing.assert_allclose(z, e.z_m[k], rtol=1e-12)
+        np.testing.assert_allclose(R, e.R_m2[k], rtol=1e-9)
+        rd, var, sx, sy = S.range_rate_from_detection(det)
+        assert rd == e.radial_velocity_m_s[k] and (sx, sy) == tuple(e.site_xy_m[k])
+        assert var == pytest.approx(e.radial_velocity_noise_std_m_s[k] ** 2, rel=1e-15)
+        _, _, rdot_true = polar_from_cartesian(e.truth[k], e.site_xy_m[k])
+        truth = GaussianState(StateVector(e.truth[k][S.SS_FROM_OURS]), CovarianceMatrix(np.eye(4)))
+        y = np.asarray(det.measurement_model.function(truth), dtype=np.float64).ravel()
+        assert y[2] == pytest.approx(rdot_true, rel=1e-9, abs=1e-9)
+    # the sign: a target north of the site flying north recedes, positive in both
+    model = S.polar_detection(2e4, 0.0, (5e3, -3e3), 50.0, 1e-3, 0.0, radial_velocity_m_s=0.0,
+                              radial_velocity_noise_std_m_s=1.0).measurement_model
+    away = GaussianState(StateVector([5e3, 0.0, 17e3, 200.0]), CovarianceMatrix(np.eye(4)))
+    assert float(model.function(away)[2]) == pytest.approx(200.0, rel=1e-12)
+    assert polar_from_cartesian(np.array([[5e3, 17e3, 0.0, 200.0]]), np.array([5e3, -3e3]))[2][0] == \
+        pytest.approx(200.0, rel=1e-12)
+    assert S.range_rate_from_detection(S.detections_from_episode(e)[int(np.flatnonzero(e.detected)[0])]) is None
+
+
+def test_hypothesiser_gates_range_rate_detections():
+    """With range rate the hypothesiser's distance is the 3-D Mahalanobis distance of the extended-Kalman prediction
+    [bearing, range, range rate]; a clutter plot at the true position but 10 sigma off in range rate is gated out."""
+    eps = _episodes("bizup2002")
+    spec = tuned_imm_cv_ct_spec("imm_cv_ct_rdot")
+    _, k0, x4, P4 = common_start(eps, _with_range_rate(None, True))
+    e = eps[1]
+    predictor, updater = S.IMMCVCTPredictor(spec=spec), S.IMMCVCTUpdater()
+    dets = S.detections_from_episode(e, radial_velocity=True)
+    track = Track([S.gaussian_state(x4[1], P4[1], e.t_s[k0[1]])])
+    hypothesiser = DistanceHypothesiser(predictor, updater, Mahalanobis(), missed_distance=math.sqrt(chi2.ppf(1 - 1e-6,
+                                                                                                              3)))
+    for k in range(k0[1] + 1, k0[1] + 20):
+        when, true_det = S.stamp(e.t_s[k]), dets[k]
+        if true_det is None:
+            continue
+        mp = updater.predict_measurement(predictor.predict(track, timestamp=when), true_det.measurement_model)
+        y = np.asarray(true_det.state_vector, dtype=np.float64).ravel()
+        clutter = Clutter(StateVector([true_det.state_vector[0], y[1], y[2] + 10 * math.sqrt(mp.covar[2, 2])]),
+                          timestamp=when, measurement_model=true_det.measurement_model)
+        hyps = hypothesiser.hypothesise(track, {true_det, clutter}, when)
+        by_det = {h.measurement: h for h in hyps if h}
+        assert true_det in by_det and clutter not in by_det
+        nu = np.asarray(true_det.state_vector - mp.state_vector, dtype=np.float64).ravel()
+        nu[0] = math.remainder(nu[0], 2 * math.pi)
+        d = math.sqrt(nu @ np.linalg.solve(np.asarray(mp.covar, dtype=np.float64), nu))
+        assert by_det[true_det].distance == pytest.approx(d, rel=1e-9)
+        track.append(updater.update(by_det[true_det]))
+    assert len(track) > 10 and isinstance(track.state, S.IMMCVCTStateUpdate)
 
 
 def test_hypothesiser_and_associator_accept_the_prediction():
@@ -233,6 +317,24 @@ def test_errors_name_the_parameter():
     for model, msg in cases:
         with pytest.raises(ValueError, match=msg):
             updater.update(SingleHypothesis(pred, Detection(y, timestamp=S.stamp(5.0), measurement_model=model)))
+    rr = dict(ndim_state=4, mapping=(0, 2), noise_covar=np.diag([1e-6, 100.0, 1.0]))
+    y3 = StateVector([0.3, 2e4, -150.0])
+    cases = [
+        (CartesianToBearingRangeRate(ndim_state=4, mapping=(0, 2), noise_covar=np.diag([1e-6, 100.0, 1.0])),
+         "use CartesianToBearingRangeRate2D"),
+        (CartesianToBearingRangeRate2D(velocity_mapping=(2, 3), **rr), r"velocity_mapping must be \(1, 3\)"),
+        (CartesianToBearingRangeRate2D(velocity=StateVector([10.0, 0.0]), **rr), "velocity must be zero"),
+        (CartesianToBearingRangeRate2D(ndim_state=4, mapping=(0, 2), noise_covar=np.array(
+            [[1e-6, 0, 0], [0, 100.0, 0.5], [0, 0.5, 1.0]])), "noise_covar must be diagonal"),
+    ]
+    for model, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            updater.update(SingleHypothesis(pred, Detection(y3, timestamp=S.stamp(5.0), measurement_model=model)))
+    with pytest.raises(ValueError, match="3 finite numbers"):
+        updater.update(SingleHypothesis(pred, Detection(y, timestamp=S.stamp(5.0),
+                                                        measurement_model=CartesianToBearingRangeRate2D(**rr))))
+    with pytest.raises(ValueError, match="radial_velocity_noise_std_m_s must be given"):
+        S.polar_detection(2e4, 0.3, (0.0, 0.0), 50.0, 1e-3, 0.0, radial_velocity_m_s=-100.0)
     with pytest.raises(ValueError, match="no measurement_model"):
         updater.update(SingleHypothesis(pred, Detection(y, timestamp=S.stamp(5.0))))
     with pytest.raises(ValueError, match="hypothesis.prediction must be an IMMCVCTStatePrediction"):

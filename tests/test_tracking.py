@@ -325,3 +325,38 @@ def test_preview_los_accel_sees_kim_lee_speed_change():
     assert a[np.argmin(np.abs(t - 26.0))] > 2.0 and a[np.argmin(np.abs(t - 66.0))] < -2.0   # first look of each change
     first_leg = t < 25.0          # before the first change (after it the 0.5 g filter still lags the 490 m/s jump)
     assert first_leg.sum() >= 5 and np.all(np.abs(a[first_leg]) < 1.5)
+
+
+def test_detached_row_fed_look_by_look_is_the_tracker():
+    """Tracker.detached(row) then feed(look) + step per look (plots as they come) gives the batched tracker's
+    estimates and past features bit for bit; the preview is 0 (no next look) and preview_next_plot gives it."""
+    from radar_env.filters import kernels as _k
+    from radar_env.filters.tracking import preview_next_plot
+    from radar_env.sim.looks import LOOK_COLUMNS
+
+    eps = [_episode(11), _episode(12, pd=0.8)]
+    tr = Tracker(2)
+    tr.load(np.arange(2), eps)
+    one = tr.detached(1)
+    e = eps[1]
+    assert one.B == 1 and one.k[0] == tr.k[1]
+    for _ in range(25):
+        k = int(tr.k[1])
+        look = np.empty(_k.W_LOOK)
+        for f, (c, tail) in LOOK_COLUMNS.items():
+            look[c:c + (int(np.prod(tail)) if tail else 1)] = np.asarray(getattr(e, f)[k], dtype=np.float64).ravel()
+        nxt = {f: np.asarray(getattr(e, f)[k + 1])[None] for f in ("t_s", "detected", "z_m", "R_m2", "bearing_rad",
+                                                                  "radial_velocity_m_s", "site_xy_m",
+                                                                  "radial_velocity_noise_std_m_s")}
+        ref = tr.step(0.5 * G0_M_S2)
+        one.feed([0], look[None])
+        out = one.step(0.5 * G0_M_S2)
+        np.testing.assert_array_equal(out.x[0], ref.x[1])
+        np.testing.assert_array_equal(out.P[0], ref.P[1])
+        for key in _k.BANK_FLOAT_KEYS:
+            np.testing.assert_array_equal(out.features[key][0], ref.features[key][1], err_msg=key)
+        assert all(out.features[key][0] == 0.0 for key in _k.PREVIEW_KEYS)
+        prev = preview_next_plot(one.x, one.P, one.t_last, nxt)
+        for key in _k.PREVIEW_KEYS:
+            np.testing.assert_array_equal(prev[key][0], ref.features[key][1], err_msg=key)
+    assert not e.detected[int(tr.k[1]) - 25:int(tr.k[1])].all()     # missed looks were fed too

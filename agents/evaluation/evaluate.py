@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, POLICY_TRACKERS, tracker_names
+from baselines.registry import BOUND_TRACKERS, DESIGN_ENVELOPES, POLICY_TRACKERS, RANGE_RATE_TRACKERS, tracker_names
 from baselines.user_trackers import import_tracker_module
 from radar_env.sim.catalog import FAMILIES, SCENARIO_NAMES
 from radar_env.sim.radar import atc_radar
@@ -111,6 +111,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if paths[t] is None and given[t] is None:
                 raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
             policies[t] = given[t] if given[t] is not None else load_policy(paths[t], allow_pickle=allow_pickle)
+    range_rate = set(RANGE_RATE_TRACKERS) | {t for t, (_, cfg) in policies.items()
+                                             if getattr(cfg, "radial_velocity", False)}
     default_common = common_over is None
     common_over = list(trackers if common_over is None else common_over)
     bad = [t for t in common_over if t not in trackers]
@@ -159,7 +161,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
                 m["score"] = normalised_score(suite, float(m["pos_rmse_m"]))
             _note_undefined(m)
             res["trackers"][t] = m
-        res["bounds_beaten"] = bounds_beaten(res["trackers"])
+        res["bounds_beaten"] = bounds_beaten(res["trackers"], range_rate)
         if reference in suite_runs:
             ref = suite_runs[reference]
             ref_ok = ~scores[reference].failed
@@ -176,12 +178,15 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
     return results, runs
 
 
-def bounds_beaten(trackers):
+def bounds_beaten(trackers, range_rate=RANGE_RATE_TRACKERS):
     """``{bound: {"pos_rmse_m": .., "beaten_by": name, "beaten_by_pos_rmse_m": ..}}`` for each bound tracker
     (:data:`baselines.registry.BOUND_TRACKERS`) whose pooled position RMSE is above that of the best real tracker
-    of the suite (``trackers``: name -> metrics): such a "bound" bounds nothing there, and the tables say so."""
+    of the suite (``trackers``: name -> metrics): such a "bound" bounds nothing there, and the tables say so. The
+    bounds filter the position plots only, so the trackers in ``range_rate`` (which also update on the radial
+    velocity: a measurement the bounds do not use) are not compared with them."""
     real = {t: m["pos_rmse_m"] for t, m in trackers.items()
-            if t not in BOUND_TRACKERS and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"])}
+            if t not in BOUND_TRACKERS and t not in range_rate and m.get("pos_rmse_m") is not None
+            and np.isfinite(m["pos_rmse_m"])}
     if not real:
         return {}
     best = min(real, key=real.get)

@@ -24,13 +24,13 @@ from agents.evaluation.metrics import FEW_RUNS, evaluate_run, jsonable, ratio_ci
 from agents.evaluation.runner import run_policy
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 from agents.policies.learned import BUNDLED_LEARNED, load_learned
-from baselines.registry import run_tracker
+from baselines.registry import RANGE_RATE_TRACKERS, run_tracker
 from radar_env.sim.episode import stack_episodes
 
 __all__ = ["PAIRS", "CLASSICAL_RDOT", "SUITES", "learned_rdot", "learned_seeds", "evaluate_suite", "table",
            "seeds_table", "targets_table", "main"]
 
-PAIRS = {"kf_tuned_rdot": "kf_tuned", "imm2_rdot": "imm2", "imm_cv_ct_rdot": "imm_cv_ct", "rbpf_rdot": "rbpf"}
+PAIRS = {t: t.removesuffix("_rdot") for t in RANGE_RATE_TRACKERS}
 """Each range-rate tracker and its position-only self."""
 CLASSICAL_RDOT = tuple(PAIRS)
 """The classical field of the range-rate trackers (the learned range-rate trackers are compared with its best)."""
@@ -51,10 +51,17 @@ def learned_rdot():
 
 
 def learned_seeds(learned):
-    """Every training seed of each bundled range-rate tracker's recipe (its ``seeds/`` folder, the chosen seed
-    included): ``{name: {seed run: LearnedTracker}}``."""
-    return {n: {d.name: load_learned(str(d)) for d in sorted((BUNDLED_LEARNED[n] / "seeds").iterdir()) if d.is_dir()}
-            for n in learned if (BUNDLED_LEARNED[n] / "seeds").is_dir()}
+    """Every training seed of each bundled range-rate tracker's recipe (its ``seeds/`` folder): ``{name: {seed run:
+    LearnedTracker}}``, with ``None`` for the seed the bundle is (its ``choice.json``'s ``chosen``: the bundle's own
+    run stands for it, not a second run of the same weights)."""
+    out = {}
+    for n in learned:
+        folder = BUNDLED_LEARNED[n]
+        if (folder / "seeds").is_dir():
+            chosen = json.loads((folder / "choice.json").read_text()).get("chosen")
+            out[n] = {d.name: None if d.name == chosen else load_learned(str(d))
+                      for d in sorted((folder / "seeds").iterdir()) if d.is_dir()}
+    return out
 
 
 def _runs(suite, family_runs):
@@ -88,8 +95,8 @@ def evaluate_suite(episodes, learned, seeds=None):
     for n, by_seed in (seeds or {}).items():
         res["seeds"][n] = {}
         for run_name, lt in by_seed.items():
-            r = run_policy(n, episodes, lt.policy, lt.env_config)
-            m = evaluate_run(batch, r)
+            r = runs[n] if lt is None else run_policy(n, episodes, lt.policy, lt.env_config)
+            m = metrics[n] if lt is None else evaluate_run(batch, r)
             res["seeds"][n][run_name] = {"pos_rmse_m": m["pos_rmse_m"], "anees": m["anees"],
                                          "track_loss_rate": m["track_loss_rate"],
                                          "ratio_vs_imm_cv_ct": _ratio(batch, r, runs["imm_cv_ct"]),

@@ -15,8 +15,7 @@ import argparse
 import json
 import sys
 
-from agents.reports.blocks import (README, ROOT, _markers, block_file, block_names, pages, read_block,  # noqa: F401
-                                    replace_block)
+from agents.reports.blocks import ROOT, block_names, read_block, replace_block
 
 
 # ------------------------------------------------------------------------------------------------ renderers

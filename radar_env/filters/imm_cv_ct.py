@@ -651,17 +651,20 @@ def initial_modes(spec: IMMCVCTSpec, x, P):
     return xm, Pm, log_mu
 
 
-def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s) -> ModePrediction:
+def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s, params=None) -> ModePrediction:
     """The prediction half of one look of the compiled kernel (:func:`_look_predict`, the same code), for one track
-    at ``spec``'s constant parameters: mixing, then every mode predicted over ``dt_s`` (>= 0; 0 still mixes, as the
-    kernel does at a look with dt 0). The inputs are not modified."""
+    at ``spec``'s constant parameters (or this look's ``params``, ``(n_par,)`` values of
+    :func:`look_parameter_names`, as :class:`baselines.imm_cv_ct_runner.IMMCVCTStepper` takes them): mixing, then
+    every mode predicted over ``dt_s`` (>= 0; 0 still mixes, as the kernel does at a look with dt 0). The inputs are
+    not modified."""
     dt = float(dt_s)
     if not (math.isfinite(dt) and dt >= 0.0):
         raise ValueError(f"dt_s must be a finite number >= 0 (s), got {dt_s!r}")
     is_ct = np.ascontiguousarray(spec.mode_arrays()[0])
     M = is_ct.size
     xm, Pm, lm = _modes_in(x_modes, P_modes, log_mu, M)
-    q, sig_w2, log_Pi = kernel_parameters(spec)
+    p = None if params is None else check_look_parameters(spec, np.asarray(params, dtype=np.float64).reshape(-1), 1, 1)
+    q, sig_w2, log_Pi = kernel_parameters(spec, p)
     sig_w0_2, omega_max, accel_max = _spec_constants(spec)
     work = _work(M)
     _look_predict(dt, is_ct, q[0, 0], sig_w2[0, 0], log_Pi[0, 0], sig_w0_2, omega_max, accel_max, xm, Pm, lm, work)
@@ -670,11 +673,14 @@ def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s) -> ModePred
     return ModePrediction(xp, Pp, log_c, xc[:4].copy(), Pc[:4, :4].copy())
 
 
-def update_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_c, z=None, R=None) -> ModeUpdate:
+def update_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_c, z=None, R=None, range_rate=None) -> ModeUpdate:
     """The update half of one look of the compiled kernel (:func:`_look_update`, the same code): the predicted modes
     of :func:`predict_modes` updated with the Cartesian plot ``z (2,)`` (m), covariance ``R (2, 2)`` (m^2); ``z=None``
-    is a missed look (the kernel's: posterior = prediction, mode probabilities renormalised). The inputs are not
-    modified. :func:`predict_modes` then :func:`update_modes` equals one look of :func:`_look` bit for bit."""
+    is a missed look (the kernel's: posterior = prediction, mode probabilities renormalised). ``range_rate``: the
+    plot's ``(radial velocity (m/s, positive receding), its variance (m^2/s^2), site x, site y (m))``, the kernel's
+    ``rr``; every mode then also updates on it after the position (None, or a variance that is not finite and
+    positive: position only, :data:`NO_RANGE_RATE`). The inputs are not modified. :func:`predict_modes` then
+    :func:`update_modes` equals one look of :func:`_look` bit for bit."""
     is_ct = np.ascontiguousarray(spec.mode_arrays()[0])
     M = is_ct.size
     xp, Pp, lc = _modes_in(x_modes, P_modes, log_c, M)
@@ -689,13 +695,18 @@ def update_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_c, z=None, R=None) -> 
             raise ValueError(f"z and R must be finite; got z {z}, R {R.tolist()}")
     else:
         z, R = np.zeros(2), np.eye(2)      # what the kernel reads at a missed look (unused but for shape)
+    rr = np.array(NO_RANGE_RATE if range_rate is None else range_rate, dtype=np.float64).reshape(-1)
+    if rr.shape != (4,) or np.isnan(rr).any() or not np.isfinite(rr[[0, 2, 3]]).all():
+        raise ValueError(f"range_rate must be (radial velocity, variance, site x, site y), finite but for an inf "
+                         f"variance; got {rr.tolist()}")
+    if not rr[1] > 0.0:
+        rr[0], rr[1] = 0.0, np.inf      # as range_rate_inputs: no range-rate update
     _, omega_max, accel_max = _spec_constants(spec)
     work = _work(M)
     work[2][:], work[3][:], work[4][:] = xp, Pp, lc
     xm, Pm, log_mu = np.empty((M, 5)), np.empty((M, 5, 5)), np.empty(M)
     x, P, mu = np.empty(4), np.empty((4, 4)), np.empty(M)
-    nis, om, om_var = _look_update(z, R, det, np.array(NO_RANGE_RATE), is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x, P,
-                                   mu)
+    nis, om, om_var = _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x, P, mu)
     return ModeUpdate(xm, Pm, log_mu, mu, x, P, float(nis), float(om), float(om_var))
 
 

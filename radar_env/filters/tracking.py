@@ -398,6 +398,30 @@ class Tracker:
         self.k[rows] = k + 1
         return self.k[rows] >= self.n_looks[rows]
 
+    def detached(self, row) -> "Tracker":
+        """A 1-row Tracker holding row ``row``'s filter and feature-bank state and no looks: a track that goes on
+        with plots as they come (:meth:`feed`), not from an episode."""
+        row = int(row)
+        out = object.__new__(type(self))
+        out.__dict__.update({k: v for k, v in vars(self).items() if k not in ("bank", "_looks", "_st", "_it",
+                                                                               "names", "B", "_cap")})
+        out.B, out._cap, out._looks = 1, 0, np.zeros((1, 0, _k.W_LOOK))
+        out._st, out._it, out.names = self._st[[row]].copy(), self._it[[row]].copy(), [self.names[row]]
+        out.bank = self.bank.take_rows([row])
+        return out
+
+    def feed(self, rows, looks):
+        """Make the packed look rows ``looks (n, W_LOOK)`` (:data:`radar_env.sim.looks.LOOK_COLUMNS`) the next and
+        only remaining look of ``rows``: the next :meth:`step` processes it, with no next look to preview (its
+        preview features 0, :func:`preview_next_plot` gives them once the next plot is known)."""
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        looks = np.asarray(looks, dtype=np.float64).reshape(rows.size, _k.W_LOOK)
+        self._ensure_capacity(1)
+        self._looks[rows, 0] = looks
+        self._looks[rows, 1:] = looks[:, None]
+        self._looks[rows, 1:, _k.L_DET] = 0.0
+        self.k[rows], self.n_looks[rows] = 0, 1
+
     def set_posterior(self, rows, x, P=None):
         """Replace the posterior of ``rows`` after a step (re-initialisation, a blend with another estimate); the
         next step predicts from it. ``P=None`` keeps the covariance."""

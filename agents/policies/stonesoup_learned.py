@@ -1,0 +1,339 @@
+r"""Stone Soup components for the learned IMM (``policy_imm_bp``, :mod:`agents.policies.learned_imm`): a predictor,
+an updater and the state types, the track's state carrying the network's recurrent state and the feature chain.
+
+One look of the learned IMM (:func:`baselines.imm_cv_ct_runner.run_imm_lockstep`) is, from the context after the
+previous look (IMM modes, GRU state ``h``, the IMM's detectors, the feature chain -- a 1-row
+:class:`radar_env.filters.tracking.Tracker` at the checkpoint's constant q -- and its last step's output):
+
+1. the observation after the previous look, with the preview of this look's plot
+   (:func:`radar_env.filters.tracking.preview_next_plot`, what the chain's step computes when it knows the next
+   look), encoded as the env does;
+2. the GRU and its head: this look's IMM parameters (:meth:`agents.policies.learned_imm.LearnedIMM.offsets`,
+   :class:`~agents.policies.learned_imm.ParamMap`);
+3. the IMM's look with them (:func:`radar_env.filters.imm_cv_ct.predict_modes` with ``params``, then
+   :func:`~radar_env.filters.imm_cv_ct.update_modes`) and its detectors;
+4. the feature chain's step on the plot (:meth:`Tracker.feed`, :meth:`Tracker.step`).
+
+Nothing of the chain or the network is written again here: these are the functions the runner calls.
+tests/test_stonesoup_learned.py checks every look of whole episodes against ``LearnedIMM.run`` (1e-6 relative).
+
+Stone Soup splits a look into a prediction (before any detection is associated, for gating) and an update. The
+learned IMM sets the look's parameters *after* seeing the look's plot (the preview, as an IMM weighs its modes with
+the plot), so its prediction depends on the plot. Here:
+
+* :class:`LearnedIMMPredictor` predicts with the parameters the network chooses for a *missed* look (the preview
+  of "no plot"): the exact look if the track gets no detection (its missed-look posterior rides along in the
+  prediction, so a tracker that keeps the prediction, as Stone Soup's do, continues the runner's track exactly),
+  and the Gaussian that hypothesisers gate with (in the detection's space, :meth:`LearnedIMMUpdater`'s inherited
+  extended-Kalman ``predict_measurement``);
+* :class:`LearnedIMMUpdater` redoes the whole look with the associated detection (parameters from the plot's
+  preview, mixing, prediction, update): the estimate is the runner's; the gate was that of the missed-look
+  parameters (the same mixing, a different process noise).
+
+Measurements: polar detections with range rate (:class:`~stonesoup.models.measurement.nonlinear.
+CartesianToBearingRangeRate2D`, conventions of :mod:`baselines.stonesoup_components`): ``policy_imm_bp``'s inputs
+include the plots' range rate (c_min, line-of-sight acceleration, range-rate innovation); a plot without it is
+refused. Missed looks: the site and noise stds of a ``MissedDetection``'s measurement model if it has one, else
+the last detection's (they enter the features: range, position-variance ratio).
+
+Track start: :func:`track_starts` gives our evaluation's (two-hit start and warm-up on an episode's first plots,
+as the runner); :meth:`LearnedIMMState.from_gaussian` starts from a Stone Soup initiator's Gaussian with an empty
+feature history (not what the network was trained with; the first looks' features differ from our start's).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from baselines import stonesoup_components as _ss
+from radar_env.filters.imm_cv_ct import (detector_inputs, initial_detectors, initial_modes, predict_modes,
+                                         update_modes)
+from radar_env.filters.tracking import StepOutput, Tracker, preview_next_plot
+from radar_env.sim.looks import LOOK_COLUMNS, W_LOOK
+
+from stonesoup.base import Property
+from stonesoup.models.transition.base import TransitionModel
+from stonesoup.predictor.base import Predictor
+from stonesoup.types.array import CovarianceMatrix, StateVector
+from stonesoup.types.prediction import Prediction
+from stonesoup.types.state import State, StateMutableSequence
+from stonesoup.types.update import Update
+from stonesoup.updater.kalman import ExtendedKalmanUpdater
+
+from agents.policies.learned_imm import LearnedIMM, load_learned_imm, BUNDLED_LEARNED_IMM
+
+__all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
+           "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair"]
+
+_P5 = np.array([0, 2, 1, 3, 4])
+_SS4 = _ss.SS_FROM_OURS
+
+
+def bundled_learned_imm() -> LearnedIMM:
+    """The bundled ``policy_imm_bp`` checkpoint (:data:`agents.policies.learned_imm.BUNDLED_LEARNED_IMM`)."""
+    return load_learned_imm(BUNDLED_LEARNED_IMM)
+
+
+class LearnedIMMContext(NamedTuple):
+    """Everything one look of the learned IMM needs from the previous one (our state order; never modified: each
+    look makes a new one)."""
+
+    model: LearnedIMM           # the checkpoint (network, IMM spec, observation layout, chain parameters)
+    t_s: float                  # time of the previous look (s since stonesoup_components.EPOCH)
+    x: np.ndarray               # (4,) the IMM's combined posterior [x, y, vx, vy]
+    P: np.ndarray               # (4, 4)
+    x_modes: np.ndarray         # (M, 5) IMM posterior modes [x, y, vx, vy, omega]
+    P_modes: np.ndarray         # (M, 5, 5)
+    log_mu: np.ndarray          # (M,)
+    h: np.ndarray               # (H,) GRU state
+    detectors: np.ndarray       # (M + 2,) the IMM's detectors after the previous look
+    chain: Tracker              # 1-row feature chain after the previous look
+    chain_out: StepOutput       # its last step's output (1 row)
+    q_prev_m_s2: float          # the q of that step (the observation's q_prev)
+    radar: tuple                # (site x, site y, range std, bearing std, range-rate std) of the last detection
+
+
+def _row_of(out: StepOutput, b) -> StepOutput:
+    """Row ``b`` of a StepOutput (copies, shape (1, ...))."""
+    def take(v):
+        return None if v is None else np.array(v[b:b + 1])
+    return out._replace(**{f: take(getattr(out, f)) for f in out._fields if f != "features"},
+                        features={k: np.array(v[b:b + 1]) for k, v in out.features.items()})
+
+
+def _look_row(look) -> np.ndarray:
+    """Our look fields (dict) as a packed look row (W_LOOK,); truth unknown (NaN)."""
+    row = np.full(W_LOOK, np.nan)
+    for f, (c, tail) in LOOK_COLUMNS.items():
+        w = int(np.prod(tail)) if tail else 1
+        if f in look:
+            row[c:c + w] = np.asarray(look[f], dtype=np.float64).reshape(w)
+    row[LOOK_COLUMNS["maneuvering"][0]] = 0.0
+    return row
+
+
+def _missed_look(ctx: LearnedIMMContext, t_s, detection=None) -> dict:
+    """Our look fields of a missed look at ``t_s``: the site and stds of ``detection``'s (a MissedDetection's)
+    polar model if it has one, else the last detection's."""
+    sx, sy, rs, bs, rds = ctx.radar
+    model = getattr(detection, "measurement_model", None)
+    if model is not None:
+        noise = np.asarray(model.covar(), dtype=np.float64)
+        site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)
+        sx, sy, bs, rs = float(site[0]), float(site[1]), math.sqrt(noise[0, 0]), math.sqrt(noise[1, 1])
+        rds = math.sqrt(noise[2, 2]) if noise.shape[0] == 3 else rds
+    return {"t_s": t_s, "detected": False, "z_m": np.zeros(2), "R_m2": np.eye(2), "site_xy_m": np.array([sx, sy]),
+            "range_m": math.nan, "bearing_rad": math.nan, "radial_velocity_m_s": math.nan,
+            "range_noise_std_m": rs, "bearing_noise_std_rad": bs, "radial_velocity_noise_std_m_s": rds}
+
+
+def _run_look(ctx: LearnedIMMContext, look: dict):
+    """One look of the learned IMM (module docstring) from ``ctx`` with our look fields ``look``: ``(the IMM's
+    prediction (ModePrediction), its update (ModeUpdate), the new context)``."""
+    m = ctx.model
+    dt = look["t_s"] - ctx.t_s
+    if not dt >= 0.0:
+        raise ValueError(f"the look's time {look['t_s']} s is before the track's last look {ctx.t_s} s: the learned "
+                         "IMM goes forward only")
+    det = bool(look["detected"])
+    nxt = {k: np.asarray(v)[None] for k, v in look.items()}
+    prev = preview_next_plot(ctx.chain.x, ctx.chain.P, ctx.chain.t_last, nxt)
+    out = ctx.chain_out._replace(features={**ctx.chain_out.features, **prev})
+    obs = m.layout.encode(out, np.array([ctx.q_prev_m_s2]))
+    delta, h = m.offsets(np.concatenate([obs.astype(np.float64), ctx.detectors[None]], 1), ctx.h[None])
+    params = m.pmap.physical(delta)[0]
+    pred = predict_modes(m.spec, ctx.x_modes, ctx.P_modes, ctx.log_mu, dt, params)
+    rr = None
+    if det and m.cfg.track_start.radial_velocity:
+        rr = (look["radial_velocity_m_s"], look["radial_velocity_noise_std_m_s"] ** 2, *look["site_xy_m"])
+    up = update_modes(m.spec, pred.x_modes, pred.P_modes, pred.log_c, look["z_m"] if det else None,
+                      look["R_m2"] if det else None, range_rate=rr)
+    detectors = detector_inputs(up.mu[None], np.array([up.omega_rad_s]), np.array([math.sqrt(up.omega_var)]))[0]
+    chain = copy.deepcopy(ctx.chain)
+    chain.feed([0], _look_row(look)[None])
+    chain_out = _row_of(chain.step(m.feature_q_m_s2), 0)
+    radar = (float(look["site_xy_m"][0]), float(look["site_xy_m"][1]), float(look["range_noise_std_m"]),
+             float(look["bearing_noise_std_rad"]), float(look["radial_velocity_noise_std_m_s"]))
+    new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h[0], detectors,
+                            chain, chain_out, m.feature_q_m_s2, radar)
+    return pred, up, new
+
+
+# ------------------------------------------------------------------------------------------------ state types
+class LearnedIMMState(_ss.IMMCVCTState):
+    """A learned-IMM posterior: the IMM's combined Gaussian and modes as :class:`baselines.stonesoup_components.
+    IMMCVCTState` (Stone Soup's order), and the :class:`LearnedIMMContext` the next look starts from (the GRU
+    state, the detectors, the feature chain)."""
+
+    context: LearnedIMMContext = Property(default=None, doc="the learned IMM's context after this look")
+
+    @classmethod
+    def from_gaussian(cls, state, model: LearnedIMM | None = None, detection=None):
+        """A track started from a Stone Soup Gaussian ``state`` (4-state, a timestamp; e.g. an initiator's): the
+        IMM's modes as :meth:`IMMCVCTState.from_gaussian`, ``h = 0``, the start detectors, a fresh feature chain
+        at the state (empty history; its first output that of a missed look at dt 0). ``detection``: a polar
+        detection giving the site and noise stds (default ``state.hypothesis.measurement``, an initiator's)."""
+        model = model if model is not None else bundled_learned_imm()
+        if state.timestamp is None:
+            raise ValueError("state.timestamp must be a datetime (the learned IMM's chain needs times)")
+        if detection is None:
+            detection = getattr(getattr(state, "hypothesis", None), "measurement", None)
+        if detection is None or getattr(detection, "measurement_model", None) is None:
+            raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
+                             "no hypothesis.measurement")
+        look = _ss.look_from_detection(detection)
+        x4, P4 = _ss.ours_from_state(state)
+        t = _ss.seconds(state.timestamp)
+        chain = model.cfg.track_start.tracker(1)
+        chain.x[0], chain.P[0], chain.t_last[0] = x4, P4, t
+        chain.bank.reset(x=x4[None], t_s=np.array([t]))
+        q0 = model.cfg.track_start.warmup_q_m_s2
+        radar = (*look["site_xy_m"], look["range_noise_std_m"], look["bearing_noise_std_rad"],
+                 look["radial_velocity_noise_std_m_s"])
+        start = LearnedIMMContext(model, t, x4, P4, *initial_modes(model.spec, x4, P4),
+                                  np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, None,
+                                  q0, tuple(float(v) for v in radar))
+        chain.feed([0], _look_row(_missed_look(start, t))[None])
+        out = _row_of(chain.step(q0), 0)
+        return _state_from(cls, start._replace(chain=chain, chain_out=out), state.timestamp)
+
+
+class LearnedIMMStatePrediction(Prediction, LearnedIMMState):
+    """The learned IMM's prediction with the parameters for a missed look (module docstring); ``context`` is the
+    context before the look, ``missed_context`` the one after it if the look is missed."""
+
+    missed_context: LearnedIMMContext = Property(default=None, doc="the context after this look if it is missed")
+
+
+class LearnedIMMStateUpdate(Update, LearnedIMMState):
+    """A learned-IMM posterior after an update (with the hypothesis used)."""
+
+
+def _state_from(cls, ctx: LearnedIMMContext, timestamp, **kw):
+    """A ``cls`` state of the posterior in ``ctx`` (Stone Soup's order)."""
+    return cls(StateVector(ctx.x[_SS4]), CovarianceMatrix(ctx.P[np.ix_(_SS4, _SS4)]), timestamp=timestamp,
+               mode_state_vectors=ctx.x_modes[:, _P5], mode_covars=ctx.P_modes[:, _P5][:, :, _P5],
+               log_mode_probabilities=ctx.log_mu, spec=ctx.model.spec, context=ctx, **kw)
+
+
+def track_starts(episodes, model: LearnedIMM | None = None):
+    """Our evaluation's track start of the learned IMM on ``episodes`` (the runner's: two-hit start and warm-up of
+    the checkpoint's chain, every IMM mode at the warm-up estimate): ``(states [LearnedIMMState], k0 (B,))`` with
+    ``k0`` each episode's last warm-up look (the learned IMM's first look is ``k0 + 1``)."""
+    model = model if model is not None else bundled_learned_imm()
+    episodes = list(episodes)
+    B = len(episodes)
+    tr = model.cfg.track_start.tracker(B)
+    out = tr.load(np.arange(B), episodes)
+    k0 = np.asarray(out.look_index, dtype=np.int64)
+    states = []
+    for b, e in enumerate(episodes):
+        xm, Pm, log_mu = initial_modes(model.spec, tr.x[b], tr.P[b])     # as run_imm_lockstep's _start_state
+        k = int(k0[b])
+        radar = (*e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
+                 e.radial_velocity_noise_std_m_s[k])
+        ctx = LearnedIMMContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), xm, Pm, log_mu,
+                                np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0],
+                                tr.detached(b), _row_of(out, b), model.cfg.track_start.warmup_q_m_s2,
+                                tuple(float(v) for v in radar))
+        states.append(_state_from(LearnedIMMState, ctx, _ss.stamp(e.t_s[k])))
+    return states, k0
+
+
+# ------------------------------------------------------------------------------------------------ predictor, updater
+class LearnedIMMPredictor(Predictor):
+    """Stone Soup predictor of the learned IMM: the look with the network's parameters for a missed look (module
+    docstring). ``predict(prior, timestamp)`` takes a :class:`LearnedIMMState` (an update, a start, or a
+    prediction a tracker kept for a missed look: its missed-look posterior), a track, or an initiator's 4-state
+    Gaussian update (started with :meth:`LearnedIMMState.from_gaussian` from its detection)."""
+
+    transition_model: TransitionModel = Property(
+        default=None, doc="Not used (the learned IMM's modes are its transition model); Stone Soup's interface")
+    model: LearnedIMM = Property(default=None, doc="the checkpoint for tracks it starts (None: the bundled "
+                                                    "policy_imm_bp); a LearnedIMMState carries its own")
+
+    def predict(self, prior, timestamp=None, **kwargs) -> LearnedIMMStatePrediction:
+        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
+            prior = prior.state
+        if isinstance(prior, LearnedIMMStatePrediction):
+            ctx = prior.missed_context
+        elif isinstance(prior, LearnedIMMState):
+            ctx = prior.context
+        elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
+            if self.model is None:
+                self.model = bundled_learned_imm()
+            ctx = LearnedIMMState.from_gaussian(prior, self.model).context
+        else:
+            raise ValueError(f"prior must be a LearnedIMMState (start one with track_starts or "
+                             f"LearnedIMMState.from_gaussian) or an initiator's Gaussian update with its detection, "
+                             f"got {type(prior).__name__}")
+        if timestamp is None:
+            raise ValueError("timestamp must be a datetime (the learned IMM's chain needs times)")
+        pred, up, after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
+        return Prediction.from_state(
+            prior, state_vector=StateVector(pred.x[_SS4]), covar=CovarianceMatrix(pred.P[np.ix_(_SS4, _SS4)]),
+            timestamp=timestamp, mode_state_vectors=pred.x_modes[:, _P5], mode_covars=pred.P_modes[:, _P5][:, :, _P5],
+            log_mode_probabilities=pred.log_c, spec=ctx.model.spec, context=ctx, missed_context=after,
+            transition_model=None, target_type=LearnedIMMStatePrediction)
+
+
+class LearnedIMMUpdater(ExtendedKalmanUpdater):
+    """Stone Soup updater of the learned IMM: the whole look with the associated detection (a polar detection with
+    range rate); a ``MissedDetection``: the missed look (with its measurement model's site and stds if it has
+    one). ``predict_measurement``: the extended Kalman updater's on the prediction's combined Gaussian."""
+
+    def update(self, hypothesis, **kwargs) -> LearnedIMMStateUpdate:
+        pred = hypothesis.prediction
+        if not isinstance(pred, LearnedIMMStatePrediction):
+            raise ValueError(f"hypothesis.prediction must be a LearnedIMMStatePrediction (from LearnedIMMPredictor), "
+                             f"got {type(pred).__name__}")
+        ctx = pred.context
+        t = _ss.seconds(pred.timestamp)
+        if hypothesis:
+            look = _ss.look_from_detection(hypothesis.measurement, self.measurement_model)
+            if not math.isfinite(look["radial_velocity_m_s"]):
+                raise ValueError("hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
+                                 "the learned IMM's inputs include it")
+            if look["t_s"] != t:
+                raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
+                                 f"the prediction's {pred.timestamp}")
+            after = _run_look(ctx, look)[2]
+        elif getattr(hypothesis.measurement, "measurement_model", None) is not None:
+            after = _run_look(ctx, _missed_look(ctx, t, hypothesis.measurement))[2]
+        else:
+            after = pred.missed_context
+        return Update.from_state(
+            pred, state_vector=StateVector(after.x[_SS4]), covar=CovarianceMatrix(after.P[np.ix_(_SS4, _SS4)]),
+            timestamp=pred.timestamp, mode_state_vectors=after.x_modes[:, _P5],
+            mode_covars=after.P_modes[:, _P5][:, :, _P5], log_mode_probabilities=after.log_mu, spec=after.model.spec,
+            context=after, hypothesis=hypothesis, target_type=LearnedIMMStateUpdate)
+
+
+# ------------------------------------------------------------------------------------------------ the example
+FIGURE = Path(__file__).resolve().parents[2] / "docs" / "figures" / "stonesoup_multitarget_learned.png"
+
+
+def learned_pair(model: LearnedIMM | None = None):
+    """A fresh ``(LearnedIMMPredictor, LearnedIMMUpdater)`` of ``model`` (default the bundled ``policy_imm_bp``)."""
+    return LearnedIMMPredictor(model=model if model is not None else bundled_learned_imm()), LearnedIMMUpdater()
+
+
+def main(argv=None):
+    """``python -m agents.policies.stonesoup_learned``: :mod:`baselines.stonesoup_example` with range rate, the
+    learned IMM added (``policy_imm_bp``); the same options."""
+    from baselines import stonesoup_example
+    argv = list(argv if argv is not None else __import__("sys").argv[1:])
+    if "--range-rate" not in argv:
+        argv.append("--range-rate")        # the learned IMM needs the range rate
+    model = bundled_learned_imm()
+    return stonesoup_example.main(argv, extra={"policy_imm_bp": lambda: learned_pair(model)},
+                                  prog="python -m agents.policies.stonesoup_learned", figure_path=FIGURE)
+
+
+if __name__ == "__main__":
+    main()
