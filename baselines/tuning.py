@@ -405,7 +405,7 @@ def main(argv=None, prog="radar-track tune"):
                      "command": " ".join([prog, *(sys.argv[1:] if argv is None else argv)]),
                      "seconds": round(time.time() - t0, 1)}
     replaced = _describe_replaced(args.out, old, out, tuned)
-    from agents.evaluation.files import write_text_replacing
+    from radar_env.common.files import write_text_replacing
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     try:
         write_text_replacing(args.out, json.dumps(out, indent=1, allow_nan=False))
@@ -418,7 +418,7 @@ def _output_path(args):
     """The file ``tune`` writes: ``--out``; with ``--replace-shipped`` the shipped ``baselines/tuned.json``; by
     default ``tuned.json`` in a new run folder ``runs/tune_<time>/``. The shipped file is written only with
     ``--replace-shipped``; an ``--out`` that exists and is not a regular file is refused (one line)."""
-    from agents.evaluation.files import check_output_file, same_file
+    from radar_env.common.files import check_output_file, same_file
     if args.replace_shipped:
         if args.out is not None and not same_file(args.out, TUNED_PATH) and Path(args.out) != TUNED_PATH:
             raise SystemExit(f"error: --replace-shipped writes {TUNED_PATH}; --out {args.out!r} names another file")

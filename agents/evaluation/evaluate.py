@@ -35,7 +35,7 @@ from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F40
 from agents.policies.learned import BUNDLED_LEARNED, learned_label, load_learned, read_kind, resolve_learned
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.files import (check_output_dir, check_output_file, file_type, move_replacing, same_file,
+from radar_env.common.files import (check_output_dir, check_output_file, file_type, move_replacing, same_file,
                                      write_text_replacing)
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
                                        jsonable, ratio_ci, score_run)
@@ -333,7 +333,7 @@ def write_plots(runs, out_dir, scenarios=None, progress=False, inputs=()):
         inputs: the run's input files: one of them is never replaced (a warning instead).
 
     The figures are drawn in a temporary folder inside ``out_dir`` and renamed into it
-    (:func:`agents.evaluation.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
+    (:func:`radar_env.common.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
     suite name cannot lead outside ``out_dir``. One process: two forked plotting processes took longer than one on
     the shared 2-core machine (load 5)."""
     import matplotlib

@@ -23,6 +23,8 @@ import json
 import zipfile
 from pathlib import Path
 
+from agents.policies.checks import env_kwargs_from_json   # re-exported: JSON lists back to tuples
+
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
            "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
            "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
@@ -50,15 +52,6 @@ BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "p
                     "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
                     "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
-
-
-def env_kwargs_from_json(v):
-    """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
-    if isinstance(v, list):
-        return tuple(env_kwargs_from_json(x) for x in v)
-    if isinstance(v, dict):
-        return {k: env_kwargs_from_json(x) for k, x in v.items()}
-    return v
 
 
 def policy_env_kwargs(policy_path=None):

@@ -106,11 +106,19 @@ def check_weights(path, weights, shapes):
             raise ValueError(f"{path}: weight {k!r} has {int(np.size(w) - np.isfinite(w).sum())} non-finite entries")
 
 
+def env_kwargs_from_json(v):
+    """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
+    if isinstance(v, list):
+        return tuple(env_kwargs_from_json(x) for x in v)
+    if isinstance(v, dict):
+        return {k: env_kwargs_from_json(x) for k, x in v.items()}
+    return v
+
+
 def check_env_config(path):
     """``(kwargs, EnvConfig)`` of the ``env_config.json`` ``path``: an object of known ``RadarTrack-v0`` arguments
     that validates; ``ValueError`` naming the file and the field otherwise."""
     from radar_env.envs.config import EnvConfig
-    from agents.policies.bundle import env_kwargs_from_json
     kw = read_json_object(path, "a JSON object of RadarTrack-v0 arguments")
     try:
         return kw, EnvConfig.from_kwargs(**env_kwargs_from_json(kw))

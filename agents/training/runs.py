@@ -147,7 +147,7 @@ def open_run_folder(run, part, keep=False):
     files), then create ``part`` (``<name>.partial``); an earlier attempt under this name that failed or was killed
     is removed first, unless ``keep`` (a resumed run). Returns the lock, which :func:`mark_failed` or
     :func:`finish_run` releases."""
-    from agents.evaluation.files import check_output_dir
+    from radar_env.common.files import check_output_dir
     check_output_dir("--out", Path(run).parent)       # never through a link, never over a device or FIFO
     check_output_dir("--name", part)
     lock = RunLock(run)

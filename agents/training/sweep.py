@@ -51,7 +51,7 @@ import sys
 import tomllib
 from pathlib import Path
 
-from agents.evaluation.files import write_text_replacing
+from radar_env.common.files import write_text_replacing
 from agents.training.train import ALGOS, HP_DIR, check_plain_name, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
