@@ -23,11 +23,9 @@ import json
 import zipfile
 from pathlib import Path
 
-from agents.policies.checks import env_kwargs_from_json   # re-exported: JSON lists back to tuples
-
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
            "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
-           "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
+           "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
@@ -62,7 +60,7 @@ def policy_env_kwargs(policy_path=None):
     cfg = path.with_name("env_config.json")
     if not cfg.is_file():
         raise ValueError(f"policy_path: no env_config.json beside {str(path)!r} (looked for {str(cfg)!r})")
-    from agents.policies.checks import read_json_object      # the one validation path: finite numbers only
+    from agents.policies.checks import env_kwargs_from_json, read_json_object   # the one validation path
     return env_kwargs_from_json(read_json_object(cfg, "a JSON object of RadarTrack-v0 arguments"))
 
 
@@ -81,6 +79,7 @@ def recorded_env_kwargs(policy_path):
     of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``training.json``).
     ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled). A bundled folder's training record
     is ``training.json`` (``train_config.json`` before the one-folder layout, still read)."""
+    from agents.policies.checks import env_kwargs_from_json
     path = Path(policy_path)
     try:
         with zipfile.ZipFile(path) as z:

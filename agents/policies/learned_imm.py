@@ -50,7 +50,8 @@ from radar_env.envs.config import EnvConfig
 from radar_env.filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
 from radar_env.common.units import G0_M_S2
 
-from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
+from agents.policies.bundle import BUNDLED_LEARNED_IMM
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",

@@ -73,7 +73,7 @@ from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, Obse
 from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import env_kwargs_from_json
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides, finish_run, load_hyperparams,

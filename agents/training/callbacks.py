@@ -21,7 +21,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from radar_env.envs.env import EnvConfig
 
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import embed_env_config, env_kwargs_from_json
+from agents.policies.bundle import embed_env_config
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.loading import model_choose_q, model_run_imm
 from agents.policies.numpy_policy import export_saved
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse

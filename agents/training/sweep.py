@@ -51,7 +51,6 @@ import sys
 import tomllib
 from pathlib import Path
 
-from radar_env.common.files import write_text_replacing
 from agents.training.train import ALGOS, HP_DIR, check_plain_name, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
@@ -394,6 +393,7 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
     rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0],
                          early_stopping=cfg["scheduler"] == "asha", interrupted=interrupted,
                          policy_file="policy.npz" if cfg["algo"] == "backprop" else "policy.zip")
+    from radar_env.common.files import write_text_replacing    # here: --help imports nothing slow
     exp_dir.mkdir(parents=True, exist_ok=True)
     write_text_replacing(exp_dir / "results.json", json.dumps(
         {"config": cfg["config_path"], "metric": METRIC, "mode": "min", "interrupted": interrupted, "trials": rows},
