@@ -412,6 +412,23 @@ def test_ctrl_c_in_train_ends_in_one_line_with_the_resume_command(tmp_path, monk
     assert json.loads((run / "summary.json").read_text())["resumed_at"] == [2]
 
 
+@pytest.mark.parametrize("cmd, target", [("evaluate", "agents.evaluation.evaluate.main"),
+                                         ("tune", "baselines.tuning.main")])
+def test_ctrl_c_in_evaluate_and_tune_is_one_line(cmd, target, monkeypatch):
+    """Ctrl-C in ``radar-track evaluate`` / ``tune``: one line, no traceback."""
+    import importlib
+    from agents.cli import main as cli_main
+    mod, fn = target.rsplit(".", 1)
+
+    def ctrl_c(argv):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(importlib.import_module(mod), fn, ctrl_c)
+    with pytest.raises(SystemExit) as e:
+        cli_main([cmd, "--runs", "1"] + (["--quiet"] if cmd == "evaluate" else []))
+    msg = _one_line(e, f"radar-track {cmd}: interrupted")
+    assert "complete" in msg
+
+
 def test_ctrl_c_in_a_ppo_run_names_the_command_to_start_again(tmp_path):
     from agents.training.runs import RunInterrupted
     msg = RunInterrupted(tmp_path / "x.partial", resumable=False).message("radar-track train --algo ppo")
