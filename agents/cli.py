@@ -6,6 +6,7 @@ kernels, torch or Ray."""
 
 from __future__ import annotations
 
+import contextlib
 import sys
 
 USAGE = """usage: radar-track <command> [options]
@@ -20,6 +21,19 @@ commands:
 'radar-track <command> --help' shows the options of a command."""
 
 
+@contextlib.contextmanager
+def _interrupt_in_one_line(cmd):
+    """Ctrl-C in ``evaluate`` or ``tune``: one line instead of a traceback (exit status 1, as every one-line
+    error). Nothing is left half-written: each output file is written beside its target and renamed onto it
+    whole, and the tuned values and the evaluation's JSON are written only at the end (``train`` and ``sweep``
+    handle Ctrl-C themselves: they checkpoint and print the resume command)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise SystemExit(f"radar-track {cmd}: interrupted (Ctrl-C); every file it wrote before is complete, "
+                         "nothing else was written") from None
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -31,14 +45,16 @@ def main(argv=None):
         args = build_parser().parse_args(rest)          # --help and option errors: here, before the trackers load
         if not args.quiet:
             print(first_line(args), file=sys.stderr, flush=True)
-        from agents.evaluation.evaluate import main as evaluate_main
-        evaluate_main(rest)
+        with _interrupt_in_one_line(cmd):
+            from agents.evaluation.evaluate import main as evaluate_main
+            evaluate_main(rest)
         return 0
     if cmd == "tune":
         from baselines.tuning_options import build_parser, first_line
         print(first_line(build_parser().parse_args(rest)), file=sys.stderr, flush=True)
-        from baselines.tuning import main as tune_main
-        tune_main(rest)
+        with _interrupt_in_one_line(cmd):
+            from baselines.tuning import main as tune_main
+            tune_main(rest)
         return 0
     if cmd == "train":       # agents.training.train imports torch and the env only when it trains
         from agents.training.train import main as train_main

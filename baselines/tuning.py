@@ -35,6 +35,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -346,7 +347,7 @@ def tune(entry: TunedTracker, episodes, batch, cfg, x0=None, starts=3, seed=0, p
 def main(argv=None, prog="radar-track tune"):
     """``radar-track tune`` (options: :mod:`baselines.tuning_options`)."""
     args = build_parser(prog).parse_args(argv)
-    args.out = args.out or str(TUNED_PATH)
+    args.out = _output_path(args)
     if args.runs < 1:
         raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
     if args.starts < 1:
@@ -356,11 +357,15 @@ def main(argv=None, prog="radar-track tune"):
     bad = [t for t in names if t not in valid]
     if bad or not names:
         raise SystemExit(f"error: --trackers: expected names from {valid}, got {args.trackers!r}")
-    try:
-        with open(args.out) as f:
-            old = json.load(f)
-    except (OSError, ValueError):
-        old = {}
+    old = {}         # previous values: the file replaced, else the shipped ones (the starts and the kept entries)
+    for src in (args.out, TUNED_PATH):
+        try:
+            with open(src) as f:
+                old = json.load(f)
+            break
+        except (OSError, ValueError):
+            continue
+    old = old if isinstance(old, dict) else {}
     cfg = EnvConfig()
     t0 = time.time()
     episodes = draw_random_episodes(args.runs, seed=TUNING_SEEDS.start)
@@ -399,9 +404,55 @@ def main(argv=None, prog="radar-track tune"):
                      "tuned_in_this_run": tuned, "skipped": skipped,
                      "command": " ".join([prog, *(sys.argv[1:] if argv is None else argv)]),
                      "seconds": round(time.time() - t0, 1)}
-    with open(args.out, "w") as f:
-        json.dump(out, f, indent=1, allow_nan=False)
-    print(f"wrote {args.out} ({time.time() - t0:.0f} s)")
+    replaced = _describe_replaced(args.out, old, out, tuned)
+    from radar_env.common.files import write_text_replacing
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        write_text_replacing(args.out, json.dumps(out, indent=1, allow_nan=False))
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"error: --out: could not write {args.out} ({getattr(e, 'strerror', None) or e})") from None
+    print(f"wrote {args.out} ({time.time() - t0:.0f} s)" + (f"; replaced {replaced}" if replaced else ""))
+
+
+def _output_path(args):
+    """The file ``tune`` writes: ``--out``; with ``--replace-shipped`` the shipped ``baselines/tuned.json``; by
+    default ``tuned.json`` in a new run folder ``runs/tune_<time>/``. The shipped file is written only with
+    ``--replace-shipped``; an ``--out`` that exists and is not a regular file is refused (one line)."""
+    from radar_env.common.files import check_output_file, same_file
+    if args.replace_shipped:
+        if args.out is not None and not same_file(args.out, TUNED_PATH) and Path(args.out) != TUNED_PATH:
+            raise SystemExit(f"error: --replace-shipped writes {TUNED_PATH}; --out {args.out!r} names another file")
+        out = TUNED_PATH
+    elif args.out is None:
+        stamp = time.strftime("%Y%m%d_%H%M%S")
+        out = Path("runs") / f"tune_{stamp}" / "tuned.json"
+        n = 1
+        while out.parent.exists():
+            out, n = Path("runs") / f"tune_{stamp}_{n}" / "tuned.json", n + 1
+    else:
+        out = Path(args.out)
+        if not out.parent.is_dir():
+            raise SystemExit(f"error: --out: folder {str(out.parent)!r} of {args.out!r} does not exist")
+        if same_file(out, TUNED_PATH) or out.resolve() == TUNED_PATH.resolve():
+            raise SystemExit(f"error: --out: {args.out!r} is the shipped {TUNED_PATH.name} every evaluation reads; "
+                             "replacing it needs --replace-shipped")
+    try:
+        check_output_file("--out", out)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+    return str(out)
+
+
+def _describe_replaced(path, old, new, tuned):
+    """What writing ``new`` over ``path`` replaces (None for a new file): the previous run's command and each
+    re-tuned tracker's previous and new tuning RMSE."""
+    if not Path(path).is_file():
+        return None
+    prev = (old.get("tuning") or {}).get("command", "an earlier run") if isinstance(old.get("tuning"), dict) \
+        else "an earlier run"
+    changes = ", ".join(f"{t} {old[t].get('pos_rmse_m', float('nan')):.2f} -> {new[t]['pos_rmse_m']:.2f} m"
+                        for t in tuned if isinstance(old.get(t), dict) and t in new)
+    return f"the parameters of {prev!r}" + (f" ({changes})" if changes else "")
 
 
 if __name__ == "__main__":

@@ -27,11 +27,18 @@ def build_parser(prog="radar-track tune"):
                     help="optimizer starts per tracker, >= 1: the previous tuned values, then random points in "
                          "the search box (default 3)")
     ap.add_argument("--out", metavar="FILE.json",
-                    help="output JSON (default: baselines/tuned.json, the file the trackers read)")
+                    help="output JSON: a new file or a regular file to replace (default: tuned.json in a new run "
+                         "folder runs/tune_<time>/; never baselines/tuned.json, the file every tracker reads, "
+                         "without --replace-shipped)")
+    ap.add_argument("--replace-shipped", action="store_true",
+                    help="write baselines/tuned.json, the shipped parameters every later evaluation reads (the "
+                         "command says what it replaced) (default: off)")
     return ap
 
 
 def first_line(args):
     """What the command is about to do (printed before numpy, scipy and the trackers are imported)."""
+    dest = args.out or ("baselines/tuned.json (--replace-shipped)" if args.replace_shipped else
+                        "a new run folder runs/tune_<time>/")
     return (f"radar-track tune: tuning {args.trackers} on {args.runs} training-seed episodes ({args.starts} "
-            "optimizer starts each); loading the trackers ...")
+            f"optimizer starts each), writing {dest}; loading the trackers ...")

@@ -75,21 +75,28 @@ def test_evaluate_policy_that_is_not_a_policy(tmp_path):
     fake.write_text("not a model")
     with pytest.raises(SystemExit) as e:
         ev.main(["--policy", str(fake), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy", *QUICK])
+    assert "is a pickle" in _one_line_exit(e, "--policy")        # refused before it is even opened
+    with pytest.raises(SystemExit) as e:     # with the opt-in: opened, and refused as not a model
+        ev.main(["--policy", str(fake), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy",
+                 "--allow-pickle", *QUICK])
     assert "not a stable-baselines3 model" in _one_line_exit(e, "--policy")
 
 
 def test_evaluate_policy_trained_with_other_features_says_what_it_needs(tmp_path):
     p = _tiny_model(tmp_path, features=["nis", "c_min_g"])      # no env_config.json beside it: defaults assumed
     with pytest.raises(SystemExit) as e:
-        ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy", *QUICK])
+        ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy",
+                 "--allow-pickle", *QUICK])
     msg = _one_line_exit(e, "--policy")
     assert "'features'" in msg and "2 feature names" in msg
     (p.parent / "env_config.json").write_text(json.dumps({"features": ["nis", "c_min_g"]}))
-    res = ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy", *QUICK])
+    res = ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy",
+                       "--allow-pickle", *QUICK])
     assert np.isfinite(res["kim_lee_accel"]["trackers"]["policy"]["pos_rmse_m"])
     (p.parent / "env_config.json").write_text(json.dumps({"features": ["nis", "c_min_g"], "q_levels_g": [0.1, 1.0]}))
     with pytest.raises(SystemExit) as e:
-        ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy", *QUICK])
+        ev.main(["--policy", str(p), "--scenario", "kim_lee_accel", "--runs", "2", "--trackers", "policy",
+                 "--allow-pickle", *QUICK])
     assert "q_levels_g" in _one_line_exit(e, "--policy")
 
 
@@ -205,12 +212,13 @@ def test_train_option_errors_leave_no_run_folder(tmp_path, args, option, text):
 def test_train_init_from_a_model_of_another_algorithm(tmp_path):
     dqn = _tiny_model(tmp_path, "DQN")
     with pytest.raises(SystemExit) as e:
-        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={dqn}"])
+        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={dqn}", "--allow-pickle"])
     assert "is a DQN model" in _one_line_exit(e, "--hp init_from")
     not_a_model = tmp_path / "x.zip"
     not_a_model.write_text("x")
     with pytest.raises(SystemExit) as e:
-        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={not_a_model}"])
+        train_main([*TINY_PPO, "--out", str(tmp_path / "runs"), "--hp", f"init_from={not_a_model}",
+                    "--allow-pickle"])
     assert "not a stable-baselines3 model" in _one_line_exit(e, "--hp init_from")
     assert not (tmp_path / "runs").exists()
 

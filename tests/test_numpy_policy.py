@@ -59,7 +59,7 @@ def _obs(n=2000, seed=1):
 def test_shipped_exports_are_current_and_act_as_sb3(path):
     pol = npp.load_export(path)
     assert pol is not None, f"{npp.export_path(path)} is missing or was exported from another zip"
-    model = load_sb3_model(path)
+    model = load_sb3_model(path, allow_pickle=True)
     ok, msg = npp.check_export(pol, model, n=4096, seed=7)
     assert ok, msg
     assert pol.observation_space == model.observation_space and pol.action_space == model.action_space
@@ -71,7 +71,7 @@ def test_bundled_policy_acts_as_sb3_on_the_evaluations_observations():
     from agents.evaluation.suites import EVAL_SEED_BASE, draw_suite
     from baselines.trackers import run_q_policy
     choose_np, cfg = load_policy(BUNDLED_POLICY)
-    choose_sb3 = model_choose_q(load_sb3_model(BUNDLED_POLICY), cfg)
+    choose_sb3 = model_choose_q(load_sb3_model(BUNDLED_POLICY, allow_pickle=True), cfg)
     seen = []
 
     def both(obs):
@@ -138,7 +138,9 @@ def test_unsupported_structures_keep_sb3_predict(tmp_path):
     gsde = sb3.PPO("MlpPolicy", _SpacesEnv(BOX), use_sde=True, device="cpu", seed=0)
     assert npp.export_model(gsde) is None
     gsde.save(tmp_path / "policy.zip")
-    assert isinstance(load_model(tmp_path / "policy.zip"), sb3.PPO)
+    assert isinstance(load_model(tmp_path / "policy.zip", allow_pickle=True), sb3.PPO)
+    with pytest.raises(ValueError, match="--allow-pickle"):       # no export: a pickle, refused without the opt-in
+        load_model(tmp_path / "policy.zip")
 
 
 def test_user_zip_is_exported_in_memory_and_stale_or_damaged_exports_are_ignored(tmp_path, capsys):
@@ -146,9 +148,9 @@ def test_user_zip_is_exported_in_memory_and_stale_or_damaged_exports_are_ignored
     d.mkdir()
     shutil.copy(BUNDLED_POLICY, d / "policy.zip")
     shutil.copy(BUNDLED_POLICY.with_name("env_config.json"), d / "env_config.json")
-    pol = load_model(d / "policy.zip")        # no .npz: SB3 loads it, the actor runs in numpy
+    pol = load_model(d / "policy.zip", allow_pickle=True)    # no .npz: SB3 loads it, the actor runs in numpy
     assert isinstance(pol, npp.NumpyPolicy) and not npp.export_path(d / "policy.zip").exists()
-    out = npp.save_export(d / "policy.zip")
+    out = npp.save_export(d / "policy.zip", allow_pickle=True)
     assert out == d / "policy.npz" and isinstance(npp.load_export(d / "policy.zip"), npp.NumpyPolicy)
     ref = np.load(npp.export_path(BUNDLED_POLICY))
     for k in ref.files:                        # the shipped export is what save_export writes
@@ -156,15 +158,19 @@ def test_user_zip_is_exported_in_memory_and_stale_or_damaged_exports_are_ignored
     # an export of another zip: ignored, with a warning
     shutil.copy(BUNDLED_POLICY.parent / "recipe" / "broad_s700000" / "policy.npz", out)
     assert npp.load_export(d / "policy.zip") is None
-    assert isinstance(load_model(d / "policy.zip"), npp.NumpyPolicy)
+    with pytest.raises(ValueError, match="made from another file.*--allow-pickle"):
+        load_model(d / "policy.zip")
+    assert isinstance(load_model(d / "policy.zip", allow_pickle=True), npp.NumpyPolicy)
     assert "exported from another file" in capsys.readouterr().err
     # a damaged export: a ValueError from load_export, a warning and SB3 from load_model
     out.write_bytes(b"not an npz")
-    with pytest.raises(ValueError, match="not a readable policy export"):
+    with pytest.raises(ValueError, match="not a numpy .npz"):
         npp.load_export(d / "policy.zip")
-    choose_q, _ = load_policy(d / "policy.zip")
+    with pytest.raises(ValueError, match="not a numpy .npz"):
+        load_policy(d / "policy.zip")
+    choose_q, _ = load_policy(d / "policy.zip", allow_pickle=True)
     err = capsys.readouterr().err
-    assert "not a readable policy export" in err and "exported from another file" not in err and callable(choose_q)
+    assert "not a numpy .npz" in err and "exported from another file" not in err and callable(choose_q)
 
 
 def test_damaged_arrays_are_refused_naming_the_problem():

@@ -121,12 +121,18 @@ def test_fine_tune_from_saved_model_on_random_radars(tmp_path):
     import stable_baselines3 as sb3
     hp = _tiny("ppo")
     first = train("ppo", hp, seed=3, out=tmp_path, progress=False, verbose=0, run_name="a")
+    from agents.policies.learned import load_learned
+    from agents.policies.numpy_policy import NumpyPolicy, load_export
+    assert isinstance(load_export(first / "policy.zip"), NumpyPolicy)    # exported at the save: no pickle needed
+    load_learned(first)
     src = sb3.PPO.load(first / "policy.zip", device="cpu")
     hp2 = _tiny("ppo")
     hp2.update(n_timesteps=128, n_steps=32, init_from=str(first / "policy.zip"), learning_rate=0.0,
                eval_scenarios={"random": 2, "random_radars": 2}, select_on=["random", "random_radars"])
     hp2["env_kwargs"] = {**hp2["env_kwargs"], "scenario": "random_radars"}
-    second = train("ppo", hp2, seed=5, out=tmp_path, progress=False, verbose=0, run_name="b")
+    with pytest.raises(ValueError, match="init_from.*pickle.*--allow-pickle"):     # no unpickling without the opt-in
+        train("ppo", hp2, seed=5, out=tmp_path, progress=False, verbose=0, run_name="b")
+    second = train("ppo", hp2, seed=5, out=tmp_path, progress=False, verbose=0, run_name="b", allow_pickle=True)
     tuned = sb3.PPO.load(second / "policy.zip", device="cpu")
     for k, v in src.policy.state_dict().items():     # learning rate 0: the weights are exactly the source's
         assert np.array_equal(v.numpy(), tuned.policy.state_dict()[k].numpy()), k
@@ -137,7 +143,7 @@ def test_fine_tune_from_saved_model_on_random_radars(tmp_path):
     hp3.update(init_from=str(first / "policy.zip"))
     hp3["env_kwargs"] = {**hp3["env_kwargs"], "features": ["nis", "c_min_g"]}
     with pytest.raises(ValueError, match="init_from"):
-        train("ppo", hp3, seed=3, out=tmp_path, progress=False, verbose=0, run_name="c")
+        train("ppo", hp3, seed=3, out=tmp_path, progress=False, verbose=0, run_name="c", allow_pickle=True)
 
 
 def test_cli_train_branch_and_errors(tmp_path, capsys):

@@ -35,7 +35,8 @@ from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY  # noqa: F40
 from agents.policies.learned import BUNDLED_LEARNED, learned_label, load_learned, read_kind, resolve_learned
 from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
-from agents.evaluation.files import check_output_file, move_replacing, same_file, write_text_replacing
+from radar_env.common.files import (check_output_dir, check_output_file, file_type, move_replacing, same_file,
+                                     write_text_replacing)
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
                                        jsonable, ratio_ci, score_run)
 from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser
@@ -64,7 +65,8 @@ def default_runs(suite, trajectory=False):
 
 # ------------------------------------------------------------------------------------------------ evaluation
 def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True, workers=1, address=None, seed=None,
-             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None, learned=None):
+             common_over=None, loaded_policy=None, policy_paths=None, loaded_policies=None, learned=None,
+             allow_pickle=False):
     """Run ``trackers`` on every suite.
 
     Args:
@@ -84,6 +86,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             policy_paths[name])}``) if the caller has it already (not loaded again).
         learned: ``{tracker name: LearnedTracker}`` (:func:`agents.policies.learned.load_learned`): learned
             trackers by any name, each run as its kind says; a name here takes precedence over the file arguments.
+        allow_pickle: let a policy file given by path be unpickled (an SB3 zip without a current numpy export);
+            refused in one line otherwise.
     Returns:
         ``(results, runs)``: ``results[suite]["trackers"][tracker]`` = metrics dict, ``results[suite]
         ["ratio_vs_" + reference][tracker]`` = ``[ratio, [lo, hi]]`` over the runs neither failed (their number in
@@ -106,7 +110,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
         if t in trackers and t not in learned:
             if paths[t] is None and given[t] is None:
                 raise ValueError(f"tracker {t!r} needs a policy file (--{t.replace('_', '-')} PATH); none bundled")
-            policies[t] = given[t] if given[t] is not None else load_policy(paths[t])
+            policies[t] = given[t] if given[t] is not None else load_policy(paths[t], allow_pickle=allow_pickle)
     range_rate = set(RANGE_RATE_TRACKERS) | {t for t, (_, cfg) in policies.items()
                                              if getattr(cfg, "radial_velocity", False)}
     default_common = common_over is None
@@ -130,7 +134,8 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if i + 1 < len(jobs):
                 bar.start(i + 1)
         bar.start(0)
-        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick)
+        ray_runs = run_suites_ray(suites, trackers, {t: paths[t] for t in policies}, workers, address, seed, tick,
+                                  allow_pickle=allow_pickle)
     for suite, episodes in suites:
         batch = stack_episodes(episodes)
         suite_runs = {} if ray_runs is None else ray_runs[suite]
@@ -390,7 +395,7 @@ def write_plots(runs, out_dir, scenarios=None, progress=False, inputs=()):
         inputs: the run's input files: one of them is never replaced (a warning instead).
 
     The figures are drawn in a temporary folder inside ``out_dir`` and renamed into it
-    (:func:`agents.evaluation.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
+    (:func:`radar_env.common.files.move_replacing`): a link in ``out_dir`` is replaced, never followed, and a
     suite name cannot lead outside ``out_dir``. One process: two forked plotting processes took longer than one on
     the shared 2-core machine (load 5)."""
     import matplotlib
@@ -452,6 +457,10 @@ def _check_outputs(args, inputs=()):
     ``--json`` is a symbolic link or one of the run's ``inputs`` (it would be overwritten)."""
     if not args.no_plots:
         out = Path(args.out)
+        try:
+            check_output_dir("--out", out)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
         if out.exists() and not out.is_dir():
             raise SystemExit(f"error: --out: {args.out!r} exists and is not a directory")
         try:
@@ -463,6 +472,9 @@ def _check_outputs(args, inputs=()):
     if args.json:
         js = Path(args.json)
         folder = js.parent
+        if file_type(js) not in (None, "file", "directory", "symbolic link"):
+            raise SystemExit(f"error: --json: {args.json!r} exists and is a {file_type(js)}; only a new path or a "
+                             "regular file is replaced")
         if js.is_dir():
             raise SystemExit(f"error: --json: {args.json!r} is a directory; give a file name")
         if not folder.is_dir():
@@ -643,7 +655,7 @@ def main(argv=None, prog="radar-track evaluate"):
             option, spec, kinds = sources[t]
             _say(args, f"loading the learned tracker {spec} ({t}) ...")
             try:
-                learned[t] = load_learned(spec, name=t, kinds=kinds)
+                learned[t] = load_learned(spec, name=t, kinds=kinds, allow_pickle=args.allow_pickle)
             except ValueError as e:
                 raise SystemExit(f"error: {option}: {e}") from None
     policy_files = {t: (sources[t][1] if sources[t][0] in OLD_OPTIONS.values() else str(learned[t].file))
@@ -690,7 +702,8 @@ def main(argv=None, prog="radar-track evaluate"):
     t0 = time.time()
     try:
         results, runs = evaluate(suites, trackers, progress=not args.quiet, workers=args.workers,
-                                 address=args.address, seed=args.seed, learned=learned)
+                                 address=args.address, seed=args.seed, learned=learned,
+                                 allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
     print(format_table(results, wide=args.wide))
@@ -706,13 +719,23 @@ def main(argv=None, prog="radar-track evaluate"):
                 "radar_range_km": (None if radar is not None or not files else
                                    [v / 1e3 for v in (radar_range_m or DEFAULT_RADAR_RANGE_M)]),
                 "command": " ".join(["radar-track", "evaluate", *(sys.argv[2:] if argv is None else argv)])}
-        write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
-                                                   allow_nan=False))
+        try:        # written beside it and renamed: a failed write leaves no partial file
+            write_text_replacing(args.json, json.dumps(jsonable({"meta": meta, "suites": results}), indent=1,
+                                                       allow_nan=False))
+        except (OSError, ValueError) as e:
+            raise SystemExit(f"error: --json: could not write {args.json} ({getattr(e, 'strerror', None) or e}); "
+                             "the table above is the run's result") from None
         print(f"metrics: {args.json}")
     if not args.no_plots:
         scenarios = {n: run_scenario(n, args.seed) for n in names}
         scenarios.update({n: run_scenario(f, args.seed) for n, f in zip(file_names, files)})
-        written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
+        try:
+            written = write_plots(runs, args.out, scenarios, progress=not args.quiet, inputs=inputs)
+        except (OSError, ValueError) as e:
+            where = getattr(e, "filename", None)
+            raise SystemExit(f"error: --out: could not write the figures in {args.out}/ "
+                             f"({getattr(e, 'strerror', None) or e}{': ' + str(where) if where else ''}); the "
+                             "figures written before it are complete") from None
         print(f"plots: {len(written)} files in {args.out}/")
     return results
 

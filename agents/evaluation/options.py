@@ -48,7 +48,9 @@ def build_parser(prog="radar-track evaluate"):
                                  "measurement streams (common random numbers): a table per suite, figures in --out.",
                                  epilog="Security: a policy.zip (stable-baselines3) in a --learned folder and "
                                         "--tracker-module files are code: loading them runs what their author "
-                                        "wrote. Use only files you trust.")
+                                        "wrote. Use only files you trust. A zip is unpickled only with "
+                                        "--allow-pickle (otherwise its numpy export policy.npz runs, or it is "
+                                        "refused).")
     ap.add_argument("--scenario", action="append", metavar="NAME",
                     help="suite to run, repeatable: random, random_radars, a paper's scenario (e.g. bizup2002), a "
                          "held-out family (e.g. sharp_turns), encounters (conflict warnings), adsb_calibration, "
@@ -86,8 +88,12 @@ def build_parser(prog="radar-track evaluate"):
                          "writes), repeatable; its kind decides how it runs; a folder is reported under its name "
                          "(a training run's best/ as <run>_best), which must not be a built-in tracker's. Added to "
                          "--trackers (or to the default list). A policy.zip in a folder is a pickle: loading it (when "
-                         "its numpy export is not current) runs the code inside; load only folders you trust "
-                         "(default: the bundled ones present)")
+                         "its numpy export is not current) runs the code inside, so it is refused unless "
+                         "--allow-pickle (default: the bundled ones present)")
+    ap.add_argument("--allow-pickle", action="store_true",
+                    help="let a learned tracker's stable-baselines3 policy.zip be unpickled when its numpy export "
+                         "is missing or stale: this runs the code inside the file; only for files you trust "
+                         "(default: refused, in one line)")
     for t, opt in OLD_OPTIONS.items():
         ap.add_argument(opt, dest=t, metavar="FILE",
                         help=f"deprecated alias (for one release) of --learned for the '{t}' tracker: a file in a "

@@ -196,10 +196,10 @@ def merge_chunk_runs(tracker, parts, episodes):
 _POLICY_CACHE = {}
 
 
-def _policy_in_worker(blob):
+def _policy_in_worker(blob, allow_pickle=False):
     """Load the policy shipped as file contents (``{file name: bytes}``, the policy file first; cached per worker
-    process: Ray reuses workers)."""
-    h = hashlib.sha1()
+    process: Ray reuses workers). ``allow_pickle``: the driver's opt-in (``--allow-pickle``), passed on."""
+    h = hashlib.sha1(b"pickle" if allow_pickle else b"")
     for name, data in blob.items():
         h.update(name.encode() + b"\0" + data)
     key = h.hexdigest()
@@ -208,23 +208,23 @@ def _policy_in_worker(blob):
             d = Path(tmp)
             for name, data in blob.items():
                 (d / name).write_bytes(data)
-            _POLICY_CACHE[key] = load_policy(d / next(iter(blob)))
+            _POLICY_CACHE[key] = load_policy(d / next(iter(blob)), allow_pickle=allow_pickle)
     return _POLICY_CACHE[key]
 
 
-def _run_chunk(tracker, episodes, policy_blobs):
+def _run_chunk(tracker, episodes, policy_blobs, allow_pickle=False):
     blob = (policy_blobs or {}).get(tracker)
-    choose_q, cfg = _policy_in_worker(blob) if blob is not None else (None, None)
+    choose_q, cfg = _policy_in_worker(blob, allow_pickle) if blob is not None else (None, None)
     return run_one(tracker, episodes, choose_q, cfg)
 
 
-def _task_draw(suite, seed, start, stop, tracker, policy_blob):
+def _task_draw(suite, seed, start, stop, tracker, policy_blob, allow_pickle=False):
     eps = draw_suite(suite, stop - start, seed=seed + start)
-    return episodes_digest(eps), _run_chunk(tracker, eps, policy_blob)
+    return episodes_digest(eps), _run_chunk(tracker, eps, policy_blob, allow_pickle)
 
 
-def _task_given(episodes, tracker, policy_blob):
-    return None, _run_chunk(tracker, episodes, policy_blob)
+def _task_given(episodes, tracker, policy_blob, allow_pickle=False):
+    return None, _run_chunk(tracker, episodes, policy_blob, allow_pickle)
 
 
 # ------------------------------------------------------------------------------------------------ driver side
@@ -250,7 +250,8 @@ def _first_run_redraws(suite, episodes, seed):
     return episodes_digest(draw_suite(suite, 1, seed=seed)) == episodes_digest(episodes[:1])
 
 
-def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, seed=None, tick=None):
+def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, seed=None, tick=None,
+                   allow_pickle=False):
     """Run every tracker on every suite on Ray; returns ``{suite: {tracker: TrackRun}}`` equal to the serial runs.
 
     Args:
@@ -261,6 +262,8 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
         address: Ray cluster address (default ``RAY_ADDRESS``, else an embedded local Ray).
         seed: base seed the named suites were drawn with; None: send every suite's episodes.
         tick: progress callback ``tick(message)``, called once per (suite, tracker) when all its chunks are done.
+        allow_pickle: the driver's opt-in to unpickle a policy zip without a current numpy export (passed to the
+            workers; without it they refuse such a file, as the driver does).
     """
     workers = int(workers)
     if workers < 1:
@@ -282,8 +285,8 @@ def run_suites_ray(suites, trackers, policy_path=None, workers=2, address=None, 
                 if redraw:
                     expect[suite, c] = episodes_digest(episodes[a:b])
                 for t in trackers:
-                    ref = (draw.remote(suite, int(seed), a, b, t, blob_ref) if redraw
-                           else given.remote(eps_refs[c], t, blob_ref))
+                    ref = (draw.remote(suite, int(seed), a, b, t, blob_ref, allow_pickle) if redraw
+                           else given.remote(eps_refs[c], t, blob_ref, allow_pickle))
                     pending[ref] = (suite, t, c)
         n_chunks = {s: len(chunk_bounds(len(e), workers)) for s, e in suites}
         parts = {}

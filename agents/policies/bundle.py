@@ -26,8 +26,9 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
-           "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY",
+           "policy_env_kwargs", "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs",
+           "embed_env_config", "recorded_env_kwargs"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
@@ -82,15 +83,6 @@ def bundled_env_kwargs(name):
     return kw
 
 
-def env_kwargs_from_json(v):
-    """JSON lists back to the tuples the env's arguments are (nested: range pairs inside ``random_config``)."""
-    if isinstance(v, list):
-        return tuple(env_kwargs_from_json(x) for x in v)
-    if isinstance(v, dict):
-        return {k: env_kwargs_from_json(x) for k, x in v.items()}
-    return v
-
-
 def policy_env_kwargs(policy_path=None):
     """The ``RadarTrack-v0`` keyword arguments a policy was trained with: ``env_config.json`` beside
     ``policy_path`` (default :data:`BUNDLED_POLICY`), lists turned into tuples. Raises ``ValueError`` if the file
@@ -99,13 +91,8 @@ def policy_env_kwargs(policy_path=None):
     cfg = path.with_name("env_config.json")
     if not cfg.is_file():
         raise ValueError(f"policy_path: no env_config.json beside {str(path)!r} (looked for {str(cfg)!r})")
-    try:
-        kw = json.loads(cfg.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{cfg}: not valid JSON ({e})") from e
-    if not isinstance(kw, dict):
-        raise ValueError(f"{cfg}: must hold a JSON object of RadarTrack-v0 arguments, got {type(kw).__name__}")
-    return env_kwargs_from_json(kw)
+    from agents.policies.checks import env_kwargs_from_json, read_json_object   # the one validation path
+    return env_kwargs_from_json(read_json_object(cfg, "a JSON object of RadarTrack-v0 arguments"))
 
 
 def embed_env_config(zip_path, env_kwargs):
@@ -123,6 +110,7 @@ def recorded_env_kwargs(policy_path):
     of its run folder: beside the zip, or one level up for ``best/policy.zip``; a bundle's ``training.json``).
     ``(None, None)`` if there is none. Reads JSON only (nothing is unpickled). A bundled folder's training record
     is ``training.json`` (``train_config.json`` before the one-folder layout, still read)."""
+    from agents.policies.checks import env_kwargs_from_json
     path = Path(policy_path)
     try:
         with zipfile.ZipFile(path) as z:

@@ -9,7 +9,11 @@ Every learned tracker, bundled or trained by a user, is a folder holding:
 * ``training.json``: the training record (hyperparameters, command, summary);
 * ``choice.json``: the choice record (the rule and what it chose: a seed, a checkpoint);
 * where the kind is a stable-baselines3 model, ``policy.zip`` beside the ``.npz`` (a pickle; the ``.npz`` is its
-  numpy export and is what runs when it is current, :mod:`agents.policies.numpy_policy`).
+  numpy export and is what runs when it is current, :mod:`agents.policies.numpy_policy`; without a current export
+  the zip is refused unless ``allow_pickle=True``).
+
+Every file is checked by :mod:`agents.policies.checks` before anything runs (one-line ``ValueError`` naming the file
+and the field), and a file given by path is the file loaded, never a neighbour.
 
 The kind, not the caller, decides how the tracker runs: :func:`load_learned` reads ``policy.json`` and hands the
 folder to the per-kind loader (:func:`agents.policies.loading.load_policy`). The bundled trackers are named in
@@ -104,7 +108,13 @@ def resolve_learned(path_or_name):
     if not p.exists():
         raise ValueError(f"{s!r} is neither a bundled learned tracker ({', '.join(BUNDLED_LEARNED)}) nor an "
                          "existing folder or file")
+    if p.is_file() and p.suffix not in (".zip", ".npz") and p.name != MANIFEST:
+        raise ValueError(f"{s}: not a learned tracker's file (policy.npz, policy.zip or {MANIFEST} in its folder); "
+                         "a file is loaded from the path given, never a neighbour: give the folder")
     folder, file = (p, None) if p.is_dir() else (p.parent, p if p.suffix in (".zip", ".npz") else None)
+    if file is not None and file.suffix == ".npz":    # policy.json describes policy.npz: never load a neighbour
+        from agents.policies.checks import check_policy_file
+        check_policy_file(file)
     bundled = next((n for n, d in BUNDLED_LEARNED.items() if d.exists() and d.resolve() == folder.resolve()), None)
     return folder, file, bundled
 
@@ -153,7 +163,7 @@ class LearnedTracker:
         return [self.folder / n for n in names if (self.folder / n).is_file()]
 
 
-def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
+def load_learned(path_or_name, name=None, kinds=None, allow_pickle=False) -> LearnedTracker:
     """Load a learned tracker by bundled name or path, by its kind.
 
     Args:
@@ -161,13 +171,15 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
         name: the tracker name to report it under (default :func:`learned_label`).
         kinds: if given, the kinds accepted here; another kind is refused (how the old per-tracker options keep a
             learned IMM from running as a q-policy).
+        allow_pickle: unpickle an SB3 ``policy.zip`` whose numpy export is missing or stale (runs its author's
+            code); without it such a folder is refused in one line.
     Returns:
         LearnedTracker
     Raises:
         ValueError: one line naming the file and the field: not a learned tracker folder, an unknown or refused
             kind, or whatever the per-kind loader refuses (:func:`agents.policies.loading.load_policy`).
 
-    An SB3 kind whose numpy export is out of date unpickles its zip: it runs code. Load only folders you trust.
+    Nothing is unpickled without ``allow_pickle``; every file is checked by :mod:`agents.policies.checks` first.
     """
     from agents.policies.loading import load_policy
     folder, file, bundled = resolve_learned(path_or_name)
@@ -176,7 +188,7 @@ def load_learned(path_or_name, name=None, kinds=None) -> LearnedTracker:
         raise ValueError(f"{source}: kind {kind!r} ({KINDS[kind]}), expected {' or '.join(map(repr, kinds))}")
     if file is None or (kind in SB3_KINDS and file.suffix != ".zip"):
         file = folder / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
-    policy, cfg = load_policy(file)
+    policy, cfg = load_policy(file, allow_pickle=allow_pickle)
     # the per-kind loader looks at the files; the kind must agree with what it found
     is_imm = bool(getattr(policy, "is_tracker", False))
     if is_imm != (kind in IMM_KINDS):
@@ -210,9 +222,10 @@ def write_run_layout(run, kind, summary):
                                        "selection": read_json(sel) if sel.is_file() else None}))
     for folder, choice in folders:
         if kind in SB3_KINDS and (folder / "policy.zip").is_file():
-            from agents.policies.numpy_policy import save_export
-            try:
-                save_export(folder / "policy.zip")
+            from agents.policies.numpy_policy import load_export, save_export
+            try:    # the trainer exported each zip it saved; else export the zip this training run wrote
+                if load_export(folder / "policy.zip") is None:
+                    save_export(folder / "policy.zip", allow_pickle=True)
             except ValueError:
                 pass        # no numpy export for this structure: the zip runs through SB3 (policy.json says so)
             write_manifest(folder, kind)

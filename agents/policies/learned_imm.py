@@ -50,7 +50,8 @@ from radar_env.envs.config import EnvConfig
 from radar_env.filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors  # noqa: F401 (re-exported)
 from radar_env.common.units import G0_M_S2
 
-from agents.policies.bundle import BUNDLED_LEARNED_IMM, env_kwargs_from_json
+from agents.policies.bundle import BUNDLED_LEARNED_IMM
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",
@@ -193,24 +194,46 @@ def is_learned_imm_checkpoint(path):
 
 
 def load_learned_imm(path) -> LearnedIMM:
-    """A :class:`LearnedIMM` from a checkpoint folder or its ``policy.npz`` (no pickle). ``ValueError`` for a
-    missing or malformed checkpoint, naming the file."""
+    """A :class:`LearnedIMM` from a checkpoint folder or its ``policy.npz`` (no pickle), checked by the one
+    validation path (:mod:`agents.policies.checks`) before anything runs. ``ValueError`` (one line, naming the file
+    and the field) for a missing or malformed checkpoint; a file other than the folder's ``policy.npz`` is refused."""
+    from agents.policies import checks
+    from agents.policies.recurrent import _checked_shapes
     p = Path(path)
-    d = p if p.is_dir() else p.parent
-    try:
-        config = json.loads((d / "policy.json").read_text())
-        env_kwargs = json.loads((d / "env_config.json").read_text())
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{d}: not a learned IMM checkpoint (policy.json / env_config.json: {e})") from None
+    d = p if p.is_dir() else checks.check_policy_file(p, POLICY_FILE).parent
+    meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
+    for f in (meta_file, env_file, npz):
+        if not f.is_file():
+            raise ValueError(f"{d}: not a learned IMM checkpoint (no {f.name}; it needs {POLICY_FILE}, policy.json "
+                             "and env_config.json)")
+    config = checks.read_json_object(meta_file, "a learned IMM config (a JSON object)")
     if config.get("format") != FORMAT or config.get("version") != VERSION:
-        raise ValueError(f"{d / 'policy.json'}: format {config.get('format')!r} version {config.get('version')!r}, "
+        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
                          f"need {FORMAT!r} version {VERSION}")
+    arch = config.get("architecture")
+    n_par = arch.get("n_par") if isinstance(arch, dict) else None
+    if not isinstance(n_par, int) or isinstance(n_par, bool) or not 0 < n_par <= 64:
+        raise ValueError(f"{meta_file}: field 'architecture.n_par' must be a positive int, got {n_par!r}")
+    shapes = _checked_shapes(meta_file, {**arch, "n_out": n_par})
+    base = config.get("base_parameters")
+    if not isinstance(base, dict) or not base:
+        raise ValueError(f"{meta_file}: field 'base_parameters' must be an object of the IMM's parameters")
+    checks.check_finite_numbers(meta_file, base, "base_parameters")
+    checks.check_finite_numbers(meta_file, config.get("feature_q_g"), "feature_q_g")
+    if not config["feature_q_g"] > 0:
+        raise ValueError(f"{meta_file}: field 'feature_q_g' must be > 0, got {config['feature_q_g']!r}")
+    for field in ("parameters", "input_features"):
+        v = config.get(field)
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise ValueError(f"{meta_file}: field {field!r} must be a list of names, got {v!r}"[:300])
+    weights = checks.read_npz(npz)
+    checks.check_weights(npz, weights, shapes)
+    env_kwargs, _ = checks.check_env_config(env_file)
     try:
-        with np.load(d / POLICY_FILE, allow_pickle=False) as z:
-            weights = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{d / POLICY_FILE}: cannot read the weights ({e})") from None
-    return LearnedIMM(weights, config, env_kwargs)
+        return LearnedIMM(weights, config, env_kwargs)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as e:
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(f"{meta_file}: {msg}"[:400]) from None
 
 
 def run_learned_imm(episodes, path, name="policy_imm_bp"):

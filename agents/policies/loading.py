@@ -35,7 +35,7 @@ from agents.policies.recurrent import load_recurrent_policy
 __all__ = ["load_policy", "load_model", "load_sb3_model", "model_choose_q", "model_run_imm", "SB3LearnedIMM"]
 
 
-def load_policy(path):
+def load_policy(path, allow_pickle=False):
     """Load a saved policy and the env config it was trained with, by file type: a stable-baselines3 model (PPO,
     DQN, SAC, A2C or TD3 ``.zip``; ``env_config.json`` beside it, else the defaults with the model's action type)
     or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
@@ -50,7 +50,8 @@ def load_policy(path):
     file that is not such a policy, or one whose observation space (size or bounds), action space or recorded
     training env does not match its env config (the message names the field; module docstring).
 
-    Without a current numpy export an SB3 zip is unpickled: it runs code. Load only files you trust."""
+    Without a current numpy export an SB3 zip would be unpickled, which runs code: refused (one line) unless
+    ``allow_pickle``. Every ``.npz`` goes through :mod:`agents.policies.checks` before anything runs."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
@@ -64,7 +65,7 @@ def load_policy(path):
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}
     where = str(cfg_file) if cfg_file.is_file() else f"the defaults (no {cfg_file.name} beside {path.name})"
     _check_recorded_env(path, kw, where)     # JSON only, before anything is unpickled
-    model = load_model(path)
+    model = load_model(path, allow_pickle)
     from gymnasium import spaces
     discrete = isinstance(model.action_space, spaces.Discrete)
     kw.setdefault("action_type", "discrete" if discrete else "continuous")
@@ -104,23 +105,32 @@ def load_policy(path):
     return choose_q, cfg
 
 
-def load_model(path):
+def load_model(path, allow_pickle=False):
     """The policy in the zip ``path`` as an object with ``observation_space``, ``action_space`` and SB3's
     ``predict``: its numpy export (:class:`agents.policies.numpy_policy.NumpyPolicy`) from the ``.npz`` beside it
     when that was exported from this very file (no torch, no SB3, no unpickling); else the SB3 model, exported to
     numpy in memory when its structure allows and the export reproduces its actions (checked), else the SB3 model
-    itself. A damaged or out-of-date ``.npz`` is ignored with a warning on stderr."""
+    itself. Without ``allow_pickle`` only the export is read: a missing, damaged or out-of-date one is refused
+    (``ValueError``, one line); with it, such an export is ignored with a warning on stderr and the zip unpickled."""
     from agents.policies import numpy_policy as npp
+    from agents.policies.checks import refuse_pickle
     try:
         pol = npp.load_export(path)
         if pol is not None:
             return pol
+        if not allow_pickle:
+            stale = npp.export_path(path).is_file()
+            raise refuse_pickle(path, "a stable-baselines3 zip " + (
+                f"whose numpy export {npp.export_path(path).name} was made from another file" if stale
+                else f"with no numpy export {npp.export_path(path).name} beside it"))
         if npp.export_path(path).is_file():
             print(f"warning: {npp.export_path(path)} was exported from another file than {path}; ignored (re-export "
-                  f"with python -m agents.policies.numpy_policy {path})", file=sys.stderr)
+                  f"with python -m agents.policies.numpy_policy --allow-pickle {path})", file=sys.stderr)
     except ValueError as e:
+        if not allow_pickle:
+            raise
         print(f"warning: {e}; loading {path} with stable-baselines3 instead", file=sys.stderr)
-    model = load_sb3_model(path)
+    model = load_sb3_model(path, allow_pickle=True)
     arrays = npp.export_model(model)
     if arrays is None:
         return model

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["NumpyPolicy", "export_model", "check_export", "export_path", "zip_sha256", "save_export",
-           "load_export", "load_sb3_model", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
+           "load_export", "load_sb3_model", "export_saved", "EXPORT_VERSION", "ACTIVATIONS", "HEADS", "main"]
 
 EXPORT_VERSION = 1
 ACTIVATIONS = ("identity", "tanh", "relu", "elu", "leaky_relu", "silu")
@@ -288,9 +288,13 @@ def zip_sha256(policy_path):
     return hashlib.sha256(Path(policy_path).read_bytes()).hexdigest()
 
 
-def load_sb3_model(path):
+def load_sb3_model(path, allow_pickle=False):
     """The stable-baselines3 model in ``path`` (PPO, DQN, SAC, A2C or TD3 zip, on the CPU); imports SB3 and torch.
-    Raises ``ValueError`` for a file that is not such a model."""
+    The zip is a pickle: refused (``ValueError``, one line) unless ``allow_pickle`` (:func:`agents.policies.checks.
+    refuse_pickle`). Raises ``ValueError`` for a file that is not such a model."""
+    if not allow_pickle:
+        from agents.policies.checks import refuse_pickle
+        raise refuse_pickle(path)
     try:
         import stable_baselines3 as sb3
     except ImportError as e:  # pragma: no cover - depends on the install
@@ -308,26 +312,31 @@ def load_export(policy_path):
     """The :class:`NumpyPolicy` exported beside ``policy_path``, or None if there is none or it was exported from
     another file (its recorded SHA-256 differs from the zip's). Reads arrays only (``allow_pickle=False``).
     Raises ``ValueError`` for a damaged export."""
+    from agents.policies.checks import read_npz
     npz = export_path(policy_path)
     if not npz.is_file():
         return None
-    try:
-        with np.load(npz, allow_pickle=False) as f:
-            arrays = {k: f[k] for k in f.files}
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{npz}: not a readable policy export ({e})") from None
+    arrays = read_npz(npz)
     if str(arrays.get("source_sha256", "")) != zip_sha256(policy_path):
         return None
-    return NumpyPolicy(arrays)
+    try:
+        pol = NumpyPolicy(arrays)
+    except (ValueError, TypeError, IndexError, OverflowError) as e:
+        raise ValueError(f"{npz}: {str(e).splitlines()[0] if str(e) else type(e).__name__}"[:400]) from None
+    for i, (W, b, _, param) in enumerate(pol.layers):
+        if not (np.all(np.isfinite(W)) and np.all(np.isfinite(b)) and np.isfinite(param)):
+            raise ValueError(f"{npz}: layer {i} (W{i}, b{i}, activation_param) has non-finite entries")
+    return pol
 
 
-def save_export(policy_path, model=None):
-    """Export the policy zip ``policy_path`` (loaded with SB3 unless ``model`` is given) to ``export_path``:
+def save_export(policy_path, model=None, allow_pickle=False):
+    """Export the policy zip ``policy_path`` (loaded with SB3 unless ``model`` is given: a pickle, refused unless
+    ``allow_pickle``) to ``export_path``:
     the arrays of :func:`export_model` and the zip's SHA-256, after :func:`check_export` passed. Returns the
     ``.npz`` path; raises ``ValueError`` if the model cannot be exported or the check fails."""
     policy_path = Path(policy_path)
     if model is None:
-        model = load_sb3_model(policy_path)
+        model = load_sb3_model(policy_path, allow_pickle=allow_pickle)
     arrays = export_model(model)
     if arrays is None:
         raise ValueError(f"{policy_path}: not a policy this exporter evaluates (see agents.policies.numpy_policy)")
@@ -342,14 +351,30 @@ def save_export(policy_path, model=None):
     return out
 
 
+def export_saved(policy_path, model):
+    """Write the export of the zip ``model`` was just saved to (training, after each save: no unpickling, the model
+    is in memory), so that the run evaluates without ``--allow-pickle``. Returns the ``.npz`` path, or None when
+    the model's structure has no export (the zip then needs the opt-in)."""
+    try:
+        return save_export(policy_path, model)
+    except ValueError:
+        return None
+
+
 def main(argv=None):
     """``python -m agents.policies.numpy_policy POLICY.zip ...``: write each zip's numpy export beside it."""
     import argparse
     ap = argparse.ArgumentParser(prog="python -m agents.policies.numpy_policy",
                                  description="Export stable-baselines3 policy zips to numpy (.npz beside each).")
     ap.add_argument("policies", nargs="+", metavar="POLICY.zip")
-    for p in ap.parse_args(argv).policies:
-        print(save_export(p))
+    ap.add_argument("--allow-pickle", action="store_true",
+                    help="required: exporting unpickles each zip, which runs its author's code (only files you trust)")
+    args = ap.parse_args(argv)
+    for p in args.policies:
+        try:
+            print(save_export(p, allow_pickle=args.allow_pickle))
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
 
 
 if __name__ == "__main__":

@@ -48,11 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
-from radar_env.envs.config import EnvConfig
 from radar_env.envs.core import actions_to_q_m_s2
 from radar_env.common.units import G0_M_S2
-
-from agents.policies.bundle import env_kwargs_from_json
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "save_recurrent_policy",
            "load_recurrent_policy", "is_recurrent_checkpoint", "weight_shapes"]
@@ -179,6 +176,20 @@ class RecurrentQPolicy:
 
 
 # ------------------------------------------------------------------------------------------------ checkpoints
+def _checked_shapes(meta_file, arch):
+    """:func:`weight_shapes` of ``arch`` from ``meta_file``, every size a positive int (ValueError, one line)."""
+    ok = isinstance(arch, dict) and all(isinstance(arch.get(k), int) and not isinstance(arch.get(k), bool)
+                                        and 0 < arch[k] <= 65536 for k in ("input_size", "hidden_size"))
+    head = arch.get("head", []) if isinstance(arch, dict) else None
+    ok = ok and isinstance(head, list) and all(isinstance(n, int) and not isinstance(n, bool) and 0 < n <= 65536
+                                               for n in head)
+    n_out = arch.get("n_out", 1) if isinstance(arch, dict) else None
+    if not ok or not isinstance(n_out, int) or isinstance(n_out, bool) or not 0 < n_out <= 64:
+        raise ValueError(f"{meta_file}: field 'architecture' must give input_size, hidden_size (positive ints), head "
+                         f"(a list of them) and optionally n_out, got {arch!r}"[:300])
+    return weight_shapes(arch)
+
+
 def is_recurrent_checkpoint(path):
     """Whether ``path`` names a recurrent-policy checkpoint: an ``.npz`` with its ``policy.json`` beside it (the
     ``policy.npz`` beside an SB3 zip is that zip's numpy export: its folder's ``policy.json`` names an SB3 kind)."""
@@ -206,6 +217,7 @@ def load_recurrent_policy(path):
     Returns ``(RecurrentQPolicy, EnvConfig)``. Raises ``ValueError`` naming the file for a missing file, another
     format or version, a model kind this version cannot run, weights of the wrong shapes or not finite, or an env
     config that does not match the policy's input (features x frame_stack) or is not continuous."""
+    from agents.policies import checks
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
@@ -215,39 +227,28 @@ def load_recurrent_policy(path):
             raise ValueError(f"{path}: no {f.name} beside it (a recurrent policy is {POLICY_FILE}, policy.json and "
                              "env_config.json in one folder; the policy.npz beside an SB3 zip is its numpy export: "
                              "give the .zip)")
-    try:
-        meta, env_kw = json.loads(meta_file.read_text()), json.loads(env_file.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: policy.json or env_config.json is not valid JSON ({e})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{meta_file}: not a recurrent-policy config (format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {FORMAT!r})")
+    meta = checks.read_json_object(meta_file, "a recurrent-policy config (a JSON object)")
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{meta_file}: not a recurrent-policy config (format {meta.get('format')!r}, "
+                         f"expected {FORMAT!r})")
     if meta.get("version") != VERSION:
         raise ValueError(f"{meta_file}: version {meta.get('version')!r}; this package reads version {VERSION}")
     if meta.get("model") != "cv":
         raise ValueError(f"{meta_file}: model {meta.get('model')!r}; this loader runs the 'cv' model (a GRU choosing "
                          "the CV filter's q)")
     arch = meta.get("architecture")
-    try:
-        shapes = weight_shapes(arch)
-    except (TypeError, KeyError, ValueError):
-        raise ValueError(f"{meta_file}: architecture must give input_size, hidden_size and head, got {arch!r}") from None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            weights = {k: z[k] for k in z.files}
-    except (ValueError, OSError) as e:
-        raise ValueError(f"{path}: not a numpy .npz of plain arrays ({e})") from None
-    if set(weights) != set(shapes):
-        raise ValueError(f"{path}: weights {sorted(weights)} do not match the architecture's {sorted(shapes)}")
-    for k, s in shapes.items():
-        if weights[k].shape != s or weights[k].dtype.kind != "f" or not np.all(np.isfinite(weights[k])):
-            raise ValueError(f"{path}: weight {k!r} must be finite floats of shape {s}, got {weights[k].dtype} "
-                             f"{weights[k].shape}")
-    if not isinstance(env_kw, dict):
-        raise ValueError(f"{env_file}: must hold a JSON object of RadarTrack-v0 arguments")
-    try:
-        cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(env_kw))
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{env_file}: {e}") from None
+    shapes = _checked_shapes(meta_file, arch)
+    weights = checks.read_npz(path)
+    checks.check_weights(path, weights, shapes)
+    _, cfg = checks.check_env_config(env_file)
+    feats = meta.get("input_features", list(cfg.features))
+    if not isinstance(feats, list) or not all(isinstance(f, str) for f in feats):
+        raise ValueError(f"{meta_file}: field 'input_features' must be a list of feature names, got {feats!r}"[:300])
+    rng = meta.get("q_range_m_s2")
+    if rng is not None and (not isinstance(rng, list) or len(rng) != 2):
+        raise ValueError(f"{meta_file}: field 'q_range_m_s2' must be [q_min, q_max], got {rng!r}"[:300])
+    if rng is not None:
+        checks.check_finite_numbers(meta_file, rng, "q_range_m_s2")
     if cfg.action_type != "continuous":
         raise ValueError(f"{env_file}: a recurrent policy acts with action_type='continuous', got {cfg.action_type!r}")
     n_in = len(cfg.features) * cfg.frame_stack
@@ -257,8 +258,7 @@ def load_recurrent_policy(path):
                          f"frame_stack {cfg.frame_stack} ({list(cfg.features)})")
     if not all(math.isfinite(float(v)) for v in cfg.q_levels_g):
         raise ValueError(f"{env_file}: q_levels_g must be finite")
-    rng = meta.get("q_range_m_s2")      # the action -> q map it was trained with (first and last q level)
-    if rng is not None:
+    if rng is not None:     # the action -> q map it was trained with (first and last q level)
         levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         if not np.allclose([levels[0], levels[-1]], np.asarray(rng, dtype=np.float64), rtol=1e-9, atol=0.0):
             raise ValueError(f"{env_file}: q_levels_g span {levels[0]:.6g}-{levels[-1]:.6g} m/s^2, but the policy was "

@@ -73,11 +73,11 @@ from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES, Obse
 from radar_env.common.units import G0_M_S2
 
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import env_kwargs_from_json
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, finish_run, load_hyperparams, mark_failed,
-                                  open_run_folder, run_paths, write_run_files)
+from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides, finish_run, load_hyperparams,
+                                  mark_failed, open_run_folder, run_paths, write_run_files)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "LOSSES", "check_hp", "train_backprop",
            "make_model", "StreamingTrainer", "lockstep", "forward_episodes", "optimiser_step", "MAX_TRAIN_SEED"]
@@ -361,6 +361,8 @@ def check_hp(hp):
     except (TypeError, ValueError) as e:
         raise ValueError(f"--env-kwargs: {e}") from None
     hp["env_kwargs"] = env_kwargs
+    from agents.training.runs import check_rows_fit
+    check_rows_fit("--hp batch_episodes", int(hp["batch_episodes"]))     # before any allocation
     return hp, env_kwargs, cfg
 
 
@@ -603,6 +605,9 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         from agents.policies.learned import read_kind, write_run_layout
         write_run_layout(part, read_kind(part)[0], jsonable(summary))      # training.json, choice.json
+    except KeyboardInterrupt:
+        mark_failed(part, lock)
+        raise RunInterrupted(part, resumable=True) from None
     except BaseException:
         mark_failed(part, lock)
         raise
@@ -731,3 +736,10 @@ def main_from_args(args, argv):
                               verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except RunInterrupted as e:
+        raise SystemExit(e.message(command)) from None
+    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
+        raise SystemExit(f"radar-track train: could not write {e.filename or args.out} ({e.strerror or e}); the "
+                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
+    except KeyboardInterrupt:
+        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None

@@ -21,8 +21,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from radar_env.envs.env import EnvConfig
 
 from agents.evaluation.metrics import jsonable
-from agents.policies.bundle import embed_env_config, env_kwargs_from_json
+from agents.policies.bundle import embed_env_config
+from agents.policies.checks import env_kwargs_from_json
 from agents.policies.loading import model_choose_q, model_run_imm
+from agents.policies.numpy_policy import export_saved
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["ImmRatioEvalCallback", "SELECTION_SEED_BASE", "pooled_rmse", "model_choose_q", "EnvTimeCallback"]
@@ -97,6 +99,7 @@ class ImmRatioEvalCallback(BaseCallback):
                 self.best_dir.mkdir(parents=True, exist_ok=True)
                 self.model.save(self.best_dir / "policy.zip")
                 embed_env_config(self.best_dir / "policy.zip", self.env_kwargs)
+                export_saved(self.best_dir / "policy.zip", self.model)    # arrays beside the pickle
                 (self.best_dir / "env_config.json").write_text(json.dumps(self.env_kwargs, indent=1))
                 (self.best_dir / "selection.json").write_text(json.dumps(jsonable(row), indent=1))
         row["best"] = bool(improved)

@@ -147,6 +147,9 @@ def open_run_folder(run, part, keep=False):
     files), then create ``part`` (``<name>.partial``); an earlier attempt under this name that failed or was killed
     is removed first, unless ``keep`` (a resumed run). Returns the lock, which :func:`mark_failed` or
     :func:`finish_run` releases."""
+    from radar_env.common.files import check_output_dir
+    check_output_dir("--out", Path(run).parent)       # never through a link, never over a device or FIFO
+    check_output_dir("--name", part)
     lock = RunLock(run)
     try:
         if run.exists():
@@ -169,6 +172,50 @@ def write_run_files(part, config, args, command, env_kwargs):
     (part / "args.json").write_text(json.dumps(args or {}, indent=1))
     (part / "command.txt").write_text((command or "") + "\n")
     (part / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
+
+
+ROW_BYTES = 2 << 20
+"""A conservative estimate of the memory one training row takes (an env row of the vector env, an episode of a
+backprop batch: its looks, the filter's state and the network's activations kept for the backward pass)."""
+
+
+def physical_memory_bytes():
+    """The machine's physical memory (None if the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_rows_fit(option, rows, row_bytes=ROW_BYTES):
+    """``ValueError`` naming ``option`` when ``rows`` training rows (``row_bytes`` each) would not fit in the
+    machine's physical memory: checked before anything is allocated."""
+    mem = physical_memory_bytes()
+    if mem is not None and rows * row_bytes > mem:
+        raise ValueError(f"{option}: {rows:,} rows need about {rows * row_bytes / 2**30:,.1f} GiB (about "
+                         f"{row_bytes / 2**20:.0f} MiB each), more than this machine's {mem / 2**30:.1f} GiB; "
+                         f"give at most {mem // row_bytes:,}")
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) stopped a training run: its ``<name>.partial`` folder is kept (:func:`mark_failed`).
+    ``message(command)`` is the one line the command ends with: where the run is and the command that resumes it
+    (``resumable``) or starts it again."""
+
+    def __init__(self, part, resumable):
+        super().__init__(str(part))
+        self.part, self.resumable = Path(part), resumable
+
+    def message(self, command):
+        import shlex
+        name = self.part.name.removesuffix(".partial")
+        words = shlex.split(command or "radar-track train")
+        if "--name" not in words and not any(w.startswith("--name=") for w in words):
+            words += ["--name", name]
+        again = " ".join(map(shlex.quote, words))
+        what = ("resume it from its last checkpoint" if self.resumable
+                else "start it again (this method does not resume)")
+        return f"radar-track train: interrupted; the unfinished run is in {self.part}/; to {what}: {again}"
 
 
 def mark_failed(part, lock):

@@ -51,7 +51,6 @@ import sys
 import tomllib
 from pathlib import Path
 
-from agents.evaluation.files import write_text_replacing
 from agents.training.train import ALGOS, HP_DIR, check_plain_name, load_hyperparams
 
 __all__ = ["load_sweep_config", "run_sweep", "main", "EXAMPLE_CONFIG", "METRIC"]
@@ -195,7 +194,7 @@ def _param_space(cfg):
     return out
 
 
-def _trial(config, algo, hp, runs_dir):
+def _trial(config, algo, hp, runs_dir, allow_pickle=False):
     """The Tune trainable: one training run, ``selection_ratio`` reported after every selection evaluation."""
     from ray import tune
     from agents.training.train import train
@@ -225,7 +224,7 @@ def _trial(config, algo, hp, runs_dir):
         fit = train_backprop
     else:
         def fit(hp, **kw):
-            return train(algo, hp, **kw)
+            return train(algo, hp, allow_pickle=allow_pickle, **kw)
     fit(trial_hp, seed=seed, out=run_dir.parent, progress=False, verbose=0, run_name=run_dir.name,
         command=f"radar-track sweep (trial {run_dir.name})", args={"sweep_config": config, "seed": seed},
         on_selection=report)
@@ -342,9 +341,9 @@ class _Interrupts(logging.Handler):
         return False
 
 
-def resume_command(config_path, out, address=None, num_cpus=None):
+def resume_command(config_path, out, address=None, num_cpus=None, allow_pickle=False):
     """The command line that resumes a sweep (the same command)."""
-    cmd = ["radar-track", "sweep", str(config_path), "--out", str(out)]
+    cmd = ["radar-track", "sweep", str(config_path), "--out", str(out)] + (["--allow-pickle"] if allow_pickle else [])
     if address:
         cmd += ["--address", address]
     if num_cpus is not None:
@@ -352,12 +351,16 @@ def resume_command(config_path, out, address=None, num_cpus=None):
     return " ".join(shlex.quote(c) for c in cmd)
 
 
-def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1, return_state=False):
+def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1, return_state=False,
+              allow_pickle=False):
     """Run (or resume) the sweep of ``config_path``. Returns ``(rows, experiment_dir)`` (``return_state``: and
     whether the sweep was interrupted by SIGINT); the table is also written as ``results.csv`` and
     ``results.json`` in ``experiment_dir`` (by renaming: a link there is replaced, not followed). Ray errors are
     a ``ValueError`` of one line naming Ray's log folder."""
     cfg = load_sweep_config(config_path)
+    if cfg["hp"].get("init_from") and not allow_pickle:     # refused before Ray starts, not in every trial
+        from agents.policies.checks import refuse_pickle
+        raise ValueError(f"{config_path}: init_from: {refuse_pickle(cfg['hp']['init_from'])}")
     # here, not at the top: --help answers without Ray
     from agents.evaluation.parallel import ray_error_line, ray_session, require_ray
     ray = require_ray("radar-track sweep")
@@ -365,7 +368,8 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
     exp_dir = Path(out).resolve() / cfg["name"]
     runs_dir = exp_dir / "runs"
     trainable = tune.with_resources(
-        tune.with_parameters(_trial, algo=cfg["algo"], hp=cfg["hp"], runs_dir=str(runs_dir)),
+        tune.with_parameters(_trial, algo=cfg["algo"], hp=cfg["hp"], runs_dir=str(runs_dir),
+                             allow_pickle=allow_pickle),
         {"cpu": cfg["cpus_per_trial"]})
     with ray_session(address, num_cpus, "radar-track sweep"):
         if tune.Tuner.can_restore(str(exp_dir)):
@@ -389,6 +393,7 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
     rows = results_table(grid, list(cfg["space"]), _budget(cfg["algo"], cfg["hp"])[0],
                          early_stopping=cfg["scheduler"] == "asha", interrupted=interrupted,
                          policy_file="policy.npz" if cfg["algo"] == "backprop" else "policy.zip")
+    from radar_env.common.files import write_text_replacing    # here: --help imports nothing slow
     exp_dir.mkdir(parents=True, exist_ok=True)
     write_text_replacing(exp_dir / "results.json", json.dumps(
         {"config": cfg["config_path"], "metric": METRIC, "mode": "min", "interrupted": interrupted, "trials": rows},
@@ -417,6 +422,9 @@ def build_parser(prog="radar-track sweep"):
                     help="CPUs of the embedded local Ray, >= 1 (default: all of the machine's)")
     ap.add_argument("--quiet", action="store_true",
                     help="only the final table: no status lines, no per-trial reports (default: print them)")
+    ap.add_argument("--allow-pickle", action="store_true",
+                    help="let the config's init_from (a stable-baselines3 zip, a pickle) be unpickled: this runs "
+                         "the code inside; only for files you trust (default: refused, in one line)")
     return ap
 
 
@@ -424,15 +432,19 @@ def main(argv=None, prog="radar-track sweep"):
     args = build_parser(prog).parse_args(argv)
     if args.num_cpus is not None and args.num_cpus < 1:
         raise SystemExit(f"error: --num-cpus must be >= 1, got {args.num_cpus}")
-    resume = resume_command(args.config, args.out, args.address, args.num_cpus)
+    resume = resume_command(args.config, args.out, args.address, args.num_cpus, args.allow_pickle)
     if not args.quiet:      # before Ray, torch and the env are imported
         print(f"radar-track sweep: {args.config}; starting Ray (the trials import torch and the env) ...",
               file=sys.stderr, flush=True)
     try:
         rows, exp_dir, interrupted = run_sweep(args.config, args.out, args.address, args.num_cpus,
-                                               verbose=0 if args.quiet else 1, return_state=True)
+                                               verbose=0 if args.quiet else 1, return_state=True,
+                                               allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except OSError as e:        # a full disk: what and where; finished trials stay in their run folders
+        raise SystemExit(f"error: could not write {e.filename or args.out} ({e.strerror or e}); finished trials "
+                         f"are kept; free space and resume with: {resume}") from None
     except KeyboardInterrupt:      # a second SIGINT: Tune's last save was skipped, its periodic one is there
         raise SystemExit(f"error: interrupted; resume with: {resume}") from None
     print(format_results(rows))

@@ -51,7 +51,7 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides,  # noqa: F401
                                   check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
                                   run_paths, write_run_files)
 
@@ -183,13 +183,16 @@ def _expanded_state(src, new, k):
     return out
 
 
-def _load_init_from(cls, algo, path):
+def _load_init_from(cls, algo, path, allow_pickle=False):
     """The saved model to fine-tune from; ``ValueError`` naming ``--hp init_from`` if it is missing, not a model,
-    or a model of another algorithm."""
+    a model of another algorithm, or (a pickle) given without ``allow_pickle`` (``--allow-pickle``)."""
     import stable_baselines3 as sb3
+    from agents.policies.checks import refuse_pickle
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"--hp init_from: file {str(path)!r} does not exist")
+    if not allow_pickle:
+        raise ValueError(f"--hp init_from: {refuse_pickle(p)}")
     try:
         return cls.load(str(p), device="cpu")
     except Exception as e:  # noqa: BLE001 - name the algorithm it belongs to, if any
@@ -207,7 +210,7 @@ def _load_init_from(cls, algo, path):
 
 
 def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, args=None, run_name=None,
-          on_selection=None):
+          on_selection=None, allow_pickle=False):
     """Train ``algo`` with hyperparameters ``hp`` (a dict as in the TOML files). Returns the run folder.
 
     ``on_selection(row)`` (optional) is called after each selection evaluation (``row`` as in ``summary.json``'s
@@ -245,10 +248,12 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     if algo == "sac" and act != "continuous":
         raise ValueError("SAC needs action_type='continuous'")
     n_envs, n_timesteps = int(hp.get("n_envs", 16)), int(hp.get("n_timesteps", 1_000_000))
+    from agents.training.runs import check_rows_fit
+    check_rows_fit("--n-envs", n_envs)          # before the seed range and any allocation
     seed = int(seed)
     if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
         raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
-    src = _load_init_from(cls, algo, hp["init_from"]) if hp.get("init_from") else None
+    src = _load_init_from(cls, algo, hp["init_from"], allow_pickle) if hp.get("init_from") else None
     steps, per_rollout = trained_timesteps(cls, n_timesteps, n_envs, kwargs)
     if verbose and steps != n_timesteps:      # said once, before the run: SB3 finishes the rollout it is in
         print(f"note: {cls.__name__} collects {per_rollout:,} env steps at a time ({n_envs} envs x "
@@ -314,6 +319,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         wall = time.perf_counter() - t0
         model.save(part / "policy.zip")
         embed_env_config(part / "policy.zip", env_kwargs)
+        from agents.policies.numpy_policy import export_saved
+        export_saved(part / "policy.zip", model)        # arrays beside the pickle: evaluated without unpickling
         if isinstance(env, VecNormalize):
             env.save(str(part / "vecnormalize.pkl"))
         eval_s = float(sum(r["eval_s"] for r in eval_cb.history))
@@ -330,6 +337,9 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         from agents.policies.learned import sb3_kind, write_run_layout
         write_run_layout(part, sb3_kind(algo, env_kwargs), jsonable(summary))    # policy.json, training/choice.json
         env.close()
+    except KeyboardInterrupt:
+        mark_failed(part, lock)
+        raise RunInterrupted(part, resumable=False) from None
     except BaseException:
         mark_failed(part, lock)
         raise
@@ -490,6 +500,9 @@ def build_parser(prog="radar-track train"):
                          "file's values)")
     ap.add_argument("--hyperparams", metavar="FILE.toml",
                     help="TOML file to read instead of agents/training/hyperparams/<algo>.toml (default: that file)")
+    ap.add_argument("--allow-pickle", action="store_true",
+                    help="let --hp init_from=PATH (a stable-baselines3 zip, a pickle) be unpickled: this runs the "
+                         "code inside; only for files you trust (default: refused, in one line)")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bar during training (default: stable-baselines3's bar)")
     ap.add_argument("--quiet", action="store_true",
@@ -536,9 +549,17 @@ def main(argv=None, prog="radar-track train"):
     command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
     try:
         return train(args.algo, hp, seed=args.seed, out=args.out, progress=not args.no_progress,
-                     verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name)
+                     verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name,
+                     allow_pickle=args.allow_pickle)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except RunInterrupted as e:
+        raise SystemExit(e.message(command)) from None
+    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
+        raise SystemExit(f"radar-track train: could not write {e.filename or args.out} ({e.strerror or e}); the "
+                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
+    except KeyboardInterrupt:
+        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The registered environment ids and the arguments each fixes (:data:`ENV_VARIANTS`; no Gymnasium needed).
 
 ``radar_env`` registers every id at import (``radar_env/__init__.py``). Each id's kwargs are JSON-like (tuples
-for lists and ranges, as :func:`agents.policies.bundle.env_kwargs_from_json` turns a policy's ``env_config.json``
+for lists and ranges, as :func:`agents.policies.checks.env_kwargs_from_json` turns a policy's ``env_config.json``
 into), so ``gym.make(id)`` builds exactly the env a bundled learned tracker was trained in and observes; any
 argument may still be overridden (``gym.make(id, scenario="bizup2002")``), an unknown one is a ``ValueError``
 naming it. tests/test_env_ids.py checks that each bundled policy's ``env_config.json`` equals its id's kwargs

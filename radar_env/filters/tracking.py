@@ -220,6 +220,14 @@ class Tracker:
 
     # ------------------------------------------------------------------------------------------ episode data
     def _ensure_capacity(self, K):
+        from ..sim.radar import MAX_LOOKS
+        need = self.B * K * _k.W_LOOK * 8           # before any allocation: rows x looks x the look record
+        mem = _physical_memory()
+        if K > MAX_LOOKS or (mem is not None and need > mem / 2):
+            raise ValueError(f"RadarSite.scan_period_s: episodes of {K:,} looks in {self.B} rows need "
+                             f"{need / 2**30:.3g} GiB for their looks alone, more than this machine can hold (at most "
+                             f"{MAX_LOOKS:,} looks per episode, half of its memory); give a longer scan_period_s, a "
+                             "shorter flight or fewer rows")
         if K > self._cap:
             self._grow(K)
 
@@ -459,3 +467,12 @@ class TrackStart(NamedTuple):
         return Tracker(batch_size, warmup_scans=self.warmup_scans, warmup_q_m_s2=self.warmup_q_m_s2,
                        n_adrian=self.n_adrian, window_kim_lee=self.window_kim_lee, fma_weight=self.fma_weight,
                        radial_velocity=bool(self.radial_velocity))
+
+
+def _physical_memory():
+    """The machine's physical memory in bytes (None if the OS does not say)."""
+    import os
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None

@@ -778,8 +778,8 @@ def _fixed_truth(scenario, radar, place):
 
 RADAR_RANGE_WARN_M = 463e3
 """250 NM, the instrumented range of a long-range air-route radar: a user flight that goes beyond it from its radar
-(or beyond the placement annulus's outer radius, if that is larger) gets a warning. The radar model itself has no
-maximum range: every look keeps its detection probability."""
+(or beyond the placement annulus's outer radius, if that is larger) gets a warning, and one beyond it on every look
+is refused. The radar model itself has no maximum range: every look keeps its detection probability."""
 
 _RANGE_WARNED = set()
 
@@ -788,13 +788,17 @@ def _warn_if_out_of_range(scenario, radar, t, idx, truth, sites, place, hi):
     """Warn (once per scenario, radar and placement) when a user flight goes far outside its radar's range (beyond
     :data:`RADAR_RANGE_WARN_M`, or the placement annulus ``hi`` if larger): plausible data, unusual tracking. The
     first row's sites are checked (a placed radar: the first episode's placement)."""
+    limit = max(RADAR_RANGE_WARN_M, hi if place else 0.0)
+    r = np.hypot(truth[:, 0] - sites[0, idx, _SX], truth[:, 1] - sites[0, idx, _SY])
+    beyond = r > limit
+    if beyond.all():        # out of every radar's range on every look: no run of it would mean anything
+        raise ValueError(f"RadarSite.position_m: scenario {scenario.name!r} is beyond {limit / 1e3:g} km of every "
+                         f"radar site on all of its looks (nearest {r.min() / 1e3:,.0f} km); give a radar site "
+                         "near the flight")
     key = (id(scenario), id(radar), place, hi)
     if key in _RANGE_WARNED:
         return
     _RANGE_WARNED.add(key)
-    limit = max(RADAR_RANGE_WARN_M, hi if place else 0.0)
-    r = np.hypot(truth[:, 0] - sites[0, idx, _SX], truth[:, 1] - sites[0, idx, _SY])
-    beyond = r > limit
     if beyond.any():
         import warnings
         what = f"{limit / 1e3:g} km from its radar" + (" (250 NM)" if limit == RADAR_RANGE_WARN_M else "")
@@ -887,8 +891,14 @@ class LookDrawer:
                 cfg = random_config or _DEFAULT_CONFIG
             self.name, self.cfg, self.radar = scenario, cfg, radar
             self.label = scenario if scenario in FAMILIES else "random"
-            if max_random_looks(scenario, cfg, radar) < self.warmup_scans + 3:
+            most = max_random_looks(scenario, cfg, radar)
+            if most < self.warmup_scans + 3:
                 raise _too_few_draws(scenario, self.warmup_scans, self.max_draws)
+            from .radar import MAX_LOOKS
+            if most > MAX_LOOKS:        # refused at construction, before any allocation
+                raise ValueError(f"RadarSite.scan_period_s: {scenario!r} episodes can have up to {most:,.0f} looks "
+                                 f"with this radar, more than the {MAX_LOOKS:,} per episode memory allows; give a "
+                                 "longer scan_period_s")
         else:
             sc, rd, place = _fixed_args(scenario, radar)
             self.fixed = (sc, rd, place)

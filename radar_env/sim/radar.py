@@ -174,13 +174,26 @@ class Radar:
         return Radar(tuple(s.replace(position_m=tuple(np.asarray(s.position_m) + off)) for s in self.sites))
 
 
+MAX_LOOKS = 10_000_000
+"""Most looks of one episode (all sites; 1 s looks for 115 days): the episode's per-look arrays (tens of float64 per
+look, about 2 GB at this bound) must fit in memory; a schedule beyond it is refused before anything is allocated
+(and the tracker refuses a batch whose look arrays exceed half the machine's memory)."""
+
+
 def scan_schedule(radar, duration_s):
     """Times and site indices of all looks in ``[0, duration_s]``, sorted by time (ties: lower site first).
 
     Returns ``(t_s (K,), site_index (K,) int)``."""
     ts, idx = [], []
+    counts = [int(math.floor((duration_s - s.first_scan_s) / s.scan_period_s + 1e-9)) + 1 for s in radar.sites]
+    if sum(max(n, 0) for n in counts) > MAX_LOOKS:      # checked before any allocation (tens of arrays per look)
+        worst = int(np.argmax(counts))
+        raise ValueError(f"RadarSite.scan_period_s: {sum(max(n, 0) for n in counts):,} looks in a {duration_s:g} s "
+                         f"flight (site {worst}: scan_period_s={radar.sites[worst].scan_period_s:g}) exceed "
+                         f"{MAX_LOOKS:,} looks per episode, more than the episode arrays can hold in memory; give a "
+                         "longer scan_period_s or a shorter flight")
     for i, s in enumerate(radar.sites):
-        n = int(math.floor((duration_s - s.first_scan_s) / s.scan_period_s + 1e-9)) + 1
+        n = counts[i]
         if n <= 0:
             continue
         t = s.first_scan_s + s.scan_period_s * np.arange(n)
