@@ -89,6 +89,11 @@ squares; ``normalised``: the squared position error in units of the plot noise (
 ``|e|^2 / sigma^2`` with ``sigma`` the per-axis RMS plot noise at the true range), pooled over the same looks, which
 weighs a look on a precise radar as much as one on a coarse radar."""
 MAX_TRAIN_SEED = SELECTION_SEED_BASE
+CHAINS = ("compiled", "torch")
+"""The CV model's chunk (hyperparameter ``chain``, optional, default ``compiled``): ``compiled``, the GRU stepped
+without a graph beside the numba Tracker, then the GRU over the chunk and the compiled CV chain with its numba
+adjoint (:meth:`CVQModel.chunk_forward`); ``torch``, the reference: the lockstep over the torch chain, one look at a
+time. The same gradient to rounding; ``imm_cv_ct`` always runs its torch lockstep."""
 """Training seeds ``S`` lie in ``[0, 900_000)``: below the selection suites' seeds."""
 
 
@@ -133,6 +138,12 @@ class ChainModel(torch.nn.Module):
     def step(self, looks, j, obs):
         raise NotImplementedError
 
+    def chunk_forward(self, tracker, layout, obs, looks):
+        """The chunk's position estimates ``x (B, J, 4)`` (a graph), stepping ``tracker`` through the chunk and
+        updating ``obs`` in place (:func:`lockstep`'s contract). Default: :func:`lockstep` over :meth:`step`; a model
+        may override it with a faster equivalent (:meth:`CVQModel.chunk_forward`)."""
+        return lockstep(self, tracker, layout, obs, looks)
+
     def architecture(self):
         raise NotImplementedError
 
@@ -168,8 +179,11 @@ class CVQModel(ChainModel):
 
     kind = "cv"
 
-    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2):
+    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2, chain="compiled"):
         super().__init__()
+        if chain not in CHAINS:
+            raise ValueError(f"chain must be one of {list(CHAINS)}, got {chain!r}")
+        self.chain = chain
         self.levels_m_s2 = np.asarray(q_levels_m_s2, dtype=np.float64)
         self.l0, self.l1 = math.log10(self.levels_m_s2[0]), math.log10(self.levels_m_s2[-1])
         if not self.levels_m_s2[0] < q_init_m_s2 < self.levels_m_s2[-1]:
@@ -188,15 +202,29 @@ class CVQModel(ChainModel):
             self.out.weight.zero_()
             self.out.bias.fill_(math.atanh(a0))
         self.h = self.state = None
+        self.chunk_q = None
 
     # ---- the network
     def action(self, obs, h):
         """``(a (B,), h' (B, H))`` for observations ``obs (B, F)`` and state ``h``."""
         h = self.gru(obs, h)
+        return self._head(h), h
+
+    def _head(self, h):
+        """``a = tanh(out(head(h)))`` over any leading axes of ``h (..., H)``: ``(...)``."""
         y = h
         for layer in self.head:
             y = torch.tanh(layer(y))
-        return torch.tanh(self.out(y))[:, 0], h
+        return torch.tanh(self.out(y))[..., 0]
+
+    def action_sequence(self, obs, h0):
+        """The actions of a sequence in one call: ``(a (B, J), h_J (B, H))`` for ``obs (B, J, F)`` from ``h0 (B, H)``,
+        equal to :meth:`action` applied look by look (to rounding: torch's sequence GRU projects every look's input
+        in one product; tested to 1e-12). Differentiable, one autograd graph for the whole chunk."""
+        g = self.gru
+        seq, h = torch._VF.gru(obs, h0[None], (g.weight_ih, g.weight_hh, g.bias_ih, g.bias_hh), True, 1, 0.0,
+                               self.training, False, True)
+        return self._head(seq), h[0]
 
     def q_of_action(self, a):
         """The env's action map in torch (differentiable)."""
@@ -223,6 +251,48 @@ class CVQModel(ChainModel):
         # the numba Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
         q_np = actions_to_q_m_s2(a.detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
         return rec.x, q_np
+
+    def look_q(self, obs):
+        """The q of one look for the numba Tracker, without a graph: the GRU steps ``self.h`` on ``obs (B, F)``
+        (float64) and the env's own map of the action gives ``q`` (numpy, m/s^2)."""
+        with torch.no_grad():
+            a, self.h = self.action(obs, self.h)
+        return actions_to_q_m_s2(a.numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
+
+    def chunk_forward(self, tracker, layout, obs, looks):
+        """The chunk in two passes (``chain = "compiled"``; ``"torch"``: :func:`lockstep` over :meth:`step`).
+
+        The observation never depends on the differentiable chain (the numba Tracker makes it), so: (1) look by look,
+        without a graph, the GRU reads the observation, the Tracker steps with its q and the env's layout encodes the
+        next observation (the per-look Python is this alone); (2) once, with a graph: the GRU over the chunk's stored
+        observations (:meth:`action_sequence`) gives ``q (B, J)``, the compiled chain
+        (:func:`radar_env.filters.compiled_chain.cv_run`) the estimates. Both passes start from the same GRU state
+        and read the same observations, so the q the gradient is taken at equals the q the Tracker stepped with to
+        rounding (``self.chunk_q = (tracker q, chain q)`` of the last chunk; tested to 1e-12 relative)."""
+        if self.chain == "torch":
+            return super().chunk_forward(tracker, layout, obs, looks)
+        from radar_env.filters.compiled_chain import cv_run
+        B, J = looks.B, looks.J
+        active = looks.scored.numpy()
+        h0 = self.h.detach()
+        self.h = h0
+        obs_seq = np.empty((B, J, obs.shape[1]))
+        q_tr = np.empty((B, J))
+        for j in range(J):
+            o = obs.astype(np.float64)
+            obs_seq[:, j] = o
+            q = q_tr[:, j] = self.look_q(torch.from_numpy(o))
+            rows = np.flatnonzero(active[j])
+            if rows.size == B:
+                obs[:] = layout.encode(tracker.step(q), q)
+            elif rows.size:
+                q = q[rows]
+                obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+        a, _ = self.action_sequence(torch.from_numpy(obs_seq), h0)
+        q = self.q_of_action(a)
+        self.chunk_q = (q_tr, q.detach().numpy())
+        x, self.state = cv_run(self.state, looks, q)
+        return x
 
     def architecture(self):
         return {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
@@ -252,7 +322,7 @@ class CVQModel(ChainModel):
         from baselines.tuned_params import tuned_parameters
         levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         return cls(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
-                   tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+                   tuned_parameters()["kf"]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))
 
 
 def gru_weights(model, shapes):
@@ -318,9 +388,13 @@ HP_SPEC = {
                        "a JSON object {suite: runs >= 1}"),
     "select_on": ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names"),
     "env_kwargs": ((lambda v: isinstance(v, dict)), "a JSON object of RadarTrack-v0 arguments"),
+    "chain": ((lambda v: v in CHAINS), f"one of {list(CHAINS)}"),
 }
 """Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
 ``{key: (check, what it must be)}``."""
+HP_OPTIONAL = ("chain",)
+"""Keys that may be absent (then their default: ``chain`` ``compiled``); absent from the recipes' files, so that
+their runs' ``config.json`` (what a resume compares) is the same as before the key existed."""
 
 
 def check_hp(hp):
@@ -333,7 +407,7 @@ def check_hp(hp):
         ok, what = HP_SPEC[k]
         if not ok(v):
             raise ValueError(f"--hp {k}: must be {what}, got {v!r}")
-    missing = [k for k in HP_SPEC if k not in hp]
+    missing = [k for k in HP_SPEC if k not in hp and k not in HP_OPTIONAL]
     if missing:
         raise ValueError(f"--hp: missing hyperparameter(s) {missing} (agents/training/hyperparams/backprop.toml "
                          "gives every one)")
@@ -415,7 +489,7 @@ class StreamingTrainer:
         looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
                                      tr.t_last, **tc.range_rate_args(get, tr.radial_velocity))
         active = looks.scored.numpy()                              # (J, B): the row has a look at column j
-        x = lockstep(self.model, tr, self.layout, self.obs, looks)
+        x = self.model.chunk_forward(tr, self.layout, self.obs, looks)
         self.row_looks += self.B * looks.J
         self.scored_looks += int(active.sum())
         if self.loss == "position_mse":
