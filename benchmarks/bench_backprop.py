@@ -1,7 +1,11 @@
 """Training throughput of ``radar-track train --method backprop`` (agents/training/backprop.py), single thread.
 
 Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--batch 1000] [--chunk 40]
-[--steps 10] [--hidden 64] [--flights training,random] [--json PATH]``. With ``torch.set_num_threads(1)`` it builds
+[--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
+``--compare N``: the optimiser step with ``chain = "torch"`` (the reference lockstep over the torch chain) against
+``chain = "compiled"`` (the compiled CV chain, :mod:`radar_env.filters.compiled_chain`) in one process, N interleaved
+rounds on the same rows' episodes, printing the ratio of the median step times and the load average (docs/speed.md,
+"Backprop training step": on the shared machine only the ratio means something). With ``torch.set_num_threads(1)`` it builds
 the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
 and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
 and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
@@ -55,17 +59,22 @@ class _Timed:
             self.seconds += time.perf_counter() - t0
 
 
-def measure(flights, batch, chunk, hidden, steps, seed=0):
-    """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
+def _trainer(flights, batch, chunk, hidden, seed, chain):
+    """``(trainer, opt, hp)`` of the recipe on ``flights`` with the CV model's ``chain`` (bp.CHAINS)."""
     hp = load_hyperparams("backprop")
-    hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden)
+    hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden, chain=chain)
     if flights == "random":
         hp["env_kwargs"] = {k: v for k, v in hp["env_kwargs"].items() if k not in ("scenario", "random_config")}
     hp, _, cfg = bp.check_hp(hp)
     torch.manual_seed(seed)
     model = bp.make_model(hp, cfg)
     opt = torch.optim.Adam(model.parameters(), lr=hp["learning_rate"])
-    trainer = bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"])
+    return bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"]), opt, hp
+
+
+def measure(flights, batch, chunk, hidden, steps, seed=0, chain="compiled"):
+    """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
+    trainer, opt, hp = _trainer(flights, batch, chunk, hidden, seed, chain)
 
     def one_step():
         bp.optimiser_step(trainer, opt, hp)
@@ -87,6 +96,33 @@ def measure(flights, batch, chunk, hidden, steps, seed=0):
             "mean_looks_per_episode": (trainer.scored_looks - s0) / max(n_ep, 1)}
 
 
+def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
+    """The CV recipe's optimiser step with ``chain = "torch"`` (the reference lockstep) against ``"compiled"``, in
+    this one process: two trainers of the same seed (the same rows' episodes, the same initial weights; their
+    weights then differ by rounding only), ``warmup`` steps each, then ``repeats`` rounds, each timing one step of
+    each in alternating order (a load change on the shared machine hits both). Returns a dict with the per-step
+    medians, ``ratio`` = torch / compiled (of the medians) and the load average before and after."""
+    import statistics
+    load0 = os.getloadavg()
+    runs = {c: _trainer(flights, batch, chunk, hidden, seed, c) for c in ("torch", "compiled")}
+    times = {c: [] for c in runs}
+    for _ in range(warmup):
+        for trainer, opt, hp in runs.values():
+            bp.optimiser_step(trainer, opt, hp)
+    for i in range(repeats):
+        for c in (("torch", "compiled") if i % 2 == 0 else ("compiled", "torch")):
+            trainer, opt, hp = runs[c]
+            t0 = time.perf_counter()
+            bp.optimiser_step(trainer, opt, hp)
+            times[c].append(time.perf_counter() - t0)
+    med = {c: statistics.median(t) for c, t in times.items()}
+    ratios = [a / b for a, b in zip(times["torch"], times["compiled"])]
+    return {"flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden, "repeats": repeats,
+            "torch_s_per_step": med["torch"], "compiled_s_per_step": med["compiled"],
+            "ratio": med["torch"] / med["compiled"], "ratio_min": min(ratios), "ratio_max": max(ratios),
+            "times": times, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--batch", type=_positive_int, default=1000, help="episodes side by side (default 1000)")
@@ -96,19 +132,36 @@ def main(argv=None):
     p.add_argument("--flights", default=",".join(FLIGHTS), help=f"comma-separated subset of {','.join(FLIGHTS)}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="also write the results here")
+    p.add_argument("--chain", default="compiled", choices=bp.CHAINS, help="the CV model's chunk (default compiled)")
+    p.add_argument("--compare", type=_positive_int, default=None, metavar="N",
+                   help="instead: N interleaved rounds of one step with chain=torch and one with chain=compiled in "
+                        "this process; prints the per-step ratio (the first flight distribution only)")
     a = p.parse_args(argv)
     flights = [f for f in a.flights.split(",") if f]
     if not flights or any(f not in FLIGHTS for f in flights):
         p.error(f"--flights must be a comma-separated subset of {','.join(FLIGHTS)}, got {a.flights!r}")
     torch.set_num_threads(1)
+    import numba
+    numba.set_num_threads(1)               # as train_backprop
     rec = load_hyperparams("backprop")
     chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
+    if a.compare:
+        r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed)
+        print(f"{flights[0]} flights, batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.compare} interleaved rounds, "
+              f"torch {torch.__version__}, 1 thread\n  chain=torch {r['torch_s_per_step']:.3f} s/step, "
+              f"chain=compiled {r['compiled_s_per_step']:.3f} s/step (medians): ratio {r['ratio']:.2f}x (per round "
+              f"{r['ratio_min']:.2f}-{r['ratio_max']:.2f}); load average (1, 5, 15 min) before "
+              f"{', '.join(f'{v:.2f}' for v in r['loadavg_before'])}, after "
+              f"{', '.join(f'{v:.2f}' for v in r['loadavg_after'])}")
+        if a.json:
+            Path(a.json).write_text(json.dumps(r, indent=2))
+        return r
     res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "loadavg_1min": os.getloadavg()[0],
            "results": []}
     print(f"batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.steps} timed steps, torch {torch.__version__}, "
           f"{torch.get_num_threads()} thread(s), load average {os.getloadavg()[0]:.2f}")
     for f in flights:
-        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed)
+        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed, a.chain)
         res["results"].append(r)
         print(f"  {f:9s} {r['seconds_per_step']:6.3f} s/step  {r['episodes_per_s']:7.1f} episodes/s  "
               f"{r['row_looks_per_s']:9.0f} row-looks/s  {r['scored_looks_per_s']:9.0f} scored looks/s  "

@@ -79,7 +79,8 @@ from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, finish_run, load_hyperparams, mark_failed,
                                   open_run_folder, run_paths, write_run_files)
 
-__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "LOSSES", "check_hp", "train_backprop",
+__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
+           "train_backprop", "chunk_looks",
            "make_model", "StreamingTrainer", "lockstep", "forward_episodes", "optimiser_step", "MAX_TRAIN_SEED"]
 
 DTYPE = torch.float64
@@ -217,15 +218,6 @@ class CVQModel(ChainModel):
             y = torch.tanh(layer(y))
         return torch.tanh(self.out(y))[..., 0]
 
-    def action_sequence(self, obs, h0):
-        """The actions of a sequence in one call: ``(a (B, J), h_J (B, H))`` for ``obs (B, J, F)`` from ``h0 (B, H)``,
-        equal to :meth:`action` applied look by look (to rounding: torch's sequence GRU projects every look's input
-        in one product; tested to 1e-12). Differentiable, one autograd graph for the whole chunk."""
-        g = self.gru
-        seq, h = torch._VF.gru(obs, h0[None], (g.weight_ih, g.weight_hh, g.bias_ih, g.bias_hh), True, 1, 0.0,
-                               self.training, False, True)
-        return self._head(seq), h[0]
-
     def q_of_action(self, a):
         """The env's action map in torch (differentiable)."""
         return torch.pow(10.0, self.l0 + 0.5 * (a + 1.0) * (self.l1 - self.l0))
@@ -252,44 +244,42 @@ class CVQModel(ChainModel):
         q_np = actions_to_q_m_s2(a.detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
         return rec.x, q_np
 
-    def look_q(self, obs):
-        """The q of one look for the numba Tracker, without a graph: the GRU steps ``self.h`` on ``obs (B, F)``
-        (float64) and the env's own map of the action gives ``q`` (numpy, m/s^2)."""
-        with torch.no_grad():
-            a, self.h = self.action(obs, self.h)
-        return actions_to_q_m_s2(a.numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
-
     def chunk_forward(self, tracker, layout, obs, looks):
         """The chunk in two passes (``chain = "compiled"``; ``"torch"``: :func:`lockstep` over :meth:`step`).
 
         The observation never depends on the differentiable chain (the numba Tracker makes it), so: (1) look by look,
-        without a graph, the GRU reads the observation, the Tracker steps with its q and the env's layout encodes the
-        next observation (the per-look Python is this alone); (2) once, with a graph: the GRU over the chunk's stored
-        observations (:meth:`action_sequence`) gives ``q (B, J)``, the compiled chain
-        (:func:`radar_env.filters.compiled_chain.cv_run`) the estimates. Both passes start from the same GRU state
-        and read the same observations, so the q the gradient is taken at equals the q the Tracker stepped with to
-        rounding (``self.chunk_q = (tracker q, chain q)`` of the last chunk; tested to 1e-12 relative)."""
+        without a graph, the GRU (:class:`agents.training.gru_adjoint.GRURecorder`, recording its gates) reads the
+        observation, the Tracker steps with its q and the env's layout encodes the next observation (the per-look
+        Python is this alone); (2) once, with a graph: the recorded GRU states (one autograd node with a
+        hand-written reverse pass), the head over all looks, ``q (B, J)``, and the compiled chain
+        (:func:`radar_env.filters.compiled_chain.cv_run`, numba forward and adjoint) give the estimates. The states
+        are the same numbers in both passes; the head's product over ``(B J, H)`` instead of ``(B, H)`` may round
+        differently, so the q the gradient is taken at equals the q the Tracker stepped with to ~1e-16 relative
+        (``self.chunk_q = (tracker q, chain q)`` of the last chunk; tested to 1e-12).
+        """
         if self.chain == "torch":
             return super().chunk_forward(tracker, layout, obs, looks)
         from radar_env.filters.compiled_chain import cv_run
+        from agents.training.gru_adjoint import GRURecorder
         B, J = looks.B, looks.J
         active = looks.scored.numpy()
-        h0 = self.h.detach()
-        self.h = h0
-        obs_seq = np.empty((B, J, obs.shape[1]))
+        rec = GRURecorder(self.gru, B, J)
+        h = self.h.detach()
         q_tr = np.empty((B, J))
         for j in range(J):
-            o = obs.astype(np.float64)
-            obs_seq[:, j] = o
-            q = q_tr[:, j] = self.look_q(torch.from_numpy(o))
+            h = rec.step(j, torch.from_numpy(obs.astype(np.float64)), h)
+            with torch.no_grad():
+                a = self._head(h)
+            # the Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
+            q = q_tr[:, j] = actions_to_q_m_s2(a.numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
             rows = np.flatnonzero(active[j])
             if rows.size == B:
                 obs[:] = layout.encode(tracker.step(q), q)
             elif rows.size:
                 q = q[rows]
                 obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
-        a, _ = self.action_sequence(torch.from_numpy(obs_seq), h0)
-        q = self.q_of_action(a)
+        self.h = h
+        q = self.q_of_action(self._head(rec.states()))
         self.chunk_q = (q_tr, q.detach().numpy())
         x, self.state = cv_run(self.state, looks, q)
         return x
@@ -485,9 +475,8 @@ class StreamingTrainer:
         self.model.begin_chunk(tr)
         k0 = tr.k.copy()
         cut = np.minimum(tr.n_looks, k0 + self.C)
+        looks = chunk_looks(tr, k0, cut)
         get = tr.look_data
-        looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
-                                     tr.t_last, **tc.range_rate_args(get, tr.radial_velocity))
         active = looks.scored.numpy()                              # (J, B): the row has a look at column j
         x = self.model.chunk_forward(tr, self.layout, self.obs, looks)
         self.row_looks += self.B * looks.J
@@ -500,6 +489,19 @@ class StreamingTrainer:
                                   at("bearing_noise_std_rad"))
         w = torch.from_numpy(np.where(active.T, 1.0 / sig ** 2, 0.0))
         return (tc.position_sq_error(x, looks) * w).sum() / looks.scored.sum(), looks
+
+
+def chunk_looks(tracker, k0, cut):
+    """:func:`radar_env.filters.torch_chain.looks_from_arrays` of every row's looks ``k0[b] .. cut[b] - 1`` (the
+    tracker's stored looks; ``t_last`` the tracker's), read through :meth:`radar_env.filters.tracking.Tracker.look_window`
+    (only the chunk's looks are gathered) and equal to building it from ``tracker.look_data`` (tested): the looks'
+    ``start_index``, ``n_looks`` and ``cols`` index the tracker's stored looks, as there."""
+    J = int((cut - k0).max())
+    get = tracker.look_window(k0, max(J, 1))
+    looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut - k0,
+                                 np.zeros_like(k0), tracker.t_last, **tc.range_rate_args(get, tracker.radial_velocity))
+    cols = np.minimum(k0[:, None] + np.arange(looks.J)[None, :], tracker.look_data("t_s").shape[1] - 1)
+    return looks._replace(start_index=k0.copy(), n_looks=np.asarray(cut, np.int64).copy(), cols=cols)
 
 
 def lockstep(model, tracker, layout, obs, looks, on_look=None):
