@@ -203,7 +203,7 @@ class CVQModel(ChainModel):
             self.out.weight.zero_()
             self.out.bias.fill_(math.atanh(a0))
         self.h = self.state = None
-        self.chunk_q = None
+        self.chunk_q = self._recorder = None
 
     # ---- the network
     def action(self, obs, h):
@@ -263,7 +263,10 @@ class CVQModel(ChainModel):
         from agents.training.gru_adjoint import GRURecorder
         B, J = looks.B, looks.J
         active = looks.scored.numpy()
-        rec = GRURecorder(self.gru, B, J)
+        rec = self._recorder
+        if rec is None or not rec.fits(B, J):
+            rec = self._recorder = GRURecorder(self.gru, B, max(J, 1))
+        rec.begin(J)
         h = self.h.detach()
         q_tr = np.empty((B, J))
         for j in range(J):

@@ -2,56 +2,86 @@ r"""A GRU stepped look by look without a graph, and its hand-written reverse pas
 
 The CV q-policy trainer (:meth:`agents.training.backprop.CVQModel.chunk_forward`) must step the GRU one look at a
 time (the next observation needs the numba Tracker stepped with this look's q), but wants one autograd node for
-the chunk: torch's autograd through 40 ``GRUCell`` calls (or ``nn.GRU``, whose CPU backward is per step as well)
-spent more time than the forward, the filter and the Tracker together. :class:`GRURecorder` runs the cell's
-formulas (``torch.nn.GRUCell``'s, gates ``r, z, n``)::
+the chunk. :class:`GRURecorder` steps the cell itself (``torch.nn.GRUCell``, no graph: the same numbers as the
+reference lockstep) and keeps every look's input and state; :class:`GRUSequence` returns the recorded states as a
+differentiable ``(B, J, H)`` tensor whose backward is the reverse pass of the cell's formulas (gates ``r, z, n``)::
 
     r = sigma(W_ir x + b_ir + W_hr h + b_hr)      z = sigma(W_iz x + b_iz + W_hz h + b_hz)
     n = tanh(W_in x + b_in + r * (W_hn h + b_hn))  h' = (1 - z) n + z h
 
-under ``torch.no_grad`` and keeps ``x, h, r, z, n, W_hn h + b_hn`` of every look; :class:`GRUSequence` returns the
-recorded states as a differentiable ``(B, J, H)`` tensor whose backward is the reverse pass: per look only the
-elementwise gate derivatives and one ``(B, 3H) x (3H, H)`` product (the gradient to the previous state), then the
-weight gradients of all looks in one product each. The initial state gets no gradient: the trainer cuts the graph
-between chunks.
+Per look, backwards: the two projections recomputed (two ``(B, .) x (., 3H)`` products), one fused numba pass
+over the gates (their values and derivatives, no temporaries), one ``(B, 3H) x (3H, H)`` product (the gradient to
+the previous state); then the weight gradients of all looks, one product each. The buffers live in the recorder
+and are reused chunk after chunk (fresh arrays of this size cost more in page faults than the arithmetic). The
+initial state gets no gradient: the trainer cuts the graph between chunks.
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import torch
+from numba import njit
 
 __all__ = ["GRURecorder", "GRUSequence"]
 
 
+@njit(cache=True)
+def _k_gates_reverse(gi, gh, h, dh, g, j, d_gi, d_gh, dh_z):
+    """Reverse of look ``j``: from its projections ``gi, gh (B, 3H)`` (biases included), its input state ``h (B, H)``
+    and the gradient ``dh (B, H)`` of its output state from the later looks, plus the loss's own ``g[:, j] (B, H)``,
+    writes the projections' gradients ``d_gi[j], d_gh[j] (B, 3H)`` and ``dh_z = dLoss/dh' * z`` (the direct path)."""
+    B, H = h.shape
+    for b in range(B):
+        for k in range(H):
+            d = dh[b, k] + g[b, j, k]
+            r = 1.0 / (1.0 + math.exp(-(gi[b, k] + gh[b, k])))
+            z = 1.0 / (1.0 + math.exp(-(gi[b, H + k] + gh[b, H + k])))
+            ghn = gh[b, 2 * H + k]
+            n = math.tanh(gi[b, 2 * H + k] + r * ghn)
+            dan = d * (1.0 - z) * (1.0 - n * n)             # through n = tanh(a_n)
+            dr = dan * ghn * r * (1.0 - r)
+            dz = d * (h[b, k] - n) * z * (1.0 - z)
+            d_gi[j, b, k], d_gi[j, b, H + k], d_gi[j, b, 2 * H + k] = dr, dz, dan
+            d_gh[j, b, k], d_gh[j, b, H + k], d_gh[j, b, 2 * H + k] = dr, dz, dan * r
+            dh_z[b, k] = d * z
+
+
 class GRURecorder:
-    """Steps the weights of ``cell`` (a ``torch.nn.GRUCell``) over ``J`` looks of ``B`` rows, recording the reverse
-    pass's inputs. Call :meth:`step` for ``j = 0 .. J-1`` in order, then :meth:`states`."""
+    """Steps ``cell`` (a ``torch.nn.GRUCell``) over up to ``J`` looks of ``B`` rows without a graph, recording
+    inputs and states. Per chunk: :meth:`begin` ``(J)``, :meth:`step` for ``j = 0 .. J-1`` in order, then
+    :meth:`states` (valid until the next :meth:`begin`: the buffers are reused)."""
 
     def __init__(self, cell, B, J):
-        self.cell = cell
+        self.cell, self.B, self.Jmax, self.J = cell, B, J, 0
         H, F = cell.hidden_size, cell.input_size
-        kw = {"dtype": cell.weight_ih.dtype}
-        self.H, self.J = H, J
-        self.x = torch.empty((J, B, F), **kw)
-        self.h_prev, self.h = torch.empty((J, B, H), **kw), torch.empty((J, B, H), **kw)
-        self.r, self.z, self.n, self.ghn = (torch.empty((J, B, H), **kw) for _ in range(4))
+        self.x = np.empty((J, B, F))
+        self.h = np.empty((J + 1, B, H))                  # h[j]: the state before look j
+        self.d_gi, self.d_gh = np.empty((J, B, 3 * H)), np.empty((J, B, 3 * H))
+        self.gi, self.gh = torch.empty((B, 3 * H), dtype=torch.float64), torch.empty((B, 3 * H), dtype=torch.float64)
+        self.dh, self.dh_z = torch.empty((B, H), dtype=torch.float64), torch.empty((B, H), dtype=torch.float64)
+
+    def fits(self, B, J):
+        return B == self.B and J <= self.Jmax
+
+    def begin(self, J):
+        if J > self.Jmax:
+            raise ValueError(f"GRURecorder: {J} looks, room for {self.Jmax}")
+        self.J = J
 
     def step(self, j, x, h):
-        """``h' (B, H)`` of look ``j`` from ``x (B, F)`` and ``h (B, H)`` (no graph)."""
-        c, H = self.cell, self.H
+        """``h' (B, H)`` of look ``j`` from ``x (B, F)`` and ``h (B, H)`` (float64): ``cell(x, h)``, no graph."""
         with torch.no_grad():
-            gi = torch.addmm(c.bias_ih, x, c.weight_ih.t())
-            gh = torch.addmm(c.bias_hh, h, c.weight_hh.t())
-            r = torch.sigmoid(gi[:, :H] + gh[:, :H])
-            z = torch.sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
-            ghn = gh[:, 2 * H:]
-            n = torch.tanh(gi[:, 2 * H:] + r * ghn)
-            hn = n + z * (h - n)
-            self.x[j], self.h_prev[j], self.r[j], self.z[j], self.n[j], self.ghn[j], self.h[j] = x, h, r, z, n, ghn, hn
+            if j == 0:
+                self.h[0] = h.numpy()
+            self.x[j] = x.numpy()
+            hn = self.cell(x, h)
+            self.h[j + 1] = hn.numpy()
         return hn
 
     def states(self):
-        """The recorded states ``(B, J, H)``, differentiable with respect to the cell's weights."""
+        """The recorded states ``(B, J, H)`` after each look, differentiable with respect to the cell's weights."""
         c = self.cell
         return GRUSequence.apply(self, c.weight_ih, c.weight_hh, c.bias_ih, c.bias_hh)
 
@@ -62,31 +92,31 @@ class GRUSequence(torch.autograd.Function):
     @staticmethod
     def forward(ctx, rec, w_ih, w_hh, b_ih, b_hh):
         ctx.rec = rec
-        return rec.h.permute(1, 0, 2).clone()
+        return torch.from_numpy(rec.h[1:rec.J + 1].transpose(1, 0, 2).copy())
 
     @staticmethod
     def backward(ctx, g):
         rec = ctx.rec
-        H, J = rec.H, rec.J
-        w_hh = rec.cell.weight_hh.detach()
-        g = g.permute(1, 0, 2)                             # (J, B, H)
-        B = g.shape[1]
-        d_gi = torch.empty((J, B, 3 * H), dtype=g.dtype)
-        d_gh = torch.empty((J, B, 3 * H), dtype=g.dtype)
-        dh = torch.zeros((B, H), dtype=g.dtype)
-        for j in range(J - 1, -1, -1):
-            dh = dh + g[j]
-            r, z, n, ghn = rec.r[j], rec.z[j], rec.n[j], rec.ghn[j]
-            dan = dh * (1.0 - z) * (1.0 - n * n)           # through n = tanh(a_n)
-            d_gi[j, :, :H] = dr = dan * ghn * r * (1.0 - r)
-            d_gi[j, :, H:2 * H] = dz = dh * (rec.h_prev[j] - n) * z * (1.0 - z)
-            d_gi[j, :, 2 * H:] = dan
-            d_gh[j, :, :H], d_gh[j, :, H:2 * H] = dr, dz
-            d_gh[j, :, 2 * H:] = dan * r
-            dh = torch.addmm(dh * z, d_gh[j], w_hh)
-        gi, gh = d_gi.reshape(J * B, 3 * H), d_gh.reshape(J * B, 3 * H)
-        d_w_ih = gi.t() @ rec.x.reshape(J * B, -1)
-        d_w_hh = gh.t() @ rec.h_prev.reshape(J * B, H)
-        if not (torch.isfinite(d_w_ih).all() and torch.isfinite(d_w_hh).all()):
-            raise FloatingPointError("GRU reverse pass: the gradient is not finite")
-        return None, d_w_ih, d_w_hh, gi.sum(0), gh.sum(0)
+        c = rec.cell
+        J, B, H = rec.J, rec.B, c.hidden_size
+        with torch.no_grad():
+            w_ih_t, w_hh_t, w_hh = c.weight_ih.t(), c.weight_hh.t(), c.weight_hh
+            b_ih, b_hh = c.bias_ih, c.bias_hh
+            g = np.ascontiguousarray(g.numpy(), dtype=np.float64)         # (B, J, H)
+            x, h = torch.from_numpy(rec.x), torch.from_numpy(rec.h)
+            gi, gh, dh, dh_z = rec.gi, rec.gh, rec.dh, rec.dh_z
+            gi_n, gh_n, dh_n, dh_z_n = gi.numpy(), gh.numpy(), dh.numpy(), dh_z.numpy()
+            d_gh_t = torch.from_numpy(rec.d_gh)
+            dh.zero_()
+            for j in range(J - 1, -1, -1):
+                torch.addmm(b_ih, x[j], w_ih_t, out=gi)
+                torch.addmm(b_hh, h[j], w_hh_t, out=gh)
+                _k_gates_reverse(gi_n, gh_n, rec.h[j], dh_n, g, j, rec.d_gi, rec.d_gh, dh_z_n)
+                torch.addmm(dh_z, d_gh_t[j], w_hh, out=dh)
+            d_gi = torch.from_numpy(rec.d_gi[:J].reshape(J * B, 3 * H))
+            d_gh = torch.from_numpy(rec.d_gh[:J].reshape(J * B, 3 * H))
+            d_w_ih = d_gi.t() @ torch.from_numpy(rec.x[:J].reshape(J * B, -1))
+            d_w_hh = d_gh.t() @ torch.from_numpy(rec.h[:J].reshape(J * B, H))
+            if not (torch.isfinite(d_w_ih).all() and torch.isfinite(d_w_hh).all()):
+                raise FloatingPointError("GRU reverse pass: the gradient is not finite")
+            return None, d_w_ih, d_w_hh, d_gi.sum(0), d_gh.sum(0)
