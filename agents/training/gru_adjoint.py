@@ -9,8 +9,9 @@ differentiable ``(B, J, H)`` tensor whose backward is the reverse pass of the ce
     r = sigma(W_ir x + b_ir + W_hr h + b_hr)      z = sigma(W_iz x + b_iz + W_hz h + b_hz)
     n = tanh(W_in x + b_in + r * (W_hn h + b_hn))  h' = (1 - z) n + z h
 
-Per look, backwards: the two projections recomputed (two ``(B, .) x (., 3H)`` products), one fused numba pass
-over the gates (their values and derivatives, no temporaries), one ``(B, 3H) x (3H, H)`` product (the gradient to
+Per look, backwards: the two projections and the gates recomputed (two ``(B, .) x (., 3H)`` products, torch's
+vectorised sigmoid and tanh into reused buffers), one fused numba pass for the gates' derivatives (arithmetic only,
+no temporaries), one ``(B, 3H) x (3H, H)`` product (the gradient to
 the previous state); then the weight gradients of all looks, one product each. The buffers live in the recorder
 and are reused chunk after chunk (fresh arrays of this size cost more in page faults than the arithmetic). The
 initial state gets no gradient: the trainer cuts the graph between chunks.
@@ -28,20 +29,19 @@ __all__ = ["GRURecorder", "GRUSequence"]
 
 
 @njit(cache=True)
-def _k_gates_reverse(gi, gh, h, dh, g, j, d_gi, d_gh, dh_z):
-    """Reverse of look ``j``: from its projections ``gi, gh (B, 3H)`` (biases included), its input state ``h (B, H)``
-    and the gradient ``dh (B, H)`` of its output state from the later looks, plus the loss's own ``g[:, j] (B, H)``,
-    writes the projections' gradients ``d_gi[j], d_gh[j] (B, 3H)`` and ``dh_z = dLoss/dh' * z`` (the direct path)."""
+def _k_gates_reverse(sg, gh, tn, h, dh, g, j, d_gi, d_gh, dh_z):
+    """Reverse of look ``j``'s gates (arithmetic only: the transcendental functions are torch's, vectorised):
+    ``sg (B, 3H)`` holds ``r, z`` in its first ``2H`` columns, ``gh (B, 3H)`` the hidden projection, ``tn (B, H)``
+    ``n``; ``h (B, H)`` the look's input state, ``dh (B, H)`` the gradient of its output state from the later looks,
+    ``g[:, j] (B, H)`` the loss's own. Writes the projections' gradients ``d_gi[j], d_gh[j] (B, 3H)`` and
+    ``dh_z = dLoss/dh' * z`` (the direct path to the previous state)."""
     B, H = h.shape
     for b in range(B):
         for k in range(H):
             d = dh[b, k] + g[b, j, k]
-            r = 1.0 / (1.0 + math.exp(-(gi[b, k] + gh[b, k])))
-            z = 1.0 / (1.0 + math.exp(-(gi[b, H + k] + gh[b, H + k])))
-            ghn = gh[b, 2 * H + k]
-            n = math.tanh(gi[b, 2 * H + k] + r * ghn)
+            r, z, n = sg[b, k], sg[b, H + k], tn[b, k]
             dan = d * (1.0 - z) * (1.0 - n * n)             # through n = tanh(a_n)
-            dr = dan * ghn * r * (1.0 - r)
+            dr = dan * gh[b, 2 * H + k] * r * (1.0 - r)
             dz = d * (h[b, k] - n) * z * (1.0 - z)
             d_gi[j, b, k], d_gi[j, b, H + k], d_gi[j, b, 2 * H + k] = dr, dz, dan
             d_gh[j, b, k], d_gh[j, b, H + k], d_gh[j, b, 2 * H + k] = dr, dz, dan * r
@@ -59,7 +59,8 @@ class GRURecorder:
         self.x = np.empty((J, B, F))
         self.h = np.empty((J + 1, B, H))                  # h[j]: the state before look j
         self.d_gi, self.d_gh = np.empty((J, B, 3 * H)), np.empty((J, B, 3 * H))
-        self.gi, self.gh = torch.empty((B, 3 * H), dtype=torch.float64), torch.empty((B, 3 * H), dtype=torch.float64)
+        self.gi, self.gh, self.sg = (torch.empty((B, 3 * H), dtype=torch.float64) for _ in range(3))
+        self.tn = torch.empty((B, H), dtype=torch.float64)
         self.dh, self.dh_z = torch.empty((B, H), dtype=torch.float64), torch.empty((B, H), dtype=torch.float64)
 
     def fits(self, B, J):
@@ -104,14 +105,16 @@ class GRUSequence(torch.autograd.Function):
             b_ih, b_hh = c.bias_ih, c.bias_hh
             g = np.ascontiguousarray(g.numpy(), dtype=np.float64)         # (B, J, H)
             x, h = torch.from_numpy(rec.x), torch.from_numpy(rec.h)
-            gi, gh, dh, dh_z = rec.gi, rec.gh, rec.dh, rec.dh_z
-            gi_n, gh_n, dh_n, dh_z_n = gi.numpy(), gh.numpy(), dh.numpy(), dh_z.numpy()
+            gi, gh, sg, tn, dh, dh_z = rec.gi, rec.gh, rec.sg, rec.tn, rec.dh, rec.dh_z
+            sg_n, gh_n, tn_n, dh_n, dh_z_n = sg.numpy(), gh.numpy(), tn.numpy(), dh.numpy(), dh_z.numpy()
             d_gh_t = torch.from_numpy(rec.d_gh)
             dh.zero_()
             for j in range(J - 1, -1, -1):
                 torch.addmm(b_ih, x[j], w_ih_t, out=gi)
                 torch.addmm(b_hh, h[j], w_hh_t, out=gh)
-                _k_gates_reverse(gi_n, gh_n, rec.h[j], dh_n, g, j, rec.d_gi, rec.d_gh, dh_z_n)
+                torch.sigmoid(torch.add(gi, gh, out=sg), out=sg)                       # r, z (and an unused third)
+                torch.tanh(torch.addcmul(gi[:, 2 * H:], sg[:, :H], gh[:, 2 * H:], out=tn), out=tn)    # n
+                _k_gates_reverse(sg_n, gh_n, tn_n, rec.h[j], dh_n, g, j, rec.d_gi, rec.d_gh, dh_z_n)
                 torch.addmm(dh_z, d_gh_t[j], w_hh, out=dh)
             d_gi = torch.from_numpy(rec.d_gi[:J].reshape(J * B, 3 * H))
             d_gh = torch.from_numpy(rec.d_gh[:J].reshape(J * B, 3 * H))
@@ -119,4 +122,5 @@ class GRUSequence(torch.autograd.Function):
             d_w_hh = d_gh.t() @ torch.from_numpy(rec.h[:J].reshape(J * B, H))
             if not (torch.isfinite(d_w_ih).all() and torch.isfinite(d_w_hh).all()):
                 raise FloatingPointError("GRU reverse pass: the gradient is not finite")
-            return None, d_w_ih, d_w_hh, d_gi.sum(0), d_gh.sum(0)
+            ones = torch.ones(J * B, dtype=torch.float64)       # bias gradients as products: torch's column
+            return None, d_w_ih, d_w_hh, d_gi.t() @ ones, d_gh.t() @ ones   # sums of a tall array are ~10x slower
