@@ -224,35 +224,6 @@ def test_compiled_chunk_equals_the_torch_lockstep(rdot, head):
         np.testing.assert_allclose(q_chain, q_tracker, rtol=1e-12, atol=0)
 
 
-def test_gru_recorder_and_its_reverse_pass_equal_torch():
-    """agents.training.gru_adjoint: the recorded states are GRUCell's and the hand-written reverse pass equals
-    autograd through the GRUCell loop (1e-10 relative)."""
-    from agents.training.gru_adjoint import GRURecorder
-    torch.manual_seed(0)
-    cell = torch.nn.GRUCell(7, 5, dtype=torch.float64)
-    B, J = 6, 9
-    x = torch.randn(B, J, 7, dtype=torch.float64)
-    h0 = torch.randn(B, 5, dtype=torch.float64)
-    w = torch.randn(B, J, 5, dtype=torch.float64)
-    h, hs = h0, []
-    for j in range(J):
-        h = cell(x[:, j], h)
-        hs.append(h)
-    ref = torch.stack(hs, 1)
-    (ref * w).sum().backward()
-    g_ref = [p.grad.clone() for p in cell.parameters()]
-    cell.zero_grad()
-    rec, h = GRURecorder(cell, B, J + 3), h0        # room for more looks than used (the buffers are reused)
-    rec.begin(J)
-    for j in range(J):
-        h = rec.step(j, x[:, j], h)
-    got = rec.states()
-    (got * w).sum().backward()
-    assert torch.equal(got.detach(), ref.detach())
-    for a, b in zip((p.grad for p in cell.parameters()), g_ref):
-        assert float((a - b).abs().max()) <= 1e-10 * float(b.abs().max())
-
-
 def test_chunk_looks_equal_the_full_store():
     """backprop.chunk_looks (Tracker.look_window: the chunk's looks only) equals looks_from_arrays over look_data."""
     from radar_env.filters import torch_chain as tc

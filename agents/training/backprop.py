@@ -90,12 +90,13 @@ squares; ``normalised``: the squared position error in units of the plot noise (
 ``|e|^2 / sigma^2`` with ``sigma`` the per-axis RMS plot noise at the true range), pooled over the same looks, which
 weighs a look on a precise radar as much as one on a coarse radar."""
 MAX_TRAIN_SEED = SELECTION_SEED_BASE
-CHAINS = ("compiled", "torch")
-"""The CV model's chunk (hyperparameter ``chain``, optional, default ``compiled``): ``compiled``, the GRU stepped
-without a graph beside the numba Tracker, then the GRU over the chunk and the compiled CV chain with its numba
-adjoint (:meth:`CVQModel.chunk_forward`); ``torch``, the reference: the lockstep over the torch chain, one look at a
-time. The same gradient to rounding; ``imm_cv_ct`` always runs its torch lockstep."""
 """Training seeds ``S`` lie in ``[0, 900_000)``: below the selection suites' seeds."""
+CHAINS = ("compiled", "torch")
+"""The CV model's chunk (hyperparameter ``chain``, optional, default ``compiled``): ``compiled``, the look loop
+steps only the GRU, the numba Tracker and the observation, then the compiled CV chain
+(:mod:`radar_env.filters.compiled_chain`, numba forward and adjoint) runs the chunk at once
+(:meth:`CVQModel.chunk_forward`); ``torch``, the reference: the lockstep over the torch chain, one look at a
+time. The same gradient to rounding; ``imm_cv_ct`` always runs its torch lockstep."""
 
 
 # ================================================================================================= the models
@@ -203,7 +204,7 @@ class CVQModel(ChainModel):
             self.out.weight.zero_()
             self.out.bias.fill_(math.atanh(a0))
         self.h = self.state = None
-        self.chunk_q = self._recorder = None
+        self.chunk_q = None
 
     # ---- the network
     def action(self, obs, h):
@@ -245,32 +246,29 @@ class CVQModel(ChainModel):
         return rec.x, q_np
 
     def chunk_forward(self, tracker, layout, obs, looks):
-        """The chunk in two passes (``chain = "compiled"``; ``"torch"``: :func:`lockstep` over :meth:`step`).
+        """The chunk with the compiled chain (``chain = "compiled"``; ``"torch"``: :func:`lockstep` over :meth:`step`).
 
-        The observation never depends on the differentiable chain (the numba Tracker makes it), so: (1) look by look,
-        without a graph, the GRU (:class:`agents.training.gru_adjoint.GRURecorder`, recording its gates) reads the
-        observation, the Tracker steps with its q and the env's layout encodes the next observation (the per-look
-        Python is this alone); (2) once, with a graph: the recorded GRU states (one autograd node with a
-        hand-written reverse pass), the head over all looks, ``q (B, J)``, and the compiled chain
-        (:func:`radar_env.filters.compiled_chain.cv_run`, numba forward and adjoint) give the estimates. The states
-        are the same numbers in both passes; the head's product over ``(B J, H)`` instead of ``(B, H)`` may round
-        differently, so the q the gradient is taken at equals the q the Tracker stepped with to ~1e-16 relative
-        (``self.chunk_q = (tracker q, chain q)`` of the last chunk; tested to 1e-12).
+        The observation never depends on the differentiable chain (the numba Tracker makes it), so the chain need
+        not run look by look: the loop steps only the GRU (with its graph), the head without a graph for the
+        Tracker's q, the Tracker and the env's layout (the next observation); then, once, the head over all looks'
+        GRU states gives ``q (B, J)`` and the compiled chain (:func:`radar_env.filters.compiled_chain.cv_run`: numba
+        forward and adjoint, one autograd node) the estimates. The GRU's states are the same tensors in both; the
+        head's product over ``(B, J, H)`` instead of ``(B, H)`` may round differently, so the q the gradient is
+        taken at equals the q the Tracker stepped with to ~1e-16 relative (``self.chunk_q = (tracker q, chain q)``
+        of the last chunk; tested to 1e-12). The GRU keeps torch's autograd: a hand-written reverse pass of it (numba
+        gates, products per look) measured no faster, the cell being bound by its products.
         """
         if self.chain == "torch":
             return super().chunk_forward(tracker, layout, obs, looks)
         from radar_env.filters.compiled_chain import cv_run
-        from agents.training.gru_adjoint import GRURecorder
         B, J = looks.B, looks.J
         active = looks.scored.numpy()
-        rec = self._recorder
-        if rec is None or not rec.fits(B, J):
-            rec = self._recorder = GRURecorder(self.gru, B, max(J, 1))
-        rec.begin(J)
         h = self.h.detach()
+        hs = []
         q_tr = np.empty((B, J))
         for j in range(J):
-            h = rec.step(j, torch.from_numpy(obs.astype(np.float64)), h)
+            h = self.gru(torch.from_numpy(obs.astype(np.float64)), h)
+            hs.append(h)
             with torch.no_grad():
                 a = self._head(h)
             # the Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
@@ -281,8 +279,8 @@ class CVQModel(ChainModel):
             elif rows.size:
                 q = q[rows]
                 obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
-        self.h = h
-        q = self.q_of_action(self._head(rec.states()))
+        self.h = h.detach()
+        q = self.q_of_action(self._head(torch.stack(hs, 1)))
         self.chunk_q = (q_tr, q.detach().numpy())
         x, self.state = cv_run(self.state, looks, q)
         return x
