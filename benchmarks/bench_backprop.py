@@ -2,10 +2,11 @@
 
 Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--batch 1000] [--chunk 40]
 [--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
-``--compare N``: the optimiser step with ``chain = "torch"`` (the reference lockstep over the torch chain) against
-``chain = "compiled"`` (the compiled CV chain, :mod:`radar_env.filters.compiled_chain`) in one process, N interleaved
-rounds on the same rows' episodes, printing the ratio of the median step times and the load average (docs/speed.md,
-"Backprop training step": on the shared machine only the ratio means something). With ``torch.set_num_threads(1)`` it builds
+``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the
+reference lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
+:mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing
+the ratios of the median step times and the load average (docs/speed.md, "Backprop training step": on the shared
+machine only the ratios mean something). With ``torch.set_num_threads(1)`` it builds
 the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
 and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
 and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
@@ -38,6 +39,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from agents.training import backprop as bp  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
 from agents.training.runs import load_hyperparams  # noqa: E402
 from benchmarks.bench_torch_chain import _positive_int, cartpole_rate  # noqa: E402  (shared with it)
 
@@ -96,30 +98,53 @@ def measure(flights, batch, chunk, hidden, steps, seed=0, chain="compiled"):
             "mean_looks_per_episode": (trainer.scored_looks - s0) / max(n_ep, 1)}
 
 
+def _main_chunk_looks(tracker, k0, cut):
+    """The chunk's looks as main built them before the compiled chain (``look_data`` of the whole store: its
+    ``detected`` compares every stored look)."""
+    get = tracker.look_data
+    return tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
+                                tracker.t_last, **tc.range_rate_args(get, tracker.radial_velocity))
+
+
+PATHS = {"main": ("torch", _main_chunk_looks), "torch": ("torch", None), "compiled": ("compiled", None)}
+"""The steps compared: ``main``, the step as it was before the compiled chain (the torch lockstep, the chunk's
+looks read from the whole store); ``torch``, ``chain = "torch"`` on this code (the looks gathered by
+Tracker.look_window); ``compiled``, ``chain = "compiled"`` (the default)."""
+
+
 def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
-    """The CV recipe's optimiser step with ``chain = "torch"`` (the reference lockstep) against ``"compiled"``, in
-    this one process: two trainers of the same seed (the same rows' episodes, the same initial weights; their
-    weights then differ by rounding only), ``warmup`` steps each, then ``repeats`` rounds, each timing one step of
-    each in alternating order (a load change on the shared machine hits both). Returns a dict with the per-step
-    medians, ``ratio`` = torch / compiled (of the medians) and the load average before and after."""
+    """The CV recipe's optimiser step of each of :data:`PATHS` in this one process: trainers of the same seed (the
+    same rows' episodes, the same initial weights; their weights then differ by rounding only), ``warmup`` steps
+    each, then ``repeats`` rounds, each timing one step of each in a rotating order (a load change on the shared
+    machine hits all). Returns a dict with the per-step medians, the ratios ``main / compiled`` and ``torch /
+    compiled`` of the medians and the load average before and after."""
     import statistics
     load0 = os.getloadavg()
-    runs = {c: _trainer(flights, batch, chunk, hidden, seed, c) for c in ("torch", "compiled")}
-    times = {c: [] for c in runs}
-    for _ in range(warmup):
-        for trainer, opt, hp in runs.values():
-            bp.optimiser_step(trainer, opt, hp)
-    for i in range(repeats):
-        for c in (("torch", "compiled") if i % 2 == 0 else ("compiled", "torch")):
-            trainer, opt, hp = runs[c]
+    runs = {p: _trainer(flights, batch, chunk, hidden, seed, c) for p, (c, _) in PATHS.items()}
+    own = bp.chunk_looks
+    times = {p: [] for p in runs}
+
+    def step(p):
+        bp.chunk_looks = PATHS[p][1] or own
+        try:
             t0 = time.perf_counter()
-            bp.optimiser_step(trainer, opt, hp)
-            times[c].append(time.perf_counter() - t0)
-    med = {c: statistics.median(t) for c, t in times.items()}
-    ratios = [a / b for a, b in zip(times["torch"], times["compiled"])]
+            bp.optimiser_step(*runs[p])
+            return time.perf_counter() - t0
+        finally:
+            bp.chunk_looks = own
+
+    names = list(runs)
+    for _ in range(warmup):
+        for p in names:
+            step(p)
+    for i in range(repeats):
+        for p in names[i % len(names):] + names[:i % len(names)]:
+            times[p].append(step(p))
+    med = {p: statistics.median(t) for p, t in times.items()}
     return {"flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden, "repeats": repeats,
-            "torch_s_per_step": med["torch"], "compiled_s_per_step": med["compiled"],
-            "ratio": med["torch"] / med["compiled"], "ratio_min": min(ratios), "ratio_max": max(ratios),
+            "s_per_step": med, "ratio_main": med["main"] / med["compiled"],
+            "ratio_torch": med["torch"] / med["compiled"],
+            "ratio_main_per_round": [a / b for a, b in zip(times["main"], times["compiled"])],
             "times": times, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
 
 
@@ -134,8 +159,9 @@ def main(argv=None):
     p.add_argument("--json", default=None, help="also write the results here")
     p.add_argument("--chain", default="compiled", choices=bp.CHAINS, help="the CV model's chunk (default compiled)")
     p.add_argument("--compare", type=_positive_int, default=None, metavar="N",
-                   help="instead: N interleaved rounds of one step with chain=torch and one with chain=compiled in "
-                        "this process; prints the per-step ratio (the first flight distribution only)")
+                   help="instead: N interleaved rounds of one step as main ran it, one with chain=torch and one with "
+                        "chain=compiled in this process; prints the per-step ratios (the first flight distribution "
+                        "only)")
     a = p.parse_args(argv)
     flights = [f for f in a.flights.split(",") if f]
     if not flights or any(f not in FLIGHTS for f in flights):
@@ -147,11 +173,12 @@ def main(argv=None):
     chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
     if a.compare:
         r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed)
+        m, rr = r["s_per_step"], r["ratio_main_per_round"]
         print(f"{flights[0]} flights, batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.compare} interleaved rounds, "
-              f"torch {torch.__version__}, 1 thread\n  chain=torch {r['torch_s_per_step']:.3f} s/step, "
-              f"chain=compiled {r['compiled_s_per_step']:.3f} s/step (medians): ratio {r['ratio']:.2f}x (per round "
-              f"{r['ratio_min']:.2f}-{r['ratio_max']:.2f}); load average (1, 5, 15 min) before "
-              f"{', '.join(f'{v:.2f}' for v in r['loadavg_before'])}, after "
+              f"torch {torch.__version__}, 1 thread; median s/step: main {m['main']:.3f}, chain=torch "
+              f"{m['torch']:.3f}, chain=compiled {m['compiled']:.3f}\n  ratio main/compiled {r['ratio_main']:.2f}x "
+              f"(per round {min(rr):.2f}-{max(rr):.2f}), chain=torch/compiled {r['ratio_torch']:.2f}x; load average "
+              f"(1, 5, 15 min) before {', '.join(f'{v:.2f}' for v in r['loadavg_before'])}, after "
               f"{', '.join(f'{v:.2f}' for v in r['loadavg_after'])}")
         if a.json:
             Path(a.json).write_text(json.dumps(r, indent=2))
