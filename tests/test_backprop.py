@@ -363,6 +363,15 @@ def test_check_hp_refusals():
     del hp["learning_rate"]
     with pytest.raises(ValueError, match="missing"):
         bp.check_hp(hp)
+    with pytest.raises(ValueError, match="--hp chain"):
+        bp.check_hp(_hp(chain="numba"))
+    # chain is optional (the recipes' files leave it out, so that their configs, which a resume compares, are as
+    # before): absent, the model compiles; "torch" is the reference lockstep
+    assert "chain" not in load_hyperparams("backprop") and "chain" not in _hp()
+    hp, _, cfg = bp.check_hp(_hp())
+    assert "chain" not in hp and bp.make_model(hp, cfg).chain == "compiled"
+    hp, _, cfg = bp.check_hp(_hp(chain="torch"))
+    assert bp.make_model(hp, cfg).chain == "torch"
 
 
 def test_training_run_folder_resume_and_refusal(tmp_path):
@@ -509,6 +518,10 @@ def test_bench_backprop_runs_with_tiny_settings(tmp_path):
     assert r["row_looks_per_s"] > 0 and 0 < r["numba_share"] < 1 and json.loads(out.read_text())["results"]
     with pytest.raises(SystemExit):
         mod.main(["--flights", "nope"])
+    r = mod.main(["--batch", "4", "--chunk", "5", "--hidden", "4", "--flights", "random", "--compare", "2",
+                  "--json", str(out)])
+    assert set(r["s_per_step"]) == {"main", "torch", "compiled"} and r["ratio_main"] > 0 and r["ratio_torch"] > 0
+    assert len(r["times"]["compiled"]) == 2 and json.loads(out.read_text())["ratio_main"] == r["ratio_main"]
 
 
 def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():
