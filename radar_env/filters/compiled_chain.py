@@ -3,7 +3,7 @@ r"""The CV chain of :mod:`radar_env.filters.torch_chain` compiled: a numba forwa
 :func:`cv_run` is :func:`radar_env.filters.torch_chain.run` for the CV model (no turn rate) restricted to what the
 q-policy trainer needs: the posterior states ``x (B, J, 4)`` of a chunk, differentiable with respect to the
 process-noise levels ``q (B, J)``, and the final :class:`~radar_env.filters.torch_chain.ChainState` (detached).
-One :class:`torch.autograd.Function` replaces the torch chain's ~60 autograd nodes per look: the forward runs every
+One :class:`torch.autograd.Function` replaces the torch chain's dozens of autograd nodes per look: the forward runs every
 row's looks in one numba loop and stores each look's prior (and, with range rate, the state between the position
 and the range-rate update); the backward runs the reverse (adjoint) pass over the stored looks in numba.
 
@@ -19,10 +19,9 @@ rounding of the two gradients alike. Covariance adjoints are kept symmetric, whi
 perturbation of the chain is symmetric. Gradients flow to ``q`` only: the trainer starts each chunk from the numba
 Tracker's (constant) state, so a ``state`` that requires a gradient is refused.
 
-Layout: batch first throughout (the looks are copied out of
-:class:`~radar_env.filters.torch_chain.ChainLooks`' components-first layout once per chunk: the kernels run row by
-row). Like torch_chain, this module imports torch; ``radar_env`` imports
-without it.
+Layout: batch first throughout (the looks are copied out of :class:`~radar_env.filters.torch_chain.ChainLooks`'
+components-first layout once per chunk: the kernels run row by row). Like torch_chain, this module imports torch;
+``radar_env`` imports without it.
 """
 
 from __future__ import annotations
