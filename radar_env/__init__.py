@@ -13,6 +13,8 @@ feature modules (and the env's configuration and batched core) work. The old fla
 
 __version__ = "0.1.0"
 
+import copy as _copy
+
 
 def _register():
     try:
@@ -22,17 +24,10 @@ def _register():
     for env_id, kwargs in ENV_VARIANTS.items():
         if env_id not in registry:
             register(id=env_id, entry_point="radar_env.envs.env:RadarTrackEnv",
-                     vector_entry_point="radar_env.envs.env:RadarTrackVectorEnv", kwargs=dict(kwargs))
+                     vector_entry_point="radar_env.envs.env:RadarTrackVectorEnv", kwargs=_copy.deepcopy(kwargs))
 
 
-ENV_VARIANTS = {
-    "RadarTrack-v0": {},
-    "RadarTrackDoppler-v0": {"radial_velocity": True},
-}
-"""The registered environment ids and the arguments each fixes (any may still be overridden in ``gym.make``):
-``RadarTrackDoppler-v0`` is ``RadarTrack-v0`` whose filter also updates on each plot's radial velocity (the
-radar's Doppler measurement), observation and reward as v0's."""
-
+from .envs.variants import ENV_VARIANTS  # noqa: E402 - the ids and their arguments (radar_env/envs/variants.py)
 
 _register()
 

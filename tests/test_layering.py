@@ -238,8 +238,10 @@ BESIDE = {"radar_env.render": ("radar_env.common",), "radar_env.applications": (
 """Top-level modules beside the floors and the floors they may import (the env layer renders: envs imports render)."""
 ANYWHERE = {"radar_env._moved"}
 """Importable from any floor: the old-path aliases (standard library only)."""
-GYM_LAYER = {"radar_env", "radar_env.envs.env", "radar_env.envs.single_env", "radar_env.envs.vector_env"}
-"""The only radar_env modules that import gymnasium (``radar_env`` itself: the registration, inside a try)."""
+GYM_LAYER = {"radar_env", "radar_env.envs.env", "radar_env.envs.single_env", "radar_env.envs.vector_env",
+             "radar_env.envs.reference"}
+"""The only radar_env modules that import gymnasium (``radar_env`` itself: the registration, inside a try;
+``reference``: the reference page's generator, which builds every registered env)."""
 TORCH_MODULES = {"radar_env.filters.torch_chain", "radar_env.filters.torch_imm", "radar_env.filters.compiled_chain"}
 
 

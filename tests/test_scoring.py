@@ -146,15 +146,18 @@ def test_fewer_than_20_runs_are_flagged_beside_every_interval(suite, monkeypatch
     assert all(m["few_runs"] and m["few_common_runs"] for m in res["trackers"].values())
     d = json.loads(json.dumps(jsonable(results), allow_nan=False))
     assert d["bizup2002"]["trackers"]["imm2"]["few_runs"] is True
-    for text in (format_table(results), markdown_tables(results)):
+    # two intervals per row in the compact table, four with --wide and in the Markdown tables
+    for text, n_min in ((format_table(results), 4), (format_table(results, wide=True), 8),
+                        (markdown_tables(results), 8)):
         rows = [line for line in text.splitlines() if line.startswith(("imm2", "kf_tuned", "| imm2", "| kf_tuned"))]
         n_ci = sum(line.count("[") for line in rows)
-        assert n_ci >= 8 and sum(line.count(f"(n<{FEW_RUNS})") for line in rows) == n_ci
+        assert n_ci >= n_min and sum(line.count(f"(n<{FEW_RUNS})") for line in rows) == n_ci
     assert headline(results, False).count(f"(n<{FEW_RUNS})") == 1             # kf_tuned's ratio to imm2
     many = draw_suite("bizup2002", FEW_RUNS)
     results, _ = evaluate([("bizup2002", many)], ["imm2", "kf_tuned"], progress=False)
     assert not results["bizup2002"]["few_runs"] and not results["bizup2002"]["trackers"]["imm2"]["few_runs"]
-    for text in (format_table(results), markdown_tables(results).split("\n", 1)[1], headline(results, False)):
+    for text in (format_table(results), format_table(results, wide=True), markdown_tables(results).split("\n", 1)[1],
+                 headline(results, False)):
         assert f"(n<{FEW_RUNS})" not in text
 
 

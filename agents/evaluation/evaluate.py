@@ -235,7 +235,12 @@ def _pair(rc):
 
 
 # ------------------------------------------------------------------------------------------------ output
-def format_table(results, reference="imm2"):
+TABLE_WIDTH = 120
+"""The printed table's width budget (characters) with the default trackers and runs: the compact table
+(:func:`format_table`) fits it; ``--wide`` prints every column."""
+
+
+def format_table(results, reference="imm2", wide=False):
     """Plain-text table: one block per suite, one row per tracker.
 
     ``pos RMSE`` is pooled over the runs the tracker did not fail (lost runs included); ``score`` is its normalised
@@ -243,7 +248,15 @@ def format_table(results, reference="imm2"):
     common runs (no compared tracker lost or failed them); the ratio columns are paired over the runs neither
     tracker failed (``all``) and over the common runs. ``(n<20)`` marks an interval from fewer than 20 runs; ``*``
     beside an ANEES one taken from under 90 % of the looks (:func:`table_notes` says how many, and names a bound
-    tracker that some real tracker beat)."""
+    tracker that some real tracker beat).
+
+    By default the compact table (within :data:`TABLE_WIDTH` characters for the default trackers, a legend under
+    it): position RMSE with its interval, score, RMSE in maneuvers / after them / on straight legs, ANEES, lost,
+    failed and the ratio to ``reference`` over all runs. ``wide=True``: every column (also the velocity RMSE, the
+    peak error, the share of looks in the 95 % NEES bound, the common runs' RMSE and ratio). The JSON has every
+    metric either way."""
+    if not wide:
+        return _format_compact(results, reference)
     lines = []
     head = ("tracker", "pos RMSE m [95% CI]", "score", "maneuver", "after", "straight", "vel m/s", "peak m", "ANEES",
             "in95", "lost", "failed", "common RMSE m [95% CI]", f"/{reference} all [95% CI]",
@@ -251,10 +264,7 @@ def format_table(results, reference="imm2"):
     widths = (20, 30, 6, 9, 8, 9, 8, 8, 6, 5, 5, 6, 30, 28, 28)
     for suite, res in results.items():
         n_common = res.get("common_runs")
-        lines.append(f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run"
-                     + ("" if n_common is None else f"; {n_common} common runs (no tracker lost or failed them)")
-                     + (f"; (n<{FEW_RUNS}): fewer than {FEW_RUNS} runs, the intervals are no evidence"
-                        if res["runs"] < FEW_RUNS else "") + " ==")
+        lines.append(_suite_header(suite, res))
         lines.append(" ".join(f"{h:{'<' if i == 0 else '>'}{w}s}" for i, (h, w) in enumerate(zip(head, widths))))
         ratios = res.get(f"ratio_vs_{reference}", {})
         ratio_runs = res.get(f"ratio_vs_{reference}_runs", {})
@@ -273,6 +283,58 @@ def format_table(results, reference="imm2"):
                 _f_ci(rc[0], rc[1], n_common, 3) if rc else "")
             lines.append(" ".join(f"{c:{'<' if i == 0 else '>'}{w}s}" for i, (c, w) in enumerate(zip(cells, widths))))
         lines += [f"  {n}" for n in table_notes(res)]
+    return "\n".join(lines)
+
+
+def _suite_header(suite, res, compact=False):
+    """A suite's title line; ``compact``: the few-runs warning on a second line (the compact table's width)."""
+    n_common = res.get("common_runs")
+    few = (f"(n<{FEW_RUNS}): fewer than {FEW_RUNS} runs, the intervals are no evidence"
+           if res["runs"] < FEW_RUNS else "")
+    head = (f"\n== {suite}: {res['runs']} runs, {res['looks_per_run_mean']:.0f} looks/run"
+            + ("" if n_common is None else f"; {n_common} common runs (no tracker lost or failed them)"))
+    if compact:
+        return head + " ==" + (f"\n   {few}" if few else "")
+    return head + (f"; {few}" if few else "") + " =="
+
+
+def compact_legend(reference="imm2", few_runs=False):
+    """The lines printed under the compact table, naming its columns (``few_runs``: and the ``(n<20)`` mark)."""
+    return [f"columns: RMSE = position RMSE (m) over the runs not failed [95% CI]; score: 0 = kf_tuned, 100 = rbpf;",
+            "man / aft / str = position RMSE (m) in maneuvers / up to 60 s after one / on straight legs;",
+            "ANEES: 1 = a consistent covariance; lost: share of runs lost; fail: runs failed;",
+            f"/{reference}: RMSE / {reference}'s RMSE, paired over the runs neither failed [95% CI]"
+            + (f"; (n<{FEW_RUNS}): from fewer than {FEW_RUNS} runs." if few_runs else "."),
+            "--wide: every column (velocity RMSE, peak error, NEES in 95 %, the common runs' RMSE and ratio); "
+            "--json: every metric."]
+
+
+def _format_compact(results, reference):
+    """:func:`format_table`'s default: the columns that fit :data:`TABLE_WIDTH`, and a legend."""
+    lines = []
+    names = [t for res in results.values() for t in res["trackers"]]
+    tw = max([7] + [len(t) for t in names])
+    head = ("tracker", "RMSE m [95% CI]", "score", "man", "aft", "str", "ANEES", "lost", "fail",
+            f"/{reference} [95% CI]")
+    widths = (tw, 26, 5, 6, 6, 6, 6, 4, 4, 26)
+    for suite, res in results.items():
+        lines.append(_suite_header(suite, res, compact=True))
+        lines.append(" ".join(f"{h:{'<' if i == 0 else '>'}{w}s}" for i, (h, w) in enumerate(zip(head, widths))))
+        ratios = res.get(f"ratio_vs_{reference}", {})
+        ratio_runs = res.get(f"ratio_vs_{reference}_runs", {})
+        for t, m in res["trackers"].items():
+            rr = ratios.get(t)
+            cells = (
+                t,
+                _f_ci(m["pos_rmse_m"], m["pos_rmse_m_ci95"], m.get("runs_scored", res["runs"]), 1),
+                _f(m.get("score"), 5, 0), _f(m["pos_rmse_m_maneuver"], 6), _f(m["pos_rmse_m_after"], 6),
+                _f(m["pos_rmse_m_straight"], 6), _anees_cell(m, 6), _f(m["track_loss_rate"], 4, 2),
+                str(m.get("failed_runs", "-")),
+                _f_ci(rr[0], rr[1], ratio_runs.get(t, res["runs"]), 3) if rr else "")
+            lines.append(" ".join(f"{c:{'<' if i == 0 else '>'}{w}s}" for i, (c, w) in enumerate(zip(cells, widths))))
+        lines += [f"  {n}" for n in table_notes(res)]
+    if results:
+        lines += ["", *compact_legend(reference, few_runs=any(f"(n<{FEW_RUNS})" in line for line in lines))]
     return "\n".join(lines)
 
 
@@ -631,7 +693,7 @@ def main(argv=None, prog="radar-track evaluate"):
                                  address=args.address, seed=args.seed, learned=learned)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
-    print(format_table(results))
+    print(format_table(results, wide=args.wide))
     print(f"\n({time.time() - t0:.0f} s; seeds {args.seed}+i per suite; every tracker saw the same plots)")
     if args.json:
         meta = {"seed": args.seed, "trackers": trackers, "tracker_modules": list(args.tracker_module or []),

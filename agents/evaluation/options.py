@@ -100,6 +100,10 @@ def build_parser(prog="radar-track evaluate"):
                     help="write every metric per tracker per suite to this JSON file; its folder must exist; not "
                          "a symbolic link, not one of the run's input files (default: no JSON)")
     ap.add_argument("--no-plots", action="store_true", help="skip the figures (default: draw them)")
+    ap.add_argument("--wide", action="store_true",
+                    help="print every column of the table (velocity RMSE, peak error, NEES in 95 %%, the common "
+                         "runs' RMSE and ratio; about 220 characters wide) (default: the compact table, within 120 "
+                         "characters, with a legend; --json has every metric either way)")
     ap.add_argument("--quiet", action="store_true",
                     help="no progress: no first line, no bars; the table only (default: progress on stderr)")
     ap.add_argument("--workers", type=int, default=1, metavar="N",

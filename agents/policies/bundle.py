@@ -14,7 +14,9 @@ wrong levels). Use::
     action, _ = model.predict(obs, deterministic=True)
 
 ``make_policy_env(scenario="bizup2002")`` changes an argument; ``make_policy_env(num_envs=64)`` returns the native
-vector env with the same arguments.
+vector env with the same arguments. The bundled learned trackers' envs are also registered ids
+(:data:`BUNDLED_ENV_IDS`: ``gym.make("RadarTrackContinuous-v0")`` is ``policy_bp``'s, ``gym.make("RadarTrackIMM-v0")``
+the learned IMM's; docs/env_reference.md).
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
-           "make_policy_env", "ship_policy", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY", "policy_env_kwargs",
+           "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs", "embed_env_config", "recorded_env_kwargs", "env_kwargs_from_json"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
@@ -46,10 +48,38 @@ BUNDLED_BP_RDOT = BUNDLED_BP_POLICY.parents[1] / "backprop_rdot" / "policy.npz"
 ``policy_bp_rdot``."""
 BUNDLED_LEARNED_IMM_RDOT = BUNDLED_BP_POLICY.parents[1] / "learned_imm_rdot" / "policy.npz"
 """``policy_imm_bp``'s recipe trained on the range-rate filter: the tracker ``policy_imm_bp_rdot``."""
+BUNDLED_LEARNED_IMM_PRIOR = BUNDLED_BP_POLICY.parents[1] / "learned_imm_prior" / "policy.npz"
+"""``policy_imm_bp``'s recipe trained on the ``random`` suites' own flights (the laws ``rbpf`` assumes), not the
+broad ones: the tracker ``policy_imm_bp_prior`` (agents/bundled/learned_imm_prior/CHOICE.md)."""
 BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
                     "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
-                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT}
+                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
+
+BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",
+                   "policy_imm_bp": "RadarTrackIMM-v0", "policy_imm_bp_rdot": "RadarTrackIMMDoppler-v0"}
+"""Bundled learned tracker -> the registered env id whose arguments are exactly its :func:`bundled_env_kwargs`, so
+``gym.make(id)`` gives the observation it was trained on (tests/test_env_ids.py). The other two bundles are one
+override away: ``policy`` (PPO, discrete, four stacked frames) is ``gym.make("RadarTrackContinuous-v0",
+action_type="discrete", frame_stack=4)``; ``policy_imm_ppo`` observes ``RadarTrackIMM-v0``'s observation but was
+trained on an earlier flight distribution (its ``random_config``; pass it to get those flights)."""
+
+
+def bundled_env_kwargs(name):
+    """The env arguments of bundled learned tracker ``name``'s observation: its ``env_config.json`` (lists as
+    tuples), plus ``tracker`` for a learned IMM trained by backpropagation, whose checkpoint keeps the CV env's
+    arguments there (features, q levels, track start, training flights) and names its filter in ``policy.json``
+    (``"model": "imm_cv_ct"``)."""
+    if name not in BUNDLED_POLICIES:
+        raise ValueError(f"bundled_env_kwargs: unknown bundled policy {name!r}; valid: {list(BUNDLED_POLICIES)}")
+    path = BUNDLED_POLICIES[name]
+    kw = policy_env_kwargs(path)
+    meta = path.with_name("policy.json")
+    if meta.is_file():
+        m = json.loads(meta.read_text())
+        if m.get("format") == "radar-track-learned-imm" and "tracker" not in kw:
+            kw["tracker"] = m["model"]
+    return kw
 
 
 def env_kwargs_from_json(v):

@@ -138,6 +138,7 @@ class RadarTrackEnv(gym.Env):
     ## Arguments
 
     ``gym.make("RadarTrack-v0", **kwargs)``; every argument is validated and an unknown one raises ``ValueError``.
+    The other registered ids fix some of them (``radar_env.ENV_VARIANTS``; docs/env_reference.md lists each id).
 
     * ``scenario``: ``"random"`` (default), ``"random_radars"`` (the same flights seen by a random radar: 1-12 s
       scan period, noise, detection probability, sometimes a second site), a name from
