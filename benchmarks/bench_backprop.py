@@ -1,7 +1,12 @@
 """Training throughput of ``radar-track train --method backprop`` (agents/training/backprop.py), single thread.
 
 Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--batch 1000] [--chunk 40]
-[--steps 10] [--hidden 64] [--flights training,random] [--json PATH]``. With ``torch.set_num_threads(1)`` it builds
+[--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
+``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the
+reference lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
+:mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing
+the ratios of the median step times and the load average (docs/speed.md, "Backprop training step": on the shared
+machine only the ratios mean something). With ``torch.set_num_threads(1)`` it builds
 the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
 and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
 and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
@@ -34,6 +39,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from agents.training import backprop as bp  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
 from agents.training.runs import load_hyperparams  # noqa: E402
 from benchmarks.bench_torch_chain import _positive_int, cartpole_rate  # noqa: E402  (shared with it)
 
@@ -55,17 +61,22 @@ class _Timed:
             self.seconds += time.perf_counter() - t0
 
 
-def measure(flights, batch, chunk, hidden, steps, seed=0):
-    """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
+def _trainer(flights, batch, chunk, hidden, seed, chain):
+    """``(trainer, opt, hp)`` of the recipe on ``flights`` with the CV model's ``chain`` (bp.CHAINS)."""
     hp = load_hyperparams("backprop")
-    hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden)
+    hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden, chain=chain)
     if flights == "random":
         hp["env_kwargs"] = {k: v for k, v in hp["env_kwargs"].items() if k not in ("scenario", "random_config")}
     hp, _, cfg = bp.check_hp(hp)
     torch.manual_seed(seed)
     model = bp.make_model(hp, cfg)
     opt = torch.optim.Adam(model.parameters(), lr=hp["learning_rate"])
-    trainer = bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"])
+    return bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"]), opt, hp
+
+
+def measure(flights, batch, chunk, hidden, steps, seed=0, chain="compiled"):
+    """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
+    trainer, opt, hp = _trainer(flights, batch, chunk, hidden, seed, chain)
 
     def one_step():
         bp.optimiser_step(trainer, opt, hp)
@@ -87,6 +98,56 @@ def measure(flights, batch, chunk, hidden, steps, seed=0):
             "mean_looks_per_episode": (trainer.scored_looks - s0) / max(n_ep, 1)}
 
 
+def _main_chunk_looks(tracker, k0, cut):
+    """The chunk's looks as main built them before the compiled chain (``look_data`` of the whole store: its
+    ``detected`` compares every stored look)."""
+    get = tracker.look_data
+    return tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
+                                tracker.t_last, **tc.range_rate_args(get, tracker.radial_velocity))
+
+
+PATHS = {"main": ("torch", _main_chunk_looks), "torch": ("torch", None), "compiled": ("compiled", None)}
+"""The steps compared: ``main``, the step as it was before the compiled chain (the torch lockstep, the chunk's
+looks read from the whole store); ``torch``, ``chain = "torch"`` on this code (the looks gathered by
+Tracker.look_window); ``compiled``, ``chain = "compiled"`` (the default)."""
+
+
+def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
+    """The CV recipe's optimiser step of each of :data:`PATHS` in this one process: trainers of the same seed (the
+    same rows' episodes, the same initial weights; their weights then differ by rounding only), ``warmup`` steps
+    each, then ``repeats`` rounds, each timing one step of each in a rotating order (a load change on the shared
+    machine hits all). Returns a dict with the per-step medians, the ratios ``main / compiled`` and ``torch /
+    compiled`` of the medians and the load average before and after."""
+    import statistics
+    load0 = os.getloadavg()
+    runs = {p: _trainer(flights, batch, chunk, hidden, seed, c) for p, (c, _) in PATHS.items()}
+    own = bp.chunk_looks
+    times = {p: [] for p in runs}
+
+    def step(p):
+        bp.chunk_looks = PATHS[p][1] or own
+        try:
+            t0 = time.perf_counter()
+            bp.optimiser_step(*runs[p])
+            return time.perf_counter() - t0
+        finally:
+            bp.chunk_looks = own
+
+    names = list(runs)
+    for _ in range(warmup):
+        for p in names:
+            step(p)
+    for i in range(repeats):
+        for p in names[i % len(names):] + names[:i % len(names)]:
+            times[p].append(step(p))
+    med = {p: statistics.median(t) for p, t in times.items()}
+    return {"flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden, "repeats": repeats,
+            "s_per_step": med, "ratio_main": med["main"] / med["compiled"],
+            "ratio_torch": med["torch"] / med["compiled"],
+            "ratio_main_per_round": [a / b for a, b in zip(times["main"], times["compiled"])],
+            "times": times, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--batch", type=_positive_int, default=1000, help="episodes side by side (default 1000)")
@@ -96,19 +157,38 @@ def main(argv=None):
     p.add_argument("--flights", default=",".join(FLIGHTS), help=f"comma-separated subset of {','.join(FLIGHTS)}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="also write the results here")
+    p.add_argument("--chain", default="compiled", choices=bp.CHAINS, help="the CV model's chunk (default compiled)")
+    p.add_argument("--compare", type=_positive_int, default=None, metavar="N",
+                   help="instead: N interleaved rounds of one step as main ran it, one with chain=torch and one with "
+                        "chain=compiled in this process; prints the per-step ratios (the first flight distribution "
+                        "only)")
     a = p.parse_args(argv)
     flights = [f for f in a.flights.split(",") if f]
     if not flights or any(f not in FLIGHTS for f in flights):
         p.error(f"--flights must be a comma-separated subset of {','.join(FLIGHTS)}, got {a.flights!r}")
     torch.set_num_threads(1)
+    import numba
+    numba.set_num_threads(1)               # as train_backprop
     rec = load_hyperparams("backprop")
     chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
+    if a.compare:
+        r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed)
+        m, rr = r["s_per_step"], r["ratio_main_per_round"]
+        print(f"{flights[0]} flights, batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.compare} interleaved rounds, "
+              f"torch {torch.__version__}, 1 thread; median s/step: main {m['main']:.3f}, chain=torch "
+              f"{m['torch']:.3f}, chain=compiled {m['compiled']:.3f}\n  ratio main/compiled {r['ratio_main']:.2f}x "
+              f"(per round {min(rr):.2f}-{max(rr):.2f}), chain=torch/compiled {r['ratio_torch']:.2f}x; load average "
+              f"(1, 5, 15 min) before {', '.join(f'{v:.2f}' for v in r['loadavg_before'])}, after "
+              f"{', '.join(f'{v:.2f}' for v in r['loadavg_after'])}")
+        if a.json:
+            Path(a.json).write_text(json.dumps(r, indent=2))
+        return r
     res = {"torch": torch.__version__, "threads": torch.get_num_threads(), "loadavg_1min": os.getloadavg()[0],
            "results": []}
     print(f"batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.steps} timed steps, torch {torch.__version__}, "
           f"{torch.get_num_threads()} thread(s), load average {os.getloadavg()[0]:.2f}")
     for f in flights:
-        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed)
+        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed, a.chain)
         res["results"].append(r)
         print(f"  {f:9s} {r['seconds_per_step']:6.3f} s/step  {r['episodes_per_s']:7.1f} episodes/s  "
               f"{r['row_looks_per_s']:9.0f} row-looks/s  {r['scored_looks_per_s']:9.0f} scored looks/s  "

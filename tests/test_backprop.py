@@ -116,12 +116,30 @@ class _Recording(bp.CVQModel):
         return a, h
 
 
-def test_lockstep_observations_equal_the_env():
+class _RecordingCompiled(bp.CVQModel):
+    """The same records from the compiled chunk (chain="compiled"): the per-look head's action (a (B, H) state: the
+    pass without a graph, whose q the Tracker steps with) and the observation array as the network read it."""
+
+    def chunk_forward(self, tracker, layout, obs, looks):
+        self._obs = obs
+        self.active.extend(looks.scored.numpy().copy())
+        return super().chunk_forward(tracker, layout, obs, looks)
+
+    def _head(self, h):
+        a = super()._head(h)
+        if h.dim() == 2:
+            self.seen.append(self._obs.astype(np.float64))
+            self.actions.append(a.detach().numpy().copy())
+        return a
+
+
+@pytest.mark.parametrize("chain", bp.CHAINS)
+def test_lockstep_observations_equal_the_env(chain):
     hp, env_kwargs, cfg = bp.check_hp(_hp(chunk_looks=25))
     torch.manual_seed(3)
     ref = bp.make_model(hp, cfg)
-    model = _Recording(ref.input_size, ref.hidden_size, [], ref.levels_m_s2,
-                       tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+    model = (_Recording if chain == "torch" else _RecordingCompiled)(
+        ref.input_size, ref.hidden_size, [], ref.levels_m_s2, tuned_parameters()["kf"]["q_g"] * G0_M_S2, chain=chain)
     model.load_state_dict(ref.state_dict())
     with torch.no_grad():
         model.out.weight.normal_(0.0, 0.2)
@@ -152,10 +170,11 @@ def test_lockstep_observations_equal_the_env():
     assert compared > 3 * 100
 
 
-def test_lockstep_gradient_equals_finite_differences():
+@pytest.mark.parametrize("chain", bp.CHAINS)
+def test_lockstep_gradient_equals_finite_differences(chain):
     """With the output layer's weight at zero, q does not depend on the observation, so the loss of one chunk is a
     function of the output bias alone: autograd through the lockstep equals central differences."""
-    hp, _, cfg = bp.check_hp(_hp(chunk_looks=30, batch_episodes=3))
+    hp, _, cfg = bp.check_hp(_hp(chunk_looks=30, batch_episodes=3, chain=chain))
 
     def chunk_loss(bias, grad=False):
         torch.manual_seed(0)
@@ -174,6 +193,59 @@ def test_lockstep_gradient_equals_finite_differences():
     h = 1e-5
     fd = (chunk_loss(b0 + h) - chunk_loss(b0 - h)) / (2 * h)
     assert g != 0.0 and math.isclose(g, fd, rel_tol=1e-5)
+
+
+@pytest.mark.parametrize("rdot,head", [(False, []), (True, [6, 5])], ids=["position", "range_rate+head"])
+def test_compiled_chunk_equals_the_torch_lockstep(rdot, head):
+    """chain="compiled" against the reference chain="torch" over several chunks (rows finish episodes and start new
+    ones): the same loss and gradient (1e-10 relative), the same observations; the q the Tracker stepped with equals
+    the q the gradient is taken at to 1e-12 relative."""
+    # the evaluation's random flights (~165 looks): rows finish episodes within the test's chunks
+    env = {k: v for k, v in load_hyperparams("backprop")["env_kwargs"].items() if k not in ("scenario", "random_config")}
+    over = {"chunk_looks": 30, "batch_episodes": 5, "head": head, "env_kwargs": {**env, "radial_velocity": rdot}}
+    res = {}
+    for chain in bp.CHAINS:
+        model, cfg, hp = _model(_hp(chain=chain, **over), seed=4, scale=0.5)
+        trainer = bp.StreamingTrainer(model, cfg, 5, 30, 7)
+        out = []
+        for _ in range(8):
+            model.zero_grad()
+            loss, _ = trainer.chunk()
+            loss.backward()
+            out.append((float(loss.detach()), [p.grad.clone() for p in model.parameters()], trainer.obs.copy(),
+                        model.chunk_q))
+        res[chain] = out
+    assert trainer.episodes_done >= 2 and trainer.tracker.radial_velocity == rdot
+    for (lt, gt, ot, _), (lc, gc, oc, (q_tracker, q_chain)) in zip(res["torch"], res["compiled"]):
+        assert abs(lc / lt - 1.0) < 1e-10
+        for a, b in zip(gc, gt):
+            assert float((a - b).abs().max()) <= 1e-10 * float(b.abs().max())
+        np.testing.assert_allclose(oc, ot, rtol=1e-5, atol=1e-6)     # float32 observations
+        np.testing.assert_allclose(q_chain, q_tracker, rtol=1e-12, atol=0)
+
+
+def test_chunk_looks_equal_the_full_store():
+    """backprop.chunk_looks (Tracker.look_window: the chunk's looks only) equals looks_from_arrays over look_data."""
+    from radar_env.filters import torch_chain as tc
+    model, cfg, _ = _model(_hp(), scale=0.5)
+    trainer = bp.StreamingTrainer(model, cfg, 4, 30, 2)
+    for _ in range(6):
+        tr = trainer.tracker
+        k0 = tr.k.copy()
+        cut = np.minimum(tr.n_looks, k0 + 30)
+        got = bp.chunk_looks(tr, k0, cut)
+        get = tr.look_data
+        ref = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
+                                   tr.t_last)
+        for f in ref._fields:
+            a, b = getattr(got, f), getattr(ref, f)
+            if f == "rdot":
+                assert a is None and b is None
+            elif torch.is_tensor(b):
+                assert a.dtype == b.dtype and torch.equal(torch.nan_to_num(a), torch.nan_to_num(b)), f
+            else:
+                assert np.array_equal(a, b), f
+        trainer.chunk()
 
 
 # ------------------------------------------------------------------------------------------------ acting in the env
@@ -291,6 +363,15 @@ def test_check_hp_refusals():
     del hp["learning_rate"]
     with pytest.raises(ValueError, match="missing"):
         bp.check_hp(hp)
+    with pytest.raises(ValueError, match="--hp chain"):
+        bp.check_hp(_hp(chain="numba"))
+    # chain is optional (the recipes' files leave it out, so that their configs, which a resume compares, are as
+    # before): absent, the model compiles; "torch" is the reference lockstep
+    assert "chain" not in load_hyperparams("backprop") and "chain" not in _hp()
+    hp, _, cfg = bp.check_hp(_hp())
+    assert "chain" not in hp and bp.make_model(hp, cfg).chain == "compiled"
+    hp, _, cfg = bp.check_hp(_hp(chain="torch"))
+    assert bp.make_model(hp, cfg).chain == "torch"
 
 
 def test_training_run_folder_resume_and_refusal(tmp_path):
@@ -437,6 +518,10 @@ def test_bench_backprop_runs_with_tiny_settings(tmp_path):
     assert r["row_looks_per_s"] > 0 and 0 < r["numba_share"] < 1 and json.loads(out.read_text())["results"]
     with pytest.raises(SystemExit):
         mod.main(["--flights", "nope"])
+    r = mod.main(["--batch", "4", "--chunk", "5", "--hidden", "4", "--flights", "random", "--compare", "2",
+                  "--json", str(out)])
+    assert set(r["s_per_step"]) == {"main", "torch", "compiled"} and r["ratio_main"] > 0 and r["ratio_torch"] > 0
+    assert len(r["times"]["compiled"]) == 2 and json.loads(out.read_text())["ratio_main"] == r["ratio_main"]
 
 
 def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():

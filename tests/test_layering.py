@@ -1,7 +1,7 @@
 """Layers only look down: radar_env (simulation, filters, env) knows nothing of baselines or agents, baselines
 never imports agents, the simulation and filter modules import without gymnasium, and only
-radar_env.filters.torch_chain (the differentiable chain) and radar_env.filters.torch_imm (the IMM built from its
-blocks) need torch: radar_env and baselines import without it. Inside radar_env the sub-packages are floors
+radar_env.filters.torch_chain (the differentiable chain), radar_env.filters.torch_imm (the IMM built from its
+blocks) and radar_env.filters.compiled_chain (the chain's compiled CV copy) need torch: radar_env and baselines import without it. Inside radar_env the sub-packages are floors
 (common < sim < filters < envs): each imports only the ones below it (test_radar_env_floors)."""
 
 import ast
@@ -96,8 +96,9 @@ def test_radar_env_and_baselines_import_without_torch():
 
 def test_only_torch_chain_imports_torch_in_radar_env():
     users = {str(p.relative_to(ROOT)) for p in _files("radar_env") if "torch" in _imported_modules(p)}
-    # the differentiable chain and the IMM built on it
-    assert users == {"radar_env/filters/torch_chain.py", "radar_env/filters/torch_imm.py"}
+    # the differentiable chain, the IMM built on it and the chain's compiled CV copy (its autograd Function)
+    assert users == {"radar_env/filters/torch_chain.py", "radar_env/filters/torch_imm.py",
+                     "radar_env/filters/compiled_chain.py"}
 
 
 def _imported_modules(path):
@@ -241,7 +242,7 @@ GYM_LAYER = {"radar_env", "radar_env.envs.env", "radar_env.envs.single_env", "ra
              "radar_env.envs.reference"}
 """The only radar_env modules that import gymnasium (``radar_env`` itself: the registration, inside a try;
 ``reference``: the reference page's generator, which builds every registered env)."""
-TORCH_MODULES = {"radar_env.filters.torch_chain", "radar_env.filters.torch_imm"}
+TORCH_MODULES = {"radar_env.filters.torch_chain", "radar_env.filters.torch_imm", "radar_env.filters.compiled_chain"}
 
 
 def _floor(mod):

@@ -79,7 +79,8 @@ from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides, finish_run, load_hyperparams,
                                   mark_failed, open_run_folder, run_paths, write_run_files)
 
-__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "LOSSES", "check_hp", "train_backprop",
+__all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
+           "train_backprop", "chunk_looks",
            "make_model", "StreamingTrainer", "lockstep", "forward_episodes", "optimiser_step", "MAX_TRAIN_SEED"]
 
 DTYPE = torch.float64
@@ -90,6 +91,12 @@ squares; ``normalised``: the squared position error in units of the plot noise (
 weighs a look on a precise radar as much as one on a coarse radar."""
 MAX_TRAIN_SEED = SELECTION_SEED_BASE
 """Training seeds ``S`` lie in ``[0, 900_000)``: below the selection suites' seeds."""
+CHAINS = ("compiled", "torch")
+"""The CV model's chunk (hyperparameter ``chain``, optional, default ``compiled``): ``compiled``, the look loop
+steps only the GRU, the numba Tracker and the observation, then the compiled CV chain
+(:mod:`radar_env.filters.compiled_chain`, numba forward and adjoint) runs the chunk at once
+(:meth:`CVQModel.chunk_forward`); ``torch``, the reference: the lockstep over the torch chain, one look at a
+time. The same gradient to rounding; ``imm_cv_ct`` always runs its torch lockstep."""
 
 
 # ================================================================================================= the models
@@ -133,6 +140,12 @@ class ChainModel(torch.nn.Module):
     def step(self, looks, j, obs):
         raise NotImplementedError
 
+    def chunk_forward(self, tracker, layout, obs, looks):
+        """The chunk's position estimates ``x (B, J, 4)`` (a graph), stepping ``tracker`` through the chunk and
+        updating ``obs`` in place (:func:`lockstep`'s contract). Default: :func:`lockstep` over :meth:`step`; a model
+        may override it with a faster equivalent (:meth:`CVQModel.chunk_forward`)."""
+        return lockstep(self, tracker, layout, obs, looks)
+
     def architecture(self):
         raise NotImplementedError
 
@@ -168,8 +181,11 @@ class CVQModel(ChainModel):
 
     kind = "cv"
 
-    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2):
+    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2, chain="compiled"):
         super().__init__()
+        if chain not in CHAINS:
+            raise ValueError(f"chain must be one of {list(CHAINS)}, got {chain!r}")
+        self.chain = chain
         self.levels_m_s2 = np.asarray(q_levels_m_s2, dtype=np.float64)
         self.l0, self.l1 = math.log10(self.levels_m_s2[0]), math.log10(self.levels_m_s2[-1])
         if not self.levels_m_s2[0] < q_init_m_s2 < self.levels_m_s2[-1]:
@@ -188,15 +204,20 @@ class CVQModel(ChainModel):
             self.out.weight.zero_()
             self.out.bias.fill_(math.atanh(a0))
         self.h = self.state = None
+        self.chunk_q = None
 
     # ---- the network
     def action(self, obs, h):
         """``(a (B,), h' (B, H))`` for observations ``obs (B, F)`` and state ``h``."""
         h = self.gru(obs, h)
+        return self._head(h), h
+
+    def _head(self, h):
+        """``a = tanh(out(head(h)))`` over any leading axes of ``h (..., H)``: ``(...)``."""
         y = h
         for layer in self.head:
             y = torch.tanh(layer(y))
-        return torch.tanh(self.out(y))[:, 0], h
+        return torch.tanh(self.out(y))[..., 0]
 
     def q_of_action(self, a):
         """The env's action map in torch (differentiable)."""
@@ -223,6 +244,46 @@ class CVQModel(ChainModel):
         # the numba Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
         q_np = actions_to_q_m_s2(a.detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
         return rec.x, q_np
+
+    def chunk_forward(self, tracker, layout, obs, looks):
+        """The chunk with the compiled chain (``chain = "compiled"``; ``"torch"``: :func:`lockstep` over :meth:`step`).
+
+        The observation never depends on the differentiable chain (the numba Tracker makes it), so the chain need
+        not run look by look: the loop steps only the GRU (with its graph), the head without a graph for the
+        Tracker's q, the Tracker and the env's layout (the next observation); then, once, the head over all looks'
+        GRU states gives ``q (B, J)`` and the compiled chain (:func:`radar_env.filters.compiled_chain.cv_run`: numba
+        forward and adjoint, one autograd node) the estimates. The GRU's states are the same tensors in both; the
+        head's product over ``(B, J, H)`` instead of ``(B, H)`` may round differently, so the q the gradient is
+        taken at equals the q the Tracker stepped with to ~1e-16 relative (``self.chunk_q = (tracker q, chain q)``
+        of the last chunk; tested to 1e-12). The GRU keeps torch's autograd: a hand-written reverse pass of it (numba
+        gates, products per look) measured no faster, the cell being bound by its products.
+        """
+        if self.chain == "torch":
+            return super().chunk_forward(tracker, layout, obs, looks)
+        from radar_env.filters.compiled_chain import cv_run
+        B, J = looks.B, looks.J
+        active = looks.scored.numpy()
+        h = self.h.detach()
+        hs = []
+        q_tr = np.empty((B, J))
+        for j in range(J):
+            h = self.gru(torch.from_numpy(obs.astype(np.float64)), h)
+            hs.append(h)
+            with torch.no_grad():
+                a = self._head(h)
+            # the Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
+            q = q_tr[:, j] = actions_to_q_m_s2(a.numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
+            rows = np.flatnonzero(active[j])
+            if rows.size == B:
+                obs[:] = layout.encode(tracker.step(q), q)
+            elif rows.size:
+                q = q[rows]
+                obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+        self.h = h.detach()
+        q = self.q_of_action(self._head(torch.stack(hs, 1)))
+        self.chunk_q = (q_tr, q.detach().numpy())
+        x, self.state = cv_run(self.state, looks, q)
+        return x
 
     def architecture(self):
         return {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
@@ -252,7 +313,7 @@ class CVQModel(ChainModel):
         from baselines.tuned_params import tuned_parameters
         levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         return cls(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
-                   tuned_parameters()["kf"]["q_g"] * G0_M_S2)
+                   tuned_parameters()["kf"]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))
 
 
 def gru_weights(model, shapes):
@@ -318,9 +379,13 @@ HP_SPEC = {
                        "a JSON object {suite: runs >= 1}"),
     "select_on": ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names"),
     "env_kwargs": ((lambda v: isinstance(v, dict)), "a JSON object of RadarTrack-v0 arguments"),
+    "chain": ((lambda v: v in CHAINS), f"one of {list(CHAINS)}"),
 }
 """Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
 ``{key: (check, what it must be)}``."""
+HP_OPTIONAL = ("chain",)
+"""Keys that may be absent (then their default: ``chain`` ``compiled``); absent from the recipes' files, so that
+their runs' ``config.json`` (what a resume compares) is the same as before the key existed."""
 
 
 def check_hp(hp):
@@ -333,7 +398,7 @@ def check_hp(hp):
         ok, what = HP_SPEC[k]
         if not ok(v):
             raise ValueError(f"--hp {k}: must be {what}, got {v!r}")
-    missing = [k for k in HP_SPEC if k not in hp]
+    missing = [k for k in HP_SPEC if k not in hp and k not in HP_OPTIONAL]
     if missing:
         raise ValueError(f"--hp: missing hyperparameter(s) {missing} (agents/training/hyperparams/backprop.toml "
                          "gives every one)")
@@ -413,11 +478,10 @@ class StreamingTrainer:
         self.model.begin_chunk(tr)
         k0 = tr.k.copy()
         cut = np.minimum(tr.n_looks, k0 + self.C)
+        looks = chunk_looks(tr, k0, cut)
         get = tr.look_data
-        looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut, k0,
-                                     tr.t_last, **tc.range_rate_args(get, tr.radial_velocity))
         active = looks.scored.numpy()                              # (J, B): the row has a look at column j
-        x = lockstep(self.model, tr, self.layout, self.obs, looks)
+        x = self.model.chunk_forward(tr, self.layout, self.obs, looks)
         self.row_looks += self.B * looks.J
         self.scored_looks += int(active.sum())
         if self.loss == "position_mse":
@@ -428,6 +492,19 @@ class StreamingTrainer:
                                   at("bearing_noise_std_rad"))
         w = torch.from_numpy(np.where(active.T, 1.0 / sig ** 2, 0.0))
         return (tc.position_sq_error(x, looks) * w).sum() / looks.scored.sum(), looks
+
+
+def chunk_looks(tracker, k0, cut):
+    """:func:`radar_env.filters.torch_chain.looks_from_arrays` of every row's looks ``k0[b] .. cut[b] - 1`` (the
+    tracker's stored looks; ``t_last`` the tracker's), read through :meth:`radar_env.filters.tracking.Tracker.look_window`
+    (only the chunk's looks are gathered) and equal to building it from ``tracker.look_data`` (tested): the looks'
+    ``start_index``, ``n_looks`` and ``cols`` index the tracker's stored looks, as there."""
+    J = int((cut - k0).max())
+    get = tracker.look_window(k0, max(J, 1))
+    looks = tc.looks_from_arrays(get("t_s"), get("detected"), get("z_m"), get("R_m2"), get("truth"), cut - k0,
+                                 np.zeros_like(k0), tracker.t_last, **tc.range_rate_args(get, tracker.radial_velocity))
+    cols = np.minimum(k0[:, None] + np.arange(looks.J)[None, :], tracker.look_data("t_s").shape[1] - 1)
+    return looks._replace(start_index=k0.copy(), n_looks=np.asarray(cut, np.int64).copy(), cols=cols)
 
 
 def lockstep(model, tracker, layout, obs, looks, on_look=None):

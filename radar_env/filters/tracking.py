@@ -355,6 +355,29 @@ class Tracker:
         v.flags.writeable = False
         return v
 
+    def look_window(self, start, n):
+        """The looks ``start[b] .. start[b] + n - 1`` of every row (clipped to the stored looks, as a column past a
+        row's episode reads its padding), copied in one gather: returns ``get(name)``, which gives field ``name``
+        over that window, ``(B, n, ...)``, as :meth:`look_data` over all stored looks. For a trainer reading a chunk
+        of looks: ``look_data("detected")`` compares the whole store (B x capacity looks) on every call.
+
+        Args:
+            start: (B,) int, each row's first look. n: looks per row (>= 1).
+        """
+        start = np.asarray(start, dtype=np.int64).reshape(-1)
+        if start.shape != (self.B,) or int(n) < 1:
+            raise ValueError(f"look_window: need start of shape ({self.B},) and n >= 1")
+        cols = np.minimum(start[:, None] + np.arange(int(n))[None, :], max(self._cap - 1, 0))
+        blk = self._looks[np.arange(self.B)[:, None], cols]           # (B, n, W_LOOK), a copy
+
+        def get(name):
+            if name in self._FLAG_COLUMNS:
+                return blk[:, :, self._FLAG_COLUMNS[name]] != 0.0
+            c, tail = _k.LOOK_COLUMNS[name]
+            w = int(np.prod(tail)) if tail else 1
+            return blk[:, :, c:c + w].reshape((self.B, int(n)) + tail)
+        return get
+
     def _look_field(self, rows, k, name):
         """Field ``name`` of look ``k[i]`` of row ``rows[i]`` (n, ...), read from the packed looks."""
         if name in self._FLAG_COLUMNS:
