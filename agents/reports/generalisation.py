@@ -29,7 +29,8 @@ from radar_env.sim.episode import stack_episodes
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.evaluation.runner import run_policy
-from agents.policies.bundle import BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_POLICY
+from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_LEARNED_IMM_PRIOR,
+                                    BUNDLED_POLICY)
 from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
@@ -63,6 +64,9 @@ IMM_PPO_RECIPE_DIR = BUNDLED_IMM_PPO.parent / "seeds"
 """Every trained seed of the PPO learned IMM's recipe: ``imm_ppo_s<seed>/policy.zip`` with its ``env_config.json``
 (``tracker="imm_cv_ct"``) and numpy export."""
 IMM_PPO_RECIPE = "imm_ppo"
+IMM_PRIOR_RECIPE_DIR = BUNDLED_LEARNED_IMM_PRIOR.parent / "seeds"
+"""Every trained seed of the learned IMM's recipe on the random suites' own flights: ``imm_bp_prior_s<seed>/``."""
+IMM_PRIOR_RECIPE = "imm_bp_prior"
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -77,6 +81,9 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            IMM_RECIPE: "learned IMM: imm_cv_ct whose per-look mode-switch probabilities and noises a GRU sets, "
                        "trained end to end by backpropagation (agents/training/hyperparams/backprop_imm_cv_ct.toml; "
                        "radar-track train --method backprop --tracker imm_cv_ct)",
+           IMM_PRIOR_RECIPE: "learned IMM on the random suites' own flights: the learned IMM's recipe with the "
+                             "random and random_radars suites' flight laws (RandomScenarioConfig's defaults, 70 % random "
+                             "radars) instead of the broad ones (agents/bundled/learned_imm_prior/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
@@ -285,6 +292,9 @@ def targets(data):
     if "policy_imm_ppo" in sp["random"]["policies"]:
         seeds = data["recipes"][IMM_PPO_RECIPE]["seeds"] if IMM_PPO_RECIPE in data["recipes"] else []
         out += imm_targets(sp, "policy_imm_ppo", seeds)
+    if "policy_imm_bp_prior" in sp["random"]["policies"]:
+        seeds = data["recipes"][IMM_PRIOR_RECIPE]["seeds"] if IMM_PRIOR_RECIPE in data["recipes"] else []
+        out += imm_targets(sp, "policy_imm_bp_prior", seeds, _train_minutes(IMM_PRIOR_RECIPE_DIR, seeds))
     return out
 
 
@@ -377,7 +387,8 @@ def imm_targets_readme(data):
     """The README's compact table of the learned IMMs' targets (held-out seeds): one row per target, one column per
     learned IMM with its recipe's seeds (the full rows are in :func:`targets_table`)."""
     sp = data["spread"]
-    cols = [(p, r) for p, r in (("policy_imm_bp", IMM_RECIPE), ("policy_imm_ppo", IMM_PPO_RECIPE))
+    cols = [(p, r) for p, r in (("policy_imm_bp", IMM_RECIPE), ("policy_imm_ppo", IMM_PPO_RECIPE),
+                                ("policy_imm_bp_prior", IMM_PRIOR_RECIPE))
             if p in sp["random"]["policies"]]
     if not cols:
         return "(no learned IMM was evaluated)"
@@ -490,12 +501,13 @@ def main(argv=None):
         return _add_recipe(args, docs, t0)
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
     for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM),
-                       ("policy_imm_ppo", BUNDLED_IMM_PPO)):
+                       ("policy_imm_ppo", BUNDLED_IMM_PPO), ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR)):
         if path.is_file():
             bundle[name] = load_policy(path)
     seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
                                              **recipe_policies(IMM_RECIPE_DIR),
-                                             **recipe_policies(IMM_PPO_RECIPE_DIR)}.items()}
+                                             **recipe_policies(IMM_PPO_RECIPE_DIR),
+                                             **recipe_policies(IMM_PRIOR_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -524,12 +536,13 @@ def _add_recipe(args, docs, t0):
         raise SystemExit(f"error: --add-recipe: docs/generalisation.json was computed with --seed "
                          f"{data.get('seed')}, not {args.seed}")
     r = args.add_recipe
-    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR)
+    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR)
              for n, p in recipe_policies(d).items() if n.rsplit("_s", 1)[0] == r}
     if not paths:
         raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
     pols = {n: load_policy(p) for n, p in paths.items()}
-    bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO)}
+    bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO),
+               IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR)}
     if r in bundled and bundled[r][1].is_file():
         pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
