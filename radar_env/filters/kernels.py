@@ -423,7 +423,7 @@ def _update(x, P, z, R, det, xo, Po, nu, S):
     return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _update_nis(x, P, z, R, det, xo, Po, nu, S):
     """Kalman update with a converted position plot (H = [I 0]) by :func:`_gain_update`. Writes the posterior into
     xo, Po, the innovation and its covariance into nu, S. A missed look (``det`` False)
@@ -584,7 +584,7 @@ def _bank_reset(bf, bi, bb, n, seed_xy, seed_t, n_seed, x, t, seed_heading):
         _bank_push_heading(bf, bi, n, hd, math.atan2(x[2], x[3]), t)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, z, t, dt, bearing, rdot, det,
                  site, of, ob):
     """One scan of one row's feature bank (see features.FeatureBank.update); writes the float outputs into
@@ -684,7 +684,7 @@ def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, 
                 math.hypot(x[2], x[3]), math.atan2(x[2], x[3]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _preview_sh(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, FPF, xh, of, speed, heading):
     """:func:`_preview` with ``speed = hypot(x[2], x[3])`` and ``heading = atan2(x[2], x[3])`` given (the step
     takes them from the feature bank, which computed them from the same posterior)."""
@@ -734,7 +734,12 @@ def _scratch():
             np.empty(4))
 
 
-@njit(cache=True)
+# The per-look chain (_step_row, _update_nis, _bank_update, _preview_sh; the env's _emit, _encode_row,
+# _reward_terms) is inlined at numba's IR level into the few kernels that call it (k_env, k_tracker_step, the k_*
+# wrappers): as separate functions each call passed dozens of array structs and kept the reference counts of the
+# views it made, about a quarter of the env's step at 1,024 rows (docs/speed.md). Each kernel compiles its own
+# copy; the env's first use compiles only k_env, so its compilation time is unchanged. The arithmetic is the same.
+@njit(cache=True, inline="always")
 def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP,
               u, R, zz, xh):
     """One look of tracker row ``r``: predict (CV in closed form; CT, or a known input, through F), update,
