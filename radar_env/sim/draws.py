@@ -377,17 +377,17 @@ def _measure_look(key, c, K, k, site, tx, ty, tvx, tvy):
     """draw_episode's plot of look ``k`` (of K) by ``site`` (a site-table row) of the truth ``(tx, ty, tvx, tvy)``,
     from counters ``c + k`` (detection) and ``c + K + 4k ...`` (noise). Returns (detected, range, bearing, radial
     velocity, z x, z y, R00, R01, R11); the plot values are NaN where missed."""
+    if not _u01(key, c + k) < site[_PD]:
+        # a missed look's noise counters are reserved but not evaluated (counter-based: the stream is the same)
+        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     sx, sy = site[_SX], site[_SY]
     sr, sb, sv = site[_SR], site[_SB], site[_SV]
     dx, dy = tx - sx, ty - sy
     r = math.hypot(dx, dy)
     br = math.atan2(dx, dy)
     rd = (dx * tvx + dy * tvy) / (r if r > 0 else 1.0)
-    d = _u01(key, c + k) < site[_PD]
     e0, e1 = _normal_pair(key, c + K + 4 * k)
     e2 = _normal(key, c + K + 4 * k + 2)
-    if not d:
-        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     rm = max(r + site[_RB] + sr * e0, 0.0)
     bm = br + site[_BB] + sb * e1
     bm = math.pi - ((math.pi - bm) % _TWO_PI)      # wrap to (-pi, pi]
