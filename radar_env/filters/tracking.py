@@ -219,12 +219,9 @@ class Tracker:
     n_looks = _packed("_it", _k.I_N, 1, (), "(B,) looks in each row's episode (a view).")
 
     # ------------------------------------------------------------------------------------------ episode data
-    def _ensure_capacity(self, K, headroom=1.0):
-        """Room for ``K`` looks per row. ``headroom`` > 1 grows a filled store to at least that multiple of its
-        capacity: the env's autoreset meets ever longer episodes one at a time, and each growth copies every row's
-        looks (the padding beyond a row's looks is never read, so the capacity changes no result)."""
+    def _ensure_capacity(self, K):
         if K > self._cap:
-            self._grow(max(K, int(self._cap * headroom)) if self._cap else K)
+            self._grow(K)
 
     def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up
