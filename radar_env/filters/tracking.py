@@ -37,6 +37,7 @@ env runs the same row step (:func:`radar_env.filters.kernels._step_row`) from it
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -219,9 +220,10 @@ class Tracker:
     n_looks = _packed("_it", _k.I_N, 1, (), "(B,) looks in each row's episode (a view).")
 
     # ------------------------------------------------------------------------------------------ episode data
-    def _ensure_capacity(self, K):
+    def _ensure_capacity(self, K, headroom=1.0):
+        """Room for ``K`` looks per row; when it grows, to ``ceil(headroom * K)`` looks."""
         if K > self._cap:
-            self._grow(K)
+            self._grow(max(K, math.ceil(headroom * K)))
 
     def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up

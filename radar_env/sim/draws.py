@@ -865,6 +865,13 @@ def _fixed_args(scenario, radar):
                      f"draw_setup, got {type(scenario).__name__}")
 
 
+_HEADROOM = 1.25
+"""A tracker filled by :meth:`LookDrawer.draw` with random flights grows its look store to this multiple of the
+longest episode: the longest of many episodes keeps growing one record at a time, and each growth copies (and
+pages in) every row's looks, about a second at 4,096 rows. The padding is bounded (:func:`_measure_looks`), so the
+headroom costs memory only."""
+
+
 class LookDrawer:
     """Draws episodes of one scenario straight into a :class:`radar_env.filters.tracking.Tracker`'s packed looks (the env's
     resets): the same kernels and streams as :func:`draw_episodes`, so row ``r`` drawn with key ``k`` holds the
@@ -916,7 +923,7 @@ class LookDrawer:
             x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(self.name, keys, self.cfg, self.radar,
                                                                                 w, self.max_draws)
             _check_random_status(status, self.cfg, self.name, w, self.max_draws)
-            tracker._ensure_capacity(int(K.max()))
+            tracker._ensure_capacity(int(K.max()), _HEADROOM)
             k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, tracker._looks, tracker._it)
         else:
             sc, rd, place = self.fixed
