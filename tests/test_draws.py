@@ -246,3 +246,32 @@ def test_fixed_setup_and_trajectory_placement():
     assert np.all((r >= 20e3) & (r <= 60e3)) and len(np.unique(bt.site_xy_m[:, 0, 0])) == 50
     ref_site, _ = place_radar_site(np.random.default_rng(0), tr)   # same annulus rule (default 10-150 km)
     assert 10e3 <= np.hypot(*ref_site) <= 150e3
+
+
+@pytest.mark.parametrize("name", ["random", "bizup2002"])
+def test_look_drawer_pads_only_what_the_previous_episode_left(name):
+    """LookDrawer rewrites a row's looks up to its previous episode's end and one look beyond (not the whole store):
+    every look past n_looks is not detected, look n_looks repeats the last look, and the looks themselves equal
+    Tracker.load's of the same episodes (which pads the whole store)."""
+    from radar_env.filters.tracking import Tracker
+    from radar_env.sim.looks import L_DET
+    drawer = draws.LookDrawer.of(name, None, None, 12)
+    B = 6
+    tr, ref = Tracker(B), Tracker(B)
+    rows = np.arange(B, dtype=np.int64)
+    for rep in range(5):      # successive episodes of different lengths in the same rows
+        rngs = _rngs(range(100 * rep, 100 * rep + B))
+        keys = draws._keys(rngs)
+        drawer.draw(keys, rows, tr)
+        batch = draw_episodes(name, None, None, _rngs(range(100 * rep, 100 * rep + B)))
+        ref.load(rows, [batch.episode(i) for i in range(B)])
+        n = tr._it[:, 1]
+        assert np.array_equal(n, ref.n_looks)
+        for r in range(B):
+            k = int(n[r])
+            assert _same(tr._looks[r, :k], ref._looks[r, :k])
+            assert not tr._looks[r, k:, L_DET].any()
+            if k < tr._looks.shape[1]:
+                want = tr._looks[r, k - 1].copy()
+                want[L_DET] = 0.0
+                assert _same(tr._looks[r, k], want)

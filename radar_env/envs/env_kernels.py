@@ -113,7 +113,7 @@ def _scale(plan, j, v, lq0, lq1):
     return np.float32(_np_min(_np_max(o, plan[j, PL_LOW]), plan[j, PL_HIGH]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _encode_row(plan, lq0, lq1, of, dt, p00, p11, sr, sb, det, q_prev, out):
     """The observation of one step into ``out`` (F,) float32."""
     for j in range(plan.shape[0]):
@@ -151,7 +151,7 @@ def _plan(ep):
     return ep[a:a + F * W_PLAN].reshape((F, W_PLAN))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _reward_terms(x0, x1, lk, remaining, lost_gate, ep):
     """The reward's position and track-loss terms of the estimated position ``(x0, x1)`` at look ``lk``, with
     ``remaining`` looks after it; returns ``(position_error, track_lost, lost)`` (its NEES term:
@@ -171,7 +171,7 @@ def _reward_terms(x0, x1, lk, remaining, lost_gate, ep):
     return pos, tl, lost
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _emit(i, r, q, t_prev, lost_gate, ep, plan, st, it, looks, of, frames, new_episode, obs, fo, fs, bo):
     """Outputs of row ``r`` (output index ``i``) after a step or a track start: observation (stacked), the info's
     vectors and scalars, the reward's position and track-loss terms; returns (lost, done)."""

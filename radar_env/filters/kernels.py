@@ -416,10 +416,20 @@ def _predict_cv(x, P, dt, q, u, has_u, xo, Po):
 
 @njit(cache=True)
 def _update(x, P, z, R, det, xo, Po, nu, S):
+    """:func:`_update_nis` and the Gaussian log-likelihood of the innovation (0 on a missed look)."""
+    nis, det_s = _update_nis(x, P, z, R, det, xo, Po, nu, S)
+    if not det:
+        return 0.0, 0.0
+    return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
+
+
+@njit(cache=True, inline="always")
+def _update_nis(x, P, z, R, det, xo, Po, nu, S):
     """Kalman update with a converted position plot (H = [I 0]) by :func:`_gain_update`. Writes the posterior into
-    xo, Po, the innovation and its covariance into nu, S; returns (nis, loglik). A missed look (``det`` False)
-    leaves the prior unchanged (S from R = I, nu = 0, NIS 0, loglik 0; :func:`_pd_floor` only where the prior is
-    not positive definite to rounding). xo/Po must not alias x/P."""
+    xo, Po, the innovation and its covariance into nu, S. A missed look (``det`` False)
+    leaves the prior unchanged (S from R = I, nu = 0, NIS 0, det S 0; :func:`_pd_floor` only where the prior is
+    not positive definite to rounding). Returns ``(nis, det S)``: the env's step needs no log-likelihood, so its
+    logarithm is taken only by :func:`_update`. xo/Po must not alias x/P."""
     if det:
         r00, r01, r10, r11 = R[0, 0], R[0, 1], R[1, 0], R[1, 1]
         nu0, nu1 = z[0] - x[0], z[1] - x[1]
@@ -438,8 +448,7 @@ def _update(x, P, z, R, det, xo, Po, nu, S):
                 Po[i, j] = P[i, j]
         _pd_floor(Po, 4, P)
         return 0.0, 0.0
-    nis, det_s = _gain_update(x, P, 4, nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
-    return nis, -0.5 * (nis + 2.0 * LOG_2PI + math.log(det_s))
+    return _gain_update(x, P, 4, nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
 
 
 @njit(cache=True)
@@ -491,7 +500,13 @@ def _nis(n0, n1, a, b, c, d):
 @njit(cache=True)
 def _along_cross(n0, n1, a, b, c, d, vx, vy):
     """(nu_along, nu_cross) normalised; axes north/east below MIN_SPEED_M_S, 0 where a variance is <= 0."""
-    s = math.hypot(vx, vy)
+    return _along_cross_s(n0, n1, a, b, c, d, vx, vy, math.hypot(vx, vy))
+
+
+@njit(cache=True)
+def _along_cross_s(n0, n1, a, b, c, d, vx, vy, s):
+    """:func:`_along_cross` with the speed ``s = hypot(vx, vy)`` given: the step computes each speed once and
+    hands it to every feature that needs it (the same value, so the same bits)."""
     if s > MIN_SPEED_M_S:
         inv = 1.0 / s
         ax, ay = vx * inv, vy * inv
@@ -512,7 +527,15 @@ def _c_min(vx, vy, bearing, rdot, dt, min_dt):
     s = math.hypot(vx, vy)
     if not s > MIN_SPEED_M_S:
         return 0.0
-    h_prev = math.atan2(vx, vy)
+    return _c_min_sh(s, math.atan2(vx, vy), bearing, rdot, dt, min_dt)
+
+
+@njit(cache=True)
+def _c_min_sh(s, h_prev, bearing, rdot, dt, min_dt):
+    """:func:`_c_min` from the speed ``s = hypot(vx, vy)`` and heading ``h_prev = atan2(vx, vy)`` (computed once
+    per look by the caller; ``h_prev`` is read only above MIN_SPEED_M_S)."""
+    if not s > MIN_SPEED_M_S:
+        return 0.0
     r = rdot / s
     r = min(max(r, -1.0), 1.0)
     gamma = math.acos(r)
@@ -561,7 +584,7 @@ def _bank_reset(bf, bi, bb, n, seed_xy, seed_t, n_seed, x, t, seed_heading):
         _bank_push_heading(bf, bi, n, hd, math.atan2(x[2], x[3]), t)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, z, t, dt, bearing, rdot, det,
                  site, of, ob):
     """One scan of one row's feature bank (see features.FeatureBank.update); writes the float outputs into
@@ -571,14 +594,20 @@ def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, 
     pxy, pt, hd, ht, ou, fma, last, _ = _bank_offsets(n, N)
     # --- innovation features (held on misses)
     if det:
-        na, nc = _along_cross(nu[0], nu[1], S[0, 0], S[0, 1], S[1, 0], S[1, 1], x_prior[2], x_prior[3])
+        s_prior = math.hypot(x_prior[2], x_prior[3])
+        na, nc = _along_cross_s(nu[0], nu[1], S[0, 0], S[0, 1], S[1, 0], S[1, 1], x_prior[2], x_prior[3], s_prior)
         bf[last + H_NUA] = na
         bf[last + H_NUC] = nc
         bf[last + H_NIS] = _nis(nu[0], nu[1], S[0, 0], S[0, 1], S[1, 0], S[1, 1])
         bf[last + H_NUAFM] = (1.0 - fm_w) * bf[last + H_NUAFM] + fm_w * na
         bf[last + H_NUCFM] = (1.0 - fm_w) * bf[last + H_NUCFM] + fm_w * nc
         bf[last + H_NISFM] = (1.0 - fm_w) * bf[last + H_NISFM] + fm_w * bf[last + H_NIS]
-        bf[last + H_CMIN] = _c_min(x_prev[2], x_prev[3], bearing, rdot, dt, min_dt)
+        # the CV prediction without input keeps the velocity, so its speed is the prior's (reused when equal;
+        # hypot ignores the sign of a zero)
+        same_v = x_prev[2] == x_prior[2] and x_prev[3] == x_prior[3]
+        s_prev = s_prior if same_v else math.hypot(x_prev[2], x_prev[3])
+        bf[last + H_CMIN] = (_c_min_sh(s_prev, math.atan2(x_prev[2], x_prev[3]), bearing, rdot, dt, min_dt)
+                             if s_prev > MIN_SPEED_M_S else 0.0)
         bi[BI_NDET] += 1
         # --- FMA of |nu|
         bf[fma] = (1.0 - fma_w) * bf[fma] + fma_w * math.hypot(nu[0], nu[1])
@@ -634,7 +663,7 @@ def _bank_update(bf, bi, bb, par, x_prev, x_prior, P_prev, F, R, nu, S, x_post, 
             bb[BB_KL] = True
     for m in range(N_HELD):
         of[FB_HELD + m] = bf[last + m]
-    of[FB_SPEED] = math.hypot(x_post[2], x_post[3])
+    of[FB_SPEED] = math.hypot(x_post[2], x_post[3])     # (the step's preview reuses FB_SPEED and FB_HEAD)
     of[FB_HEAD] = h_post
     of[FB_RANGE] = math.hypot(x_post[0] - site[0], x_post[1] - site[1])
     nu_valid = bi[BI_NDET] > 0
@@ -651,6 +680,14 @@ def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, 
     """Features of the next plot against the q-free prediction (see tracking.preview_next_plot) into ``of``
     (W_PREVIEW). ``det`` False (missed or no next look) gives 0 for every plot feature. FPF (4,4) and xh (4,) are
     scratch."""
+    _preview_sh(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, FPF, xh, of,
+                math.hypot(x[2], x[3]), math.atan2(x[2], x[3]))
+
+
+@njit(cache=True, inline="always")
+def _preview_sh(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, FPF, xh, of, speed, heading):
+    """:func:`_preview` with ``speed = hypot(x[2], x[3])`` and ``heading = atan2(x[2], x[3])`` given (the step
+    takes them from the feature bank, which computed them from the same posterior)."""
     dt = t_next - t
     for m in range(W_PREVIEW):
         of[m] = 0.0
@@ -663,14 +700,14 @@ def _preview(x, P, t, det, t_next, z, R, bearing, rdot, rdot_std, site, min_dt, 
     s10 = FPF[1, 0] + R[1, 0]
     s11 = FPF[1, 1] + R[1, 1]
     n0, n1 = z[0] - xh[0], z[1] - xh[1]
-    na, nc = _along_cross(n0, n1, s00, s01, s10, s11, xh[2], xh[3])
+    na, nc = _along_cross_s(n0, n1, s00, s01, s10, s11, xh[2], xh[3], speed)   # xh's velocity is x's
     of[FP_NUA], of[FP_NUC] = na, nc
     of[FP_NIS] = _nis(n0, n1, s00, s01, s10, s11)
     dtf = max(dt, min_dt)
     dt2 = dtf * dtf
     phi = ((n0 * n0 + n1 * n1) - (s00 + s11)) / (0.5 * (dt2 * dt2))
     of[FP_QFIT] = math.sqrt(max(phi, 0.0))
-    of[FP_CMIN] = _c_min(x[2], x[3], bearing, rdot, dt, min_dt)
+    of[FP_CMIN] = _c_min_sh(speed, heading, bearing, rdot, dt, min_dt)
     l0, l1 = xh[0] - site[0], xh[1] - site[1]
     rng = max(math.hypot(l0, l1), 1.0)
     rdot_hat = (l0 * xh[2] + l1 * xh[3]) / rng
@@ -697,7 +734,12 @@ def _scratch():
             np.empty(4))
 
 
-@njit(cache=True)
+# The per-look chain (_step_row, _update_nis, _bank_update, _preview_sh; the env's _emit, _encode_row,
+# _reward_terms) is inlined at numba's IR level into the few kernels that call it (k_env, k_tracker_step, the k_*
+# wrappers): as separate functions each call passed dozens of array structs and kept the reference counts of the
+# views it made, about a quarter of the env's step at 1,024 rows (docs/speed.md). Each kernel compiles its own
+# copy; the env's first use compiles only k_env, so its compilation time is unchanged. The arithmetic is the same.
+@njit(cache=True, inline="always")
 def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP,
               u, R, zz, xh):
     """One look of tracker row ``r``: predict (CV in closed form; CT, or a known input, through F), update,
@@ -729,7 +771,7 @@ def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, 
         zz[i] = lk[L_Z + i]
         for j in range(2):
             R[i, j] = lk[L_R + 2 * i + j]
-    nis, _ = _update(xp, Pp, zz, R, det, xo, Po, nu, S)
+    nis, _ = _update_nis(xp, Pp, zz, R, det, xo, Po, nu, S)
     if det and par[PAR_RDOT] > 0.0:     # the radial velocity after the position (xh, FP: free scratch here)
         _rdot_look(xo, Po, lk, par[PAR_RDOT], xh, FP)
     # feature bank: plot inputs zeroed where missed (held features ignore them)
@@ -756,8 +798,9 @@ def _step_row(r, q, w, ct, known_input, st, it, looks, bf, bi, bb, par, xp, Pp, 
     for i in range(2):
         for j in range(2):
             R[i, j] = ln[L_R + 2 * i + j]
-    _preview(xr, Pr, t, det_n, t_n, ln[L_Z:L_Z + 2], R, ln[L_BEAR], ln[L_RDOT], ln[L_RDSTD],
-             ln[L_SITE:L_SITE + 2], MIN_DT_S, FP, xh, of[W_BANK_OUT:])
+    # the bank's speed and heading are those of xr (its x_post, copied above): not computed a second time
+    _preview_sh(xr, Pr, t, det_n, t_n, ln[L_Z:L_Z + 2], R, ln[L_BEAR], ln[L_RDOT], ln[L_RDSTD],
+                ln[L_SITE:L_SITE + 2], MIN_DT_S, FP, xh, of[W_BANK_OUT:], of[FB_SPEED], of[FB_HEAD])
     return nis
 
 

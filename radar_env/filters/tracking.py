@@ -37,6 +37,7 @@ env runs the same row step (:func:`radar_env.filters.kernels._step_row`) from it
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -219,7 +220,11 @@ class Tracker:
     n_looks = _packed("_it", _k.I_N, 1, (), "(B,) looks in each row's episode (a view).")
 
     # ------------------------------------------------------------------------------------------ episode data
-    def _ensure_capacity(self, K):
+    def _ensure_capacity(self, K, headroom=1.0):
+        """Room for ``K`` looks per row; when it grows, to ``ceil(headroom * K)`` looks. Refused (one line) before
+        any allocation when the looks alone would not fit the machine."""
+        if K <= self._cap:
+            return
         from ..sim.radar import MAX_LOOKS
         need = self.B * K * _k.W_LOOK * 8           # before any allocation: rows x looks x the look record
         mem = _physical_memory()
@@ -228,8 +233,7 @@ class Tracker:
                              f"{need / 2**30:.3g} GiB for their looks alone, more than this machine can hold (at most "
                              f"{MAX_LOOKS:,} looks per episode, half of its memory); give a longer scan_period_s, a "
                              "shorter flight or fewer rows")
-        if K > self._cap:
-            self._grow(K)
+        self._grow(max(K, math.ceil(headroom * K)))
 
     def load(self, rows, episodes, known_input=False):
         """Put ``episodes`` into ``rows``, start their tracks (two-hit + warm-up) and return the last warm-up

@@ -377,17 +377,17 @@ def _measure_look(key, c, K, k, site, tx, ty, tvx, tvy):
     """draw_episode's plot of look ``k`` (of K) by ``site`` (a site-table row) of the truth ``(tx, ty, tvx, tvy)``,
     from counters ``c + k`` (detection) and ``c + K + 4k ...`` (noise). Returns (detected, range, bearing, radial
     velocity, z x, z y, R00, R01, R11); the plot values are NaN where missed."""
+    if not _u01(key, c + k) < site[_PD]:
+        # a missed look's noise counters are reserved but not evaluated (counter-based: the stream is the same)
+        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     sx, sy = site[_SX], site[_SY]
     sr, sb, sv = site[_SR], site[_SB], site[_SV]
     dx, dy = tx - sx, ty - sy
     r = math.hypot(dx, dy)
     br = math.atan2(dx, dy)
     rd = (dx * tvx + dy * tvy) / (r if r > 0 else 1.0)
-    d = _u01(key, c + k) < site[_PD]
     e0, e1 = _normal_pair(key, c + K + 4 * k)
     e2 = _normal(key, c + K + 4 * k + 2)
-    if not d:
-        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     rm = max(r + site[_RB] + sr * e0, 0.0)
     bm = br + site[_BB] + sb * e1
     bm = math.pi - ((math.pi - bm) % _TWO_PI)      # wrap to (-pi, pi]
@@ -429,10 +429,12 @@ def _measure_row(b, key, c, K, Kmax, sites, t_s, site_index, site_xy, truth, acc
 
 
 @njit(cache=True)
-def _measure_looks(r, key, c, K, sites, idx, looks):
+def _measure_looks(r, key, c, K, sites, idx, looks, old_n):
     """The plots of row ``r`` straight into the tracker's packed looks ``looks (B, K_cap, W_LOOK)`` (time, truth
-    and its acceleration, turn rate and maneuvering flag already there; :func:`_measure_look`), then the tracker's
-    padding (the last look repeated, not detected)."""
+    and its acceleration, turn rate and maneuvering flag already there; :func:`_measure_look`), then the padding:
+    the last look repeated, not detected, over the ``old_n`` looks of the row's previous episode and one look
+    beyond. Looks past those are left as they are: padding of an earlier episode, not detected, never read (the
+    chain reads a row's looks up to its ``n_looks``; rewriting the whole capacity cost a quarter of the draw)."""
     for k in range(K):
         lk = looks[r, k]
         site = sites[idx[k]]
@@ -443,7 +445,7 @@ def _measure_looks(r, key, c, K, sites, idx, looks):
          lk[_lk.L_R + 3]) = _measure_look(key, c, K, k, site, lk[tr], lk[tr + 1], lk[tr + 2], lk[tr + 3])
         lk[_lk.L_R + 2] = lk[_lk.L_R + 1]
         lk[_lk.L_DET] = 1.0 if d else 0.0
-    for k in range(K, looks.shape[1]):
+    for k in range(K, min(looks.shape[1], max(K, old_n) + 1)):
         for col in range(looks.shape[2]):
             looks[r, k, col] = looks[r, K - 1, col]
         looks[r, k, _lk.L_DET] = 0.0
@@ -469,7 +471,7 @@ def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, look
             i, lk[_lk.L_TACC], lk[_lk.L_TACC + 1], lk[_lk.L_TTURN], man = _truth_look(
                 t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_lk.L_TRUTH:_lk.L_TRUTH + 4])
             lk[_lk.L_MAN] = 1.0 if man else 0.0
-        _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks)
+        _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks, it[r, _lk.I_N])
         it[r, _lk.I_N] = K[j]
 
 
@@ -488,7 +490,7 @@ def k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth0, accel0, turn0, m
             lk[_lk.L_TACC], lk[_lk.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
             lk[_lk.L_TTURN] = turn0[k]
             lk[_lk.L_MAN] = 1.0 if man0[k] else 0.0
-        _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks)
+        _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks, it[r, _lk.I_N])
         it[r, _lk.I_N] = K
 
 
@@ -867,6 +869,13 @@ def _fixed_args(scenario, radar):
                      f"draw_setup, got {type(scenario).__name__}")
 
 
+_HEADROOM = 1.25
+"""A tracker filled by :meth:`LookDrawer.draw` with random flights grows its look store to this multiple of the
+longest episode: the longest of many episodes keeps growing one record at a time, and each growth copies (and
+pages in) every row's looks, about a second at 4,096 rows. The padding is bounded (:func:`_measure_looks`), so the
+headroom costs memory only."""
+
+
 class LookDrawer:
     """Draws episodes of one scenario straight into a :class:`radar_env.filters.tracking.Tracker`'s packed looks (the env's
     resets): the same kernels and streams as :func:`draw_episodes`, so row ``r`` drawn with key ``k`` holds the
@@ -917,13 +926,14 @@ class LookDrawer:
 
     def draw(self, keys, rows, tracker):
         """Episodes from ``keys`` (uint64, one per row) into ``rows`` (int64) of ``tracker``: looks, look counts and
-        names (the track is not started). Raises as :func:`draw_episodes`."""
+        names (the track is not started). Raises as :func:`draw_episodes`. A row's looks past its ``n_looks`` are
+        not detected; the first of them repeats its last look, the others may be an earlier episode's padding."""
         w = self.warmup_scans
         if self.random:
             x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(self.name, keys, self.cfg, self.radar,
                                                                                 w, self.max_draws)
             _check_random_status(status, self.cfg, self.name, w, self.max_draws)
-            tracker._ensure_capacity(int(K.max()))
+            tracker._ensure_capacity(int(K.max()), _HEADROOM)
             k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, tracker._looks, tracker._it)
         else:
             sc, rd, place = self.fixed
