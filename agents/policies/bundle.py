@@ -63,7 +63,9 @@ BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "Ra
 ``gym.make(id)`` gives the observation it was trained on (tests/test_env_ids.py). The other two bundles are one
 override away: ``policy`` (PPO, discrete, four stacked frames) is ``gym.make("RadarTrackContinuous-v0",
 action_type="discrete", frame_stack=4)``; ``policy_imm_ppo`` observes ``RadarTrackIMM-v0``'s observation but was
-trained on an earlier flight distribution (its ``random_config``; pass it to get those flights)."""
+trained on an earlier flight distribution (its ``random_config``; pass it to get those flights);
+``policy_imm_bp_prior`` is ``gym.make("RadarTrackIMM-v0", random_config={"random_radar_probability": 0.7})`` (the
+random suites' own flights)."""
 
 
 def bundled_env_kwargs(name):
