@@ -117,9 +117,9 @@ def _look_row(look) -> np.ndarray:
     return row
 
 
-def _missed_look(ctx: LearnedIMMContext, t_s, detection=None) -> dict:
+def _missed_look(ctx, t_s, detection=None) -> dict:
     """Our look fields of a missed look at ``t_s``: the site and stds of ``detection``'s (a MissedDetection's)
-    polar model if it has one, else the last detection's."""
+    polar model if it has one, else the last detection's (``ctx.radar``; any context with one)."""
     sx, sy, rs, bs, rds = ctx.radar
     model = getattr(detection, "measurement_model", None)
     if model is not None:
@@ -130,6 +130,33 @@ def _missed_look(ctx: LearnedIMMContext, t_s, detection=None) -> dict:
     return {"t_s": t_s, "detected": False, "z_m": np.zeros(2), "R_m2": np.eye(2), "site_xy_m": np.array([sx, sy]),
             "range_m": math.nan, "bearing_rad": math.nan, "radial_velocity_m_s": math.nan,
             "range_noise_std_m": rs, "bearing_noise_std_rad": bs, "radial_velocity_noise_std_m_s": rds}
+
+
+def _radar_of(look: dict) -> tuple:
+    """``(site x, site y, range std, bearing std, range-rate std)`` of our look fields (a context's ``radar``)."""
+    return tuple(float(v) for v in (*look["site_xy_m"], look["range_noise_std_m"], look["bearing_noise_std_rad"],
+                                    look["radial_velocity_noise_std_m_s"]))
+
+
+def _episode_radar(e, k) -> tuple:
+    """The ``radar`` tuple (:func:`_radar_of`) of look ``k`` of episode ``e``."""
+    return tuple(float(v) for v in (*e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
+                                    e.radial_velocity_noise_std_m_s[k]))
+
+
+class _Radar(NamedTuple):
+    radar: tuple
+
+
+def _fresh_chain(track_start, x4, P4, t_s, radar):
+    """A 1-row feature chain of ``track_start`` at the posterior ``x4, P4`` (our order) at ``t_s`` with an empty
+    history, and its first output (1 row): a missed look at dt 0 with the warm-up q (the site and stds ``radar``),
+    so that a track started from a Stone Soup Gaussian has a chain output to read its first observation from."""
+    chain = track_start.tracker(1)
+    chain.x[0], chain.P[0], chain.t_last[0] = x4, P4, t_s
+    chain.bank.reset(x=np.asarray(x4)[None], t_s=np.array([t_s]))
+    chain.feed([0], _look_row(_missed_look(_Radar(radar), t_s))[None])
+    return chain, _row_of(chain.step(track_start.warmup_q_m_s2), 0)
 
 
 def _run_look(ctx: LearnedIMMContext, look: dict):
@@ -157,10 +184,8 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     chain = copy.deepcopy(ctx.chain)
     chain.feed([0], _look_row(look)[None])
     chain_out = _row_of(chain.step(m.feature_q_m_s2), 0)
-    radar = (float(look["site_xy_m"][0]), float(look["site_xy_m"][1]), float(look["range_noise_std_m"]),
-             float(look["bearing_noise_std_rad"]), float(look["radial_velocity_noise_std_m_s"]))
     new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h[0], detectors,
-                            chain, chain_out, m.feature_q_m_s2, radar)
+                            chain, chain_out, m.feature_q_m_s2, _radar_of(look))
     return pred, up, new
 
 
@@ -186,21 +211,14 @@ class LearnedIMMState(_ss.IMMCVCTState):
         if detection is None or getattr(detection, "measurement_model", None) is None:
             raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
                              "no hypothesis.measurement")
-        look = _ss.look_from_detection(detection)
         x4, P4 = _ss.ours_from_state(state)
         t = _ss.seconds(state.timestamp)
-        chain = model.cfg.track_start.tracker(1)
-        chain.x[0], chain.P[0], chain.t_last[0] = x4, P4, t
-        chain.bank.reset(x=x4[None], t_s=np.array([t]))
-        q0 = model.cfg.track_start.warmup_q_m_s2
-        radar = (*look["site_xy_m"], look["range_noise_std_m"], look["bearing_noise_std_rad"],
-                 look["radial_velocity_noise_std_m_s"])
+        radar = _radar_of(_ss.look_from_detection(detection))
+        chain, out = _fresh_chain(model.cfg.track_start, x4, P4, t, radar)
         start = LearnedIMMContext(model, t, x4, P4, *initial_modes(model.spec, x4, P4),
-                                  np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, None,
-                                  q0, tuple(float(v) for v in radar))
-        chain.feed([0], _look_row(_missed_look(start, t))[None])
-        out = _row_of(chain.step(q0), 0)
-        return _state_from(cls, start._replace(chain=chain, chain_out=out), state.timestamp)
+                                  np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, out,
+                                  model.cfg.track_start.warmup_q_m_s2, radar)
+        return _state_from(cls, start, state.timestamp)
 
 
 class LearnedIMMStatePrediction(Prediction, LearnedIMMState):
@@ -235,12 +253,10 @@ def track_starts(episodes, model: LearnedIMM | None = None):
     for b, e in enumerate(episodes):
         xm, Pm, log_mu = initial_modes(model.spec, tr.x[b], tr.P[b])     # as run_imm_lockstep's _start_state
         k = int(k0[b])
-        radar = (*e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
-                 e.radial_velocity_noise_std_m_s[k])
         ctx = LearnedIMMContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), xm, Pm, log_mu,
                                 np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0],
                                 tr.detached(b), _row_of(out, b), model.cfg.track_start.warmup_q_m_s2,
-                                tuple(float(v) for v in radar))
+                                _episode_radar(e, k))
         states.append(_state_from(LearnedIMMState, ctx, _ss.stamp(e.t_s[k])))
     return states, k0
 
