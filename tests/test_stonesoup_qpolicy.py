@@ -19,6 +19,7 @@ from stonesoup.types.track import Track  # noqa: E402
 
 from agents.evaluation.runner import run_policy  # noqa: E402
 from agents.evaluation.suites import draw_suite  # noqa: E402
+from agents.policies import stonesoup_chain as C  # noqa: E402
 from agents.policies import stonesoup_learned as L  # noqa: E402
 from agents.policies import stonesoup_qpolicy as Q  # noqa: E402
 from agents.policies.recurrent import RecurrentQPolicy, weight_shapes  # noqa: E402
@@ -130,7 +131,7 @@ def test_range_rate_features_are_all_that_read_the_range_rate():
     dets = S.detections_from_episode(e)
     nan = set()
     for k in range(int(k0[0]) + 1, int(k0[0]) + 15):
-        look = S.look_from_detection(dets[k]) if dets[k] is not None else L._missed_look(ctx, e.t_s[k])
+        look = S.look_from_detection(dets[k]) if dets[k] is not None else C._missed_look(ctx, e.t_s[k])
         prev = preview_next_plot(ctx.chain.x, ctx.chain.P, ctx.chain.t_last,
                                  {n: np.asarray(v)[None] for n, v in look.items()})
         phys = layout.physical(ctx.chain_out._replace(features={**ctx.chain_out.features, **prev}), np.array([1.0]))

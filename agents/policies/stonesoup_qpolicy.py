@@ -66,8 +66,8 @@ from stonesoup.types.update import Update
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from agents.policies.recurrent import RecurrentQPolicy
-from agents.policies.stonesoup_learned import (_episode_radar, _fresh_chain, _look_row, _missed_look, _radar_of,
-                                               _row_of)
+from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look, _radar_of,
+                                             _row_of)
 
 __all__ = ["RANGE_RATE_FEATURES", "QPolicy", "load_q_policy", "QPolicyContext", "QPolicyState",
            "QPolicyStatePrediction", "QPolicyStateUpdate", "QPolicyPredictor", "QPolicyUpdater", "q_track_starts",
