@@ -184,6 +184,12 @@ def test_errors_name_the_parameter(policies):
     imm_pred = L.LearnedIMMPredictor().predict(L.track_starts([e])[0][0], timestamp=S.stamp(e.t_s[k]))
     with pytest.raises(ValueError, match="hypothesis.prediction must be a QPolicyStatePrediction"):
         updater.update(SingleHypothesis(imm_pred, S.detections_from_episode(e, radial_velocity=True)[k]))
+    with pytest.raises(ValueError, match="measurement_model must be polar"):
+        from stonesoup.models.measurement.linear import LinearGaussian
+        from stonesoup.types.detection import Detection
+        from stonesoup.types.array import StateVector
+        updater.update(SingleHypothesis(pred, Detection(StateVector([1.0, 2.0]), timestamp=S.stamp(e.t_s[k]),
+                                                        measurement_model=LinearGaussian(4, (0, 2), np.eye(2)))))
     with pytest.raises(ValueError, match="kind"):
         Q.load_q_policy("policy_imm_bp")
 
