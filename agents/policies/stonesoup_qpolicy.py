@@ -53,7 +53,7 @@ import numpy as np
 from baselines import stonesoup_components as _ss
 from baselines.trackers import observation_layout
 from radar_env.common.units import G0_M_S2
-from radar_env.envs.observation import ObservationLayout
+from radar_env.envs.observation import DETECTOR_FEATURES, ObservationLayout
 from radar_env.filters.tracking import StepOutput, Tracker, preview_next_plot
 
 from stonesoup.base import Property
@@ -108,12 +108,13 @@ def load_q_policy(name_or_folder="policy_bp") -> QPolicy:
                          f"{cfg.frame_stack}")
     if layout.uses_detectors:
         raise ValueError(f"{lt.folder}: env_config features include IMM detector features "
-                         f"({[n for n in layout.names if n.startswith('imm')]}); the Stone Soup q-policy does not "
-                         "run the detectors")
+                         f"({[n for n in layout.names if n in DETECTOR_FEATURES]}); the Stone Soup q-policy does "
+                         "not run the detectors")
     return QPolicy(lt.name, lt.policy, cfg, layout)
 
 
 def _as_q_policy(policy) -> QPolicy:
+    """``policy`` if it is a :class:`QPolicy`, else :func:`load_q_policy` of it (a bundled name or folder)."""
     return policy if isinstance(policy, QPolicy) else load_q_policy(policy)
 
 
