@@ -17,7 +17,7 @@ IMM runs at its tuned parameters (``baselines/tuned.json``), tuned on our single
 ``--range-rate``: the radar also measures range rate (``CartesianToBearingRangeRate2D``, 1 m/s noise; clutter
 uniform in range rate too); the EKFs and ``imm_cv_ct_rdot`` update on it, ``imm_cv_ct`` on the position only (as
 it is evaluated); ``run(..., extra=...)`` adds other predictor/updater pairs (``python -m
-agents.policies.stonesoup_learned`` adds the learned IMM this way).
+agents.policies.stonesoup_learned`` adds the learned IMM and the learned q-policy this way).
 """
 
 from __future__ import annotations

@@ -54,7 +54,6 @@ from baselines import stonesoup_components as _ss
 from radar_env.filters.imm_cv_ct import (detector_inputs, initial_detectors, initial_modes, predict_modes,
                                          update_modes)
 from radar_env.filters.tracking import StepOutput, Tracker, preview_next_plot
-from radar_env.sim.looks import LOOK_COLUMNS, W_LOOK
 
 from stonesoup.base import Property
 from stonesoup.models.transition.base import TransitionModel
@@ -66,6 +65,9 @@ from stonesoup.types.update import Update
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from agents.policies.learned_imm import LearnedIMM, load_learned_imm, BUNDLED_LEARNED_IMM
+# the chain helpers it shares with stonesoup_qpolicy
+from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look,  # noqa: F401
+                                             _radar_of, _row_of)
 
 __all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
            "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair"]
@@ -98,40 +100,6 @@ class LearnedIMMContext(NamedTuple):
     radar: tuple                # (site x, site y, range std, bearing std, range-rate std) of the last detection
 
 
-def _row_of(out: StepOutput, b) -> StepOutput:
-    """Row ``b`` of a StepOutput (copies, shape (1, ...))."""
-    def take(v):
-        return None if v is None else np.array(v[b:b + 1])
-    return out._replace(**{f: take(getattr(out, f)) for f in out._fields if f != "features"},
-                        features={k: np.array(v[b:b + 1]) for k, v in out.features.items()})
-
-
-def _look_row(look) -> np.ndarray:
-    """Our look fields (dict) as a packed look row (W_LOOK,); truth unknown (NaN)."""
-    row = np.full(W_LOOK, np.nan)
-    for f, (c, tail) in LOOK_COLUMNS.items():
-        w = int(np.prod(tail)) if tail else 1
-        if f in look:
-            row[c:c + w] = np.asarray(look[f], dtype=np.float64).reshape(w)
-    row[LOOK_COLUMNS["maneuvering"][0]] = 0.0
-    return row
-
-
-def _missed_look(ctx: LearnedIMMContext, t_s, detection=None) -> dict:
-    """Our look fields of a missed look at ``t_s``: the site and stds of ``detection``'s (a MissedDetection's)
-    polar model if it has one, else the last detection's."""
-    sx, sy, rs, bs, rds = ctx.radar
-    model = getattr(detection, "measurement_model", None)
-    if model is not None:
-        noise = np.asarray(model.covar(), dtype=np.float64)
-        site = np.asarray(model.translation_offset, dtype=np.float64).reshape(-1)
-        sx, sy, bs, rs = float(site[0]), float(site[1]), math.sqrt(noise[0, 0]), math.sqrt(noise[1, 1])
-        rds = math.sqrt(noise[2, 2]) if noise.shape[0] == 3 else rds
-    return {"t_s": t_s, "detected": False, "z_m": np.zeros(2), "R_m2": np.eye(2), "site_xy_m": np.array([sx, sy]),
-            "range_m": math.nan, "bearing_rad": math.nan, "radial_velocity_m_s": math.nan,
-            "range_noise_std_m": rs, "bearing_noise_std_rad": bs, "radial_velocity_noise_std_m_s": rds}
-
-
 def _run_look(ctx: LearnedIMMContext, look: dict):
     """One look of the learned IMM (module docstring) from ``ctx`` with our look fields ``look``: ``(the IMM's
     prediction (ModePrediction), its update (ModeUpdate), the new context)``."""
@@ -157,10 +125,8 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     chain = copy.deepcopy(ctx.chain)
     chain.feed([0], _look_row(look)[None])
     chain_out = _row_of(chain.step(m.feature_q_m_s2), 0)
-    radar = (float(look["site_xy_m"][0]), float(look["site_xy_m"][1]), float(look["range_noise_std_m"]),
-             float(look["bearing_noise_std_rad"]), float(look["radial_velocity_noise_std_m_s"]))
     new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h[0], detectors,
-                            chain, chain_out, m.feature_q_m_s2, radar)
+                            chain, chain_out, m.feature_q_m_s2, _radar_of(look))
     return pred, up, new
 
 
@@ -186,21 +152,14 @@ class LearnedIMMState(_ss.IMMCVCTState):
         if detection is None or getattr(detection, "measurement_model", None) is None:
             raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
                              "no hypothesis.measurement")
-        look = _ss.look_from_detection(detection)
         x4, P4 = _ss.ours_from_state(state)
         t = _ss.seconds(state.timestamp)
-        chain = model.cfg.track_start.tracker(1)
-        chain.x[0], chain.P[0], chain.t_last[0] = x4, P4, t
-        chain.bank.reset(x=x4[None], t_s=np.array([t]))
-        q0 = model.cfg.track_start.warmup_q_m_s2
-        radar = (*look["site_xy_m"], look["range_noise_std_m"], look["bearing_noise_std_rad"],
-                 look["radial_velocity_noise_std_m_s"])
+        radar = _radar_of(_ss.look_from_detection(detection))
+        chain, out = _fresh_chain(model.cfg.track_start, x4, P4, t, radar)
         start = LearnedIMMContext(model, t, x4, P4, *initial_modes(model.spec, x4, P4),
-                                  np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, None,
-                                  q0, tuple(float(v) for v in radar))
-        chain.feed([0], _look_row(_missed_look(start, t))[None])
-        out = _row_of(chain.step(q0), 0)
-        return _state_from(cls, start._replace(chain=chain, chain_out=out), state.timestamp)
+                                  np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, out,
+                                  model.cfg.track_start.warmup_q_m_s2, radar)
+        return _state_from(cls, start, state.timestamp)
 
 
 class LearnedIMMStatePrediction(Prediction, LearnedIMMState):
@@ -235,12 +194,10 @@ def track_starts(episodes, model: LearnedIMM | None = None):
     for b, e in enumerate(episodes):
         xm, Pm, log_mu = initial_modes(model.spec, tr.x[b], tr.P[b])     # as run_imm_lockstep's _start_state
         k = int(k0[b])
-        radar = (*e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
-                 e.radial_velocity_noise_std_m_s[k])
         ctx = LearnedIMMContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), xm, Pm, log_mu,
                                 np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0],
                                 tr.detached(b), _row_of(out, b), model.cfg.track_start.warmup_q_m_s2,
-                                tuple(float(v) for v in radar))
+                                _episode_radar(e, k))
         states.append(_state_from(LearnedIMMState, ctx, _ss.stamp(e.t_s[k])))
     return states, k0
 
@@ -325,13 +282,16 @@ def learned_pair(model: LearnedIMM | None = None):
 
 def main(argv=None):
     """``python -m agents.policies.stonesoup_learned``: :mod:`baselines.stonesoup_example` with range rate, the
-    learned IMM added (``policy_imm_bp``); the same options."""
+    learned IMM (``policy_imm_bp``) and the learned q-policy (``policy_bp``, :mod:`agents.policies.stonesoup_qpolicy`)
+    added; the same options."""
     from baselines import stonesoup_example
+    from agents.policies.stonesoup_qpolicy import load_q_policy, q_policy_pair
     argv = list(argv if argv is not None else __import__("sys").argv[1:])
     if "--range-rate" not in argv:
-        argv.append("--range-rate")        # the learned IMM needs the range rate
-    model = bundled_learned_imm()
-    return stonesoup_example.main(argv, extra={"policy_imm_bp": lambda: learned_pair(model)},
+        argv.append("--range-rate")        # the learned trackers read the range rate
+    model, q_policy = bundled_learned_imm(), load_q_policy("policy_bp")
+    return stonesoup_example.main(argv, extra={"policy_imm_bp": lambda: learned_pair(model),
+                                               "policy_bp": lambda: q_policy_pair(q_policy)},
                                   prog="python -m agents.policies.stonesoup_learned", figure_path=FIGURE)
 
 

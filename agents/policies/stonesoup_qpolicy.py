@@ -1,0 +1,315 @@
+r"""Stone Soup components for the learned q-policies (``policy_bp``, ``policy_bp_rdot``: a GRU choosing the CV
+Kalman filter's process noise q each look, :mod:`agents.policies.recurrent`): a predictor, an updater and the state
+types, the track's state carrying the GRU state and the feature chain.
+
+One look of a q-policy as the evaluation runs it (:func:`baselines.trackers.run_q_policy`) is, from the context
+after the previous look (GRU state ``h``, the chain -- a 1-row :class:`radar_env.filters.tracking.Tracker`, the CV
+Kalman filter and its features -- its last step's output and that step's q):
+
+1. the observation after the previous look, with the preview of this look's plot
+   (:func:`radar_env.filters.tracking.preview_next_plot`, what the chain's step computes when it knows the next
+   look), encoded as the env does (:class:`radar_env.envs.observation.ObservationLayout`);
+2. the GRU: this look's q (:meth:`agents.policies.recurrent.RecurrentQPolicy.act` and ``q_of_actions``, clipped
+   as the runner clips);
+3. the chain's step with that q on the plot (:meth:`Tracker.feed`, :meth:`Tracker.step`): the estimate.
+
+Nothing of the chain or the network is written again here: these are the functions the runner calls, and the
+pieces of :mod:`agents.policies.stonesoup_learned` (the learned IMM's components, whose look is split the same
+way). tests/test_stonesoup_qpolicy.py checks every look of whole episodes against the evaluation's run (estimate
+to 1e-6 relative, q to 1e-9).
+
+Stone Soup splits a look into a prediction (before any detection is associated, for gating) and an update. The
+q-policy chooses the look's q *after* seeing the look's plot (its preview features), so its prediction depends on
+the plot. As for the learned IMM:
+
+* :class:`QPolicyPredictor` predicts with the q the network chooses for a *missed* look (the preview of "no
+  plot"): the exact look if the track gets no detection (its missed-look posterior rides along in the prediction,
+  so a tracker that keeps the prediction, as Stone Soup's do, continues the runner's track exactly), and the
+  Gaussian that hypothesisers gate with (the Kalman prediction with that q; :class:`QPolicyUpdater`'s inherited
+  extended-Kalman ``predict_measurement``);
+* :class:`QPolicyUpdater` redoes the look with the associated detection (q from the plot's preview, then the
+  chain's step): the estimate is the runner's; the gate was that of the missed-look q.
+
+Measurements: polar detections (conventions of :mod:`baselines.stonesoup_components`). The bundled q-policies'
+inputs include the plots' range rate (``c_min_g``, ``next_c_min_g``, ``next_los_accel_g``, ``next_rdot_nu``:
+:data:`RANGE_RATE_FEATURES`) -- ``policy_bp`` too, whose filter updates on position only -- so they take
+``CartesianToBearingRangeRate2D`` detections and refuse a plot without range rate; a q-policy whose inputs read
+none of these takes ``CartesianToBearingRange`` detections. Missed looks: the site and noise stds of a
+``MissedDetection``'s measurement model if it has one, else the last detection's (they enter the features).
+
+Track start: :func:`q_track_starts` gives our evaluation's (two-hit start and warm-up on an episode's first plots);
+:meth:`QPolicyState.from_gaussian` starts from a Stone Soup initiator's Gaussian with an empty feature history
+(not what the network was trained with; the first looks' features differ from our start's).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from baselines import stonesoup_components as _ss
+from baselines.trackers import observation_layout
+from radar_env.common.units import G0_M_S2
+from radar_env.envs.observation import DETECTOR_FEATURES, ObservationLayout
+from radar_env.filters.tracking import StepOutput, Tracker, preview_next_plot
+
+from stonesoup.base import Property
+from stonesoup.models.transition.base import TransitionModel
+from stonesoup.predictor.base import Predictor
+from stonesoup.types.array import CovarianceMatrix, StateVector
+from stonesoup.types.prediction import Prediction
+from stonesoup.types.state import GaussianState, State, StateMutableSequence
+from stonesoup.types.update import Update
+from stonesoup.updater.kalman import ExtendedKalmanUpdater
+
+from agents.policies.recurrent import RecurrentQPolicy
+from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look, _radar_of,
+                                             _row_of)
+
+__all__ = ["RANGE_RATE_FEATURES", "QPolicy", "load_q_policy", "QPolicyContext", "QPolicyState",
+           "QPolicyStatePrediction", "QPolicyStateUpdate", "QPolicyPredictor", "QPolicyUpdater", "q_track_starts",
+           "q_policy_pair"]
+
+_SS4 = _ss.SS_FROM_OURS
+RANGE_RATE_FEATURES = frozenset({"c_min_g", "next_c_min_g", "next_los_accel_g", "next_rdot_nu"})
+"""Observation entries computed from the plots' range rate (NaN without it; tests/test_stonesoup_qpolicy.py checks
+that no other entry of the full observation depends on it)."""
+_MAX_Q_M_S2 = 100 * G0_M_S2     # run_q_policy's clip of the chosen q
+
+
+class QPolicy(NamedTuple):
+    """A loaded q-policy as these components run it."""
+
+    name: str                   # its tracker name (a bundled name or the folder's label)
+    policy: RecurrentQPolicy    # the network
+    env_config: object          # the EnvConfig it was trained with (features, q levels, track start)
+    layout: ObservationLayout   # its observation (the runner's, observation_layout(env_config))
+
+    @property
+    def needs_range_rate(self) -> bool:
+        """Whether its inputs read the plots' range rate (:data:`RANGE_RATE_FEATURES`)."""
+        return any(n in RANGE_RATE_FEATURES for n in self.layout.names)
+
+
+def load_q_policy(name_or_folder="policy_bp") -> QPolicy:
+    """A recurrent q-policy by bundled name (``policy_bp``, ``policy_bp_rdot``) or folder
+    (:func:`agents.policies.learned.load_learned` with kind ``gru_q_policy``; a learned IMM or an SB3 model is
+    refused there). ``ValueError`` naming the field for an env config these components cannot run: stacked frames
+    (``frame_stack``) or the IMM detector features."""
+    from agents.policies.learned import load_learned
+    lt = load_learned(name_or_folder, kinds=("gru_q_policy",))
+    cfg = lt.env_config
+    layout = observation_layout(cfg)[0]
+    if int(cfg.frame_stack) != 1:
+        raise ValueError(f"{lt.folder}: env_config frame_stack must be 1 for the Stone Soup q-policy, got "
+                         f"{cfg.frame_stack}")
+    if layout.uses_detectors:
+        raise ValueError(f"{lt.folder}: env_config features include IMM detector features "
+                         f"({[n for n in layout.names if n in DETECTOR_FEATURES]}); the Stone Soup q-policy does "
+                         "not run the detectors")
+    return QPolicy(lt.name, lt.policy, cfg, layout)
+
+
+def _as_q_policy(policy) -> QPolicy:
+    """``policy`` if it is a :class:`QPolicy`, else :func:`load_q_policy` of it (a bundled name or folder)."""
+    return policy if isinstance(policy, QPolicy) else load_q_policy(policy)
+
+
+class QPolicyContext(NamedTuple):
+    """Everything one look of the q-policy needs from the previous one (our state order; never modified: each look
+    makes a new one)."""
+
+    model: QPolicy              # the policy (network, observation layout, chain parameters)
+    t_s: float                  # time of the previous look (s since stonesoup_components.EPOCH)
+    x: np.ndarray               # (4,) the chain's posterior [x, y, vx, vy]
+    P: np.ndarray               # (4, 4)
+    h: np.ndarray               # (H,) GRU state
+    chain: Tracker              # 1-row chain after the previous look
+    chain_out: StepOutput       # its last step's output (1 row)
+    q_m_s2: float               # the q of that step (the observation's q_prev; the q the policy chose there)
+    radar: tuple                # (site x, site y, range std, bearing std, range-rate std) of the last detection
+
+
+def _run_look(ctx: QPolicyContext, look: dict) -> QPolicyContext:
+    """One look of the q-policy (module docstring) from ``ctx`` with our look fields ``look``: the new context."""
+    m = ctx.model
+    if not look["t_s"] - ctx.t_s >= 0.0:
+        raise ValueError(f"the look's time {look['t_s']} s is before the track's last look {ctx.t_s} s: the "
+                         "q-policy goes forward only")
+    prev = preview_next_plot(ctx.chain.x, ctx.chain.P, ctx.chain.t_last,
+                             {k: np.asarray(v)[None] for k, v in look.items()})
+    obs = m.layout.encode(ctx.chain_out._replace(features={**ctx.chain_out.features, **prev}),
+                          np.array([ctx.q_m_s2]))
+    a, h = m.policy.act(obs, ctx.h[None])
+    q = float(np.clip(np.asarray(m.policy.q_of_actions(a), dtype=np.float64).reshape(1), 0.0, _MAX_Q_M_S2)[0])
+    chain = copy.deepcopy(ctx.chain)
+    chain.feed([0], _look_row(look)[None])
+    out = _row_of(chain.step(q), 0)
+    return QPolicyContext(m, float(look["t_s"]), out.x[0].copy(), out.P[0].copy(), h[0], chain, out, q,
+                          _radar_of(look))
+
+
+# ------------------------------------------------------------------------------------------------ state types
+class QPolicyState(GaussianState):
+    """A q-policy posterior: the chain's Gaussian (Stone Soup's order ``[x, vx, y, vy]``) and the
+    :class:`QPolicyContext` the next look starts from (the GRU state, the chain)."""
+
+    context: QPolicyContext = Property(default=None, doc="the q-policy's context after this look")
+
+    @property
+    def q_m_s2(self) -> float:
+        """The process noise q (m/s^2) the policy chose for this look (the warm-up q at a track start)."""
+        return self.context.q_m_s2
+
+    @classmethod
+    def from_gaussian(cls, state, policy="policy_bp", detection=None):
+        """A track started from a Stone Soup Gaussian ``state`` (4-state, a timestamp; e.g. an initiator's):
+        ``h = 0``, a fresh chain at the state (empty history; its first output that of a missed look at dt 0).
+
+        Parameters
+        ----------
+        state : GaussianState
+            The start (Stone Soup's order).
+        policy : QPolicy or str
+            The q-policy (or a bundled name or folder, :func:`load_q_policy`).
+        detection : Detection, optional
+            A polar detection giving the site and noise stds (default ``state.hypothesis.measurement``, an
+            initiator's).
+        """
+        model = _as_q_policy(policy)
+        if state.timestamp is None:
+            raise ValueError("state.timestamp must be a datetime (the q-policy's chain needs times)")
+        if detection is None:
+            detection = getattr(getattr(state, "hypothesis", None), "measurement", None)
+        if detection is None or getattr(detection, "measurement_model", None) is None:
+            raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
+                             "no hypothesis.measurement")
+        x4, P4 = _ss.ours_from_state(state)
+        t = _ss.seconds(state.timestamp)
+        radar = _radar_of(_ss.look_from_detection(detection))
+        ts = model.env_config.track_start
+        chain, out = _fresh_chain(ts, x4, P4, t, radar)
+        ctx = QPolicyContext(model, t, x4, P4, model.policy.initial_state(1)[0], chain, out, ts.warmup_q_m_s2, radar)
+        return _state_from(cls, ctx, state.timestamp)
+
+
+class QPolicyStatePrediction(Prediction, QPolicyState):
+    """The q-policy's prediction with the q for a missed look (module docstring); ``context`` is the context before
+    the look, ``missed_context`` the one after it if the look is missed."""
+
+    missed_context: QPolicyContext = Property(default=None, doc="the context after this look if it is missed")
+
+
+class QPolicyStateUpdate(Update, QPolicyState):
+    """A q-policy posterior after an update (with the hypothesis used)."""
+
+
+def _state_from(cls, ctx: QPolicyContext, timestamp, **kw):
+    """A ``cls`` state of the posterior in ``ctx`` (Stone Soup's order)."""
+    return cls(StateVector(ctx.x[_SS4]), CovarianceMatrix(ctx.P[np.ix_(_SS4, _SS4)]), timestamp=timestamp,
+               context=ctx, **kw)
+
+
+def q_track_starts(episodes, policy="policy_bp"):
+    """Our evaluation's track start of a q-policy on ``episodes`` (the runner's: two-hit start and warm-up of the
+    policy's chain, ``h = 0``).
+
+    Returns
+    -------
+    states : list of QPolicyState
+        One per episode, at its last warm-up look.
+    k0 : ndarray (B,)
+        Each episode's last warm-up look (the policy's first look is ``k0 + 1``).
+    """
+    model = _as_q_policy(policy)
+    episodes = list(episodes)
+    ts = model.env_config.track_start
+    tr = ts.tracker(len(episodes))
+    out = tr.load(np.arange(len(episodes)), episodes)
+    k0 = np.asarray(out.look_index, dtype=np.int64)
+    states = []
+    for b, e in enumerate(episodes):
+        k = int(k0[b])
+        ctx = QPolicyContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), model.policy.initial_state(1)[0],
+                             tr.detached(b), _row_of(out, b), ts.warmup_q_m_s2, _episode_radar(e, k))
+        states.append(_state_from(QPolicyState, ctx, _ss.stamp(e.t_s[k])))
+    return states, k0
+
+
+# ------------------------------------------------------------------------------------------------ predictor, updater
+class QPolicyPredictor(Predictor):
+    """Stone Soup predictor of a q-policy: the look with the q the network chooses for a missed look (module
+    docstring). ``predict(prior, timestamp)`` takes a :class:`QPolicyState` (an update, a start, or a prediction a
+    tracker kept for a missed look: its missed-look posterior), a track, or an initiator's 4-state Gaussian update
+    (started with :meth:`QPolicyState.from_gaussian` from its detection)."""
+
+    transition_model: TransitionModel = Property(
+        default=None, doc="Not used (the chain's CV model with the chosen q is the transition); Stone Soup's "
+                          "interface")
+    policy: QPolicy = Property(default=None, doc="the q-policy for tracks it starts (None: the bundled policy_bp); "
+                                                 "a QPolicyState carries its own")
+
+    def predict(self, prior, timestamp=None, **kwargs) -> QPolicyStatePrediction:
+        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
+            prior = prior.state
+        if isinstance(prior, QPolicyStatePrediction):
+            ctx = prior.missed_context
+        elif isinstance(prior, QPolicyState):
+            ctx = prior.context
+        elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
+            if self.policy is None:
+                self.policy = load_q_policy("policy_bp")
+            ctx = QPolicyState.from_gaussian(prior, self.policy).context
+        else:
+            raise ValueError(f"prior must be a QPolicyState (start one with q_track_starts or "
+                             f"QPolicyState.from_gaussian) or an initiator's Gaussian update with its detection, "
+                             f"got {type(prior).__name__}")
+        if timestamp is None:
+            raise ValueError("timestamp must be a datetime (the q-policy's chain needs times)")
+        after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
+        out = after.chain_out      # the missed look's Kalman prediction, made with the q chosen for it
+        return Prediction.from_state(
+            prior, state_vector=StateVector(out.x_prior[0][_SS4]),
+            covar=CovarianceMatrix(out.P_prior[0][np.ix_(_SS4, _SS4)]), timestamp=timestamp, context=ctx,
+            missed_context=after, transition_model=None, target_type=QPolicyStatePrediction)
+
+
+class QPolicyUpdater(ExtendedKalmanUpdater):
+    """Stone Soup updater of a q-policy: the whole look with the associated detection (polar; with range rate if
+    the policy reads it, :data:`RANGE_RATE_FEATURES`); a ``MissedDetection``: the missed look (with its measurement
+    model's site and stds if it has one). ``predict_measurement``: the extended Kalman updater's on the
+    prediction's Gaussian."""
+
+    def update(self, hypothesis, **kwargs) -> QPolicyStateUpdate:
+        pred = hypothesis.prediction
+        if not isinstance(pred, QPolicyStatePrediction):
+            raise ValueError(f"hypothesis.prediction must be a QPolicyStatePrediction (from QPolicyPredictor), got "
+                             f"{type(pred).__name__}")
+        ctx = pred.context
+        t = _ss.seconds(pred.timestamp)
+        if hypothesis:
+            look = _ss.look_from_detection(hypothesis.measurement, self.measurement_model)
+            if ctx.model.needs_range_rate and not math.isfinite(look["radial_velocity_m_s"]):
+                raise ValueError(f"hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
+                                 f"{ctx.model.name}'s inputs include "
+                                 f"{sorted(RANGE_RATE_FEATURES & set(ctx.model.layout.names))}")
+            if look["t_s"] != t:
+                raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
+                                 f"the prediction's {pred.timestamp}")
+            after = _run_look(ctx, look)
+        elif getattr(hypothesis.measurement, "measurement_model", None) is not None:
+            after = _run_look(ctx, _missed_look(ctx, t, hypothesis.measurement))
+        else:
+            after = pred.missed_context
+        return Update.from_state(
+            pred, state_vector=StateVector(after.x[_SS4]), covar=CovarianceMatrix(after.P[np.ix_(_SS4, _SS4)]),
+            timestamp=pred.timestamp, context=after, hypothesis=hypothesis, target_type=QPolicyStateUpdate)
+
+
+def q_policy_pair(policy="policy_bp"):
+    """A fresh ``(QPolicyPredictor, QPolicyUpdater)`` of ``policy`` (a :class:`QPolicy`, or a bundled name or
+    folder: :func:`load_q_policy`)."""
+    return QPolicyPredictor(policy=_as_q_policy(policy)), QPolicyUpdater()
