@@ -364,7 +364,7 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, o
     return ST_OK
 
 
-COLD_COMPILE_S = 40
+COLD_COMPILE_S = 15
 """About how long the first use compiles the env's kernels with an empty numba cache on a 2-core machine (s;
 docs/speed.md)."""
 
