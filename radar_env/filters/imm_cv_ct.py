@@ -301,7 +301,7 @@ def _clip_omega(x, omega_max, accel_max):
         x[4] = -bound
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _add_cv_noise(P, dt, q):
     q2 = q * q
     pp, pv, vv = q2 * dt ** 4 / 4.0, q2 * dt ** 3 / 2.0, q2 * dt * dt

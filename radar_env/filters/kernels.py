@@ -135,7 +135,7 @@ def _propagate(x, P, F, xo, FPF, FP):
             FPF[i, j] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _symmetrize(A):
     """A = (A + A^T) / 2 in place (square): rounding must not make a covariance asymmetric."""
     n = A.shape[0]
@@ -162,7 +162,7 @@ PD_FLOOR_REL = 64.0 * np.finfo(np.float64).eps
 """Relative margin of :func:`_pd_floor` (1.4e-14): each Cholesky pivot must exceed it times its diagonal entry."""
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _chol_ok(P, n):
     """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) has a Cholesky factorisation whose every
     pivot exceeds ``PD_FLOOR_REL`` x its diagonal entry (written out: no scratch array in the hot path)."""
@@ -196,7 +196,7 @@ def _chol_ok(P, n):
     return p > m * abs(P[4, 4])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pd_floor(Po, n, P):
     """Keep the symmetric posterior ``Po`` (n x n, n = 4 or 5: position, velocity, [turn rate]) of the prior ``P``
     positive definite as float64 can represent it. The update subtracts prior-sized numbers, so a posterior variance
@@ -244,17 +244,35 @@ def _plot_frame(p00, p01, p11, r00, r01, r11):
     target passing the site), where the closed-form inverse of S itself cancels away; ``det S'`` is summed from
     non-negative terms (``det A' + l1 a1 + l2 a0 + l1 l2``), positive for any R != 0 and A' with a positive
     diagonal."""
+    c, s, l1, l2 = _r_frame(r00, r01, r11)
+    a0, a1, a01, i00, i01, i11, det_s = _prior_in_frame(p00, p01, p11, c, s, l1, l2)
+    return c, s, l1, l2, a0, a1, a01, i00, i01, i11, det_s
+
+
+@njit(cache=True)
+def _r_frame(r00, r01, r11):
+    """The part of :func:`_plot_frame` that depends on the plot's R alone: ``(c, s, l1, l2)``. A filter updating many
+    priors with one plot (the particle filter) computes it once per look instead of once per prior (its atan2, cos
+    and sin), with the same numbers."""
     th = 0.5 * math.atan2(2.0 * r01, r00 - r11)
     c, s = math.cos(th), math.sin(th)
     cs, cc, ss = c * s, c * c, s * s
     l1 = max(r00 * cc + 2.0 * r01 * cs + r11 * ss, 0.0)
     l2 = max(r00 * ss - 2.0 * r01 * cs + r11 * cc, 0.0)
+    return c, s, l1, l2
+
+
+@njit(cache=True)
+def _prior_in_frame(p00, p01, p11, c, s, l1, l2):
+    """The rest of :func:`_plot_frame`, in R's frame ``(c, s, l1, l2)`` (:func:`_r_frame`): ``(a0, a1, a01, i00,
+    i01, i11, det_s)``."""
+    cs, cc, ss = c * s, c * c, s * s
     a0 = p00 * cc + 2.0 * p01 * cs + p11 * ss
     a1 = p00 * ss - 2.0 * p01 * cs + p11 * cc
     a01 = (p11 - p00) * cs + p01 * (cc - ss)
     det_s = max(a0 * a1 - a01 * a01, 0.0) + l1 * a1 + l2 * a0 + l1 * l2
     s0, s1 = a0 + l1, a1 + l2
-    return c, s, l1, l2, a0, a1, a01, s1 / det_s, -a01 / det_s, s0 / det_s, det_s
+    return a0, a1, a01, s1 / det_s, -a01 / det_s, s0 / det_s, det_s
 
 
 @njit(cache=True)
@@ -277,8 +295,14 @@ def _gain_update(x, P, n, nu0, nu1, r00, r01, r11, xo, Po):
     states), rotated back, symmetrised and floored by :func:`_pd_floor`. (``P - K H P`` or the Joseph form subtract
     prior-sized terms in the position block: a rounding error of eps x the prior, above the posterior itself after
     a hard coast.) The same numbers as the textbook update to rounding. xo/Po must not alias x/P."""
-    c, s, l1, l2, a0, a1, a01, i00, i01, i11, det_s = _plot_frame(P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1],
-                                                                   r00, r01, r11)
+    c, s, l1, l2 = _r_frame(r00, r01, r11)
+    return _gain_update_in_frame(x, P, n, nu0, nu1, c, s, l1, l2, xo, Po)
+
+
+@njit(cache=True, inline="always")
+def _gain_update_in_frame(x, P, n, nu0, nu1, c, s, l1, l2, xo, Po):
+    """:func:`_gain_update` given R's frame ``(c, s, l1, l2)`` (:func:`_r_frame`): the same numbers."""
+    a0, a1, a01, i00, i01, i11, det_s = _prior_in_frame(P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1], c, s, l1, l2)
     cs, cc, ss = c * s, c * c, s * s
     for j in range(2, n):                                # B' = G B, kept in Po's top-right block until the end
         Po[0, j] = c * P[0, j] + s * P[1, j]
