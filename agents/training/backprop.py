@@ -80,7 +80,7 @@ from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_ove
                                   mark_failed, open_run_folder, run_paths, write_run_files)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
-           "train_backprop", "chunk_looks",
+           "train_backprop", "chunk_looks", "observe",
            "make_model", "StreamingTrainer", "lockstep", "forward_episodes", "optimiser_step", "MAX_TRAIN_SEED"]
 
 DTYPE = torch.float64
@@ -273,12 +273,7 @@ class CVQModel(ChainModel):
                 a = self._head(h)
             # the Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
             q = q_tr[:, j] = actions_to_q_m_s2(a.numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
-            rows = np.flatnonzero(active[j])
-            if rows.size == B:
-                obs[:] = layout.encode(tracker.step(q), q)
-            elif rows.size:
-                q = q[rows]
-                obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+            observe(tracker, layout, obs, q, active[j])
         self.h = h.detach()
         q = self.q_of_action(self._head(torch.stack(hs, 1)))
         self.chunk_q = (q_tr, q.detach().numpy())
@@ -513,19 +508,25 @@ def lockstep(model, tracker, layout, obs, looks, on_look=None):
     the rows that have the look with the model's q, whose output the env's ``layout`` encodes. Returns the model's
     position estimates ``x (B, J, 4)`` (a graph); ``on_look(j)`` (optional) is called after each model step."""
     active = looks.scored.numpy()
-    B, xs = looks.B, []
+    xs = []
     for j in range(looks.J):
         x, q = model.step(looks, j, torch.from_numpy(obs.astype(np.float64)))
         xs.append(x)
         if on_look is not None:
             on_look(j)
-        rows = np.flatnonzero(active[j])
-        if rows.size == B:
-            obs[:] = layout.encode(tracker.step(q), q)
-        elif rows.size:
-            q = q[rows]
-            obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+        observe(tracker, layout, obs, q, active[j])
     return torch.stack(xs).permute(2, 0, 1)                      # (J, 4, B) -> (B, J, 4)
+
+
+def observe(tracker, layout, obs, q, active):
+    """The numba ``tracker`` steps the rows that have this look (``active (B,)``) with their ``q (B,)``; ``obs (B,
+    F)`` takes, in place, those rows' next observation (the env's ``layout`` encoding of the step's output)."""
+    rows = np.flatnonzero(active)
+    if rows.size == obs.shape[0]:
+        obs[:] = layout.encode(tracker.step(q), q)
+    elif rows.size:
+        q = q[rows]
+        obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
 
 
 def forward_episodes(model, episodes, cfg, on_look=None):
