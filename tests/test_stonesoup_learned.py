@@ -51,10 +51,14 @@ def _episodes(which):
 
 
 def _run_stonesoup(e, state, k0, missed):
-    """Stone Soup's predict/update on one episode from ``state``; missed looks: keep the prediction ("predict"),
-    a MissedDetection with the site's polar model ("model") or without one ("bare")."""
-    predictor, updater = L.LearnedIMMPredictor(), L.LearnedIMMUpdater()
-    dets = S.detections_from_episode(e, radial_velocity=True)
+    return run_pair(L.LearnedIMMPredictor(), L.LearnedIMMUpdater(), L.LearnedIMMStatePrediction, e, state, k0, missed)
+
+
+def run_pair(predictor, updater, prediction_type, e, state, k0, missed, radial_velocity=True):
+    """Stone Soup's predict/update of a learned tracker's pair on one episode from ``state``; missed looks: keep
+    the prediction ("predict"), a MissedDetection with the site's polar model ("model") or without one ("bare").
+    Returns per look ``(k, the context after it, the state)``."""
+    dets = S.detections_from_episode(e, radial_velocity=radial_velocity)
     out = []
     for k in range(k0 + 1, e.n_looks):
         when = S.stamp(e.t_s[k])
@@ -69,7 +73,7 @@ def _run_stonesoup(e, state, k0, missed):
                                   radial_velocity_noise_std_m_s=e.radial_velocity_noise_std_m_s[k]).measurement_model
             state = updater.update(SingleHypothesis(pred, MissedDetection(
                 timestamp=when, measurement_model=m if missed == "model" else None)))
-        ctx = state.missed_context if isinstance(state, L.LearnedIMMStatePrediction) else state.context
+        ctx = state.missed_context if isinstance(state, prediction_type) else state.context
         out.append((k, ctx, state))
     return out
 

@@ -13,7 +13,6 @@ pytest.importorskip("stonesoup")
 
 from stonesoup.hypothesiser.distance import DistanceHypothesiser  # noqa: E402
 from stonesoup.measures import Mahalanobis  # noqa: E402
-from stonesoup.types.detection import MissedDetection  # noqa: E402
 from stonesoup.types.hypothesis import SingleHypothesis  # noqa: E402
 from stonesoup.types.track import Track  # noqa: E402
 
@@ -28,8 +27,9 @@ from baselines.trackers import observation_layout  # noqa: E402
 from radar_env.envs.config import EnvConfig  # noqa: E402
 from radar_env.envs.observation import DEFAULT_FEATURES  # noqa: E402
 from radar_env.filters.tracking import preview_next_plot  # noqa: E402
-# the learned IMM's test episodes: suites, and random flights seen by one or two radar sites with missed looks
-from tests.test_stonesoup_learned import _episodes as _eps  # noqa: E402
+# the learned IMM's test episodes (suites, and random flights seen by one or two radar sites with missed looks) and
+# its Stone Soup loop over an episode
+from tests.test_stonesoup_learned import _episodes as _eps, run_pair  # noqa: E402
 
 REL, REL_Q = 1e-6, 1e-9
 
@@ -50,27 +50,8 @@ def _position_only_policy():
 
 
 def _run_stonesoup(model, e, state, k0, missed, radial_velocity=True):
-    """Stone Soup's predict/update on one episode from ``state``; missed looks: keep the prediction ("predict"),
-    a MissedDetection with the site's polar model ("model") or without one ("bare")."""
-    predictor, updater = Q.QPolicyPredictor(policy=model), Q.QPolicyUpdater()
-    dets = S.detections_from_episode(e, radial_velocity=radial_velocity)
-    out = []
-    for k in range(k0 + 1, e.n_looks):
-        when = S.stamp(e.t_s[k])
-        pred = predictor.predict(state, timestamp=when)
-        if dets[k] is not None:
-            state = updater.update(SingleHypothesis(pred, dets[k]))
-        elif missed == "predict":
-            state = pred
-        else:
-            m = S.polar_detection(1.0, 0.0, e.site_xy_m[k], e.range_noise_std_m[k], e.bearing_noise_std_rad[k],
-                                  e.t_s[k], radial_velocity_m_s=0.0,
-                                  radial_velocity_noise_std_m_s=e.radial_velocity_noise_std_m_s[k]).measurement_model
-            state = updater.update(SingleHypothesis(pred, MissedDetection(
-                timestamp=when, measurement_model=m if missed == "model" else None)))
-        ctx = state.missed_context if isinstance(state, Q.QPolicyStatePrediction) else state.context
-        out.append((k, ctx, state))
-    return out
+    return run_pair(Q.QPolicyPredictor(policy=model), Q.QPolicyUpdater(), Q.QPolicyStatePrediction, e, state, k0,
+                    missed, radial_velocity)
 
 
 def _check_every_look(model, eps, missed, radial_velocity=True):

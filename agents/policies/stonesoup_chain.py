@@ -1,7 +1,9 @@
-"""The feature chain of a learned tracker as a Stone Soup track carries it: a 1-row
-:class:`radar_env.filters.tracking.Tracker` fed plots as they come, in our look fields (the helpers that
-:mod:`agents.policies.stonesoup_learned` and :mod:`agents.policies.stonesoup_qpolicy` share; no Stone Soup import,
-so those two modules do not import each other)."""
+"""What the Stone Soup components of the learned trackers share (:mod:`agents.policies.stonesoup_learned`, the
+learned IMM, and :mod:`agents.policies.stonesoup_qpolicy`, the q-policies; here so that those two do not import
+each other): the feature chain a track carries (a 1-row :class:`radar_env.filters.tracking.Tracker` fed plots as
+they come, in our look fields), and the steps of a look that do not depend on the tracker: the context a prediction
+starts from (:func:`prior_context`), a start from a Stone Soup Gaussian (:func:`gaussian_start`) and the context
+after an update (:func:`context_after`)."""
 
 from __future__ import annotations
 
@@ -10,8 +12,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from baselines import stonesoup_components as _ss
 from radar_env.filters.tracking import StepOutput
 from radar_env.sim.looks import LOOK_COLUMNS, W_LOOK
+
+from stonesoup.types.state import State, StateMutableSequence
 
 
 def _row_of(out: StepOutput, b) -> StepOutput:
@@ -73,3 +78,63 @@ def _fresh_chain(track_start, x4, P4, t_s, radar):
     chain.bank.reset(x=np.asarray(x4)[None], t_s=np.array([t_s]))
     chain.feed([0], _look_row(_missed_look(_Radar(radar), t_s))[None])
     return chain, _row_of(chain.step(track_start.warmup_q_m_s2), 0)
+
+
+def prior_context(prior, timestamp, state_type, prediction_type, start, what, starts):
+    """``(prior state, context)``: the context a learned tracker's look starts from, for ``predict(prior,
+    timestamp)``: a prediction kept for a missed look (``prediction_type``) gives its missed-look context, a
+    ``state_type`` its context, a track its last state's, and an initiator's Gaussian update with its detection the
+    context of the state ``start(prior)`` makes. ``what`` names the tracker, ``starts`` its track-start function,
+    in the one-line errors."""
+    if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
+        prior = prior.state
+    if isinstance(prior, prediction_type):
+        ctx = prior.missed_context
+    elif isinstance(prior, state_type):
+        ctx = prior.context
+    elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
+        ctx = start(prior).context
+    else:
+        raise ValueError(f"prior must be a {state_type.__name__} (start one with {starts} or "
+                         f"{state_type.__name__}.from_gaussian) or an initiator's Gaussian update with its "
+                         f"detection, got {type(prior).__name__}")
+    if timestamp is None:
+        raise ValueError(f"timestamp must be a datetime ({what}'s chain needs times)")
+    return prior, ctx
+
+
+def gaussian_start(state, detection, what):
+    """``(x4, P4, t_s, radar)`` of a track started from a Stone Soup Gaussian ``state`` (our order, seconds, the
+    site and noise stds of ``detection``, default ``state.hypothesis.measurement``, an initiator's); one-line
+    errors naming the argument (``what`` names the tracker)."""
+    if state.timestamp is None:
+        raise ValueError(f"state.timestamp must be a datetime ({what}'s chain needs times)")
+    if detection is None:
+        detection = getattr(getattr(state, "hypothesis", None), "measurement", None)
+    if detection is None or getattr(detection, "measurement_model", None) is None:
+        raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
+                         "no hypothesis.measurement")
+    x4, P4 = _ss.ours_from_state(state)
+    return x4, P4, _ss.seconds(state.timestamp), _radar_of(_ss.look_from_detection(detection))
+
+
+def context_after(hypothesis, measurement_model, run, range_rate_needed=None):
+    """The context after the look of ``hypothesis`` (its prediction carries the context before it): with a
+    detection, ``run(context, look)`` on the detection's look (``measurement_model``: the updater's, for a
+    detection without one); a ``MissedDetection`` with a polar model, ``run`` on a missed look at its site and
+    stds; without one, the prediction's missed-look context. ``range_rate_needed``: why the tracker needs the
+    plot's range rate (then a detection without it is refused), or None."""
+    pred = hypothesis.prediction
+    ctx, t = pred.context, _ss.seconds(pred.timestamp)
+    if hypothesis:
+        look = _ss.look_from_detection(hypothesis.measurement, measurement_model)
+        if range_rate_needed and not math.isfinite(look["radial_velocity_m_s"]):
+            raise ValueError("hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
+                             f"{range_rate_needed}")
+        if look["t_s"] != t:
+            raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
+                             f"the prediction's {pred.timestamp}")
+        return run(ctx, look)
+    if getattr(hypothesis.measurement, "measurement_model", None) is not None:
+        return run(ctx, _missed_look(ctx, t, hypothesis.measurement))
+    return pred.missed_context

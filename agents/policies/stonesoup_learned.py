@@ -60,14 +60,13 @@ from stonesoup.models.transition.base import TransitionModel
 from stonesoup.predictor.base import Predictor
 from stonesoup.types.array import CovarianceMatrix, StateVector
 from stonesoup.types.prediction import Prediction
-from stonesoup.types.state import State, StateMutableSequence
 from stonesoup.types.update import Update
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from agents.policies.learned_imm import LearnedIMM, load_learned_imm, BUNDLED_LEARNED_IMM
 # the chain helpers it shares with stonesoup_qpolicy
 from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look,  # noqa: F401
-                                             _radar_of, _row_of)
+                                             _radar_of, _row_of, context_after, gaussian_start, prior_context)
 
 __all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
            "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair"]
@@ -145,16 +144,7 @@ class LearnedIMMState(_ss.IMMCVCTState):
         at the state (empty history; its first output that of a missed look at dt 0). ``detection``: a polar
         detection giving the site and noise stds (default ``state.hypothesis.measurement``, an initiator's)."""
         model = model if model is not None else bundled_learned_imm()
-        if state.timestamp is None:
-            raise ValueError("state.timestamp must be a datetime (the learned IMM's chain needs times)")
-        if detection is None:
-            detection = getattr(getattr(state, "hypothesis", None), "measurement", None)
-        if detection is None or getattr(detection, "measurement_model", None) is None:
-            raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
-                             "no hypothesis.measurement")
-        x4, P4 = _ss.ours_from_state(state)
-        t = _ss.seconds(state.timestamp)
-        radar = _radar_of(_ss.look_from_detection(detection))
+        x4, P4, t, radar = gaussian_start(state, detection, "the learned IMM")
         chain, out = _fresh_chain(model.cfg.track_start, x4, P4, t, radar)
         start = LearnedIMMContext(model, t, x4, P4, *initial_modes(model.spec, x4, P4),
                                   np.zeros(model.arch["hidden_size"]), initial_detectors(model.spec, 1)[0], chain, out,
@@ -214,23 +204,14 @@ class LearnedIMMPredictor(Predictor):
     model: LearnedIMM = Property(default=None, doc="the checkpoint for tracks it starts (None: the bundled "
                                                     "policy_imm_bp); a LearnedIMMState carries its own")
 
+    def _start(self, update):
+        if self.model is None:          # loaded once, when the first track starts from a Gaussian
+            self.model = bundled_learned_imm()
+        return LearnedIMMState.from_gaussian(update, self.model)
+
     def predict(self, prior, timestamp=None, **kwargs) -> LearnedIMMStatePrediction:
-        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
-            prior = prior.state
-        if isinstance(prior, LearnedIMMStatePrediction):
-            ctx = prior.missed_context
-        elif isinstance(prior, LearnedIMMState):
-            ctx = prior.context
-        elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
-            if self.model is None:
-                self.model = bundled_learned_imm()
-            ctx = LearnedIMMState.from_gaussian(prior, self.model).context
-        else:
-            raise ValueError(f"prior must be a LearnedIMMState (start one with track_starts or "
-                             f"LearnedIMMState.from_gaussian) or an initiator's Gaussian update with its detection, "
-                             f"got {type(prior).__name__}")
-        if timestamp is None:
-            raise ValueError("timestamp must be a datetime (the learned IMM's chain needs times)")
+        prior, ctx = prior_context(prior, timestamp, LearnedIMMState, LearnedIMMStatePrediction, self._start,
+                                   "the learned IMM", "track_starts")
         pred, up, after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
         return Prediction.from_state(
             prior, state_vector=StateVector(pred.x[_SS4]), covar=CovarianceMatrix(pred.P[np.ix_(_SS4, _SS4)]),
@@ -249,21 +230,8 @@ class LearnedIMMUpdater(ExtendedKalmanUpdater):
         if not isinstance(pred, LearnedIMMStatePrediction):
             raise ValueError(f"hypothesis.prediction must be a LearnedIMMStatePrediction (from LearnedIMMPredictor), "
                              f"got {type(pred).__name__}")
-        ctx = pred.context
-        t = _ss.seconds(pred.timestamp)
-        if hypothesis:
-            look = _ss.look_from_detection(hypothesis.measurement, self.measurement_model)
-            if not math.isfinite(look["radial_velocity_m_s"]):
-                raise ValueError("hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
-                                 "the learned IMM's inputs include it")
-            if look["t_s"] != t:
-                raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
-                                 f"the prediction's {pred.timestamp}")
-            after = _run_look(ctx, look)[2]
-        elif getattr(hypothesis.measurement, "measurement_model", None) is not None:
-            after = _run_look(ctx, _missed_look(ctx, t, hypothesis.measurement))[2]
-        else:
-            after = pred.missed_context
+        after = context_after(hypothesis, self.measurement_model, lambda ctx, look: _run_look(ctx, look)[2],
+                              "the learned IMM's inputs include it")
         return Update.from_state(
             pred, state_vector=StateVector(after.x[_SS4]), covar=CovarianceMatrix(after.P[np.ix_(_SS4, _SS4)]),
             timestamp=pred.timestamp, mode_state_vectors=after.x_modes[:, _P5],

@@ -45,7 +45,6 @@ Track start: :func:`q_track_starts` gives our evaluation's (two-hit start and wa
 from __future__ import annotations
 
 import copy
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -61,13 +60,13 @@ from stonesoup.models.transition.base import TransitionModel
 from stonesoup.predictor.base import Predictor
 from stonesoup.types.array import CovarianceMatrix, StateVector
 from stonesoup.types.prediction import Prediction
-from stonesoup.types.state import GaussianState, State, StateMutableSequence
+from stonesoup.types.state import GaussianState
 from stonesoup.types.update import Update
 from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from agents.policies.recurrent import RecurrentQPolicy
 from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look, _radar_of,
-                                             _row_of)
+                                             _row_of, context_after, gaussian_start, prior_context)
 
 __all__ = ["RANGE_RATE_FEATURES", "QPolicy", "load_q_policy", "QPolicyContext", "QPolicyState",
            "QPolicyStatePrediction", "QPolicyStateUpdate", "QPolicyPredictor", "QPolicyUpdater", "q_track_starts",
@@ -180,16 +179,7 @@ class QPolicyState(GaussianState):
             initiator's).
         """
         model = _as_q_policy(policy)
-        if state.timestamp is None:
-            raise ValueError("state.timestamp must be a datetime (the q-policy's chain needs times)")
-        if detection is None:
-            detection = getattr(getattr(state, "hypothesis", None), "measurement", None)
-        if detection is None or getattr(detection, "measurement_model", None) is None:
-            raise ValueError("detection must be given (a polar detection: the site and noise stds) when state has "
-                             "no hypothesis.measurement")
-        x4, P4 = _ss.ours_from_state(state)
-        t = _ss.seconds(state.timestamp)
-        radar = _radar_of(_ss.look_from_detection(detection))
+        x4, P4, t, radar = gaussian_start(state, detection, "the q-policy")
         ts = model.env_config.track_start
         chain, out = _fresh_chain(ts, x4, P4, t, radar)
         ctx = QPolicyContext(model, t, x4, P4, model.policy.initial_state(1)[0], chain, out, ts.warmup_q_m_s2, radar)
@@ -252,23 +242,14 @@ class QPolicyPredictor(Predictor):
     policy: QPolicy = Property(default=None, doc="the q-policy for tracks it starts (None: the bundled policy_bp); "
                                                  "a QPolicyState carries its own")
 
+    def _start(self, update):
+        if self.policy is None:         # loaded once, when the first track starts from a Gaussian
+            self.policy = load_q_policy("policy_bp")
+        return QPolicyState.from_gaussian(update, self.policy)
+
     def predict(self, prior, timestamp=None, **kwargs) -> QPolicyStatePrediction:
-        if isinstance(prior, StateMutableSequence) and not isinstance(prior, State):
-            prior = prior.state
-        if isinstance(prior, QPolicyStatePrediction):
-            ctx = prior.missed_context
-        elif isinstance(prior, QPolicyState):
-            ctx = prior.context
-        elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
-            if self.policy is None:
-                self.policy = load_q_policy("policy_bp")
-            ctx = QPolicyState.from_gaussian(prior, self.policy).context
-        else:
-            raise ValueError(f"prior must be a QPolicyState (start one with q_track_starts or "
-                             f"QPolicyState.from_gaussian) or an initiator's Gaussian update with its detection, "
-                             f"got {type(prior).__name__}")
-        if timestamp is None:
-            raise ValueError("timestamp must be a datetime (the q-policy's chain needs times)")
+        prior, ctx = prior_context(prior, timestamp, QPolicyState, QPolicyStatePrediction, self._start,
+                                   "the q-policy", "q_track_starts")
         after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
         out = after.chain_out      # the missed look's Kalman prediction, made with the q chosen for it
         return Prediction.from_state(
@@ -288,22 +269,10 @@ class QPolicyUpdater(ExtendedKalmanUpdater):
         if not isinstance(pred, QPolicyStatePrediction):
             raise ValueError(f"hypothesis.prediction must be a QPolicyStatePrediction (from QPolicyPredictor), got "
                              f"{type(pred).__name__}")
-        ctx = pred.context
-        t = _ss.seconds(pred.timestamp)
-        if hypothesis:
-            look = _ss.look_from_detection(hypothesis.measurement, self.measurement_model)
-            if ctx.model.needs_range_rate and not math.isfinite(look["radial_velocity_m_s"]):
-                raise ValueError(f"hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
-                                 f"{ctx.model.name}'s inputs include "
-                                 f"{sorted(RANGE_RATE_FEATURES & set(ctx.model.layout.names))}")
-            if look["t_s"] != t:
-                raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
-                                 f"the prediction's {pred.timestamp}")
-            after = _run_look(ctx, look)
-        elif getattr(hypothesis.measurement, "measurement_model", None) is not None:
-            after = _run_look(ctx, _missed_look(ctx, t, hypothesis.measurement))
-        else:
-            after = pred.missed_context
+        m = pred.context.model
+        why = (f"{m.name}'s inputs include {sorted(RANGE_RATE_FEATURES & set(m.layout.names))}"
+               if m.needs_range_rate else None)
+        after = context_after(hypothesis, self.measurement_model, _run_look, why)
         return Update.from_state(
             pred, state_vector=StateVector(after.x[_SS4]), covar=CovarianceMatrix(after.P[np.ix_(_SS4, _SS4)]),
             timestamp=pred.timestamp, context=after, hypothesis=hypothesis, target_type=QPolicyStateUpdate)
