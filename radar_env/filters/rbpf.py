@@ -155,8 +155,51 @@ def _leaf(f):
     return numba.njit(_nrt=False)(f.py_func)
 
 
-_ct_predict, _abat, _moments = _leaf(imm_cv_ct._ct_predict), _leaf(imm_cv_ct._abat), _leaf(imm_cv_ct._moments)
+_ct_predict, _abat = _leaf(imm_cv_ct._ct_predict), _leaf(imm_cv_ct._abat)
 _rdot_update = _leaf(kernels._rdot_update)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _moments(w, xs, Ps, n, x_out, P_out):
+    """:func:`radar_env.filters.imm_cv_ct._moments` of the particles' first ``n = 4`` states (the only ``n`` the
+    filter asks for): the same sums in the same order (over the particles, for each entry), each entry's sum held in
+    a register instead of in ``P_out`` between particles."""
+    m0 = m1 = m2 = m3 = 0.0
+    for i in range(w.shape[0]):
+        wi = w[i]
+        m0 += wi * xs[i, 0]
+        m1 += wi * xs[i, 1]
+        m2 += wi * xs[i, 2]
+        m3 += wi * xs[i, 3]
+    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
+    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
+    for i in range(w.shape[0]):
+        wi = w[i]
+        d0, d1, d2, d3 = xs[i, 0] - m0, xs[i, 1] - m1, xs[i, 2] - m2, xs[i, 3] - m3
+        a00 += wi * (Ps[i, 0, 0] + d0 * d0)
+        a01 += wi * (Ps[i, 0, 1] + d0 * d1)
+        a02 += wi * (Ps[i, 0, 2] + d0 * d2)
+        a03 += wi * (Ps[i, 0, 3] + d0 * d3)
+        a10 += wi * (Ps[i, 1, 0] + d1 * d0)
+        a11 += wi * (Ps[i, 1, 1] + d1 * d1)
+        a12 += wi * (Ps[i, 1, 2] + d1 * d2)
+        a13 += wi * (Ps[i, 1, 3] + d1 * d3)
+        a20 += wi * (Ps[i, 2, 0] + d2 * d0)
+        a21 += wi * (Ps[i, 2, 1] + d2 * d1)
+        a22 += wi * (Ps[i, 2, 2] + d2 * d2)
+        a23 += wi * (Ps[i, 2, 3] + d2 * d3)
+        a30 += wi * (Ps[i, 3, 0] + d3 * d0)
+        a31 += wi * (Ps[i, 3, 1] + d3 * d1)
+        a32 += wi * (Ps[i, 3, 2] + d3 * d2)
+        a33 += wi * (Ps[i, 3, 3] + d3 * d3)
+    x_out[:] = 0.0
+    x_out[0], x_out[1], x_out[2], x_out[3] = m0, m1, m2, m3
+    P_out[:, :] = 0.0
+    P_out[0, 0], P_out[0, 1], P_out[0, 2], P_out[0, 3] = a00, a01, a02, a03
+    P_out[1, 0], P_out[1, 1], P_out[1, 2], P_out[1, 3] = a10, a11, a12, a13
+    P_out[2, 0], P_out[2, 1], P_out[2, 2], P_out[2, 3] = a20, a21, a22, a23
+    P_out[3, 0], P_out[3, 1], P_out[3, 2], P_out[3, 3] = a30, a31, a32, a33
+    _symmetrize(P_out)
 
 
 # ------------------------------------------------------------------------------------------------ motion models
