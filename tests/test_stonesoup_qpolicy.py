@@ -1,8 +1,9 @@
 """agents.policies.stonesoup_qpolicy: the bundled q-policies (policy_bp, policy_bp_rdot, and policy, the PPO one with
 its four stacked frames) as a Stone Soup predictor/updater equal the evaluation's run
-(agents.evaluation.runner.run_policy -> run_q_policy, the oracle) on every look of our episodes (estimate to 1e-6 relative, the chosen q to 1e-9), with the plots as Stone Soup polar
-detections; missed looks kept as predictions (Stone Soup's trackers) or updated with a MissedDetection; a q-policy
-reading no range rate runs on CartesianToBearingRange detections; Stone Soup's hypothesiser accepts it."""
+(agents.evaluation.runner.run_policy -> run_q_policy, the oracle) on every look of our episodes (estimate to 1e-6
+relative, the chosen q to 1e-9), with the plots as Stone Soup polar detections; missed looks kept as predictions
+(Stone Soup's trackers) or updated with a MissedDetection; a q-policy reading no range rate runs on
+CartesianToBearingRange detections; Stone Soup's hypothesiser accepts it."""
 
 import math
 
