@@ -177,9 +177,11 @@ def test_runner_parameters_are_the_updates(model):
         assert not np.array_equal(state.context.h, ctx.h)
 
 
-def test_hypothesiser_and_from_gaussian(model):
+@pytest.mark.parametrize("which", ["policy_imm_bp", "policy_imm_ppo"])
+def test_hypothesiser_and_from_gaussian(model, ppo_model, which):
     """Stone Soup's hypothesiser gates with the prediction (3-D polar); a track started from a bare Gaussian (an
     initiator's) with its detection tracks the target."""
+    model = ppo_model if which == "policy_imm_ppo" else model
     e = _episodes("bizup2002")[0]
     states, k0 = L.track_starts([e], model)
     k0 = int(k0[0])
