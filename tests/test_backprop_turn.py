@@ -154,3 +154,11 @@ def test_turn_training_runs_and_its_folder_loads(tmp_path):
     eps = _episodes(2, seed=30)
     r = run_q_policy(eps, lt.policy, "turn", lt.env_config)
     assert np.isfinite(r.x[np.isfinite(r.q_m_s2)]).all()
+
+
+def test_stonesoup_q_policy_refuses_a_turn_aware_policy(tmp_path):
+    pytest.importorskip("stonesoup")
+    from agents.policies.stonesoup_qpolicy import load_q_policy
+    run = bp.train_backprop(_hp(n_steps=1), seed=0, out=tmp_path, progress=False, verbose=0, run_name="turn")
+    with pytest.raises(ValueError, match="turn-aware"):
+        load_q_policy(str(run))

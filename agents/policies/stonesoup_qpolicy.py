@@ -121,6 +121,9 @@ def load_q_policy(name_or_folder="policy_bp") -> QPolicy:
     if lt.kind == "gru_q_policy" and int(cfg.frame_stack) != 1:
         raise ValueError(f"{lt.folder}: env_config frame_stack must be 1 for a recurrent Stone Soup q-policy, got "
                          f"{cfg.frame_stack}")
+    if getattr(lt.policy, "turn_aware", False):
+        raise ValueError(f"{lt.folder}: a turn-aware q-policy (model 'cv_turn') sets the prediction's turn rate; "
+                         "the Stone Soup q-policy components run q-policies only")
     if layout.uses_detectors:
         raise ValueError(f"{lt.folder}: env_config features include IMM detector features "
                          f"({[n for n in layout.names if n in DETECTOR_FEATURES]}); the Stone Soup q-policy does "
