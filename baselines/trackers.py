@@ -165,11 +165,15 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
 
     A recurrent policy is a stateful ``choose_q``: an object with ``reset(rows)`` is reset for every row (each row
     is one episode) before the first look and then called as ``choose_q(obs_rows, rows)``, so that it carries its
-    state per row (e.g. :class:`agents.policies.recurrent.RecurrentQPolicy`)."""
+    state per row (e.g. :class:`agents.policies.recurrent.RecurrentQPolicy`). A ``choose_q`` whose ``turn_aware``
+    attribute is true returns ``(q, omega)``: the look is predicted with ``F_ct(dt, omega)`` (rad/s, positive =
+    clockwise; :meth:`radar_env.filters.tracking.Tracker.step`), recorded as ``extra["policy_turn_rate_deg_s"]``."""
     tr, out = _tracker(episodes, cfg)
     layout = None if features is not None and not len(features) else observation_layout(cfg, features)[0]
     B, K = tr.B, int(tr.n_looks.max())
-    rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s"))
+    turn = bool(getattr(choose_q, "turn_aware", False))
+    rec = _Recorder(name, B, K, extra=("c_min_g", "turn_rate_alg1_deg_s", "turn_rate_alg2_deg_s")
+                    + (("policy_turn_rate_deg_s",) if turn else ()))
     declared = np.zeros((B, K), dtype=bool) if declare is not None else None
     q_prev = np.full(B, _start(cfg).warmup_q_m_s2)
     rows0 = np.arange(B)
@@ -192,16 +196,23 @@ def run_q_policy(episodes, choose_q, name="policy", cfg=None, declare=None, feat
     def step(rows):
         o_rows = obs[rows]
         q = choose_q(o_rows, rows) if stateful else choose_q(o_rows)
+        w = None
+        if turn:
+            q, w = q
+            w = np.asarray(w, dtype=np.float64).reshape(rows.size)
+            if not np.isfinite(w).all():
+                raise ValueError(f"{name}: the policy's turn rate is not finite")
         q = np.clip(np.asarray(q, dtype=np.float64).reshape(rows.size), 0.0, 100 * G0_M_S2)
         if declared is not None:
             declared[rows, tr.k[rows]] = np.asarray(declare(o_rows), dtype=bool)
         if det is not None and det.step(tr._looks, tr._it, rows) != 0:   # before the chain: the look it takes
             raise RuntimeError("the detectors' IMMs refused a look the chain takes")   # a bug: same rows, looks
-        o = tr.step(q, rows=None if rows.size == B else rows)
+        o = tr.step(q, rows=None if rows.size == B else rows, turn_rate_rad_s=w)
         if layout is not None:
             enc = layout.encode(o, q, None if det is None else det.values[rows])
             obs[rows] = enc if frames is None else frames.push(rows, enc)
-        rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o))
+        rec.put(rows, o.look_index, o.x, o.P, q, **_feature_extra(o),
+                **({} if w is None else {"policy_turn_rate_deg_s": np.degrees(w)}))
         return o
 
     _loop(tr, out, step)

@@ -78,6 +78,35 @@ def run_pair(predictor, updater, prediction_type, e, state, k0, missed, radial_v
     return out
 
 
+def _check_every_look(model, run, eps, which, missed):
+    """The Stone Soup loop (:func:`run_pair`) on ``eps`` from our track start equals ``run`` on every look (1e-6
+    relative); returns the largest relative difference seen."""
+    states, k0 = L.track_starts(eps, model)
+    n_checked = n_missed = 0
+    worst = 0.0
+    for b, e in enumerate(eps):
+        for k, ctx, state in _run_stonesoup(e, states[b], int(k0[b]), missed):
+            ref = run.x[b, k]
+            for sl in (slice(0, 2), slice(2, 4)):
+                worst = max(worst, np.abs(ctx.x[sl] - ref[sl]).max() / np.abs(ref[sl]).max())
+                np.testing.assert_allclose(ctx.x[sl], ref[sl], rtol=0, atol=REL * np.abs(ref[sl]).max(),
+                                           err_msg=f"{which} row {b} look {k}")
+            np.testing.assert_allclose(ctx.P, run.P[b, k], rtol=0, atol=REL * np.abs(run.P[b, k]).max())
+            np.testing.assert_allclose(1.0 - math.exp(ctx.log_mu[0]), run.extra["maneuver_probability"][b, k],
+                                       rtol=REL, atol=1e-12)
+            if not isinstance(state, L.LearnedIMMStatePrediction):     # what a tracker's track shows
+                x_ss = np.asarray(state.state_vector, dtype=np.float64).ravel()[S.SS_FROM_OURS]
+                np.testing.assert_array_equal(x_ss, ctx.x)
+                assert state.maneuver_probability == pytest.approx(run.extra["maneuver_probability"][b, k],
+                                                                   rel=REL, abs=1e-12)
+            n_checked += 1
+            n_missed += not e.detected[k]
+    assert n_checked == sum(e.n_looks - k - 1 for e, k in zip(eps, k0))
+    if "misses" in which:
+        assert n_missed > 0
+    return worst
+
+
 @pytest.mark.parametrize("which,missed,rdot", [("bizup2002", "predict", False), ("random", "predict", False),
                                                ("one_site_with_misses", "predict", False),
                                                ("one_site_with_misses", "bare", False),
@@ -94,31 +123,33 @@ def test_stonesoup_learned_imm_equals_the_runner_on_every_look(model, which, mis
     run = model.run(eps)
     if rdot:        # the range rate changes the estimates: comparing with the position-only run would fail
         assert np.nanmax(np.abs(run.x - position_only.x)) > 1.0
-    states, k0 = L.track_starts(eps, model)
     names = model.names
-    n_checked = n_missed = 0
-    for b, e in enumerate(eps):
-        for k, ctx, state in _run_stonesoup(e, states[b], int(k0[b]), missed):
-            ref = run.x[b, k]
-            for sl in (slice(0, 2), slice(2, 4)):
-                np.testing.assert_allclose(ctx.x[sl], ref[sl], rtol=0, atol=REL * np.abs(ref[sl]).max(),
-                                           err_msg=f"{which} row {b} look {k}")
-            np.testing.assert_allclose(ctx.P, run.P[b, k], rtol=0, atol=REL * np.abs(run.P[b, k]).max())
-            np.testing.assert_allclose(1.0 - math.exp(ctx.log_mu[0]), run.extra["maneuver_probability"][b, k],
-                                       rtol=REL, atol=1e-12)
-            if not isinstance(state, L.LearnedIMMStatePrediction):     # what a tracker's track shows
-                x_ss = np.asarray(state.state_vector, dtype=np.float64).ravel()[S.SS_FROM_OURS]
-                np.testing.assert_array_equal(x_ss, ctx.x)
-                assert state.maneuver_probability == pytest.approx(run.extra["maneuver_probability"][b, k],
-                                                                   rel=REL, abs=1e-12)
-            n_checked += 1
-            n_missed += not e.detected[k]
-    assert n_checked == sum(e.n_looks - k - 1 for e, k in zip(eps, k0))
-    if "misses" in which:
-        assert n_missed > 0
+    _check_every_look(model, run, eps, which, missed)
     # the network matters: the parameters it chose move away from the tuned constants
     chosen = np.stack([run.extra[f"param_{n}"][0] for n in names], -1)
     assert np.nanmax(np.abs(np.log(chosen / model.pmap.base))) > 0.1
+
+
+@pytest.fixture(scope="module")
+def ppo_model():
+    return L.load_imm_model("policy_imm_ppo")
+
+
+@pytest.mark.parametrize("which,missed", [("random", "predict"), ("one_site_with_misses", "bare"),
+                                          ("two_sites_with_misses", "model")])
+def test_stonesoup_ppo_learned_imm_equals_the_evaluations_run_on_every_look(ppo_model, which, missed):
+    """policy_imm_ppo (stable-baselines3, its numpy export) through the same components equals the evaluation's run
+    of it (agents.evaluation.runner.run_policy -> SB3LearnedIMM.run -> run_imm_lockstep)."""
+    from agents.evaluation.runner import run_policy
+    assert isinstance(ppo_model, L.SB3IMMModel)
+    eps = _episodes(which)
+    run = run_policy("policy_imm_ppo", eps, ppo_model.sb3, ppo_model.cfg)
+    worst = _check_every_look(ppo_model, run, eps, which, missed)
+    print(f"policy_imm_ppo {which} {missed}: max relative difference {worst:.1e}")
+    # the network matters: the parameters it chose move look to look
+    p = np.stack([run.extra[k][0] for k in run.extra if k.startswith("param_")], -1)
+    p = p[np.isfinite(p).all(1)]
+    assert np.abs(np.diff(p, axis=0)).max() > 0
 
 
 def test_runner_parameters_are_the_updates(model):
@@ -146,9 +177,11 @@ def test_runner_parameters_are_the_updates(model):
         assert not np.array_equal(state.context.h, ctx.h)
 
 
-def test_hypothesiser_and_from_gaussian(model):
+@pytest.mark.parametrize("which", ["policy_imm_bp", "policy_imm_ppo"])
+def test_hypothesiser_and_from_gaussian(model, ppo_model, which):
     """Stone Soup's hypothesiser gates with the prediction (3-D polar); a track started from a bare Gaussian (an
     initiator's) with its detection tracks the target."""
+    model = ppo_model if which == "policy_imm_ppo" else model
     e = _episodes("bizup2002")[0]
     states, k0 = L.track_starts([e], model)
     k0 = int(k0[0])

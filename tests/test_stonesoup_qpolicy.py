@@ -1,8 +1,9 @@
-"""agents.policies.stonesoup_qpolicy: the bundled q-policies (policy_bp, policy_bp_rdot) as a Stone Soup
-predictor/updater equal the evaluation's run (agents.evaluation.runner.run_policy -> run_q_policy, the oracle) on
-every look of our episodes (estimate to 1e-6 relative, the chosen q to 1e-9), with the plots as Stone Soup polar
-detections; missed looks kept as predictions (Stone Soup's trackers) or updated with a MissedDetection; a q-policy
-reading no range rate runs on CartesianToBearingRange detections; Stone Soup's hypothesiser accepts it."""
+"""agents.policies.stonesoup_qpolicy: the bundled q-policies (policy_bp, policy_bp_rdot, and policy, the PPO one with
+its four stacked frames) as a Stone Soup predictor/updater equal the evaluation's run
+(agents.evaluation.runner.run_policy -> run_q_policy, the oracle) on every look of our episodes (estimate to 1e-6
+relative, the chosen q to 1e-9), with the plots as Stone Soup polar detections; missed looks kept as predictions
+(Stone Soup's trackers) or updated with a MissedDetection; a q-policy reading no range rate runs on
+CartesianToBearingRange detections; Stone Soup's hypothesiser accepts it."""
 
 import math
 
@@ -36,7 +37,7 @@ REL, REL_Q = 1e-6, 1e-9
 
 @pytest.fixture(scope="module")
 def policies():
-    return {n: Q.load_q_policy(n) for n in ("policy_bp", "policy_bp_rdot")}
+    return {n: Q.load_q_policy(n) for n in ("policy_bp", "policy_bp_rdot", "policy")}
 
 
 def _position_only_policy():
@@ -83,7 +84,10 @@ def _check_every_look(model, eps, missed, radial_velocity=True):
                                                ("policy_bp", "one_site_with_misses", "bare"),
                                                ("policy_bp", "two_sites_with_misses", "model"),
                                                ("policy_bp_rdot", "random", "predict"),
-                                               ("policy_bp_rdot", "two_sites_with_misses", "model")])
+                                               ("policy_bp_rdot", "two_sites_with_misses", "model"),
+                                               ("policy", "random", "predict"),
+                                               ("policy", "one_site_with_misses", "bare"),
+                                               ("policy", "two_sites_with_misses", "model")])
 def test_stonesoup_q_policy_equals_the_runner_on_every_look(policies, name, which, missed):
     model = policies[name]
     assert model.needs_range_rate and model.env_config.track_start.radial_velocity == name.endswith("_rdot")

@@ -102,17 +102,35 @@ class RecurrentQPolicy:
 
     Args:
         weights: ``{name: array}`` as :func:`weight_shapes` names them.
-        arch: the architecture (``input_size``, ``hidden_size``, ``head``).
+        arch: the architecture (``input_size``, ``hidden_size``, ``head``; ``n_out`` 2 for a turn-aware policy).
         q_levels_g: the env's q levels; their first and last bound the action (``RadarTrack-v0``'s action map).
+        turn_rate_max_rad_s: a turn-aware policy's (``model`` ``cv_turn``, ``n_out`` 2) turn-rate bound: its second
+            output ``a_1`` gives ``omega = turn_rate_max_rad_s * a_1`` (rad/s, positive = clockwise), the rate of
+            the coordinated-turn prediction ``F_ct(dt, omega)``; 0 (default) for a q-policy.
+
+    A turn-aware policy (:attr:`turn_aware`) returns ``(q, omega)`` from :meth:`__call__`, which
+    :func:`baselines.trackers.run_q_policy` passes to the chain; it has no ``RadarTrack-v0`` action (the env's action
+    is q), so :meth:`predict` refuses it.
     """
 
-    def __init__(self, weights, arch, q_levels_g):
+    def __init__(self, weights, arch, q_levels_g, turn_rate_max_rad_s=0.0):
         self.arch = dict(arch)
         self.w = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in weights.items()}
         self.n_head = len(self.arch.get("head", []))
         self.input_size, self.hidden_size = int(arch["input_size"]), int(arch["hidden_size"])
         self.levels_m_s2 = np.asarray(q_levels_g, dtype=np.float64) * G0_M_S2
         self._h = np.zeros((0, self.hidden_size))
+        self.n_out = int(self.arch.get("n_out", 1))
+        self.turn_rate_max_rad_s = float(turn_rate_max_rad_s)
+        if (self.n_out == 2) != (self.turn_rate_max_rad_s > 0) or self.n_out not in (1, 2):
+            raise ValueError(f"RecurrentQPolicy: n_out {self.n_out} with turn_rate_max_rad_s "
+                             f"{self.turn_rate_max_rad_s!r}: a q-policy has one output and no turn rate, a turn-aware "
+                             "one two outputs and a positive turn-rate bound")
+
+    @property
+    def turn_aware(self):
+        """Whether the policy also sets the prediction's turn rate (``(q, omega)`` per look)."""
+        return self.n_out == 2
 
     # ---- the network
     def initial_state(self, n):
@@ -120,7 +138,13 @@ class RecurrentQPolicy:
         return np.zeros((int(n), self.hidden_size))
 
     def act(self, obs, h):
-        """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n,) in [-1, 1], new state (n, H))``."""
+        """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n,) in [-1, 1], new state (n, H))`` (the
+        q action; a turn-aware policy's turn-rate action is :meth:`act_all`'s second column)."""
+        a, h = self.act_all(obs, h)
+        return a[:, 0], h
+
+    def act_all(self, obs, h):
+        """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n, n_out) in [-1, 1], new state (n, H))``."""
         w = self.w
         x = np.asarray(obs, dtype=np.float64).reshape(-1, self.input_size)
         h = gru_cell(x, np.asarray(h, dtype=np.float64).reshape(x.shape[0], self.hidden_size), w["gru.weight_ih"],
@@ -128,7 +152,7 @@ class RecurrentQPolicy:
         y = h
         for i in range(self.n_head):
             y = np.tanh(linear(y, w[f"head.{i}.weight"]) + w[f"head.{i}.bias"])
-        return np.tanh(linear(y, w["out.weight"]) + w["out.bias"])[:, 0], h
+        return np.tanh(linear(y, w["out.weight"]) + w["out.bias"]), h
 
     def q_of_actions(self, actions):
         """The env's action map: actions in [-1, 1] -> q (m/s^2)."""
@@ -148,8 +172,9 @@ class RecurrentQPolicy:
         """q (m/s^2) for the next look of rows ``rows`` from their observations ``obs (n, F)``; advances their
         state (``reset`` them first)."""
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
-        a, self._h[rows] = self.act(obs, self._h[rows])
-        return self.q_of_actions(a)
+        a, self._h[rows] = self.act_all(obs, self._h[rows])
+        q = self.q_of_actions(a[:, 0])
+        return (q, self.turn_rate_max_rad_s * a[:, 1]) if self.turn_aware else q
 
     # ---- acting in the env (as sb3-contrib's RecurrentPPO.predict)
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
@@ -164,6 +189,10 @@ class RecurrentQPolicy:
             ``(actions, state)``: float64 actions in [-1, 1], shape ``(1,)`` for a single observation or ``(n, 1)``,
             for ``env.step``; the new state to pass next time.
         """
+        if self.turn_aware:
+            raise ValueError("a turn-aware policy (model 'cv_turn') sets the prediction's turn rate, which "
+                             "RadarTrack-v0's action (q) cannot carry: run it with baselines.trackers.run_q_policy or "
+                             "radar-track evaluate --learned")
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         obs = obs.reshape(-1, self.input_size)
@@ -233,11 +262,20 @@ def load_recurrent_policy(path):
                          f"expected {FORMAT!r})")
     if meta.get("version") != VERSION:
         raise ValueError(f"{meta_file}: version {meta.get('version')!r}; this package reads version {VERSION}")
-    if meta.get("model") != "cv":
+    if meta.get("model") not in ("cv", "cv_turn"):
         raise ValueError(f"{meta_file}: model {meta.get('model')!r}; this loader runs the 'cv' model (a GRU choosing "
-                         "the CV filter's q)")
+                         "the CV filter's q) and 'cv_turn' (q and the prediction's turn rate)")
     arch = meta.get("architecture")
     shapes = _checked_shapes(meta_file, arch)
+    w_max = 0.0
+    if meta["model"] == "cv_turn":
+        w_max = meta.get("turn_rate_max_rad_s")
+        if (isinstance(w_max, bool) or not isinstance(w_max, (int, float)) or not math.isfinite(w_max)
+                or not 0 < w_max <= math.pi):
+            raise ValueError(f"{meta_file}: field 'turn_rate_max_rad_s' must be a number in (0, pi], got {w_max!r}"[:300])
+    if int(arch.get("n_out", 1)) != (2 if meta["model"] == "cv_turn" else 1):
+        raise ValueError(f"{meta_file}: model {meta['model']!r} has {2 if meta['model'] == 'cv_turn' else 1} "
+                         f"output(s), architecture n_out is {arch.get('n_out', 1)!r}")
     weights = checks.read_npz(path)
     checks.check_weights(path, weights, shapes)
     _, cfg = checks.check_env_config(env_file)
@@ -264,4 +302,4 @@ def load_recurrent_policy(path):
             raise ValueError(f"{env_file}: q_levels_g span {levels[0]:.6g}-{levels[-1]:.6g} m/s^2, but the policy was "
                              f"trained with q from {float(rng[0]):.6g} to {float(rng[1]):.6g} m/s^2 (recorded in "
                              f"{meta_file.name}); give its training q_levels_g")
-    return RecurrentQPolicy(weights, arch, cfg.q_levels_g), cfg
+    return RecurrentQPolicy(weights, arch, cfg.q_levels_g, w_max), cfg

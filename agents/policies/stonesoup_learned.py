@@ -1,5 +1,6 @@
-r"""Stone Soup components for the learned IMM (``policy_imm_bp``, :mod:`agents.policies.learned_imm`): a predictor,
-an updater and the state types, the track's state carrying the network's recurrent state and the feature chain.
+r"""Stone Soup components for the learned IMMs (``policy_imm_bp``, :mod:`agents.policies.learned_imm`, and
+``policy_imm_ppo``, the stable-baselines3 one, :class:`SB3IMMModel`): a predictor, an updater and the state types,
+the track's state carrying the network's recurrent state and the feature chain.
 
 One look of the learned IMM (:func:`baselines.imm_cv_ct_runner.run_imm_lockstep`) is, from the context after the
 previous look (IMM modes, GRU state ``h``, the IMM's detectors, the feature chain -- a 1-row
@@ -9,13 +10,16 @@ previous look (IMM modes, GRU state ``h``, the IMM's detectors, the feature chai
    (:func:`radar_env.filters.tracking.preview_next_plot`, what the chain's step computes when it knows the next
    look), encoded as the env does;
 2. the GRU and its head: this look's IMM parameters (:meth:`agents.policies.learned_imm.LearnedIMM.offsets`,
-   :class:`~agents.policies.learned_imm.ParamMap`);
+   :class:`~agents.policies.learned_imm.ParamMap`); for ``policy_imm_ppo`` the feed-forward network's
+   deterministic action on the observation and the clipped detectors, through the env's action map
+   (:func:`agents.policies.loading.model_run_imm`'s ``choose``; :meth:`SB3IMMModel.parameters`);
 3. the IMM's look with them (:func:`radar_env.filters.imm_cv_ct.predict_modes` with ``params``, then
    :func:`~radar_env.filters.imm_cv_ct.update_modes`) and its detectors;
 4. the feature chain's step on the plot (:meth:`Tracker.feed`, :meth:`Tracker.step`).
 
 Nothing of the chain or the network is written again here: these are the functions the runner calls.
-tests/test_stonesoup_learned.py checks every look of whole episodes against ``LearnedIMM.run`` (1e-6 relative).
+tests/test_stonesoup_learned.py checks every look of whole episodes against ``LearnedIMM.run`` and
+``policy_imm_ppo``'s run (:class:`agents.policies.loading.SB3LearnedIMM`) (1e-6 relative).
 
 Stone Soup splits a look into a prediction (before any detection is associated, for gating) and an update. The
 learned IMM sets the look's parameters *after* seeing the look's plot (the preview, as an IMM weighs its modes with
@@ -69,7 +73,8 @@ from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look
                                              _radar_of, _row_of, context_after, gaussian_start, prior_context)
 
 __all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
-           "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair"]
+           "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair",
+           "SB3IMMModel", "load_imm_model"]
 
 _P5 = np.array([0, 2, 1, 3, 4])
 _SS4 = _ss.SS_FROM_OURS
@@ -80,11 +85,61 @@ def bundled_learned_imm() -> LearnedIMM:
     return load_learned_imm(BUNDLED_LEARNED_IMM)
 
 
+class SB3IMMModel:
+    """A stable-baselines3 learned IMM (``policy_imm_ppo``: a model trained on ``RadarTrack-v0`` with
+    ``tracker="imm_cv_ct"``, :class:`agents.policies.loading.SB3LearnedIMM`) with what these components read of a
+    :class:`~agents.policies.learned_imm.LearnedIMM`: ``spec``, ``cfg``, ``layout``, ``feature_q_m_s2``, ``arch``
+    (no recurrent state: ``hidden_size`` 0), and :meth:`parameters`, the runner's choice
+    (:func:`agents.policies.loading.model_run_imm`)."""
+
+    def __init__(self, sb3, name="policy_imm_ppo"):
+        from radar_env.envs.imm_env import feature_q_m_s2, imm_action_map, imm_spec
+        from baselines.trackers import observation_layout
+        self.name, self.sb3, self.cfg = name, sb3, sb3.cfg
+        self.spec = imm_spec(self.cfg)
+        self.amap = imm_action_map(self.cfg, self.spec)
+        self.feature_q_m_s2 = feature_q_m_s2(self.cfg)
+        self.layout = observation_layout(self.cfg)[0]
+        self.arch = {"hidden_size": 0}
+
+    def parameters(self, obs, detectors):
+        """This look's IMM parameters ``(n_par,)`` from the observation ``obs (1, F)`` and the detectors
+        ``(M + 2,)``: the model's deterministic action through the env's action map, as the runner chooses."""
+        from radar_env.envs.imm_env import detector_observation
+        act, _ = self.sb3.model.predict(np.concatenate([obs, detector_observation(detectors[None])], 1),
+                                        deterministic=True)
+        return self.amap.parameters(np.asarray(act).reshape(1, self.amap.n_par))[0]
+
+    def run(self, episodes, name=None):
+        """The evaluation's run (:meth:`agents.policies.loading.SB3LearnedIMM.run`)."""
+        return self.sb3.run(episodes, name or self.name)
+
+
+def load_imm_model(name_or_folder="policy_imm_bp"):
+    """A learned IMM by bundled name (``policy_imm_bp``, ``policy_imm_bp_rdot``, ``policy_imm_bp_prior``,
+    ``policy_imm_ppo``) or folder (:func:`agents.policies.learned.load_learned` with a learned-IMM kind): a
+    :class:`~agents.policies.learned_imm.LearnedIMM`, or an :class:`SB3IMMModel` for a stable-baselines3 one (its
+    numpy export; nothing unpickled)."""
+    from agents.policies.learned import IMM_KINDS, load_learned
+    lt = load_learned(name_or_folder, kinds=IMM_KINDS)
+    return lt.policy if isinstance(lt.policy, LearnedIMM) else SB3IMMModel(lt.policy, lt.name)
+
+
+def _look_parameters(m, obs, detectors, h):
+    """``(params (n_par,), h)``: this look's IMM parameters chosen by ``m`` (a LearnedIMM: the GRU and its head;
+    an :class:`SB3IMMModel`: its action, no state)."""
+    if isinstance(m, LearnedIMM):
+        delta, h = m.offsets(np.concatenate([obs.astype(np.float64), detectors[None]], 1), h[None])
+        return m.pmap.physical(delta)[0], h[0]
+    return m.parameters(obs, detectors), h
+
+
 class LearnedIMMContext(NamedTuple):
     """Everything one look of the learned IMM needs from the previous one (our state order; never modified: each
     look makes a new one)."""
 
-    model: LearnedIMM           # the checkpoint (network, IMM spec, observation layout, chain parameters)
+    model: LearnedIMM           # the checkpoint (network, IMM spec, observation layout, chain parameters; or an
+                                # SB3IMMModel)
     t_s: float                  # time of the previous look (s since stonesoup_components.EPOCH)
     x: np.ndarray               # (4,) the IMM's combined posterior [x, y, vx, vy]
     P: np.ndarray               # (4, 4)
@@ -112,8 +167,7 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     prev = preview_next_plot(ctx.chain.x, ctx.chain.P, ctx.chain.t_last, nxt)
     out = ctx.chain_out._replace(features={**ctx.chain_out.features, **prev})
     obs = m.layout.encode(out, np.array([ctx.q_prev_m_s2]))
-    delta, h = m.offsets(np.concatenate([obs.astype(np.float64), ctx.detectors[None]], 1), ctx.h[None])
-    params = m.pmap.physical(delta)[0]
+    params, h = _look_parameters(m, obs, ctx.detectors, ctx.h)
     pred = predict_modes(m.spec, ctx.x_modes, ctx.P_modes, ctx.log_mu, dt, params)
     rr = None
     if det and m.cfg.track_start.radial_velocity:
@@ -124,7 +178,7 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     chain = copy.deepcopy(ctx.chain)
     chain.feed([0], _look_row(look)[None])
     chain_out = _row_of(chain.step(m.feature_q_m_s2), 0)
-    new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h[0], detectors,
+    new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h, detectors,
                             chain, chain_out, m.feature_q_m_s2, _radar_of(look))
     return pred, up, new
 

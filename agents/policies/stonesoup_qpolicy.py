@@ -1,6 +1,8 @@
 r"""Stone Soup components for the learned q-policies (``policy_bp``, ``policy_bp_rdot``: a GRU choosing the CV
-Kalman filter's process noise q each look, :mod:`agents.policies.recurrent`): a predictor, an updater and the state
-types, the track's state carrying the GRU state and the feature chain.
+Kalman filter's process noise q each look, :mod:`agents.policies.recurrent`; ``policy``: the PPO q-policy, a
+feed-forward network on four stacked observations, run through its numpy export
+:mod:`agents.policies.numpy_policy`): a predictor, an updater and the state types, the track's state carrying the
+GRU state (or the stacked frames) and the feature chain.
 
 One look of a q-policy as the evaluation runs it (:func:`baselines.trackers.run_q_policy`) is, from the context
 after the previous look (GRU state ``h``, the chain -- a 1-row :class:`radar_env.filters.tracking.Tracker`, the CV
@@ -10,7 +12,10 @@ Kalman filter and its features -- its last step's output and that step's q):
    (:func:`radar_env.filters.tracking.preview_next_plot`, what the chain's step computes when it knows the next
    look), encoded as the env does (:class:`radar_env.envs.observation.ObservationLayout`);
 2. the GRU: this look's q (:meth:`agents.policies.recurrent.RecurrentQPolicy.act` and ``q_of_actions``, clipped
-   as the runner clips);
+   as the runner clips); a stable-baselines3 q-policy (``policy``): its ``choose_q``
+   (:func:`agents.policies.loading.model_choose_q`, deterministic actions through the env's action map) on the
+   observation stacked with the previous looks' (``frame_stack`` frames newest first, the first look's repeated,
+   as :class:`radar_env.envs.observation.FrameStack` stacks them; the frames ride in the context);
 3. the chain's step with that q on the plot (:meth:`Tracker.feed`, :meth:`Tracker.step`): the estimate.
 
 Nothing of the chain or the network is written again here: these are the functions the runner calls, and the
@@ -83,9 +88,18 @@ class QPolicy(NamedTuple):
     """A loaded q-policy as these components run it."""
 
     name: str                   # its tracker name (a bundled name or the folder's label)
-    policy: RecurrentQPolicy    # the network
+    policy: object              # the network: a RecurrentQPolicy, or an SB3 q-policy's choose_q (obs -> q m/s^2)
     env_config: object          # the EnvConfig it was trained with (features, q levels, track start)
     layout: ObservationLayout   # its observation (the runner's, observation_layout(env_config))
+
+    @property
+    def recurrent(self) -> bool:
+        """A GRU q-policy (a state ``h``); else a stable-baselines3 one (stateless, stacked frames)."""
+        return isinstance(self.policy, RecurrentQPolicy)
+
+    def initial_h(self) -> np.ndarray:
+        """The network's state at a track start (the GRU's; an empty array for a stateless policy)."""
+        return self.policy.initial_state(1)[0] if self.recurrent else np.zeros(0)
 
     @property
     def needs_range_rate(self) -> bool:
@@ -94,17 +108,22 @@ class QPolicy(NamedTuple):
 
 
 def load_q_policy(name_or_folder="policy_bp") -> QPolicy:
-    """A recurrent q-policy by bundled name (``policy_bp``, ``policy_bp_rdot``) or folder
-    (:func:`agents.policies.learned.load_learned` with kind ``gru_q_policy``; a learned IMM or an SB3 model is
-    refused there). ``ValueError`` naming the field for an env config these components cannot run: stacked frames
-    (``frame_stack``) or the IMM detector features."""
+    """A q-policy by bundled name (``policy_bp``, ``policy_bp_rdot``, ``policy``) or folder
+    (:func:`agents.policies.learned.load_learned` with a q-policy kind: ``gru_q_policy``, or a stable-baselines3
+    one, ``ppo_q_policy`` ..., through its numpy export; a learned IMM is refused there). ``ValueError`` naming the
+    field for an env config these components cannot run: a recurrent policy with stacked frames (``frame_stack``)
+    or the IMM detector features."""
     from agents.policies.learned import load_learned
-    lt = load_learned(name_or_folder, kinds=("gru_q_policy",))
+    from agents.policies.layout import Q_POLICY_KINDS
+    lt = load_learned(name_or_folder, kinds=Q_POLICY_KINDS)
     cfg = lt.env_config
     layout = observation_layout(cfg)[0]
-    if int(cfg.frame_stack) != 1:
-        raise ValueError(f"{lt.folder}: env_config frame_stack must be 1 for the Stone Soup q-policy, got "
+    if lt.kind == "gru_q_policy" and int(cfg.frame_stack) != 1:
+        raise ValueError(f"{lt.folder}: env_config frame_stack must be 1 for a recurrent Stone Soup q-policy, got "
                          f"{cfg.frame_stack}")
+    if getattr(lt.policy, "turn_aware", False):
+        raise ValueError(f"{lt.folder}: a turn-aware q-policy (model 'cv_turn') sets the prediction's turn rate; "
+                         "the Stone Soup q-policy components run q-policies only")
     if layout.uses_detectors:
         raise ValueError(f"{lt.folder}: env_config features include IMM detector features "
                          f"({[n for n in layout.names if n in DETECTOR_FEATURES]}); the Stone Soup q-policy does "
@@ -130,6 +149,8 @@ class QPolicyContext(NamedTuple):
     chain_out: StepOutput       # its last step's output (1 row)
     q_m_s2: float               # the q of that step (the observation's q_prev; the q the policy chose there)
     radar: tuple                # (site x, site y, range std, bearing std, range-rate std) of the last detection
+    frames: np.ndarray = None   # (frame_stack, F) float32: the stacked observation used at that look, newest first
+                                # (None at a track start and for a policy without stacking)
 
 
 def _run_look(ctx: QPolicyContext, look: dict) -> QPolicyContext:
@@ -142,13 +163,22 @@ def _run_look(ctx: QPolicyContext, look: dict) -> QPolicyContext:
                              {k: np.asarray(v)[None] for k, v in look.items()})
     obs = m.layout.encode(ctx.chain_out._replace(features={**ctx.chain_out.features, **prev}),
                           np.array([ctx.q_m_s2]))
-    a, h = m.policy.act(obs, ctx.h[None])
-    q = float(np.clip(np.asarray(m.policy.q_of_actions(a), dtype=np.float64).reshape(1), 0.0, _MAX_Q_M_S2)[0])
+    frames, k = None, int(m.env_config.frame_stack)
+    if k > 1:       # as FrameStack: newest first, the first look's observation repeated (float32)
+        new = np.asarray(obs, dtype=np.float32)
+        frames = np.repeat(new, k, 0) if ctx.frames is None else np.concatenate([new, ctx.frames[:-1]])
+        obs = frames.reshape(1, -1)
+    if m.recurrent:
+        a, h = m.policy.act(obs, ctx.h[None])
+        q, h = m.policy.q_of_actions(a), h[0]
+    else:
+        q, h = m.policy(obs), ctx.h
+    q = float(np.clip(np.asarray(q, dtype=np.float64).reshape(1), 0.0, _MAX_Q_M_S2)[0])
     chain = copy.deepcopy(ctx.chain)
     chain.feed([0], _look_row(look)[None])
     out = _row_of(chain.step(q), 0)
-    return QPolicyContext(m, float(look["t_s"]), out.x[0].copy(), out.P[0].copy(), h[0], chain, out, q,
-                          _radar_of(look))
+    return QPolicyContext(m, float(look["t_s"]), out.x[0].copy(), out.P[0].copy(), h, chain, out, q,
+                          _radar_of(look), frames)
 
 
 # ------------------------------------------------------------------------------------------------ state types
@@ -182,7 +212,7 @@ class QPolicyState(GaussianState):
         x4, P4, t, radar = gaussian_start(state, detection, "the q-policy")
         ts = model.env_config.track_start
         chain, out = _fresh_chain(ts, x4, P4, t, radar)
-        ctx = QPolicyContext(model, t, x4, P4, model.policy.initial_state(1)[0], chain, out, ts.warmup_q_m_s2, radar)
+        ctx = QPolicyContext(model, t, x4, P4, model.initial_h(), chain, out, ts.warmup_q_m_s2, radar)
         return _state_from(cls, ctx, state.timestamp)
 
 
@@ -223,7 +253,7 @@ def q_track_starts(episodes, policy="policy_bp"):
     states = []
     for b, e in enumerate(episodes):
         k = int(k0[b])
-        ctx = QPolicyContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), model.policy.initial_state(1)[0],
+        ctx = QPolicyContext(model, float(e.t_s[k]), tr.x[b].copy(), tr.P[b].copy(), model.initial_h(),
                              tr.detached(b), _row_of(out, b), ts.warmup_q_m_s2, _episode_radar(e, k))
         states.append(_state_from(QPolicyState, ctx, _ss.stamp(e.t_s[k])))
     return states, k0

@@ -114,7 +114,8 @@ class ChainModel(torch.nn.Module):
     * :meth:`step` ``(looks, j, obs) -> (x (4, B), tracker_q (B,))``: one look ``j`` of the chunk's
       :class:`radar_env.filters.torch_chain.ChainLooks` for every row, reading the observation ``obs (B, F)`` (float64,
       detached) of the look before: returns the position estimate the loss scores (components first, see
-      torch_chain) and the q (m/s^2, numpy) the trainer steps the numba Tracker with, for the next observation;
+      torch_chain) and the q (m/s^2, numpy) the trainer steps the numba Tracker with, for the next observation
+      (a turn-aware model returns a third entry, the turn rate (rad/s, numpy) the Tracker predicts with);
     * :meth:`architecture` (JSON-able dict), :meth:`policy_weights` (``{name: numpy array}``) and
       :meth:`policy_config` (the ``policy.json`` entries): the checkpoint its inference code loads;
     * :meth:`save_policy` ``(directory, cfg, env_kwargs, weights=None)``: write that checkpoint (its format);
@@ -177,15 +178,27 @@ class CVQModel(ChainModel):
             actions (:func:`radar_env.envs.core.actions_to_q_m_s2`).
         q_init_m_s2: the q the untrained network outputs at every look (its output layer is zero, its bias gives
             this q): kf_tuned's, so training starts from the tuned constant-q filter.
+        turn_rate_max_rad_s: 0 (default): the network outputs q only. Positive: it also outputs a coordinated-turn
+            rate ``omega = turn_rate_max_rad_s * a_1`` (``a_1 = tanh(.)``, second output; 0 untrained) and the
+            filter predicts with ``F_ct(dt, omega)`` (:func:`radar_env.filters.torch_chain.transition`; the numba
+            Tracker's ``step(q, turn_rate_rad_s=omega)``): the turn-aware q-policy (``policy_bp_turn``). Its chunk
+            is the torch lockstep (the compiled chain is the CV model's).
+        turn_gain: the turn-rate output's pre-activation is ``turn_gain * out(y)_1``: Adam moves every weight by
+            about the learning rate per step whatever its gradient, so this sets how fast omega may move (the saved
+            weights hold the product: the numpy policy has no gain).
     """
 
     kind = "cv"
 
-    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2, chain="compiled"):
+    def __init__(self, input_size, hidden_size, head, q_levels_m_s2, q_init_m_s2, chain="compiled",
+                 turn_rate_max_rad_s=0.0, turn_gain=1.0):
         super().__init__()
         if chain not in CHAINS:
             raise ValueError(f"chain must be one of {list(CHAINS)}, got {chain!r}")
-        self.chain = chain
+        if not (math.isfinite(turn_rate_max_rad_s) and 0.0 <= turn_rate_max_rad_s <= math.pi):
+            raise ValueError(f"turn_rate_max_rad_s must be in [0, pi] rad/s, got {turn_rate_max_rad_s!r}")
+        self.w_max = float(turn_rate_max_rad_s)
+        self.chain = "torch" if self.w_max > 0 else chain
         self.levels_m_s2 = np.asarray(q_levels_m_s2, dtype=np.float64)
         self.l0, self.l1 = math.log10(self.levels_m_s2[0]), math.log10(self.levels_m_s2[-1])
         if not self.levels_m_s2[0] < q_init_m_s2 < self.levels_m_s2[-1]:
@@ -198,26 +211,34 @@ class CVQModel(ChainModel):
             layers.append(torch.nn.Linear(prev, n, dtype=DTYPE))
             prev = n
         self.head = torch.nn.ModuleList(layers)
-        self.out = torch.nn.Linear(prev, 1, dtype=DTYPE)
+        self.n_out = 2 if self.w_max > 0 else 1
+        self.turn_gain = float(turn_gain)
+        self.register_buffer("out_scale", torch.tensor([1.0, self.turn_gain][:self.n_out], dtype=DTYPE),
+                             persistent=False)
+        self.out = torch.nn.Linear(prev, self.n_out, dtype=DTYPE)
         a0 = 2.0 * (math.log10(q_init_m_s2) - self.l0) / (self.l1 - self.l0) - 1.0
         with torch.no_grad():
             self.out.weight.zero_()
-            self.out.bias.fill_(math.atanh(a0))
+            self.out.bias.zero_()
+            self.out.bias[0] = math.atanh(a0)
         self.h = self.state = None
         self.chunk_q = None
 
     # ---- the network
     def action(self, obs, h):
-        """``(a (B,), h' (B, H))`` for observations ``obs (B, F)`` and state ``h``."""
+        """``(a (B,), h' (B, H))`` for observations ``obs (B, F)`` and state ``h`` (``a (B, 2)`` with a turn rate)."""
         h = self.gru(obs, h)
         return self._head(h), h
 
     def _head(self, h):
-        """``a = tanh(out(head(h)))`` over any leading axes of ``h (..., H)``: ``(...)``."""
+        """``a = tanh(out(head(h)))`` over any leading axes of ``h (..., H)``: ``(...)`` (``(..., 2)`` with a turn
+        rate: the q action, then the turn-rate action)."""
         y = h
         for layer in self.head:
             y = torch.tanh(layer(y))
-        return torch.tanh(self.out(y))[..., 0]
+        if self.n_out == 1:
+            return torch.tanh(self.out(y))[..., 0]
+        return torch.tanh(self.out(y) * self.out_scale)
 
     def q_of_action(self, a):
         """The env's action map in torch (differentiable)."""
@@ -240,6 +261,11 @@ class CVQModel(ChainModel):
 
     def step(self, looks, j, obs):
         a, self.h = self.action(obs, self.h)
+        if self.n_out > 1:
+            w = self.w_max * a[:, 1]
+            self.state, rec = tc.step(self.state, looks, j, self.q_of_action(a[:, 0]), w)
+            q_np = actions_to_q_m_s2(a[:, 0].detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
+            return rec.x, q_np, w.detach().numpy()
         self.state, rec = tc.step(self.state, looks, j, self.q_of_action(a))
         # the numba Tracker gets the env's own map of the action (bit for bit what RadarTrack-v0 would use)
         q_np = actions_to_q_m_s2(a.detach().numpy().reshape(-1, 1), "continuous", self.levels_m_s2)
@@ -280,20 +306,61 @@ class CVQModel(ChainModel):
         x, self.state = cv_run(self.state, looks, q)
         return x
 
+    def start_from(self, path, cfg):
+        """Start from a trained recurrent q-policy (``policy.npz`` of :mod:`agents.policies.recurrent`, read without
+        pickle and checked by its loader): its GRU and head, and its q output; a turn-aware model's turn-rate output
+        stays zero (omega 0: the start filters exactly as the given policy). Its observation (features) and
+        architecture must be this model's, else ``ValueError`` naming ``--hp init_from``."""
+        from agents.policies.recurrent import load_recurrent_policy
+        try:
+            pol, pcfg = load_recurrent_policy(path)
+        except ValueError as e:
+            raise ValueError(f"--hp init_from: {e}") from None
+        if list(pcfg.features) != list(cfg.features) or pol.hidden_size != self.hidden_size or \
+                list(pol.arch.get("head", [])) != self.head_sizes:
+            raise ValueError(f"--hp init_from: {path} reads {len(pcfg.features)} features with GRU "
+                             f"{pol.hidden_size} and head {pol.arch.get('head', [])}; this model: "
+                             f"{len(cfg.features)} features, GRU {self.hidden_size}, head {self.head_sizes}")
+        w = pol.w
+        with torch.no_grad():
+            for name, t in (("gru.weight_ih", self.gru.weight_ih), ("gru.weight_hh", self.gru.weight_hh),
+                            ("gru.bias_ih", self.gru.bias_ih), ("gru.bias_hh", self.gru.bias_hh)):
+                t.copy_(torch.from_numpy(w[name]))
+            for i, layer in enumerate(self.head):
+                layer.weight.copy_(torch.from_numpy(w[f"head.{i}.weight"]))
+                layer.bias.copy_(torch.from_numpy(w[f"head.{i}.bias"]))
+            self.out.weight.zero_()
+            self.out.bias.zero_()
+            self.out.weight[0] = torch.from_numpy(w["out.weight"][0])
+            self.out.bias[0] = float(w["out.bias"][0])
+
     def architecture(self):
-        return {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
+        arch = {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
+        if self.n_out > 1:
+            arch["n_out"] = self.n_out
+        return arch
 
     def policy_weights(self):
-        return gru_weights(self, weight_shapes(self.architecture()))
+        w = gru_weights(self, weight_shapes(self.architecture()))
+        if self.n_out > 1:          # the gain folded into the output layer: the numpy policy computes the same
+            scale = self.out_scale.numpy()
+            w["out.weight"], w["out.bias"] = w["out.weight"] * scale[:, None], w["out.bias"] * scale
+        return w
 
     def policy_config(self, cfg):
-        return {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
+        conf = {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
                 "q_range_m_s2": [float(self.levels_m_s2[0]), float(self.levels_m_s2[-1])],
                 "action": "a = tanh(out(head(h))) in [-1, 1]; q = q_min (q_max / q_min)^((a + 1) / 2)"}
+        if self.n_out > 1:
+            conf["model"] = "cv_turn"
+            conf["turn_rate_max_rad_s"] = self.w_max
+            conf["action"] += ("; a second output a_1 gives the turn rate omega = turn_rate_max_rad_s a_1 (rad/s, "
+                               "positive = clockwise) of the prediction F_ct(dt, omega)")
+        return conf
 
     def inference_policy(self, cfg):
         """The numpy policy of the current weights."""
-        return RecurrentQPolicy(self.policy_weights(), self.architecture(), cfg.q_levels_g)
+        return RecurrentQPolicy(self.policy_weights(), self.architecture(), cfg.q_levels_g, self.w_max)
 
     def save_policy(self, directory, cfg, env_kwargs, weights=None):
         return save_recurrent_policy(directory, self.policy_weights() if weights is None else weights,
@@ -308,7 +375,9 @@ class CVQModel(ChainModel):
         from baselines.tuned_params import tuned_parameters
         levels = np.asarray(cfg.q_levels_g, dtype=np.float64) * G0_M_S2
         return cls(len(cfg.features) * cfg.frame_stack, hp["hidden_size"], hp["head"], levels,
-                   tuned_parameters()["kf"]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))
+                   tuned_parameters()["kf"]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"),
+                   turn_rate_max_rad_s=math.radians(hp.get("turn_rate_max_deg_s", 0.0)),
+                   turn_gain=hp.get("turn_gain", 1.0))
 
 
 def gru_weights(model, shapes):
@@ -375,10 +444,13 @@ HP_SPEC = {
     "select_on": ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names"),
     "env_kwargs": ((lambda v: isinstance(v, dict)), "a JSON object of RadarTrack-v0 arguments"),
     "chain": ((lambda v: v in CHAINS), f"one of {list(CHAINS)}"),
+    "turn_rate_max_deg_s": _num(0.0, 180.0),
+    "turn_gain": _num(0.0, 1.0, open_lo=True),
+    "init_from": ((lambda v: isinstance(v, str) and v != ""), "the path of a trained q-policy's policy.npz"),
 }
 """Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
 ``{key: (check, what it must be)}``."""
-HP_OPTIONAL = ("chain",)
+HP_OPTIONAL = ("chain", "turn_rate_max_deg_s", "turn_gain", "init_from")
 """Keys that may be absent (then their default: ``chain`` ``compiled``); absent from the recipes' files, so that
 their runs' ``config.json`` (what a resume compares) is the same as before the key existed."""
 
@@ -510,23 +582,25 @@ def lockstep(model, tracker, layout, obs, looks, on_look=None):
     active = looks.scored.numpy()
     xs = []
     for j in range(looks.J):
-        x, q = model.step(looks, j, torch.from_numpy(obs.astype(np.float64)))
+        x, q, *w = model.step(looks, j, torch.from_numpy(obs.astype(np.float64)))
         xs.append(x)
         if on_look is not None:
             on_look(j)
-        observe(tracker, layout, obs, q, active[j])
+        observe(tracker, layout, obs, q, active[j], w[0] if w else None)
     return torch.stack(xs).permute(2, 0, 1)                      # (J, 4, B) -> (B, J, 4)
 
 
-def observe(tracker, layout, obs, q, active):
-    """The numba ``tracker`` steps the rows that have this look (``active (B,)``) with their ``q (B,)``; ``obs (B,
-    F)`` takes, in place, those rows' next observation (the env's ``layout`` encoding of the step's output)."""
+def observe(tracker, layout, obs, q, active, turn_rate_rad_s=None):
+    """The numba ``tracker`` steps the rows that have this look (``active (B,)``) with their ``q (B,)`` (and turn rate
+    ``(B,)``, if given); ``obs (B, F)`` takes, in place, those rows' next observation (the env's ``layout`` encoding of
+    the step's output)."""
     rows = np.flatnonzero(active)
+    w = turn_rate_rad_s
     if rows.size == obs.shape[0]:
-        obs[:] = layout.encode(tracker.step(q), q)
+        obs[:] = layout.encode(tracker.step(q, turn_rate_rad_s=w), q)
     elif rows.size:
         q = q[rows]
-        obs[rows] = layout.encode(tracker.step(q, rows=rows), q)
+        obs[rows] = layout.encode(tracker.step(q, rows=rows, turn_rate_rad_s=None if w is None else w[rows]), q)
 
 
 def forward_episodes(model, episodes, cfg, on_look=None):
@@ -657,6 +731,10 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
     resume = part.exists() and _resumable(part, config)
     torch.manual_seed(seed)
     model = make_model(hp, cfg)
+    if hp.get("init_from"):
+        if not hasattr(model, "start_from"):
+            raise ValueError(f"--hp init_from: the {hp['tracker']!r} model cannot start from a trained policy")
+        model.start_from(hp["init_from"], cfg)      # a resume then loads its own checkpoint over it
     opt = torch.optim.Adam(model.parameters(), lr=hp["learning_rate"])
     try:
         selection = SelectionSuites(hp["eval_scenarios"], SELECTION_SEED_BASE, hp["select_on"])

@@ -451,9 +451,110 @@ def _copy_particle(xs, Ps, j, xs2, Ps2, i):
 
 
 @numba.njit(cache=True)
+def _init_row(t0, x4, P4, pv, key, k0, N, xs, Ps, kind, tau, dlo, dhi, legs, pend, logw):
+    """Every particle at the track start ``(x4, P4)`` at look ``k0`` (time ``t0``), in place
+    (:func:`_init_particle`, counters of look ``k0``), equal weights."""
+    seg = np.empty(3)
+    D = _DRAWS_PER_PARTICLE_LOOK
+    for i in range(N):
+        tau[i], legs[i] = _init_particle(t0, x4, P4, pv, key, (k0 * N + i) * D, xs[i], Ps[i], seg)
+        kind[i], dlo[i], dhi[i] = int(seg[0]), seg[1], seg[2]
+        pend[i] = False
+        logw[i] = -math.log(N)
+
+
+@numba.njit(cache=True)
+def _predict_look(k, dt, key, pv, N, xs, Ps, kind, tau, dlo, dhi, legs, pend, logw):
+    """One look's prediction, in place: each particle's regime moves over ``dt`` (the broad regime's entry, the
+    segments' ends with their draws, counters of look ``k``) and its filter's propagation through them; the
+    proposal's weight corrections join ``logw`` (not normalised)."""
+    xo, J, tmp, Po, seg = np.empty(5), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)), np.empty(3)
+    x, P = np.empty(5), np.empty((5, 5))     # the particle being filtered (see _load)
+    D = _DRAWS_PER_PARTICLE_LOOK
+    p_broad = 1.0 - math.exp(-pv[_P_BRATE] * dt)
+    for i in range(N):
+        c = (k * N + i) * D
+        _load(xs, Ps, i, x, P)
+        if kind[i] != BROAD and _u01(key, c) < p_broad:    # off the prior: the broad regime from this look
+            _set_eta(x, P, 0.0, 0.0)
+            kind[i], tau[i], dlo[i], dhi[i], pend[i] = BROAD, 0.0, pv[_P_BMIN], pv[_P_BMAX], False
+        h = dt
+        for move in range(_MAX_MOVES_PER_LOOK + 1):
+            cm = c + 2 + 10 * move
+            s_end = -1.0
+            if move < _MAX_MOVES_PER_LOOK:
+                s_end, lr = _end_within(tau[i], dlo[i], dhi[i], h, _u01(key, cm),
+                                        pv[_P_BOOST] if kind[i] == STRAIGHT else 1.0)
+                logw[i] += lr
+            if s_end < 0.0:
+                _propagate(kind[i], x, P, h, pv, xo, J, tmp, Po)
+                tau[i] += h
+                break
+            _propagate(kind[i], x, P, s_end, pv, xo, J, tmp, Po)
+            h -= s_end
+            pend[i], legs[i] = _next_segment(kind[i], pend[i], legs[i], x, P, pv, key, cm + 1, seg)
+            kind[i], tau[i], dlo[i], dhi[i] = int(seg[0]), 0.0, seg[1], seg[2]
+        _store(x, P, xs, Ps, i)
+
+
+@numba.njit(cache=True)
+def _update_look(k, det, z0, z1, R00, R01, R11, rdot, sx, sy, rdot_var, key, pv, N, xs, Ps, kind, tau, dlo, dhi,
+                 legs, pend, logw, xs2, Ps2, kind2, tau2, dlo2, dhi2, legs2, pend2, w, xc, Pc):
+    """One look's update after :func:`_predict_look`: with a plot (``det``), each particle's Kalman update on it
+    (and on its radial velocity with ``pv[_P_RDOT]``; ``rdot_var`` not finite: position only), its likelihood into
+    ``logw``; then the weights normalised, the combination (``xc``, ``Pc``: 5 states, the first 4 reported), and
+    systematic resampling (draw of look ``k``) when the ESS is below ``pv[_P_ESS] N``: the resampled particles in the
+    second buffers (``xs2`` ...), ``logw`` reset. Returns ``(maneuver probability, mean turn rate, ESS, resampled)``;
+    the caller swaps the buffers when ``resampled``."""
+    xo, Po = np.empty(5), np.empty((5, 5))
+    x, P = np.empty(5), np.empty((5, 5))
+    if det:      # R's frame once per look, not per particle (three transcendentals per particle-look)
+        frame = _r_frame(R00, R01, R11)
+        use_rdot = pv[_P_RDOT] > 0.0
+        for i in range(N):
+            _load(xs, Ps, i, x, P)
+            n = 4 if kind[i] == STRAIGHT or kind[i] == BROAD else 5
+            logw[i] += _plot_update(x, P, n, z0, z1, frame, xo, Po)
+            if use_rdot:
+                logw[i] += _rdot_update(x, P, n, rdot, sx, sy, rdot_var, xo, Po)
+                for r in range(n):
+                    x[r] = xo[r]
+                    for c in range(n):
+                        P[r, c] = Po[r, c]
+            _store(x, P, xs, Ps, i)
+    lse = _logsumexp(logw, N)
+    s2, pman, om = 0.0, 0.0, 0.0
+    for i in range(N):
+        logw[i] -= lse
+        w[i] = math.exp(logw[i])
+        s2 += w[i] * w[i]
+        if kind[i] != STRAIGHT:
+            pman += w[i]
+        if kind[i] == TURN:
+            om += w[i] * xs[i, 4]
+    _moments(w, xs, Ps, 4, xc, Pc)
+    resampled = 1.0 / s2 < pv[_P_ESS] * N
+    if resampled:                 # systematic resampling
+        u = _u01(key ^ _RESAMPLE_STREAM, k) / N
+        j, cum = 0, w[0]
+        for i in range(N):
+            while cum < u and j < N - 1:
+                j += 1
+                cum += w[j]
+            _copy_particle(xs, Ps, j, xs2, Ps2, i)
+            kind2[i], tau2[i] = kind[j], tau[j]
+            dlo2[i], dhi2[i], legs2[i], pend2[i] = dlo[j], dhi[j], legs[j], pend[j]
+            u += 1.0 / N
+        logw[:] = -math.log(N)
+    return pman, om, 1.0 / s2, resampled
+
+
+@numba.njit(cache=True)
 def _row(t, z, R, det, rdot, site, rdot_var, n_looks, k_start, x4, P4, key, pv, N, out_x, out_P, out_pman, out_w,
          out_ess):
-    """One track's looks ``k_start .. n_looks - 1`` with ``N`` particles."""
+    """One track's looks ``k_start .. n_looks - 1`` with ``N`` particles: :func:`_init_row`, then per look
+    :func:`_predict_look` and :func:`_update_look` (the Stone Soup components, :mod:`baselines.stonesoup_rbpf`, call
+    the same three)."""
     xs, Ps = np.empty((N, 5)), np.empty((N, 5, 5))
     kind, tau, dlo, dhi = np.empty(N, np.int64), np.empty(N), np.empty(N), np.empty(N)
     legs, pend, logw = np.empty(N, np.int64), np.zeros(N, np.bool_), np.empty(N)
@@ -461,86 +562,24 @@ def _row(t, z, R, det, rdot, site, rdot_var, n_looks, k_start, x4, P4, key, pv, 
     kind2, tau2, dlo2, dhi2 = np.empty(N, np.int64), np.empty(N), np.empty(N), np.empty(N)
     legs2, pend2 = np.empty(N, np.int64), np.zeros(N, np.bool_)
     w = np.empty(N)
-    xo, J, tmp, Po, seg = np.empty(5), np.empty((5, 5)), np.empty((5, 5)), np.empty((5, 5)), np.empty(3)
     xc, Pc = np.empty(5), np.empty((5, 5))
-    x, P = np.empty(5), np.empty((5, 5))     # the particle being filtered (see _load)
-    D = _DRAWS_PER_PARTICLE_LOOK
     k0 = k_start - 1
     t_prev = t[k0]
-    for i in range(N):
-        tau[i], legs[i] = _init_particle(t_prev, x4, P4, pv, key, (k0 * N + i) * D, xs[i], Ps[i], seg)
-        kind[i], dlo[i], dhi[i] = int(seg[0]), seg[1], seg[2]
-        logw[i] = -math.log(N)
-    rkey = key ^ _RESAMPLE_STREAM
-    use_rdot = pv[_P_RDOT] > 0.0
+    _init_row(t_prev, x4, P4, pv, key, k0, N, xs, Ps, kind, tau, dlo, dhi, legs, pend, logw)
     for k in range(k_start, n_looks):
         dt = t[k] - t_prev
         t_prev = t[k]
-        p_broad = 1.0 - math.exp(-pv[_P_BRATE] * dt)
-        if det[k]:      # R's frame once per look, not per particle (three transcendentals per particle-look)
-            frame = _r_frame(R[k, 0, 0], 0.5 * (R[k, 0, 1] + R[k, 1, 0]), R[k, 1, 1])
-        else:
-            frame = (0.0, 0.0, 0.0, 0.0)
-        for i in range(N):
-            c = (k * N + i) * D
-            _load(xs, Ps, i, x, P)
-            if kind[i] != BROAD and _u01(key, c) < p_broad:    # off the prior: the broad regime from this look
-                _set_eta(x, P, 0.0, 0.0)
-                kind[i], tau[i], dlo[i], dhi[i], pend[i] = BROAD, 0.0, pv[_P_BMIN], pv[_P_BMAX], False
-            h = dt
-            for move in range(_MAX_MOVES_PER_LOOK + 1):
-                cm = c + 2 + 10 * move
-                s_end = -1.0
-                if move < _MAX_MOVES_PER_LOOK:
-                    s_end, lr = _end_within(tau[i], dlo[i], dhi[i], h, _u01(key, cm),
-                                            pv[_P_BOOST] if kind[i] == STRAIGHT else 1.0)
-                    logw[i] += lr
-                if s_end < 0.0:
-                    _propagate(kind[i], x, P, h, pv, xo, J, tmp, Po)
-                    tau[i] += h
-                    break
-                _propagate(kind[i], x, P, s_end, pv, xo, J, tmp, Po)
-                h -= s_end
-                pend[i], legs[i] = _next_segment(kind[i], pend[i], legs[i], x, P, pv, key, cm + 1, seg)
-                kind[i], tau[i], dlo[i], dhi[i] = int(seg[0]), 0.0, seg[1], seg[2]
-            if det[k]:
-                n = 4 if kind[i] == STRAIGHT or kind[i] == BROAD else 5
-                logw[i] += _plot_update(x, P, n, z[k, 0], z[k, 1], frame, xo, Po)
-                if use_rdot:
-                    logw[i] += _rdot_update(x, P, n, rdot[k], site[k, 0], site[k, 1], rdot_var[k], xo, Po)
-                    for r in range(n):
-                        x[r] = xo[r]
-                        for c in range(n):
-                            P[r, c] = Po[r, c]
-            _store(x, P, xs, Ps, i)
-        lse = _logsumexp(logw, N)
-        s2, pman, om = 0.0, 0.0, 0.0
-        for i in range(N):
-            logw[i] -= lse
-            w[i] = math.exp(logw[i])
-            s2 += w[i] * w[i]
-            if kind[i] != STRAIGHT:
-                pman += w[i]
-            if kind[i] == TURN:
-                om += w[i] * xs[i, 4]
-        _moments(w, xs, Ps, 4, xc, Pc)
+        _predict_look(k, dt, key, pv, N, xs, Ps, kind, tau, dlo, dhi, legs, pend, logw)
+        pman, om, ess, resampled = _update_look(
+            k, det[k], z[k, 0], z[k, 1], R[k, 0, 0], 0.5 * (R[k, 0, 1] + R[k, 1, 0]), R[k, 1, 1], rdot[k], site[k, 0],
+            site[k, 1], rdot_var[k], key, pv, N, xs, Ps, kind, tau, dlo, dhi, legs, pend, logw, xs2, Ps2, kind2, tau2,
+            dlo2, dhi2, legs2, pend2, w, xc, Pc)
         out_x[k] = xc[:4]
         out_P[k] = Pc[:4, :4]
-        out_pman[k], out_w[k], out_ess[k] = pman, om, 1.0 / s2
-        if 1.0 / s2 < pv[_P_ESS] * N:                 # systematic resampling
-            u = _u01(rkey, k) / N
-            j, cum = 0, w[0]
-            for i in range(N):
-                while cum < u and j < N - 1:
-                    j += 1
-                    cum += w[j]
-                _copy_particle(xs, Ps, j, xs2, Ps2, i)
-                kind2[i], tau2[i] = kind[j], tau[j]
-                dlo2[i], dhi2[i], legs2[i], pend2[i] = dlo[j], dhi[j], legs[j], pend[j]
-                u += 1.0 / N
+        out_pman[k], out_w[k], out_ess[k] = pman, om, ess
+        if resampled:
             xs, xs2, Ps, Ps2, kind, kind2, tau, tau2 = xs2, xs, Ps2, Ps, kind2, kind, tau2, tau
             dlo, dlo2, dhi, dhi2, legs, legs2, pend, pend2 = dlo2, dlo, dhi2, dhi, legs2, legs, pend2, pend
-            logw[:] = -math.log(N)
 
 
 @numba.njit(cache=True, parallel=True)
