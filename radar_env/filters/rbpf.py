@@ -44,8 +44,9 @@ from ..common.validate import check_number
 from ..sim.draws import _u01
 from ..sim.looks import padded_looks, range_rate_inputs
 from ..sim.scenario import RandomScenarioConfig
-from .imm_cv_ct import _abat, _add_cv_noise, _ct_predict, _moments
-from .kernels import _gain_update_in_frame, _logsumexp, _r_frame, _rdot_update, _symmetrize
+from . import imm_cv_ct, kernels
+from .imm_cv_ct import _add_cv_noise
+from .kernels import _gain_update_in_frame, _logsumexp, _r_frame, _symmetrize
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_PARAMS", "rbpf_filter", "prior_vector"]
 
@@ -145,8 +146,82 @@ def prior_vector(spec: RBPFSpec = DEFAULT_RBPF) -> np.ndarray:
     return np.asarray(v, dtype=np.float64)
 
 
+# Every helper called per particle is compiled without numba's reference counting (``_nrt=False``: they only read
+# and write elements of the arrays they are given, never allocate or keep one). With it, each array argument of
+# each call cost an atomic increment and decrement (NRT_incref / NRT_decref) per particle and look: about a third of
+# the filter's time. The shared filter helpers are compiled again here the same way, from the same Python functions
+# (the same arithmetic; not cached on their own: they live in the cached kernel's code).
+def _leaf(f):
+    return numba.njit(_nrt=False)(f.py_func)
+
+
+_ct_predict, _rdot_update = _leaf(imm_cv_ct._ct_predict), _leaf(kernels._rdot_update)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _abat(A, B, tmp, out):
+    """:func:`radar_env.filters.imm_cv_ct._abat` (``out = A B A^T``) for the 5 x 5 matrices of a turn or a speed
+    change: the same products summed in the same order, the size known when compiled (the loops unrolled; with the
+    size read from the array they took about a quarter of the filter's time)."""
+    for r in range(5):
+        for c in range(5):
+            s = 0.0
+            for l in range(5):
+                s += A[r, l] * B[l, c]
+            tmp[r, c] = s
+    for r in range(5):
+        for c in range(5):
+            s = 0.0
+            for l in range(5):
+                s += tmp[r, l] * A[c, l]
+            out[r, c] = s
+
+
+@numba.njit(cache=True, _nrt=False)
+def _moments(w, xs, Ps, n, x_out, P_out):
+    """:func:`radar_env.filters.imm_cv_ct._moments` of the particles' first ``n = 4`` states (the only ``n`` the
+    filter asks for): the same sums in the same order (over the particles, for each entry), each entry's sum held in
+    a register instead of in ``P_out`` between particles."""
+    m0 = m1 = m2 = m3 = 0.0
+    for i in range(w.shape[0]):
+        wi = w[i]
+        m0 += wi * xs[i, 0]
+        m1 += wi * xs[i, 1]
+        m2 += wi * xs[i, 2]
+        m3 += wi * xs[i, 3]
+    a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = 0.0
+    a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = 0.0
+    for i in range(w.shape[0]):
+        wi = w[i]
+        d0, d1, d2, d3 = xs[i, 0] - m0, xs[i, 1] - m1, xs[i, 2] - m2, xs[i, 3] - m3
+        a00 += wi * (Ps[i, 0, 0] + d0 * d0)
+        a01 += wi * (Ps[i, 0, 1] + d0 * d1)
+        a02 += wi * (Ps[i, 0, 2] + d0 * d2)
+        a03 += wi * (Ps[i, 0, 3] + d0 * d3)
+        a10 += wi * (Ps[i, 1, 0] + d1 * d0)
+        a11 += wi * (Ps[i, 1, 1] + d1 * d1)
+        a12 += wi * (Ps[i, 1, 2] + d1 * d2)
+        a13 += wi * (Ps[i, 1, 3] + d1 * d3)
+        a20 += wi * (Ps[i, 2, 0] + d2 * d0)
+        a21 += wi * (Ps[i, 2, 1] + d2 * d1)
+        a22 += wi * (Ps[i, 2, 2] + d2 * d2)
+        a23 += wi * (Ps[i, 2, 3] + d2 * d3)
+        a30 += wi * (Ps[i, 3, 0] + d3 * d0)
+        a31 += wi * (Ps[i, 3, 1] + d3 * d1)
+        a32 += wi * (Ps[i, 3, 2] + d3 * d2)
+        a33 += wi * (Ps[i, 3, 3] + d3 * d3)
+    x_out[:] = 0.0
+    x_out[0], x_out[1], x_out[2], x_out[3] = m0, m1, m2, m3
+    P_out[:, :] = 0.0
+    P_out[0, 0], P_out[0, 1], P_out[0, 2], P_out[0, 3] = a00, a01, a02, a03
+    P_out[1, 0], P_out[1, 1], P_out[1, 2], P_out[1, 3] = a10, a11, a12, a13
+    P_out[2, 0], P_out[2, 1], P_out[2, 2], P_out[2, 3] = a20, a21, a22, a23
+    P_out[3, 0], P_out[3, 1], P_out[3, 2], P_out[3, 3] = a30, a31, a32, a33
+    _symmetrize(P_out)
+
+
 # ------------------------------------------------------------------------------------------------ motion models
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _accel_predict(x, dt, out, J):
     """A speed change: acceleration ``eta = x[4]`` along the velocity, the heading fixed (exact motion), and its
     Jacobian."""
@@ -171,7 +246,7 @@ def _accel_predict(x, dt, out, J):
     J[2, 4], J[3, 4] = dt * ux, dt * uy
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def _propagate(kind, x, P, h, pv, xo, J, tmp, Po):
     """Propagate one particle's filter ``(x, P)`` in place over ``h`` seconds of regime ``kind``: the regime's
     motion and Jacobian, the noise floor on every regime, the broad regime's noise, ``eta``'s random walk."""
@@ -182,9 +257,11 @@ def _propagate(kind, x, P, h, pv, xo, J, tmp, Po):
             _ct_predict(x, h, xo, J)
         else:
             _accel_predict(x, h, xo, J)
-        x[:] = xo
         _abat(J, P, tmp, Po)
-        P[:, :] = Po
+        for r in range(5):
+            x[r] = xo[r]
+            for c in range(5):
+                P[r, c] = Po[r, c]
     else:     # constant velocity (eta's row and column are 0): F P F^T in place, F = [[I, h I], [0, I]]
         x[0] += h * x[2]
         x[1] += h * x[3]
@@ -204,7 +281,7 @@ def _propagate(kind, x, P, h, pv, xo, J, tmp, Po):
     _symmetrize(P)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def _plot_update(x, P, n, z0, z1, frame, xo, Po):
     """The chain's Kalman update (:func:`radar_env.filters.kernels._gain_update`) of the first ``n`` states (4 where
     ``eta``'s row and column are 0) with the position plot, in place; returns the plot's log-likelihood. ``frame``:
@@ -241,7 +318,7 @@ def _end_within(tau, dlo, dhi, h, u, boost):
     return lo + (u / pb) * (hi - lo) - tau, math.log(p / pb)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _set_eta(x, P, value, var):
     x[4] = value
     P[4, :] = 0.0
@@ -249,7 +326,7 @@ def _set_eta(x, P, value, var):
     P[4, 4] = var
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _start_turn(x, P, pv, key, c, seg):
     """A new coordinated turn: rate ``min(U(turn_accel) / speed, w_max)``, either way, spread ``sigma``; duration
     ``U(heading change) / rate``. ``seg``: (kind, dlo, dhi) written in place."""
@@ -269,7 +346,7 @@ def _normal2(key, c):
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * _u01(key, c + 1))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _start_leg(x, P, legs_left, seg):
     """A new straight leg (the last one, with no end, when no leg ends are left)."""
     _set_eta(x, P, 0.0, 0.0)
@@ -278,7 +355,7 @@ def _start_leg(x, P, legs_left, seg):
         seg[1] = seg[2] = np.inf
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _next_segment(kind, pending_turn, legs_left, x, P, pv, key, c, seg):
     """The segment after one of ``kind`` ended; writes ``seg`` = (kind, dlo, dhi) and returns
     ``(pending_turn, legs_left)``."""
@@ -349,7 +426,7 @@ def _init_particle(t0, x4, P4, pv, key, c, x, P, seg):
 # A view such as ``xs[i]`` costs an atomic reference-count increment and decrement (numba's NRT): per particle and
 # look they took about half of the filter's time (perf: NRT_incref / NRT_decref). The particle is copied into scratch
 # arrays and back instead, by index: the same values, the same arithmetic.
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def _load(xs, Ps, i, x, P):
     for r in range(5):
         x[r] = xs[i, r]
@@ -357,7 +434,7 @@ def _load(xs, Ps, i, x, P):
             P[r, c] = Ps[i, r, c]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def _store(x, P, xs, Ps, i):
     for r in range(5):
         xs[i, r] = x[r]
@@ -365,7 +442,7 @@ def _store(x, P, xs, Ps, i):
             Ps[i, r, c] = P[r, c]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, _nrt=False)
 def _copy_particle(xs, Ps, j, xs2, Ps2, i):
     for r in range(5):
         xs2[i, r] = xs[j, r]
