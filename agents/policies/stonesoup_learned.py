@@ -31,8 +31,12 @@ the plot), so its prediction depends on the plot. Here:
   and the Gaussian that hypothesisers gate with (in the detection's space, :meth:`LearnedIMMUpdater`'s inherited
   extended-Kalman ``predict_measurement``);
 * :class:`LearnedIMMUpdater` redoes the whole look with the associated detection (parameters from the plot's
-  preview, mixing, prediction, update): the estimate is the runner's; the gate was that of the missed-look
-  parameters (the same mixing, a different process noise).
+  preview, mixing, prediction, update): the estimate is the runner's; with a plain ``DistanceHypothesiser`` the
+  gate was that of the missed-look parameters (the same mixing, a different process noise);
+* given a detection (``predict(..., measurement=detection)``, Stone Soup's ``predict_with_measurements`` hook,
+  :class:`agents.policies.stonesoup_chain.PlotAwareHypothesiser`), the predictor runs the look with the
+  parameters chosen with that plot and returns that prediction, carrying the look's context after the plot,
+  which the updater takes as it is for a hypothesis with that detection: the plot-aware gate.
 
 Measurements: polar detections with range rate (:class:`~stonesoup.models.measurement.nonlinear.
 CartesianToBearingRangeRate2D`, conventions of :mod:`baselines.stonesoup_components`): ``policy_imm_bp``'s inputs
@@ -329,7 +333,9 @@ def learned_pair(model: LearnedIMM | None = None):
 def main(argv=None):
     """``python -m agents.policies.stonesoup_learned``: :mod:`baselines.stonesoup_example` with range rate, the
     learned IMM (``policy_imm_bp``) and the learned q-policy (``policy_bp``, :mod:`agents.policies.stonesoup_qpolicy`)
-    added; the same options."""
+    added, gated with :class:`PlotAwareHypothesiser` (:data:`GATES`); the same options, plus ``--gate-plot`` and
+    ``--gate-missed`` (the plain ``DistanceHypothesiser`` on the missed-look prediction; both given: both run, the
+    columns named with the gate)."""
     from baselines import stonesoup_example
     from agents.policies.stonesoup_qpolicy import load_q_policy, q_policy_pair
     argv = list(argv if argv is not None else __import__("sys").argv[1:])

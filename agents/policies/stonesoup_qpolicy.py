@@ -33,7 +33,11 @@ the plot. As for the learned IMM:
   Gaussian that hypothesisers gate with (the Kalman prediction with that q; :class:`QPolicyUpdater`'s inherited
   extended-Kalman ``predict_measurement``);
 * :class:`QPolicyUpdater` redoes the look with the associated detection (q from the plot's preview, then the
-  chain's step): the estimate is the runner's; the gate was that of the missed-look q.
+  chain's step): the estimate is the runner's; with a plain ``DistanceHypothesiser`` the gate was that of the
+  missed-look q;
+* given a detection (``predict(..., measurement=detection)``, :class:`agents.policies.stonesoup_chain.
+  PlotAwareHypothesiser`), the predictor runs the look with the q chosen with that plot and returns its Kalman
+  prediction, carrying the look's context, which the updater takes for a hypothesis with that detection.
 
 Measurements: polar detections (conventions of :mod:`baselines.stonesoup_components`). The bundled q-policies'
 inputs include the plots' range rate (``c_min_g``, ``next_c_min_g``, ``next_los_accel_g``, ``next_rdot_nu``:
