@@ -149,9 +149,13 @@ def _initiator():
 
 def run_tracker(scans, filter_name, components=None):
     """The tracks of one filter on the replayed ``scans``: ``filter_name`` ``"imm_cv_ct"``, ``"imm_cv_ct_rdot"`` or
-    ``"ekf_q<q>"``, or any name with ``components = (predictor, updater)``."""
+    ``"ekf_q<q>"``, or any name with ``components = (predictor, updater)`` (or ``(predictor, updater,
+    hypothesiser class)``: the class, e.g. the learned trackers' plot-aware gate, built as the default
+    ``DistanceHypothesiser`` is, with the same measure and gate)."""
+    hypothesiser = DistanceHypothesiser
     if components is not None:
-        predictor, updater = components
+        predictor, updater, *rest = components
+        hypothesiser = rest[0] if rest else hypothesiser
     elif filter_name in ("imm_cv_ct", "imm_cv_ct_rdot"):     # imm_cv_ct: position only, also on range-rate plots
         predictor = IMMCVCTPredictor(spec=tuned_imm_cv_ct_spec(filter_name))
         updater = IMMCVCTUpdater(use_range_rate=filter_name == "imm_cv_ct_rdot")
@@ -162,7 +166,7 @@ def run_tracker(scans, filter_name, components=None):
                          f"got {filter_name!r}")
     tracker = MultiTargetTracker(
         initiator=_initiator(), deleter=UpdateTimeStepsDeleter(3), detector=_Replay(scans),
-        data_associator=GNNWith2DAssignment(DistanceHypothesiser(predictor, updater, Mahalanobis(), GATE)),
+        data_associator=GNNWith2DAssignment(hypothesiser(predictor, updater, Mahalanobis(), GATE)),
         updater=updater)
     tracks = set()
     for _, current in tracker:
@@ -187,7 +191,8 @@ def ospa(tracks, truths):
 def run(n_steps=80, seed=7, filters=None, range_rate=False, extra=None):
     """The example: ``{filter: {"t_s", "ospa_m", "n_tracks"}}`` plus ``"_truths"`` (the number of targets) and
     ``"_range_rate"``.
-    ``extra``: ``{name: make}`` more filters, ``make()`` giving a fresh ``(predictor, updater)``."""
+    ``extra``: ``{name: make}`` more filters, ``make()`` giving a fresh ``(predictor, updater)`` (or with a
+    hypothesiser class, :func:`run_tracker`)."""
     truths, scans, _ = scenario(n_steps, seed, range_rate=range_rate)
     filters = filters or [f"ekf_q{q:g}" for q in EKF_Q] + ["imm_cv_ct"] + (["imm_cv_ct_rdot"] if range_rate else [])
     extra = dict(extra or {})

@@ -3,7 +3,8 @@ learned IMM, and :mod:`agents.policies.stonesoup_qpolicy`, the q-policies; here 
 each other): the feature chain a track carries (a 1-row :class:`radar_env.filters.tracking.Tracker` fed plots as
 they come, in our look fields), and the steps of a look that do not depend on the tracker: the context a prediction
 starts from (:func:`prior_context`), a start from a Stone Soup Gaussian (:func:`gaussian_start`) and the context
-after an update (:func:`context_after`)."""
+after an update (:func:`context_after`); the plot-aware gate (:class:`PlotAwareHypothesiser`, the look's prediction
+made given each detection, :func:`plot_look`)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,9 @@ from baselines import stonesoup_components as _ss
 from radar_env.filters.tracking import StepOutput
 from radar_env.sim.looks import LOOK_COLUMNS, W_LOOK
 
+from stonesoup.base import Property
+from stonesoup.hypothesiser.distance import DistanceHypothesiser
+from stonesoup.types.detection import MissedDetection
 from stonesoup.types.state import State, StateMutableSequence
 
 
@@ -90,6 +94,10 @@ def prior_context(prior, timestamp, state_type, prediction_type, start, what, st
         prior = prior.state
     if isinstance(prior, prediction_type):
         ctx = prior.missed_context
+        if ctx is None:
+            raise ValueError(f"prior is a {prediction_type.__name__} made given a detection (predict(..., "
+                             "measurement=...)): it cannot be kept for a missed look; keep the missed "
+                             "hypothesis' prediction (made without one)")
     elif isinstance(prior, state_type):
         ctx = prior.context
     elif getattr(getattr(prior, "hypothesis", None), "measurement", None) is not None:
@@ -118,6 +126,39 @@ def gaussian_start(state, detection, what):
     return x4, P4, _ss.seconds(state.timestamp), _radar_of(_ss.look_from_detection(detection))
 
 
+def plot_look(detection, t_s, measurement_model=None, range_rate_needed=None, what="hypothesis.measurement",
+              when=None) -> dict:
+    """Our look fields of ``detection`` at a look at ``t_s`` (its own measurement model, else
+    ``measurement_model``): one-line errors naming ``what`` if it has no range rate and ``range_rate_needed`` (why
+    the tracker needs it) is given, or if its time is not ``t_s`` (``when``: that time as a datetime)."""
+    look = _ss.look_from_detection(detection, measurement_model)
+    if range_rate_needed and not math.isfinite(look["radial_velocity_m_s"]):
+        raise ValueError(f"{what} must carry a range rate (CartesianToBearingRangeRate2D): {range_rate_needed}")
+    if look["t_s"] != t_s:
+        raise ValueError(f"{what}.timestamp {detection.timestamp} differs from the prediction's {when}")
+    return look
+
+
+def given_plot(measurement) -> bool:
+    """Whether ``predict(..., measurement=...)`` was given a detection (not None, not a ``MissedDetection``)."""
+    return measurement is not None and not isinstance(measurement, MissedDetection)
+
+
+class PlotAwareHypothesiser(DistanceHypothesiser):
+    """Stone Soup's :class:`~stonesoup.hypothesiser.distance.DistanceHypothesiser` with
+    ``predict_with_measurements`` on (its own hook: the predictor is called with ``measurement=detection`` for each
+    detection), for the learned trackers' predictors, whose look's parameters depend on the look's plot: each
+    (track, detection) pair is scored with the prediction the network makes *given that detection* (the look's
+    parameters chosen with that plot as the preview, then the prediction and ``predict_measurement`` with them),
+    and its hypothesis carries that prediction (and the look's context after that plot, which the updater takes
+    as it is: the update is the single-target run's). The missed-detection hypothesis keeps the prediction made
+    without a detection (the missed look's parameters). The associator is unchanged."""
+
+    predict_with_measurements: bool = Property(
+        default=True, doc="Pass each detection to the predictor (the plot-aware gate); False: the missed-look gate "
+                          "of DistanceHypothesiser")
+
+
 def context_after(hypothesis, measurement_model, run, range_rate_needed=None):
     """The context after the look of ``hypothesis`` (its prediction carries the context before it): with a
     detection, ``run(context, look)`` on the detection's look (``measurement_model``: the updater's, for a
@@ -127,14 +168,10 @@ def context_after(hypothesis, measurement_model, run, range_rate_needed=None):
     pred = hypothesis.prediction
     ctx, t = pred.context, _ss.seconds(pred.timestamp)
     if hypothesis:
-        look = _ss.look_from_detection(hypothesis.measurement, measurement_model)
-        if range_rate_needed and not math.isfinite(look["radial_velocity_m_s"]):
-            raise ValueError("hypothesis.measurement must carry a range rate (CartesianToBearingRangeRate2D): "
-                             f"{range_rate_needed}")
-        if look["t_s"] != t:
-            raise ValueError(f"hypothesis.measurement.timestamp {hypothesis.measurement.timestamp} differs from "
-                             f"the prediction's {pred.timestamp}")
-        return run(ctx, look)
+        if getattr(pred, "plot", None) is not None and pred.plot is hypothesis.measurement:
+            return pred.plot_context        # the look given this plot, run by the predictor (plot-aware gate)
+        return run(ctx, plot_look(hypothesis.measurement, t, measurement_model, range_rate_needed,
+                                  "hypothesis.measurement", pred.timestamp))
     if getattr(hypothesis.measurement, "measurement_model", None) is not None:
         return run(ctx, _missed_look(ctx, t, hypothesis.measurement))
     return pred.missed_context

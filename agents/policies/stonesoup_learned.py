@@ -31,8 +31,12 @@ the plot), so its prediction depends on the plot. Here:
   and the Gaussian that hypothesisers gate with (in the detection's space, :meth:`LearnedIMMUpdater`'s inherited
   extended-Kalman ``predict_measurement``);
 * :class:`LearnedIMMUpdater` redoes the whole look with the associated detection (parameters from the plot's
-  preview, mixing, prediction, update): the estimate is the runner's; the gate was that of the missed-look
-  parameters (the same mixing, a different process noise).
+  preview, mixing, prediction, update): the estimate is the runner's; with a plain ``DistanceHypothesiser`` the
+  gate was that of the missed-look parameters (the same mixing, a different process noise);
+* given a detection (``predict(..., measurement=detection)``, Stone Soup's ``predict_with_measurements`` hook,
+  :class:`agents.policies.stonesoup_chain.PlotAwareHypothesiser`), the predictor runs the look with the
+  parameters chosen with that plot and returns that prediction, carrying the look's context after the plot,
+  which the updater takes as it is for a hypothesis with that detection: the plot-aware gate.
 
 Measurements: polar detections with range rate (:class:`~stonesoup.models.measurement.nonlinear.
 CartesianToBearingRangeRate2D`, conventions of :mod:`baselines.stonesoup_components`): ``policy_imm_bp``'s inputs
@@ -70,7 +74,8 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 from agents.policies.learned_imm import LearnedIMM, load_learned_imm, BUNDLED_LEARNED_IMM
 # the chain helpers it shares with stonesoup_qpolicy
 from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look,  # noqa: F401
-                                             _radar_of, _row_of, context_after, gaussian_start, prior_context)
+                                             _radar_of, _row_of, PlotAwareHypothesiser, context_after,
+                                             gaussian_start, given_plot, plot_look, prior_context)
 
 __all__ = ["LearnedIMMContext", "LearnedIMMState", "LearnedIMMStatePrediction", "LearnedIMMStateUpdate",
            "LearnedIMMPredictor", "LearnedIMMUpdater", "track_starts", "bundled_learned_imm", "learned_pair",
@@ -207,10 +212,15 @@ class LearnedIMMState(_ss.IMMCVCTState):
 
 
 class LearnedIMMStatePrediction(Prediction, LearnedIMMState):
-    """The learned IMM's prediction with the parameters for a missed look (module docstring); ``context`` is the
-    context before the look, ``missed_context`` the one after it if the look is missed."""
+    """The learned IMM's prediction with the parameters for a missed look (module docstring), or, made given a
+    detection (``predict(..., measurement=detection)``, the plot-aware gate), with the parameters chosen with that
+    plot; ``context`` is the context before the look, ``missed_context`` the one after it if the look is missed
+    (None for a prediction made given a detection), ``plot`` that detection and ``plot_context`` the context after
+    the look with it (what the updater takes for a hypothesis with that detection)."""
 
     missed_context: LearnedIMMContext = Property(default=None, doc="the context after this look if it is missed")
+    plot: object = Property(default=None, doc="the detection this prediction was made given (None: a missed look)")
+    plot_context: LearnedIMMContext = Property(default=None, doc="the context after the look with ``plot``")
 
 
 class LearnedIMMStateUpdate(Update, LearnedIMMState):
@@ -263,15 +273,29 @@ class LearnedIMMPredictor(Predictor):
             self.model = bundled_learned_imm()
         return LearnedIMMState.from_gaussian(update, self.model)
 
-    def predict(self, prior, timestamp=None, **kwargs) -> LearnedIMMStatePrediction:
+    def predict(self, prior, timestamp=None, measurement=None, **kwargs) -> LearnedIMMStatePrediction:
+        """The look's prediction with the parameters for a missed look, or, given a detection ``measurement``
+        (Stone Soup's ``predict_with_measurements`` hook, :class:`PlotAwareHypothesiser`), with the parameters
+        the network chooses with that plot as the preview (the detection needs its measurement model, with range
+        rate)."""
         prior, ctx = prior_context(prior, timestamp, LearnedIMMState, LearnedIMMStatePrediction, self._start,
                                    "the learned IMM", "track_starts")
-        pred, up, after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
+        t = _ss.seconds(timestamp)
+        if given_plot(measurement):
+            if measurement.measurement_model is None:
+                raise ValueError("measurement must carry its measurement_model (polar, with range rate) for the "
+                                 "plot-aware prediction")
+            look = plot_look(measurement, t, None, "the learned IMM's inputs include it", "measurement", timestamp)
+            pred, up, after = _run_look(ctx, look)
+            kw = dict(missed_context=None, plot=measurement, plot_context=after)
+        else:
+            pred, up, after = _run_look(ctx, _missed_look(ctx, t))
+            kw = dict(missed_context=after)
         return Prediction.from_state(
             prior, state_vector=StateVector(pred.x[_SS4]), covar=CovarianceMatrix(pred.P[np.ix_(_SS4, _SS4)]),
             timestamp=timestamp, mode_state_vectors=pred.x_modes[:, _P5], mode_covars=pred.P_modes[:, _P5][:, :, _P5],
-            log_mode_probabilities=pred.log_c, spec=ctx.model.spec, context=ctx, missed_context=after,
-            transition_model=None, target_type=LearnedIMMStatePrediction)
+            log_mode_probabilities=pred.log_c, spec=ctx.model.spec, context=ctx, transition_model=None,
+            target_type=LearnedIMMStatePrediction, **kw)
 
 
 class LearnedIMMUpdater(ExtendedKalmanUpdater):
@@ -295,6 +319,10 @@ class LearnedIMMUpdater(ExtendedKalmanUpdater):
 
 # ------------------------------------------------------------------------------------------------ the example
 FIGURE = Path(__file__).resolve().parents[2] / "docs" / "figures" / "stonesoup_multitarget_learned.png"
+GATES = ["plot"]
+"""The learned trackers' gates the example runs by default: ``"plot"`` (:class:`PlotAwareHypothesiser`),
+``"missed"`` (``DistanceHypothesiser`` on the missed-look prediction); ``--gate-plot`` / ``--gate-missed`` choose,
+both given: both run (columns suffixed with the gate)."""
 
 
 def learned_pair(model: LearnedIMM | None = None):
@@ -305,16 +333,30 @@ def learned_pair(model: LearnedIMM | None = None):
 def main(argv=None):
     """``python -m agents.policies.stonesoup_learned``: :mod:`baselines.stonesoup_example` with range rate, the
     learned IMM (``policy_imm_bp``) and the learned q-policy (``policy_bp``, :mod:`agents.policies.stonesoup_qpolicy`)
-    added; the same options."""
+    added, gated with :class:`PlotAwareHypothesiser` (:data:`GATES`); the same options, plus ``--gate-plot`` and
+    ``--gate-missed`` (the plain ``DistanceHypothesiser`` on the missed-look prediction; both given: both run, the
+    columns named with the gate)."""
     from baselines import stonesoup_example
     from agents.policies.stonesoup_qpolicy import load_q_policy, q_policy_pair
     argv = list(argv if argv is not None else __import__("sys").argv[1:])
     if "--range-rate" not in argv:
         argv.append("--range-rate")        # the learned trackers read the range rate
+    gates = {"plot": ("plot-aware", PlotAwareHypothesiser), "missed": ("missed-look", None)}
+    chosen = []
+    for g in ("plot", "missed"):
+        if f"--gate-{g}" in argv:
+            argv.remove(f"--gate-{g}")
+            chosen.append(g)
+    chosen = chosen or GATES
     model, q_policy = bundled_learned_imm(), load_q_policy("policy_bp")
-    return stonesoup_example.main(argv, extra={"policy_imm_bp": lambda: learned_pair(model),
-                                               "policy_bp": lambda: q_policy_pair(q_policy)},
-                                  prog="python -m agents.policies.stonesoup_learned", figure_path=FIGURE)
+    extra = {}
+    for g in chosen:
+        suffix = "" if len(chosen) == 1 else f" ({gates[g][0]} gate)"
+        hyp = gates[g][1]
+        extra[f"policy_imm_bp{suffix}"] = lambda hyp=hyp: (*learned_pair(model), *([hyp] if hyp else []))
+        extra[f"policy_bp{suffix}"] = lambda hyp=hyp: (*q_policy_pair(q_policy), *([hyp] if hyp else []))
+    return stonesoup_example.main(argv, extra=extra, prog="python -m agents.policies.stonesoup_learned",
+                                  figure_path=FIGURE)
 
 
 if __name__ == "__main__":

@@ -33,7 +33,11 @@ the plot. As for the learned IMM:
   Gaussian that hypothesisers gate with (the Kalman prediction with that q; :class:`QPolicyUpdater`'s inherited
   extended-Kalman ``predict_measurement``);
 * :class:`QPolicyUpdater` redoes the look with the associated detection (q from the plot's preview, then the
-  chain's step): the estimate is the runner's; the gate was that of the missed-look q.
+  chain's step): the estimate is the runner's; with a plain ``DistanceHypothesiser`` the gate was that of the
+  missed-look q;
+* given a detection (``predict(..., measurement=detection)``, :class:`agents.policies.stonesoup_chain.
+  PlotAwareHypothesiser`), the predictor runs the look with the q chosen with that plot and returns its Kalman
+  prediction, carrying the look's context, which the updater takes for a hypothesis with that detection.
 
 Measurements: polar detections (conventions of :mod:`baselines.stonesoup_components`). The bundled q-policies'
 inputs include the plots' range rate (``c_min_g``, ``next_c_min_g``, ``next_los_accel_g``, ``next_rdot_nu``:
@@ -71,7 +75,8 @@ from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from agents.policies.recurrent import RecurrentQPolicy
 from agents.policies.stonesoup_chain import (_episode_radar, _fresh_chain, _look_row, _missed_look, _radar_of,
-                                             _row_of, context_after, gaussian_start, prior_context)
+                                             _row_of, context_after, gaussian_start, given_plot, plot_look,
+                                             prior_context)
 
 __all__ = ["RANGE_RATE_FEATURES", "QPolicy", "load_q_policy", "QPolicyContext", "QPolicyState",
            "QPolicyStatePrediction", "QPolicyStateUpdate", "QPolicyPredictor", "QPolicyUpdater", "q_track_starts",
@@ -217,10 +222,15 @@ class QPolicyState(GaussianState):
 
 
 class QPolicyStatePrediction(Prediction, QPolicyState):
-    """The q-policy's prediction with the q for a missed look (module docstring); ``context`` is the context before
-    the look, ``missed_context`` the one after it if the look is missed."""
+    """The q-policy's prediction with the q for a missed look (module docstring), or, made given a detection
+    (``predict(..., measurement=detection)``, the plot-aware gate), with the q chosen with that plot; ``context``
+    is the context before the look, ``missed_context`` the one after it if the look is missed (None for a
+    prediction made given a detection), ``plot`` that detection and ``plot_context`` the context after the look
+    with it (what the updater takes for a hypothesis with that detection)."""
 
     missed_context: QPolicyContext = Property(default=None, doc="the context after this look if it is missed")
+    plot: object = Property(default=None, doc="the detection this prediction was made given (None: a missed look)")
+    plot_context: QPolicyContext = Property(default=None, doc="the context after the look with ``plot``")
 
 
 class QPolicyStateUpdate(Update, QPolicyState):
@@ -277,15 +287,31 @@ class QPolicyPredictor(Predictor):
             self.policy = load_q_policy("policy_bp")
         return QPolicyState.from_gaussian(update, self.policy)
 
-    def predict(self, prior, timestamp=None, **kwargs) -> QPolicyStatePrediction:
+    def predict(self, prior, timestamp=None, measurement=None, **kwargs) -> QPolicyStatePrediction:
+        """The look's Kalman prediction with the q for a missed look, or, given a detection ``measurement``
+        (Stone Soup's ``predict_with_measurements`` hook, :class:`~agents.policies.stonesoup_chain.
+        PlotAwareHypothesiser`), with the q the network chooses with that plot as the preview (the detection needs
+        its measurement model)."""
         prior, ctx = prior_context(prior, timestamp, QPolicyState, QPolicyStatePrediction, self._start,
                                    "the q-policy", "q_track_starts")
-        after = _run_look(ctx, _missed_look(ctx, _ss.seconds(timestamp)))
-        out = after.chain_out      # the missed look's Kalman prediction, made with the q chosen for it
+        t = _ss.seconds(timestamp)
+        if given_plot(measurement):
+            if measurement.measurement_model is None:
+                raise ValueError("measurement must carry its measurement_model (polar) for the plot-aware "
+                                 "prediction")
+            m = ctx.model
+            why = (f"{m.name}'s inputs include {sorted(RANGE_RATE_FEATURES & set(m.layout.names))}"
+                   if m.needs_range_rate else None)
+            after = _run_look(ctx, plot_look(measurement, t, None, why, "measurement", timestamp))
+            kw = dict(missed_context=None, plot=measurement, plot_context=after)
+        else:
+            after = _run_look(ctx, _missed_look(ctx, t))
+            kw = dict(missed_context=after)
+        out = after.chain_out      # the look's Kalman prediction, made with the q chosen for it
         return Prediction.from_state(
             prior, state_vector=StateVector(out.x_prior[0][_SS4]),
             covar=CovarianceMatrix(out.P_prior[0][np.ix_(_SS4, _SS4)]), timestamp=timestamp, context=ctx,
-            missed_context=after, transition_model=None, target_type=QPolicyStatePrediction)
+            transition_model=None, target_type=QPolicyStatePrediction, **kw)
 
 
 class QPolicyUpdater(ExtendedKalmanUpdater):
