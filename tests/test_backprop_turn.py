@@ -104,6 +104,17 @@ def test_start_from_policy_bp_with_zero_turn_is_policy_bp(tmp_path):
     assert pol.turn_aware
     again = run_q_policy(eps, pol, "turn0", cfg)
     assert np.array_equal(again.x, mine.x, equal_nan=True)
+    # a turn-aware policy continues a turn-aware model (its rows, its gain unfolded) but not a q-only one
+    with torch.no_grad():
+        model.out.weight[1].normal_(0.0, 0.3)
+    model.save_policy(tmp_path / "t", cfg, hp["env_kwargs"])
+    other = bp.make_model(dict(hp, turn_gain=0.25), cfg)
+    other.start_from(str(tmp_path / "t" / "policy.npz"), cfg)
+    for k, v in model.policy_weights().items():
+        np.testing.assert_allclose(other.policy_weights()[k], v, rtol=1e-14, atol=1e-15)
+    q_only = bp.make_model({k: v for k, v in hp.items() if k not in ("turn_rate_max_deg_s", "turn_gain")}, cfg)
+    with pytest.raises(ValueError, match="turn-aware policy; this model outputs q only"):
+        q_only.start_from(str(tmp_path / "t" / "policy.npz"), cfg)
 
 
 def _env_kwargs(lt):
@@ -123,6 +134,9 @@ def test_refusals(tmp_path):
                  ("init_from", "")):
         with pytest.raises(ValueError, match=f"--hp {k}"):
             bp.check_hp(_hp(**{k: v}))
+    imm = load_hyperparams("backprop_imm_cv_ct")
+    with pytest.raises(ValueError, match="--hp turn_rate_max_deg_s: an option of the CV q-policy"):
+        bp.check_hp({**imm, "turn_rate_max_deg_s": 10.0})
     with pytest.raises(ValueError, match="turn_rate_max_rad_s"):
         bp.CVQModel(5, 4, [], np.array([1.0, 10.0]), 2.0, turn_rate_max_rad_s=4.0)
     # the numpy policy: outputs and bound must agree; the env's action cannot carry a turn rate

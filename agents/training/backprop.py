@@ -181,7 +181,7 @@ class CVQModel(ChainModel):
         turn_rate_max_rad_s: 0 (default): the network outputs q only. Positive: it also outputs a coordinated-turn
             rate ``omega = turn_rate_max_rad_s * a_1`` (``a_1 = tanh(.)``, second output; 0 untrained) and the
             filter predicts with ``F_ct(dt, omega)`` (:func:`radar_env.filters.torch_chain.transition`; the numba
-            Tracker's ``step(q, turn_rate_rad_s=omega)``): the turn-aware q-policy (``policy_bp_turn``). Its chunk
+            Tracker's ``step(q, turn_rate_rad_s=omega)``): the turn-aware q-policy (``policy.json`` model ``cv_turn``). Its chunk
             is the torch lockstep (the compiled chain is the CV model's).
         turn_gain: the turn-rate output's pre-activation is ``turn_gain * out(y)_1``: Adam moves every weight by
             about the learning rate per step whatever its gradient, so this sets how fast omega may move (the saved
@@ -321,6 +321,9 @@ class CVQModel(ChainModel):
             raise ValueError(f"--hp init_from: {path} reads {len(pcfg.features)} features with GRU "
                              f"{pol.hidden_size} and head {pol.arch.get('head', [])}; this model: "
                              f"{len(cfg.features)} features, GRU {self.hidden_size}, head {self.head_sizes}")
+        if pol.n_out > self.n_out:
+            raise ValueError(f"--hp init_from: {path} is a turn-aware policy; this model outputs q only (give "
+                             "--hp turn_rate_max_deg_s to continue it)")
         w = pol.w
         with torch.no_grad():
             for name, t in (("gru.weight_ih", self.gru.weight_ih), ("gru.weight_hh", self.gru.weight_hh),
@@ -331,8 +334,9 @@ class CVQModel(ChainModel):
                 layer.bias.copy_(torch.from_numpy(w[f"head.{i}.bias"]))
             self.out.weight.zero_()
             self.out.bias.zero_()
-            self.out.weight[0] = torch.from_numpy(w["out.weight"][0])
-            self.out.bias[0] = float(w["out.bias"][0])
+            for r in range(pol.n_out):      # a turn-aware source's turn row holds its gain: unfolded by ours
+                self.out.weight[r] = torch.from_numpy(w["out.weight"][r]) / self.out_scale[r]
+                self.out.bias[r] = float(w["out.bias"][r]) / self.out_scale[r]
 
     def architecture(self):
         arch = {"input_size": self.input_size, "hidden_size": self.hidden_size, "head": list(self.head_sizes)}
@@ -451,8 +455,9 @@ HP_SPEC = {
 """Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
 ``{key: (check, what it must be)}``."""
 HP_OPTIONAL = ("chain", "turn_rate_max_deg_s", "turn_gain", "init_from")
-"""Keys that may be absent (then their default: ``chain`` ``compiled``); absent from the recipes' files, so that
-their runs' ``config.json`` (what a resume compares) is the same as before the key existed."""
+"""Keys that may be absent (then their default: ``chain`` ``compiled``, ``turn_rate_max_deg_s`` 0 (q only),
+``turn_gain`` 1, no ``init_from``); absent from the recipes' files, so that their runs' ``config.json`` (what a
+resume compares) is the same as before the key existed. The last three are the CV model's (``tracker`` ``cv``)."""
 
 
 def check_hp(hp):
@@ -469,6 +474,10 @@ def check_hp(hp):
     if missing:
         raise ValueError(f"--hp: missing hyperparameter(s) {missing} (agents/training/hyperparams/backprop.toml "
                          "gives every one)")
+    cv_only = [k for k in ("turn_rate_max_deg_s", "turn_gain", "init_from") if k in hp and hp["tracker"] != "cv"]
+    if cv_only:
+        raise ValueError(f"--hp {cv_only[0]}: an option of the CV q-policy (--tracker cv), not of "
+                         f"{hp['tracker']!r}")
     bad = [n for n in hp["select_on"] if n not in hp["eval_scenarios"]]
     if bad:
         raise ValueError(f"--hp select_on: {bad} are not among the validation suites (eval_scenarios) "
