@@ -1,5 +1,18 @@
-"""Diagnostics for the learned IMM's losses in the multi-target Stone Soup example (issue: policy_imm_bp loses
-targets in turns that imm_cv_ct keeps). Per track: which truth's plots it takes look by look."""
+"""Diagnostics for the learned IMM's losses in the multi-target Stone Soup example (policy_imm_bp lost targets in
+turns that imm_cv_ct keeps; docs/stonesoup.md, "Why the learned IMM lost targets in the example").
+
+* :func:`main`: per track, which truth's plot it took look by look (letters: truths by start x; c: clutter; .:
+  none) and the OSPA (``python scripts/diag_stonesoup_imm_losses.py [seed]``);
+* :func:`single_target`: each truth alone (its own plots only), the same initiator, gate and deleter;
+* :func:`turns`: each truth's turning scans;
+* :func:`episodes_of`, :func:`evaluation_errors`: the truths as our episodes, our start, no gate: position RMSE;
+* :func:`ungated`: the Stone Soup pair on one truth's plots from the initiator's start, every plot associated or,
+  with ``gate``, a plot beyond it taken as a missed look: per look the plot's Mahalanobis distance, the error and
+  the prediction's position std;
+* :func:`plot_distances`, :func:`summary`: the distances of every plot from our start (no gate);
+* :func:`component_rmse`: the learned IMM's position RMSE through the pair on episodes (no gate).
+
+Run with ``PYTHONPATH=.`` from the repository; the tuned coast is ``learned_pair(model, "tuned")``."""
 import math
 import sys
 import numpy as np
@@ -101,7 +114,6 @@ def episodes_of(seed=7, steps=80):
             tru.append([float(s[0]), float(s[2]), float(s[1]), float(s[3])])
             looks.append(look_from_detection(own[0]) if own else None)
         K = len(t)
-        nan = np.full(K, np.nan)
         g = lambda f, shape=(): np.array([lk[f] if lk else np.full(shape, np.nan) for lk in looks], dtype=float)
         site = np.zeros((K, 2))
         det = np.array([lk is not None for lk in looks])
@@ -138,7 +150,6 @@ def ungated(seed=7, label="A", steps=80, start_state=None, pair=None, gate=None)
     """The learned IMM through the Stone Soup pair on one truth's own plots, every plot associated (no gate): from
     the initiator's third EKF update (as in the example) unless ``start_state`` is given. Per look: (t, detected,
     Mahalanobis distance of the plot under the plot-aware prediction, position error)."""
-    from stonesoup.hypothesiser.distance import DistanceHypothesiser  # noqa: F401
     from stonesoup.measures import Mahalanobis
     from stonesoup.types.hypothesis import SingleHypothesis
     from stonesoup.types.detection import MissedDetection

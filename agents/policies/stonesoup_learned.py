@@ -44,6 +44,12 @@ include the plots' range rate (c_min, line-of-sight acceleration, range-rate inn
 refused. Missed looks: the site and noise stds of a ``MissedDetection``'s measurement model if it has one, else
 the last detection's (they enter the features: range, position-variance ratio).
 
+Missed looks in a gated tracker: ``LearnedIMMPredictor(missed_parameters="tuned")`` (``learned_pair(model,
+"tuned")``) predicts a missed look with the IMM spec's tuned constants instead of the network's choice (the GRU
+still steps): in training a miss is a random non-detection, in a gated tracker often a plot gated out at a maneuver,
+and the network's tight coast then loses the target (docs/stonesoup.md, "Why the learned IMM lost targets in the
+example"). The default (``"network"``) is the runner's look, exact against the evaluation.
+
 Track start: :func:`track_starts` gives our evaluation's (two-hit start and warm-up on an episode's first plots,
 as the runner); :meth:`LearnedIMMState.from_gaussian` starts from a Stone Soup initiator's Gaussian with an empty
 feature history (not what the network was trained with; the first looks' features differ from our start's).
