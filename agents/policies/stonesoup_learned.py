@@ -44,6 +44,12 @@ include the plots' range rate (c_min, line-of-sight acceleration, range-rate inn
 refused. Missed looks: the site and noise stds of a ``MissedDetection``'s measurement model if it has one, else
 the last detection's (they enter the features: range, position-variance ratio).
 
+Missed looks in a gated tracker: ``LearnedIMMPredictor(missed_parameters="tuned")`` (``learned_pair(model,
+"tuned")``) predicts a missed look with the IMM spec's tuned constants instead of the network's choice (the GRU
+still steps): in training a miss is a random non-detection, in a gated tracker often a plot gated out at a maneuver,
+and the network's tight coast then loses the target (docs/stonesoup.md, "Why the learned IMM lost targets in the
+example"). The default (``"network"``) is the runner's look, exact against the evaluation.
+
 Track start: :func:`track_starts` gives our evaluation's (two-hit start and warm-up on an episode's first plots,
 as the runner); :meth:`LearnedIMMState.from_gaussian` starts from a Stone Soup initiator's Gaussian with an empty
 feature history (not what the network was trained with; the first looks' features differ from our start's).
@@ -157,6 +163,8 @@ class LearnedIMMContext(NamedTuple):
     chain_out: StepOutput       # its last step's output (1 row)
     q_prev_m_s2: float          # the q of that step (the observation's q_prev)
     radar: tuple                # (site x, site y, range std, bearing std, range-rate std) of the last detection
+    missed_parameters: str = "network"  # a missed look's IMM parameters: the network's ("network", the runner's)
+                                        # or the spec's tuned constants ("tuned"; the GRU still steps)
 
 
 def _run_look(ctx: LearnedIMMContext, look: dict):
@@ -173,6 +181,8 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     out = ctx.chain_out._replace(features={**ctx.chain_out.features, **prev})
     obs = m.layout.encode(out, np.array([ctx.q_prev_m_s2]))
     params, h = _look_parameters(m, obs, ctx.detectors, ctx.h)
+    if not det and ctx.missed_parameters == "tuned":
+        params = None        # the spec's constant (tuned) parameters; the GRU state still steps as the runner's
     pred = predict_modes(m.spec, ctx.x_modes, ctx.P_modes, ctx.log_mu, dt, params)
     rr = None
     if det and m.cfg.track_start.radial_velocity:
@@ -184,7 +194,7 @@ def _run_look(ctx: LearnedIMMContext, look: dict):
     chain.feed([0], _look_row(look)[None])
     chain_out = _row_of(chain.step(m.feature_q_m_s2), 0)
     new = LearnedIMMContext(m, float(look["t_s"]), up.x, up.P, up.x_modes, up.P_modes, up.log_mu, h, detectors,
-                            chain, chain_out, m.feature_q_m_s2, _radar_of(look))
+                            chain, chain_out, m.feature_q_m_s2, _radar_of(look), ctx.missed_parameters)
     return pred, up, new
 
 
@@ -267,6 +277,16 @@ class LearnedIMMPredictor(Predictor):
         default=None, doc="Not used (the learned IMM's modes are its transition model); Stone Soup's interface")
     model: LearnedIMM = Property(default=None, doc="the checkpoint for tracks it starts (None: the bundled "
                                                     "policy_imm_bp); a LearnedIMMState carries its own")
+    missed_parameters: str = Property(
+        default="network", doc="a missed look's IMM parameters: 'network' (the network's choice, the runner's: exact "
+                               "against the evaluation) or 'tuned' (the IMM spec's constant, tuned parameters, the "
+                               "GRU state still stepping; for gated trackers, where a missed look is often a plot "
+                               "gated out at a maneuver, which the network never saw in training)")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if self.missed_parameters not in ("network", "tuned"):
+            raise ValueError(f"missed_parameters must be 'network' or 'tuned', got {self.missed_parameters!r}")
 
     def _start(self, update):
         if self.model is None:          # loaded once, when the first track starts from a Gaussian
@@ -281,6 +301,8 @@ class LearnedIMMPredictor(Predictor):
         prior, ctx = prior_context(prior, timestamp, LearnedIMMState, LearnedIMMStatePrediction, self._start,
                                    "the learned IMM", "track_starts")
         t = _ss.seconds(timestamp)
+        if ctx.missed_parameters != self.missed_parameters:     # this predictor's choice for the looks it runs
+            ctx = ctx._replace(missed_parameters=self.missed_parameters)
         if given_plot(measurement):
             if measurement.measurement_model is None:
                 raise ValueError("measurement must carry its measurement_model (polar, with range rate) for the "
@@ -325,9 +347,11 @@ GATES = ["plot"]
 both given: both run (columns suffixed with the gate)."""
 
 
-def learned_pair(model: LearnedIMM | None = None):
-    """A fresh ``(LearnedIMMPredictor, LearnedIMMUpdater)`` of ``model`` (default the bundled ``policy_imm_bp``)."""
-    return LearnedIMMPredictor(model=model if model is not None else bundled_learned_imm()), LearnedIMMUpdater()
+def learned_pair(model: LearnedIMM | None = None, missed_parameters="network"):
+    """A fresh ``(LearnedIMMPredictor, LearnedIMMUpdater)`` of ``model`` (default the bundled ``policy_imm_bp``);
+    ``missed_parameters``: :attr:`LearnedIMMPredictor.missed_parameters`."""
+    return (LearnedIMMPredictor(model=model if model is not None else bundled_learned_imm(),
+                                missed_parameters=missed_parameters), LearnedIMMUpdater())
 
 
 def main(argv=None):
@@ -335,7 +359,9 @@ def main(argv=None):
     learned IMM (``policy_imm_bp``) and the learned q-policy (``policy_bp``, :mod:`agents.policies.stonesoup_qpolicy`)
     added, gated with :class:`PlotAwareHypothesiser` (:data:`GATES`); the same options, plus ``--gate-plot`` and
     ``--gate-missed`` (the plain ``DistanceHypothesiser`` on the missed-look prediction; both given: both run, the
-    columns named with the gate)."""
+    columns named with the gate). The learned IMM runs twice: with the network's parameters on missed looks (the
+    evaluation's learned IMM) and with the tuned constants there (``(tuned coast)``,
+    ``learned_pair(model, "tuned")``)."""
     from baselines import stonesoup_example
     from agents.policies.stonesoup_qpolicy import load_q_policy, q_policy_pair
     argv = list(argv if argv is not None else __import__("sys").argv[1:])
@@ -354,6 +380,8 @@ def main(argv=None):
         suffix = "" if len(chosen) == 1 else f" ({gates[g][0]} gate)"
         hyp = gates[g][1]
         extra[f"policy_imm_bp{suffix}"] = lambda hyp=hyp: (*learned_pair(model), *([hyp] if hyp else []))
+        extra[f"policy_imm_bp (tuned coast){suffix}"] = lambda hyp=hyp: (*learned_pair(model, "tuned"),
+                                                                        *([hyp] if hyp else []))
         extra[f"policy_bp{suffix}"] = lambda hyp=hyp: (*q_policy_pair(q_policy), *([hyp] if hyp else []))
     return stonesoup_example.main(argv, extra=extra, prog="python -m agents.policies.stonesoup_learned",
                                   figure_path=FIGURE)
