@@ -355,7 +355,7 @@ def _plot_update(x, P, z, R, x_out, P_out):
     """Kalman update of the 5-state ``(x, P)`` with the position plot ``z`` (R): the chain's update
     (:func:`radar_env.filters.kernels._gain_update`, positive definite by construction). Returns the log-likelihood
     ``-(NIS + log det(2 pi S)) / 2``."""
-    nis, d = _gain_update(x, P, 5, z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
+    nis, d = _gain_update(x, P, np.int64(5), z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
                           P_out)
     return -0.5 * (nis + 2.0 * _LOG_2PI + math.log(d))
 
@@ -451,7 +451,7 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
         log_c[j] = _logsumexp(a[j], M)
         for i in range(M):
             w[i] = math.exp(a[j, i] - log_c[j])
-        _moments(w, xm, Pm, 5, x0[j], P0[j])
+        _moments(w, xm, Pm, np.int64(5), x0[j], P0[j])
         if is_ct[j]:
             _clip_omega(x0[j], omega_max, accel_max)
         else:   # a CV mode keeps its 4-state marginal and its turn-rate augmentation (0, sigma_omega0^2)
@@ -483,7 +483,7 @@ def _predicted_combination(xp, Pp, log_c, w, xc, Pc):
     lse = _logsumexp(log_c, M)
     for j in range(M):
         w[j] = math.exp(log_c[j] - lse)
-    _moments(w, xp, Pp, 4, xc, Pc)
+    _moments(w, xp, Pp, np.int64(4), xc, Pc)
 
 
 @numba.njit(cache=True)
@@ -502,7 +502,7 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
         if det:
             ll[j] = _plot_update(xp[j], Pp[j], z, R, xm[j], Pm[j])
             if rr[1] < math.inf:    # xc, Pc: scratch until the combination below
-                ll[j] += _rdot_update(xm[j], Pm[j], 5, rr[0], rr[2], rr[3], rr[1], xc, Pc)
+                ll[j] += _rdot_update(xm[j], Pm[j], np.int64(5), rr[0], rr[2], rr[3], rr[1], xc, Pc)
                 _copy_vec(xm[j], xc)
                 _copy_mat(Pm[j], Pc)
             if is_ct[j]:
@@ -533,7 +533,7 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
     for j in range(M):
         d = (xm[j, 4] - om) if is_ct[j] else -om
         om_var += w[j] * ((Pm[j, 4, 4] if is_ct[j] else 0.0) + d * d)
-    _moments(w, xm, Pm, 4, xc, Pc)
+    _moments(w, xm, Pm, np.int64(4), xc, Pc)
     _copy_vec(x_out, xc)
     _copy_mat(P_out, Pc)
     return nis, om, om_var

@@ -390,7 +390,7 @@ def _rdot_look(x, P, lk, scale, xs, Ps):
     rd, sd = lk[L_RDOT], lk[L_RDSTD] * scale
     if not (math.isfinite(rd) and math.isfinite(sd) and sd > 0.0):
         return 0.0
-    ll = _rdot_update(x, P, 4, rd, lk[L_SITE], lk[L_SITE + 1], sd * sd, xs, Ps)
+    ll = _rdot_update(x, P, np.int64(4), rd, lk[L_SITE], lk[L_SITE + 1], sd * sd, xs, Ps)
     for i in range(4):
         x[i] = xs[i]
         for j in range(4):
@@ -472,7 +472,7 @@ def _update_nis(x, P, z, R, det, xo, Po, nu, S):
                 Po[i, j] = P[i, j]
         _pd_floor(Po, 4, P)
         return 0.0, 0.0
-    return _gain_update(x, P, 4, nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
+    return _gain_update(x, P, np.int64(4), nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
 
 
 @njit(cache=True)
@@ -1087,7 +1087,7 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, rdot, rdot_var
             _predict(x0[m], P0[m], F[b, m], Q[b, m], u, False, xp[m], Pp[m], FP)
             _, o_loglik[b, m] = _update(xp[m], Pp[m], z[b], R[b], det[b], o_x[b, m], o_P[b, m], nu, S)
             if det[b] and rdot_var[b] < math.inf:
-                o_loglik[b, m] += _rdot_update(o_x[b, m], o_P[b, m], 4, rdot[b], site[b, 0], site[b, 1], rdot_var[b],
+                o_loglik[b, m] += _rdot_update(o_x[b, m], o_P[b, m], np.int64(4), rdot[b], site[b, 0], site[b, 1], rdot_var[b],
                                                xs, FP)
                 o_x[b, m] = xs
                 o_P[b, m] = FP
