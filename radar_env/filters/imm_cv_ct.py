@@ -510,7 +510,7 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
         else:
             _copy_vec(xm[j], xp[j])
             _copy_mat(Pm[j], Pp[j])
-            _pd_floor(Pm[j], 5, Pp[j])
+            _pd_floor(Pm[j], np.int64(5), Pp[j])
             ll[j] = 0.0
     # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
     for j in range(M):

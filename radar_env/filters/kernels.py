@@ -196,7 +196,7 @@ def _chol_ok(P, n):
     return p > m * abs(P[4, 4])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # not inlined: one compilation for every caller (it was 2 x _chol_ok in each), called with an int64 n
 def _pd_floor(Po, n, P):
     """Keep the symmetric posterior ``Po`` (n x n, n = 4 or 5: position, velocity, [turn rate]) of the prior ``P``
     positive definite as float64 can represent it. The update subtracts prior-sized numbers, so a posterior variance
@@ -470,7 +470,7 @@ def _update_nis(x, P, z, R, det, xo, Po, nu, S):
             xo[i] = x[i]
             for j in range(4):
                 Po[i, j] = P[i, j]
-        _pd_floor(Po, 4, P)
+        _pd_floor(Po, np.int64(4), P)
         return 0.0, 0.0
     return _gain_update(x, P, np.int64(4), nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
 
