@@ -3,7 +3,7 @@
 ``radar_env.ENV_VARIANTS`` order, ``gym.make(id)`` + reset + one step, then a 4-row native vector env of the same
 id + reset + one step. Prints the seconds per id, the total, and the machine's 1-minute load before and after.
 
-    python benchmarks/bench_first_use.py [--runs N] [--warm]
+    python benchmarks/bench_first_use.py [--runs N] [--warm] [--repo CHECKOUT]
 """
 
 from __future__ import annotations
@@ -47,12 +47,12 @@ def load1():
     return os.getloadavg()[0]
 
 
-def run_once(cache_dir):
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir), PYTHONPATH=str(REPO))
+def run_once(cache_dir, repo=REPO):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir), PYTHONPATH=str(repo))
     l0 = load1()
     w0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    p = subprocess.run([sys.executable, "-c", _CODE], cwd=REPO, env=env, capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-c", _CODE], cwd=repo, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - w0
     c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
@@ -66,12 +66,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--warm", action="store_true", help="also a run with the cache the cold run filled")
+    ap.add_argument("--repo", default=str(REPO), help="the checkout whose radar_env is measured (default: this one)")
     a = ap.parse_args(argv)
     for _ in range(a.runs):
         with tempfile.TemporaryDirectory(prefix="first_use_cache_") as cache:
             kinds = ("cold", "warm") if a.warm else ("cold",)
             for kind in kinds:
-                r = run_once(cache)
+                r = run_once(cache, a.repo)
                 ids = ", ".join(f"{k} {v:.1f}" for k, v in r["ids"].items())
                 print(f"{kind}: envs {r['envs_s']:.1f} s (import {r['import_s']:.1f} s, interpreter {r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU;"
                       f" load {r['load_before']:.2f} -> {r['load_after']:.2f}): {ids}", flush=True)
