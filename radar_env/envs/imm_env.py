@@ -36,8 +36,8 @@ from numba import njit
 
 from . import env_kernels as _ek
 from ..filters import kernels as _k
-from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look, _look_range_rate, _work, imm_cv_ct_spec_from_params,
-                                 look_parameter_names, look_parameter_vector)
+from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look_predict, _look_range_rate, _look_update, _work,
+                                 imm_cv_ct_spec_from_params, look_parameter_names, look_parameter_vector)
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_number
 
@@ -264,9 +264,11 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
         lk = looks[r, k]
         R = lk[_k.L_R:_k.L_R + 4].reshape((2, 2))
         _look_range_rate(lk, rdot_scale, rr)
-        _, om[r], om_var[r] = _look(lk[_k.L_T] - looks[r, k - 1, _k.L_T], lk[_k.L_Z:_k.L_Z + 2], R,
-                                    lk[_k.L_DET] != 0.0, rr, is_ct, q, sw * sw, log_Pi, sig_w0_2, omega_max, accel_max,
-                                    xm[r], Pm[r], log_mu[r], work, x[r], P[r], mu[r])
+        # imm_cv_ct._look's two halves called directly: one level of compiled calls less to link and optimise
+        _look_predict(lk[_k.L_T] - looks[r, k - 1, _k.L_T], is_ct, q, sw * sw, log_Pi, sig_w0_2, omega_max,
+                      accel_max, xm[r], Pm[r], log_mu[r], work)
+        _, om[r], om_var[r] = _look_update(lk[_k.L_Z:_k.L_Z + 2], R, lk[_k.L_DET] != 0.0, rr, is_ct, omega_max,
+                                           accel_max, xm[r], Pm[r], log_mu[r], work, x[r], P[r], mu[r])
     return _ek.ST_OK
 
 

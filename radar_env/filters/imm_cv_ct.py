@@ -355,7 +355,7 @@ def _plot_update(x, P, z, R, x_out, P_out):
     """Kalman update of the 5-state ``(x, P)`` with the position plot ``z`` (R): the chain's update
     (:func:`radar_env.filters.kernels._gain_update`, positive definite by construction). Returns the log-likelihood
     ``-(NIS + log det(2 pi S)) / 2``."""
-    nis, d = _gain_update(x, P, 5, z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
+    nis, d = _gain_update(x, P, np.int64(5), z[0] - x[0], z[1] - x[1], R[0, 0], 0.5 * (R[0, 1] + R[1, 0]), R[1, 1], x_out,
                           P_out)
     return -0.5 * (nis + 2.0 * _LOG_2PI + math.log(d))
 
@@ -408,14 +408,31 @@ def _work(M):
 
 
 @numba.njit(cache=True)
+def _copy_vec(dst, src):
+    """``dst[:] = src[:dst.shape[0]]`` element by element (a slice assignment of an array compiles numba's
+    shape-mismatch error path, string formatting included: seconds of the first use's compilation for a copy)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@numba.njit(cache=True)
+def _copy_mat(dst, src):
+    """``dst[:, :] = src[:dst.shape[0], :dst.shape[1]]`` element by element (as :func:`_copy_vec`)."""
+    for i in range(dst.shape[0]):
+        for j in range(dst.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@numba.njit(cache=True)
 def _init_modes(x_init, P_init, is_ct, sig_w0_2, log_mu0, xm, Pm, log_mu):
     """Every mode at the start state; a CV mode with its turn-rate augmentation."""
     for m in range(is_ct.shape[0]):
-        xm[m] = x_init
-        Pm[m] = P_init
+        _copy_vec(xm[m], x_init)
+        _copy_mat(Pm[m], P_init)
         if not is_ct[m]:
             _set_cv_augmentation(xm[m], Pm[m], sig_w0_2)
-    log_mu[:] = log_mu0
+    for m in range(log_mu.shape[0]):
+        log_mu[m] = log_mu0[m]
 
 
 @numba.njit(cache=True)
@@ -425,15 +442,16 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
     normalisers (the predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
-    # ---- mixing (log space): a[i, j] = log Pi_ij + log mu_i, log c_j = logsumexp_i a[i, j], in 5 states
+    # ---- mixing (log space): a[j, i] = log Pi_ij + log mu_i (stored transposed: a[j] is a contiguous row, so
+    # _logsumexp compiles once, for C arrays), log c_j = logsumexp_i a[j, i], in 5 states
     for i in range(M):
         for j in range(M):
-            a[i, j] = log_Pi[i, j] + log_mu[i]
+            a[j, i] = log_Pi[i, j] + log_mu[i]
     for j in range(M):
-        log_c[j] = _logsumexp(a[:, j], M)
+        log_c[j] = _logsumexp(a[j], M)
         for i in range(M):
-            w[i] = math.exp(a[i, j] - log_c[j])
-        _moments(w, xm, Pm, 5, x0[j], P0[j])
+            w[i] = math.exp(a[j, i] - log_c[j])
+        _moments(w, xm, Pm, np.int64(5), x0[j], P0[j])
         if is_ct[j]:
             _clip_omega(x0[j], omega_max, accel_max)
         else:   # a CV mode keeps its 4-state marginal and its turn-rate augmentation (0, sigma_omega0^2)
@@ -447,7 +465,7 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
             for r in range(5):
                 J[r, r] = 1.0
             J[0, 2] = J[1, 3] = dt
-            xp[j] = x0[j]
+            _copy_vec(xp[j], x0[j])
             xp[j, 0] += dt * x0[j, 2]
             xp[j, 1] += dt * x0[j, 3]
         _abat(J, P0[j], tmp, Pp[j])
@@ -465,7 +483,7 @@ def _predicted_combination(xp, Pp, log_c, w, xc, Pc):
     lse = _logsumexp(log_c, M)
     for j in range(M):
         w[j] = math.exp(log_c[j] - lse)
-    _moments(w, xp, Pp, 4, xc, Pc)
+    _moments(w, xp, Pp, np.int64(4), xc, Pc)
 
 
 @numba.njit(cache=True)
@@ -484,15 +502,15 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
         if det:
             ll[j] = _plot_update(xp[j], Pp[j], z, R, xm[j], Pm[j])
             if rr[1] < math.inf:    # xc, Pc: scratch until the combination below
-                ll[j] += _rdot_update(xm[j], Pm[j], 5, rr[0], rr[2], rr[3], rr[1], xc, Pc)
-                xm[j] = xc
-                Pm[j] = Pc
+                ll[j] += _rdot_update(xm[j], Pm[j], np.int64(5), rr[0], rr[2], rr[3], rr[1], xc, Pc)
+                _copy_vec(xm[j], xc)
+                _copy_mat(Pm[j], Pc)
             if is_ct[j]:
                 _clip_omega(xm[j], omega_max, accel_max)
         else:
-            xm[j] = xp[j]
-            Pm[j] = Pp[j]
-            _pd_floor(Pm[j], 5, Pp[j])
+            _copy_vec(xm[j], xp[j])
+            _copy_mat(Pm[j], Pp[j])
+            _pd_floor(Pm[j], np.int64(5), Pp[j])
             ll[j] = 0.0
     # ---- mode probabilities: log mu_j = log c_j + l_j - logsumexp
     for j in range(M):
@@ -515,9 +533,9 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
     for j in range(M):
         d = (xm[j, 4] - om) if is_ct[j] else -om
         om_var += w[j] * ((Pm[j, 4, 4] if is_ct[j] else 0.0) + d * d)
-    _moments(w, xm, Pm, 4, xc, Pc)
-    x_out[:] = xc[:4]
-    P_out[:, :] = Pc[:4, :4]
+    _moments(w, xm, Pm, np.int64(4), xc, Pc)
+    _copy_vec(x_out, xc)
+    _copy_mat(P_out, Pc)
     return nis, om, om_var
 
 

@@ -26,6 +26,7 @@ can raise a ``ValueError`` naming the value.
 from __future__ import annotations
 
 import math
+import types
 from pathlib import Path
 
 import numpy as np
@@ -196,7 +197,7 @@ def _chol_ok(P, n):
     return p > m * abs(P[4, 4])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # not inlined: one compilation for every caller (it was 2 x _chol_ok in each), called with an int64 n
 def _pd_floor(Po, n, P):
     """Keep the symmetric posterior ``Po`` (n x n, n = 4 or 5: position, velocity, [turn rate]) of the prior ``P``
     positive definite as float64 can represent it. The update subtracts prior-sized numbers, so a posterior variance
@@ -390,7 +391,7 @@ def _rdot_look(x, P, lk, scale, xs, Ps):
     rd, sd = lk[L_RDOT], lk[L_RDSTD] * scale
     if not (math.isfinite(rd) and math.isfinite(sd) and sd > 0.0):
         return 0.0
-    ll = _rdot_update(x, P, 4, rd, lk[L_SITE], lk[L_SITE + 1], sd * sd, xs, Ps)
+    ll = _rdot_update(x, P, np.int64(4), rd, lk[L_SITE], lk[L_SITE + 1], sd * sd, xs, Ps)
     for i in range(4):
         x[i] = xs[i]
         for j in range(4):
@@ -470,9 +471,9 @@ def _update_nis(x, P, z, R, det, xo, Po, nu, S):
             xo[i] = x[i]
             for j in range(4):
                 Po[i, j] = P[i, j]
-        _pd_floor(Po, 4, P)
+        _pd_floor(Po, np.int64(4), P)
         return 0.0, 0.0
-    return _gain_update(x, P, 4, nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
+    return _gain_update(x, P, np.int64(4), nu0, nu1, r00, 0.5 * (r01 + r10), r11, xo, Po)
 
 
 @njit(cache=True)
@@ -1087,7 +1088,7 @@ def k_imm_step(log_mu, x_modes, P_modes, log_Pi, F, Q, z, R, det, rdot, rdot_var
             _predict(x0[m], P0[m], F[b, m], Q[b, m], u, False, xp[m], Pp[m], FP)
             _, o_loglik[b, m] = _update(xp[m], Pp[m], z[b], R[b], det[b], o_x[b, m], o_P[b, m], nu, S)
             if det[b] and rdot_var[b] < math.inf:
-                o_loglik[b, m] += _rdot_update(o_x[b, m], o_P[b, m], 4, rdot[b], site[b, 0], site[b, 1], rdot_var[b],
+                o_loglik[b, m] += _rdot_update(o_x[b, m], o_P[b, m], np.int64(4), rdot[b], site[b, 0], site[b, 1], rdot_var[b],
                                                xs, FP)
                 o_x[b, m] = xs
                 o_P[b, m] = FP
@@ -1164,6 +1165,21 @@ def k_imm_run(t, z, R, det, rdot, rdot_var, site, n_looks, k_start, t_start, log
             o_P[b, k] = Pc[0]
             o_log_mu[b, k] = n_lm[0]
             t_last = t[b, k]
+
+
+# The particle filter (radar_env.filters.rbpf) updates thousands of particles per look: its copy of the update keeps
+# the covariance floor inlined as before (a call per particle cost it about 3 %), while the env's chain calls the one
+# compiled _pd_floor (first use: inlined into every update it cost seconds of compilation). Same arithmetic.
+def _with_globals(fn, **names):
+    """A copy of the plain function ``fn`` whose global ``names`` resolve to other objects."""
+    return types.FunctionType(fn.__code__, dict(fn.__globals__, **names), fn.__name__, fn.__defaults__,
+                              fn.__closure__)
+
+
+_pd_floor_inlined = njit(inline="always")(_pd_floor.py_func)
+_gain_update_in_frame_inlined = njit(inline="always")(
+    _with_globals(_gain_update_in_frame.py_func, _pd_floor=_pd_floor_inlined))
+""":func:`_gain_update_in_frame` with :func:`_pd_floor` inlined (the particle filter's per-particle update)."""
 
 
 # numba keys each cached kernel on its own file only: drop this folder's cached kernels when any source of

@@ -46,7 +46,7 @@ from ..sim.looks import padded_looks, range_rate_inputs
 from ..sim.scenario import RandomScenarioConfig
 from . import imm_cv_ct, kernels
 from .imm_cv_ct import _add_cv_noise
-from .kernels import _gain_update_in_frame, _logsumexp, _r_frame, _symmetrize
+from .kernels import _gain_update_in_frame_inlined, _logsumexp, _r_frame, _symmetrize
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_PARAMS", "rbpf_filter", "prior_vector"]
 
@@ -286,7 +286,8 @@ def _plot_update(x, P, n, z0, z1, frame, xo, Po):
     """The chain's Kalman update (:func:`radar_env.filters.kernels._gain_update`) of the first ``n`` states (4 where
     ``eta``'s row and column are 0) with the position plot, in place; returns the plot's log-likelihood. ``frame``:
     the plot's R in its principal axes (:func:`radar_env.filters.kernels._r_frame`), the same for every particle."""
-    nis, d = _gain_update_in_frame(x, P, n, z0 - x[0], z1 - x[1], frame[0], frame[1], frame[2], frame[3], xo, Po)
+    nis, d = _gain_update_in_frame_inlined(x, P, n, z0 - x[0], z1 - x[1], frame[0], frame[1], frame[2], frame[3],
+                                           xo, Po)
     for r in range(n):
         x[r] = xo[r]
         for c in range(n):

@@ -464,7 +464,7 @@ def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, look
         r = rows[j]
         dur = _segment_starts(x0[j], segs[j], nseg[j], starts, t0)
         _schedule(sites[j], nsites[j], dur, t, idx)
-        i = 0
+        i = np.int64(0)   # not the literal 0 (another compilation of _truth_look)
         for k in range(K[j]):
             lk = looks[r, k]
             lk[_lk.L_T] = t[k]
@@ -514,7 +514,7 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
     t0 = np.empty(smax)
     for b in range(B):
         key = keys[b]
-        c = 0
+        c = np.int64(0)   # not the literal 0: that compiles the callees once more for Literal[int](0)
         status[b] = 1
         for _ in range(max_draws):
             ok = False
@@ -550,12 +550,12 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
                     st[i, _SY] = user_sites[i, _SY] + (sy - user_sites[0, _SY])
             elif mode == 1 and _u01(key, c) < cf[19]:
                 c += 1
-                c = _random_site(key, c, rr, sx, sy, True, st[0])
+                c = _random_site(key, c, rr, sx, sy, np.bool_(True), st[0])   # np.bool_: one compilation for both
                 n_s = 1
                 if _u01(key, c) < rr[10]:
                     d = rr[11] + (rr[12] - rr[11]) * _u01(key, c + 1)
                     a = _TWO_PI * _u01(key, c + 2)
-                    c = _random_site(key, c + 3, rr, sx + d * math.sin(a), sy + d * math.cos(a), False, st[1])
+                    c = _random_site(key, c + 3, rr, sx + d * math.sin(a), sy + d * math.cos(a), np.bool_(False), st[1])
                     n_s = 2
                 else:
                     c += 1
