@@ -155,26 +155,8 @@ def _leaf(f):
     return numba.njit(_nrt=False)(f.py_func)
 
 
-_ct_predict, _rdot_update = _leaf(imm_cv_ct._ct_predict), _leaf(kernels._rdot_update)
-
-
-@numba.njit(cache=True, _nrt=False)
-def _abat(A, B, tmp, out):
-    """:func:`radar_env.filters.imm_cv_ct._abat` (``out = A B A^T``) for the 5 x 5 matrices of a turn or a speed
-    change: the same products summed in the same order, the size known when compiled (the loops unrolled; with the
-    size read from the array they took about a quarter of the filter's time)."""
-    for r in range(5):
-        for c in range(5):
-            s = 0.0
-            for l in range(5):
-                s += A[r, l] * B[l, c]
-            tmp[r, c] = s
-    for r in range(5):
-        for c in range(5):
-            s = 0.0
-            for l in range(5):
-                s += tmp[r, l] * A[c, l]
-            out[r, c] = s
+_ct_predict, _rdot_update, _abat = (_leaf(imm_cv_ct._ct_predict), _leaf(kernels._rdot_update),
+                                    _leaf(imm_cv_ct._abat))
 
 
 @numba.njit(cache=True, _nrt=False)
