@@ -79,7 +79,7 @@ from radar_env.sim.radar import cartesian_from_polar, converted_covariance  # no
 
 __all__ = ["IMMCVCTState", "IMMCVCTStatePrediction", "IMMCVCTStateUpdate", "IMMCVCTPredictor", "IMMCVCTUpdater",
            "plot_from_detection", "range_rate_from_detection", "polar_detection", "detections_from_episode",
-           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "EPOCH", "SS_FROM_OURS"]
+           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "prediction_dt", "EPOCH", "SS_FROM_OURS"]
 
 EPOCH = _dt.datetime(2000, 1, 1)
 """The datetime of our ``t_s = 0`` (:func:`stamp`)."""
@@ -102,6 +102,21 @@ def seconds(timestamp) -> float:
     if not isinstance(timestamp, _dt.datetime):
         raise ValueError(f"timestamp must be a datetime, got {timestamp!r}")
     return (timestamp - EPOCH).total_seconds()
+
+
+def prediction_dt(prior_timestamp, timestamp, what) -> float:
+    """The seconds a prediction spans, ``timestamp - prior_timestamp`` (0 if both are None); ``ValueError`` if only one
+    is a datetime or the step goes back in time (``what`` names the filter that predicts forward only)."""
+    if timestamp is None or prior_timestamp is None:
+        if timestamp is not None or prior_timestamp is not None:
+            raise ValueError(f"timestamp ({timestamp}) and prior.timestamp ({prior_timestamp}) must both be "
+                             "datetimes, or both None (dt = 0)")
+        return 0.0
+    dt = (timestamp - prior_timestamp).total_seconds()
+    if dt < 0:
+        raise ValueError(f"timestamp {timestamp} is before prior.timestamp {prior_timestamp}: {what} predicts "
+                         "forward only")
+    return dt
 
 
 def _tuned_spec():
@@ -369,16 +384,7 @@ class IMMCVCTPredictor(Predictor):
         elif prior.spec is not None and prior.spec != self.spec:
             raise ValueError("prior.spec differs from IMMCVCTPredictor.spec: the state was made with other IMM "
                              "parameters")
-        if timestamp is None or prior.timestamp is None:
-            if timestamp is not None or prior.timestamp is not None:
-                raise ValueError(f"timestamp ({timestamp}) and prior.timestamp ({prior.timestamp}) must both be "
-                                 "datetimes, or both None (dt = 0)")
-            dt = 0.0
-        else:
-            dt = (timestamp - prior.timestamp).total_seconds()
-            if dt < 0:
-                raise ValueError(f"timestamp {timestamp} is before prior.timestamp {prior.timestamp}: the IMM "
-                                 "predicts forward only")
+        dt = prediction_dt(prior.timestamp, timestamp, "the IMM")
         xm, Pm = _modes_ours(prior)
         p = predict_modes(self.spec, xm, Pm, prior.log_mode_probabilities, dt)
         return Prediction.from_state(

@@ -228,16 +228,7 @@ class RBPFPredictor(Predictor):
             prior = RBPFState.from_gaussian(prior, self.spec)
         if prior.spec is not None and prior.spec != self.spec:
             raise ValueError("prior.spec differs from RBPFPredictor.spec: the state was made with other settings")
-        if timestamp is None or prior.timestamp is None:
-            if timestamp is not None or prior.timestamp is not None:
-                raise ValueError(f"timestamp ({timestamp}) and prior.timestamp ({prior.timestamp}) must both be "
-                                 "datetimes, or both None (dt = 0)")
-            dt = 0.0
-        else:
-            dt = (timestamp - prior.timestamp).total_seconds()
-            if dt < 0:
-                raise ValueError(f"timestamp {timestamp} is before prior.timestamp {prior.timestamp}: the particle "
-                                 "filter predicts forward only")
+        dt = _ss.prediction_dt(prior.timestamp, timestamp, "the particle filter")
         spec = prior.spec_or_default
         p = prior.particles.copy()
         look = int(prior.look) + 1

@@ -77,7 +77,7 @@ from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides, finish_run, load_hyperparams,
-                                  mark_failed, open_run_folder, run_paths, write_run_files)
+                                  mark_failed, open_run_folder, run_cli, run_paths, write_run_files)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -896,15 +896,6 @@ def main_from_args(args, argv):
     if args.tracker is not None:
         hp["tracker"] = args.tracker
     command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
-    try:
-        return train_backprop(hp, seed=args.seed, out=args.out, progress=not args.no_progress,
-                              verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name)
-    except ValueError as e:
-        raise SystemExit(f"error: {e}") from None
-    except RunInterrupted as e:
-        raise SystemExit(e.message(command)) from None
-    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
-        raise SystemExit(f"radar-track train: could not write {e.filename or args.out} ({e.strerror or e}); the "
-                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
-    except KeyboardInterrupt:
-        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
+    return run_cli(lambda: train_backprop(hp, seed=args.seed, out=args.out, progress=not args.no_progress,
+                                         verbose=0 if args.quiet else 1, command=command, args=vars(args),
+                                         run_name=args.name), command, args.out)

@@ -218,6 +218,24 @@ class RunInterrupted(KeyboardInterrupt):
         return f"radar-track train: interrupted; the unfinished run is in {self.part}/; to {what}: {again}"
 
 
+def run_cli(start, command, out):
+    """``start()`` (a training run) for ``radar-track train``, every fault it may end with as one line
+    (``SystemExit``): a refused argument (``ValueError``), Ctrl-C during the run (:class:`RunInterrupted`: where the
+    run is and the command that resumes it) or before its folder was made, a write that failed (``OSError``: a full
+    disk, a folder made read-only; the run's ``.partial`` folder keeps its last complete checkpoint)."""
+    try:
+        return start()
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+    except RunInterrupted as e:
+        raise SystemExit(e.message(command)) from None
+    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
+        raise SystemExit(f"radar-track train: could not write {e.filename or out} ({e.strerror or e}); the "
+                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
+    except KeyboardInterrupt:
+        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
+
+
 def mark_failed(part, lock):
     """Write the current exception's traceback to ``<part>/FAILED`` (call it in an ``except`` block) and release the
     run's lock."""

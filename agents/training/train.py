@@ -53,7 +53,7 @@ from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
 from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides,  # noqa: F401
                                   check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
-                                  run_paths, write_run_files)
+                                  run_cli, run_paths, write_run_files)
 
 __all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
            "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
@@ -547,19 +547,9 @@ def main(argv=None, prog="radar-track train"):
     if args.n_envs is not None:
         hp["n_envs"] = args.n_envs
     command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
-    try:
-        return train(args.algo, hp, seed=args.seed, out=args.out, progress=not args.no_progress,
-                     verbose=0 if args.quiet else 1, command=command, args=vars(args), run_name=args.name,
-                     allow_pickle=args.allow_pickle)
-    except ValueError as e:
-        raise SystemExit(f"error: {e}") from None
-    except RunInterrupted as e:
-        raise SystemExit(e.message(command)) from None
-    except OSError as e:        # a full disk, a folder made read-only: what and where, in one line
-        raise SystemExit(f"radar-track train: could not write {e.filename or args.out} ({e.strerror or e}); the "
-                         "unfinished run and its last complete checkpoint stay in its .partial folder") from None
-    except KeyboardInterrupt:
-        raise SystemExit("radar-track train: interrupted before the run folder was made; nothing written") from None
+    return run_cli(lambda: train(args.algo, hp, seed=args.seed, out=args.out, progress=not args.no_progress,
+                                 verbose=0 if args.quiet else 1, command=command, args=vars(args),
+                                 run_name=args.name, allow_pickle=args.allow_pickle), command, args.out)
 
 
 if __name__ == "__main__":
