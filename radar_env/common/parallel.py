@@ -4,9 +4,9 @@ A row kernel written for this (:func:`radar_env.envs.env_kernels.k_env`, :func:`
 :func:`radar_env.sim.draws.k_fill_random_looks`) takes a last argument ``chunks`` and loops ``for blk in
 prange(chunks)`` over contiguous blocks of rows, each block with its own scratch arrays, so that no two blocks write
 the same memory. Its ordinary ``@njit`` build (``prange`` is ``range`` there) is called with ``chunks = 1``: the
-serial kernel. :func:`run` with ``num_threads > 1`` calls the parallel build of the *same* function (its
-``py_func``, compiled lazily on first use, cached on disk under its own name) with ``chunks = num_threads`` on that
-many of numba's threads. Each row's numbers do not depend on the block it is in (the rows are independent and every
+serial kernel. :func:`run` with ``num_threads > 1`` (and at least two rows per thread) calls the parallel build of
+the *same* function (its ``py_func``, compiled lazily on first use, cached on disk under its own name) with
+``chunks = num_threads`` on that many of numba's threads. Each row's numbers do not depend on the block it is in (the rows are independent and every
 random draw is keyed per row), so the outputs are bit-identical to the serial build's.
 """
 
@@ -44,14 +44,20 @@ def parallel_build(dispatcher):
         g.__qualname__ = f.__qualname__ + "_parallel"
         g.__module__ = f.__module__
         g.__doc__ = f.__doc__
-        p = _BUILDS[f] = numba.njit(parallel=True, cache=True)(g)
+        # only the explicit prange loops run in parallel: numba's other conversions (np.zeros, array expressions,
+        # ...) would each become a parallel region of its own, with its own start and barrier, in every call
+        options = dict(prange=True, comprehension=False, reduction=False, inplace_binop=False, setitem=False,
+                       numpy=False, stencil=False, fusion=False)
+        p = _BUILDS[f] = numba.njit(parallel=options, cache=True)(g)
     return p
 
 
-def run(num_threads, dispatcher, *args):
-    """``dispatcher(*args, 1)`` for ``num_threads == 1``; else its parallel build with ``chunks = num_threads`` on
-    ``num_threads`` of numba's threads (numba's thread count is per calling thread and restored after the call)."""
-    if num_threads == 1:
+def run(num_threads, n_rows, dispatcher, *args):
+    """``dispatcher(*args, 1)`` for ``num_threads == 1`` or fewer than ``2 * num_threads`` rows (``n_rows``: a
+    parallel region's start and barrier cost more than a block of one row saves); else its parallel build with
+    ``chunks = num_threads`` on ``num_threads`` of numba's threads (numba's thread count is per calling thread and
+    restored after the call). The outputs are the same either way."""
+    if num_threads == 1 or n_rows < 2 * num_threads:
         return dispatcher(*args, 1)
     kernel = parallel_build(dispatcher)
     before = numba.get_num_threads()

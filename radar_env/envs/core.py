@@ -239,7 +239,7 @@ class _Core:
         det = self.detectors
         if det is not None:
             det.values[rows] = det.initial    # the first observation's detector values (before any IMM look)
-        status = _run_rows(self.num_threads, _ek.k_env, rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
+        status = _run_rows(self.num_threads, rows.size, _ek.k_env, rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:   # drawn episodes always start (the draws check it); a bug otherwise
             raise RuntimeError(f"track start failed for row {rows[-1 - status]}")
         if det is not None:
@@ -292,7 +292,7 @@ class _Core:
             status = self.detectors.step(self.tracker._looks, self.tracker._it, self._all, a, self.ep)
             if status != _ek.ST_OK:
                 self._refuse(status, action)
-        status = _run_rows(self.num_threads, _ek.k_env, _NO_ROWS, a, *self._kernel_args(), *blocks)
+        status = _run_rows(self.num_threads, self.n, _ek.k_env, _NO_ROWS, a, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:
             self._refuse(status, action)
 

@@ -101,7 +101,7 @@ class _IMMCore(_Core):
         if status != _ek.ST_OK:
             self._refuse(status, action)
         elapsed[:] = self.elapsed
-        status = _run_rows(self.num_threads, _ek.k_env, _NO_ROWS, self._level0, *self._kernel_args(), *blocks)
+        status = _run_rows(self.num_threads, self.n, _ek.k_env, _NO_ROWS, self._level0, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:
             raise RuntimeError("the feature chain refused a step the IMM took")   # a bug: the same rows and looks
         k_imm_emit(self.ep, tr._looks, tr._it, elapsed, x, P, fo, fs, bo)

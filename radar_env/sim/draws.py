@@ -720,7 +720,7 @@ def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws, num_thre
         mode, user = (1 if name == "random_radars" else 0), _site_table(_ATC)
     p = cfg.random_radar_probability if name == "random_radars" else 0.0
     smax = 3 * int(cfg.n_legs[1])
-    return _run_rows(num_threads, _random_rows, keys, _config_vector(cfg, p), _radar_ranges(), mode, user,
+    return _run_rows(num_threads, keys.size, _random_rows, keys, _config_vector(cfg, p), _radar_ranges(), mode, user,
                      int(warmup_scans), int(max_draws), RANDOM_SCENARIO_TRIES, smax)
 
 
@@ -943,7 +943,7 @@ class LookDrawer:
                                                                                 w, self.max_draws, num_threads)
             _check_random_status(status, self.cfg, self.name, w, self.max_draws)
             tracker._ensure_capacity(int(K.max()), _HEADROOM)
-            _run_rows(num_threads, k_fill_random_looks, rows, keys, x0, segs, nseg, sites, nsites, K, cdet,
+            _run_rows(num_threads, rows.size, k_fill_random_looks, rows, keys, x0, segs, nseg, sites, nsites, K, cdet,
                       tracker._looks, tracker._it)
         else:
             sc, rd, place = self.fixed
@@ -953,8 +953,8 @@ class LookDrawer:
             if np.any(status != 0):
                 raise _too_few_draws(sc.name, w, self.max_draws)
             tracker._ensure_capacity(t.size)
-            _run_rows(num_threads, k_fill_fixed_looks, rows, keys, sites, cdet, t, idx, truth, accel, turn, man,
-                      tracker._looks, tracker._it)
+            _run_rows(num_threads, rows.size, k_fill_fixed_looks, rows, keys, sites, cdet, t, idx, truth, accel, turn,
+                      man, tracker._looks, tracker._it)
         for r in rows:
             tracker.names[r] = self.label
 
