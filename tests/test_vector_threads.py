@@ -88,3 +88,30 @@ def test_num_threads_leaves_numba_setting():
     env.reset(seed=0)
     env.step(np.zeros(4, dtype=np.int64))
     assert numba.get_num_threads() == before
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="numba has one thread")
+@pytest.mark.parametrize("env_id, kwargs", [
+    ("RadarTrackIMM-v0", {}),                                               # the IMM tracker (its kernels serial)
+    ("RadarTrack-v0", {"features": "detectors"}),                           # detector features (ext columns)
+    ("RadarTrack-v0", {"scenario": "bizup2002"}),                           # a fixed scenario's draws
+    ("RadarTrack-v0", {"reward_nees_weight": 0.5, "max_episode_steps": 50}),
+])
+def test_threads_bit_identical_other_envs(env_id, kwargs):
+    if kwargs.get("features") == "detectors":
+        from radar_env.envs.config import EnvConfig
+        from radar_env.envs.observation import DETECTOR_FEATURES
+        kwargs = {"features": tuple(EnvConfig().features) + DETECTOR_FEATURES}
+    runs = []
+    for num_threads in (1, 2):
+        env = gym.make_vec(env_id, num_envs=48, vectorization_mode="vector_entry_point", num_threads=num_threads,
+                           **kwargs)
+        env.action_space.seed(5)
+        obs, info = env.reset(seed=11)
+        out = [("reset/obs", obs.copy())] + _flat(info)
+        for s in range(200):
+            obs, rew, term, trunc, info = env.step(env.action_space.sample())
+            out += [(f"{s}/obs", obs.copy()), (f"{s}/rew", rew.copy()), (f"{s}/end", term | trunc)]
+            out += [(f"{s}/{k}", v.copy()) for k, v in _flat(info)]
+        runs.append(out)
+    _assert_same(*runs)
