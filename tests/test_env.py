@@ -213,8 +213,8 @@ def test_observation_does_not_depend_on_truth(monkeypatch):
     ref = run()
     orig = LookDrawer.draw   # the core draws its episodes straight into the tracker's looks (radar_env.sim.draws)
 
-    def perturbed(self, keys, rows, tracker):
-        orig(self, keys, rows, tracker)
+    def perturbed(self, keys, rows, tracker, num_threads=1):
+        orig(self, keys, rows, tracker, num_threads)
         L = tracker._looks
         L[rows, :, L_TRUTH:L_TRUTH + 4] += np.array([300.0, -200.0, 5.0, -3.0])
         L[rows, :, L_TACC:L_TACC + 2] += 20.0

@@ -16,6 +16,7 @@ from . import env_kernels as _ek
 from ..filters import kernels as _k
 from .config import NEES_99_2DOF, REWARD_SCALE_M, EnvConfig, resolve_scenario
 from .detectors import DetectorBank
+from ..common.parallel import run as _run_rows
 from ..sim.draws import MAX_EPISODE_DRAWS, LookDrawer, _keys, draw_episodes
 from .observation import FrameStack, ObservationLayout
 from ..sim.scenario import RADAR_PLACEMENT_RANGE_M
@@ -103,6 +104,10 @@ class _Core:
 
     action_shape = ()
     """The shape of one row's action."""
+
+    num_threads = 1
+    """Threads of the per-row step and autoreset-draw kernels (:mod:`radar_env.common.parallel`; the vector env's
+    ``num_threads``): 1 runs the serial kernels, more their parallel builds, with the same outputs."""
 
     def observation_bounds(self):
         """``(low, high)`` of one row's observation."""
@@ -227,14 +232,14 @@ class _Core:
                                    self.cfg.warmup_scans)
         if drawer is not None:
             keys = self._keys[rows] if prepared else _keys([self.rngs[r] for r in rows])
-            drawer.draw(keys, rows, self.tracker)
+            drawer.draw(keys, rows, self.tracker, self.num_threads)
         else:
             eps = [self._prepared[r] for r in rows] if prepared else self._draw(rows, scenario)
             self.tracker._put(rows, eps)
         det = self.detectors
         if det is not None:
             det.values[rows] = det.initial    # the first observation's detector values (before any IMM look)
-        status = _ek.k_env(rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
+        status = _run_rows(self.num_threads, rows.size, _ek.k_env, rows, _NO_ACTIONS, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:   # drawn episodes always start (the draws check it); a bug otherwise
             raise RuntimeError(f"track start failed for row {rows[-1 - status]}")
         if det is not None:
@@ -287,7 +292,7 @@ class _Core:
             status = self.detectors.step(self.tracker._looks, self.tracker._it, self._all, a, self.ep)
             if status != _ek.ST_OK:
                 self._refuse(status, action)
-        status = _ek.k_env(_NO_ROWS, a, *self._kernel_args(), *blocks)
+        status = _run_rows(self.num_threads, self.n, _ek.k_env, _NO_ROWS, a, *self._kernel_args(), *blocks)
         if status != _ek.ST_OK:
             self._refuse(status, action)
 

@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..common.numba_cache import drop_stale_kernels, package_sources
 from ..filters import kernels as _k
@@ -293,7 +293,7 @@ def _init_looks(looks, r, K):
 
 
 @njit(cache=True)
-def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, obs, fo, fs, bo):
+def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, obs, fo, fs, bo, chunks):
     """The env's one kernel (one compilation of the chain for both uses):
 
     * ``rows`` empty: one step of every row: action ``act[i]`` -> q (validated), the chain's look
@@ -307,6 +307,11 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, o
 
     ``ext (n, W)`` holds row r's values of features computed outside the chain (:mod:`radar_env.envs.detectors`),
     appended to its feature row as columns ``W_FEAT ..`` for the observation plan (W = 0: none).
+
+    ``chunks`` (>= 1): the rows are processed in that many contiguous blocks, each with its own scratch; the rows
+    are independent (each reads and writes only its own state, looks, frames and output index), so the parallel
+    build of this function (:func:`radar_env.common.parallel.run`) runs the blocks on several threads with the
+    same numbers. This build runs them one after the other (1 block: the serial env).
     """
     start = rows.shape[0] > 0
     nw = int(ep[EP_WARM_N])
@@ -325,42 +330,46 @@ def k_env(rows, act, ep, st, it, looks, bf, bi, bb, par, frames, elapsed, ext, o
         for i in range(n):
             if it[i, _k.I_K] >= it[i, _k.I_N]:
                 return ST_ENDED
-    F, Q, FP, u, R, zz, xh = _scratch()
-    xp, xo, nu = np.empty(4), np.empty(4), np.empty(2)
-    Pp, Po, S = np.empty((4, 4)), np.empty((4, 4)), np.empty((2, 2))
-    of = np.empty(_k.W_FEAT + ext.shape[1])
-    ofb = np.empty(_k.W_BANK_OUTB, dtype=np.bool_)
-    seed_xy, R1, R2, seed_t = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
     max_steps = int(ep[EP_MAX_STEPS])
     plan = _plan(ep)
     no = n < 0   # a run-time False: a literal would compile another specialisation of the chain
-    for j in range(n):
-        if start:   # two-hit start, then the warm-up looks at the warm-up q
-            r = rows[j]
-            i1, i2 = _init_looks(looks, r, it[r, _k.I_N])
-            _track_start_row(r, i1, i2, st, it, looks, bf, bi, bb, par, seed_xy, seed_t, R1, R2)
-            q, n_rep = ep[EP_WARM_Q], nw
-        else:
-            r = j
-            q, n_rep = _action_q(act[j], ep), 1
-        t_prev = 0.0
-        for _ in range(n_rep):
-            t_prev = st[r, _k.S_T]
-            _step_row(r, q, 0.0, no, no, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP, u,
-                      R, zz, xh)
-        for c in range(ext.shape[1]):
-            of[_k.W_FEAT + c] = ext[r, c]
-        lost, done = _emit(r, r, q, t_prev, not start, ep, plan, st, it, looks, of, frames, start, obs, fo, fs, bo)
-        trunc = done and not lost
-        elapsed[r] = 0 if start else elapsed[r] + 1
-        if max_steps > 0 and elapsed[r] >= max_steps:
-            trunc = True
-        if start:
-            trunc = False
-        bo[BO_TRUNC, r] = trunc
-        bo[BO_DONE, r] = lost or trunc
-        if lost or trunc:
-            elapsed[r] = 0
+    # rows in ``chunks`` blocks, each with its own scratch: prange runs the blocks on numba's threads in the
+    # parallel build (radar_env.common.parallel) and is range in this one (chunks = 1: one block, as before)
+    for blk in prange(chunks):
+        F, Q, FP, u, R, zz, xh = _scratch()
+        xp, xo, nu = np.empty(4), np.empty(4), np.empty(2)
+        Pp, Po, S = np.empty((4, 4)), np.empty((4, 4)), np.empty((2, 2))
+        of = np.empty(_k.W_FEAT + ext.shape[1])
+        ofb = np.empty(_k.W_BANK_OUTB, dtype=np.bool_)
+        seed_xy, R1, R2, seed_t = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty(2)
+        for j in range(blk * n // chunks, (blk + 1) * n // chunks):
+            if start:   # two-hit start, then the warm-up looks at the warm-up q
+                r = rows[j]
+                i1, i2 = _init_looks(looks, r, it[r, _k.I_N])
+                _track_start_row(r, i1, i2, st, it, looks, bf, bi, bb, par, seed_xy, seed_t, R1, R2)
+                q, n_rep = ep[EP_WARM_Q], nw
+            else:
+                r = j
+                q, n_rep = _action_q(act[j], ep), 1
+            t_prev = 0.0
+            for _ in range(n_rep):
+                t_prev = st[r, _k.S_T]
+                _step_row(r, q, 0.0, no, no, st, it, looks, bf, bi, bb, par, xp, Pp, xo, Po, nu, S, of, ofb, F, Q, FP,
+                          u, R, zz, xh)
+            for c in range(ext.shape[1]):
+                of[_k.W_FEAT + c] = ext[r, c]
+            lost, done = _emit(r, r, q, t_prev, not start, ep, plan, st, it, looks, of, frames, start, obs, fo, fs,
+                               bo)
+            trunc = done and not lost
+            elapsed[r] = 0 if start else elapsed[r] + 1
+            if max_steps > 0 and elapsed[r] >= max_steps:
+                trunc = True
+            if start:
+                trunc = False
+            bo[BO_TRUNC, r] = trunc
+            bo[BO_DONE, r] = lost or trunc
+            if lost or trunc:
+                elapsed[r] = 0
     return ST_OK
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from . import env_kernels as _ek
-from .core import _NO_ROWS, _Core
+from .core import _NO_ROWS, _Core, _run_rows
 from .config import EnvConfig
 from ..filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors
 from .imm_env import (detector_bounds, detector_observation, feature_q_m_s2, imm_action_map, imm_spec, k_imm_emit,
@@ -101,7 +101,8 @@ class _IMMCore(_Core):
         if status != _ek.ST_OK:
             self._refuse(status, action)
         elapsed[:] = self.elapsed
-        if _ek.k_env(_NO_ROWS, self._level0, *self._kernel_args(), *blocks) != _ek.ST_OK:
+        status = _run_rows(self.num_threads, self.n, _ek.k_env, _NO_ROWS, self._level0, *self._kernel_args(), *blocks)
+        if status != _ek.ST_OK:
             raise RuntimeError("the feature chain refused a step the IMM took")   # a bug: the same rows and looks
         k_imm_emit(self.ep, tr._looks, tr._it, elapsed, x, P, fo, fs, bo)
         obs[:, self.n_features:] = detector_observation(detector_inputs(mu, om, np.sqrt(om_var)))

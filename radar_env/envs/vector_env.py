@@ -13,6 +13,7 @@ from .config import EnvConfig
 from .imm_core import make_core
 from .env_kernels import BO_DONE
 from .single_env import row_spaces
+from ..common.parallel import check_num_threads
 from ..common.validate import check_known_keys
 
 __all__ = ["RadarTrackVectorEnv"]
@@ -31,6 +32,11 @@ class RadarTrackVectorEnv(VectorEnv):
     kernel call; each row's next draw is prepared from its own generator, all rows without one at once when a
     finishing row has none); an explicit ``reset()`` without a seed discards those prepared draws, so after it the
     rows continue from their generators' advanced state.
+    ``num_threads`` (default 1): threads of the per-row step kernel and of the next episodes' draws (numba
+    ``prange`` over blocks of rows; the parallel builds compile on the first use of ``num_threads > 1``, about as
+    long as the serial ones). An integer in ``[1, numba.config.NUMBA_NUM_THREADS]``. Every output is
+    bit-identical to ``num_threads=1`` (the rows are independent and every random draw is keyed per row;
+    tests/test_vector_threads.py); the IMM tracker's own kernels and the detector features stay on one thread.
     All other arguments as :class:`RadarTrackEnv`.
 
     Actions: shape ``(num_envs,)`` (discrete) or ``(num_envs, 1)`` / ``(num_envs,)`` (continuous), with
@@ -46,9 +52,10 @@ class RadarTrackVectorEnv(VectorEnv):
 
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs=1, **kwargs):
+    def __init__(self, num_envs=1, num_threads=1, **kwargs):
         if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        self.num_threads = check_num_threads(num_threads)
         # gym.make_vec passes the spec's / caller's max_episode_steps; apply it as gym.make's TimeLimit does
         # (truncated once a row has taken that many steps) rather than dropping it silently.
         max_steps = kwargs.pop("max_episode_steps", None)
@@ -61,6 +68,7 @@ class RadarTrackVectorEnv(VectorEnv):
             raise ValueError("RadarTrackVectorEnv does not render; use the single env")
         self.num_envs = int(num_envs)
         self._core = make_core(self.num_envs, self.config, autoreset=True, max_episode_steps=self.max_episode_steps)
+        self._core.num_threads = self.num_threads
         self.single_action_space, self.single_observation_space = row_spaces(self._core)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

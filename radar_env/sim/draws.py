@@ -52,9 +52,10 @@ from .radar import Radar, atc_radar, scan_schedule
 from .scenario import (RADAR_PLACEMENT_RANGE_M, RandomScenarioConfig, Segment, SegmentScenario,
                        TrajectoryScenario)
 from . import looks as _lk
-from numba import njit
+from numba import njit, prange
 from .looks import looks_for_track_start
 from .motion import _sinc
+from ..common.parallel import run as _run_rows
 from ..common.units import DEG, G0_M_S2, KNOT_M_S
 
 __all__ = ["draw_episodes", "random_scenarios", "LookDrawer", "MAX_EPISODE_DRAWS", "EpisodeDrawError"]
@@ -452,54 +453,58 @@ def _measure_looks(r, key, c, K, sites, idx, looks, old_n):
 
 
 @njit(cache=True)
-def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, looks, it):
+def k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, looks, it, chunks):
     """The accepted random draws (:func:`_random_rows`) of ``rows`` written straight into a tracker's packed looks
-    and look counts (``it[:, I_N]``): schedule, truth, plots, padding."""
+    and look counts (``it[:, I_N]``): schedule, truth, plots, padding. ``chunks``: as :func:`_random_rows`."""
     smax = segs.shape[1]
-    starts = np.empty((smax, 4))
-    t0 = np.empty(smax)
-    t = np.empty(looks.shape[1])
-    idx = np.empty(looks.shape[1], dtype=np.int64)
-    for j in range(rows.size):
-        r = rows[j]
-        dur = _segment_starts(x0[j], segs[j], nseg[j], starts, t0)
-        _schedule(sites[j], nsites[j], dur, t, idx)
-        i = np.int64(0)   # not the literal 0 (another compilation of _truth_look)
-        for k in range(K[j]):
-            lk = looks[r, k]
-            lk[_lk.L_T] = t[k]
-            i, lk[_lk.L_TACC], lk[_lk.L_TACC + 1], lk[_lk.L_TTURN], man = _truth_look(
-                t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_lk.L_TRUTH:_lk.L_TRUTH + 4])
-            lk[_lk.L_MAN] = 1.0 if man else 0.0
-        _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks, it[r, _lk.I_N])
-        it[r, _lk.I_N] = K[j]
+    for blk in prange(chunks):   # each block of rows with its own scratch
+        starts = np.empty((smax, 4))
+        t0 = np.empty(smax)
+        t = np.empty(looks.shape[1])
+        idx = np.empty(looks.shape[1], dtype=np.int64)
+        for j in range(blk * rows.size // chunks, (blk + 1) * rows.size // chunks):
+            r = rows[j]
+            dur = _segment_starts(x0[j], segs[j], nseg[j], starts, t0)
+            _schedule(sites[j], nsites[j], dur, t, idx)
+            i = np.int64(0)   # not the literal 0 (another compilation of _truth_look)
+            for k in range(K[j]):
+                lk = looks[r, k]
+                lk[_lk.L_T] = t[k]
+                i, lk[_lk.L_TACC], lk[_lk.L_TACC + 1], lk[_lk.L_TTURN], man = _truth_look(
+                    t[k], i, segs[j], nseg[j], starts, t0, dur, lk[_lk.L_TRUTH:_lk.L_TRUTH + 4])
+                lk[_lk.L_MAN] = 1.0 if man else 0.0
+            _measure_looks(r, keys[j], cdet[j], K[j], sites[j], idx, looks, it[r, _lk.I_N])
+            it[r, _lk.I_N] = K[j]
 
 
 @njit(cache=True)
-def k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth0, accel0, turn0, man0, looks, it):
+def k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth0, accel0, turn0, man0, looks, it, chunks):
     """The accepted draws of a fixed scenario (:func:`_fixed_rows`) of ``rows`` written straight into a tracker's
-    packed looks and look counts."""
+    packed looks and look counts. ``chunks``: as :func:`_random_rows` (no scratch here)."""
     K = t.size
-    for j in range(rows.size):
-        r = rows[j]
-        for k in range(K):
-            lk = looks[r, k]
-            lk[_lk.L_T] = t[k]
-            for a in range(4):
-                lk[_lk.L_TRUTH + a] = truth0[k, a]
-            lk[_lk.L_TACC], lk[_lk.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
-            lk[_lk.L_TTURN] = turn0[k]
-            lk[_lk.L_MAN] = 1.0 if man0[k] else 0.0
-        _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks, it[r, _lk.I_N])
-        it[r, _lk.I_N] = K
+    for blk in prange(chunks):
+        for j in range(blk * rows.size // chunks, (blk + 1) * rows.size // chunks):
+            r = rows[j]
+            for k in range(K):
+                lk = looks[r, k]
+                lk[_lk.L_T] = t[k]
+                for a in range(4):
+                    lk[_lk.L_TRUTH + a] = truth0[k, a]
+                lk[_lk.L_TACC], lk[_lk.L_TACC + 1] = accel0[k, 0], accel0[k, 1]
+                lk[_lk.L_TTURN] = turn0[k]
+                lk[_lk.L_MAN] = 1.0 if man0[k] else 0.0
+            _measure_looks(r, keys[j], cdet[j], K, sites[j], idx, looks, it[r, _lk.I_N])
+            it[r, _lk.I_N] = K
 
 
 # ---------------------------------------------------------------------------------------------------- random kernels
 @njit(cache=True)
-def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, smax):
+def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, smax, chunks):
     """Phase 1 for the random scenarios: per row the accepted flight, radar and look counter (no look arrays).
 
-    mode: 0 ATC radar at the drawn site, 1 random_radars (mixture), 2 a user radar moved to the drawn site."""
+    mode: 0 ATC radar at the drawn site, 1 random_radars (mixture), 2 a user radar moved to the drawn site.
+    chunks: blocks of rows, each with its own scratch (1: serial; :mod:`radar_env.common.parallel` runs the blocks
+    of its parallel build on threads)."""
     B = keys.size
     x0 = np.zeros((B, 4))
     segs = np.zeros((B, smax, 3))
@@ -509,72 +514,74 @@ def _random_rows(keys, cf, rr, mode, user_sites, warmup, max_draws, max_tries, s
     K = np.zeros(B, dtype=np.int64)
     cdet = np.zeros(B, dtype=np.int64)
     status = np.zeros(B, dtype=np.int64)
-    cand = np.empty((int(cf[17]), 2))
-    starts = np.empty((smax, 4))
-    t0 = np.empty(smax)
-    for b in range(B):
-        key = keys[b]
-        c = np.int64(0)   # not the literal 0: that compiles the callees once more for Literal[int](0)
-        status[b] = 1
-        for _ in range(max_draws):
-            ok = False
-            dur = 0.0
-            sx = sy = 0.0
-            for _t in range(max_tries):
-                ns, c = _draw_segments(key, c, cf, x0[b], segs[b])
-                dur = _segment_starts(x0[b], segs[b], ns, starts, t0)
-                sx, sy, until, c = _place_on_flight(key, c, int(cf[17]), cf[15], cf[16], segs[b], ns, starts, t0,
-                                                    dur, cand)
-                until = min(until, cf[23])   # max_duration_s
-                if until >= cf[18]:
-                    if until < dur:   # scenario._truncate: segments starting before the exit, the last one cut
-                        m = 0
-                        while m < ns and t0[m] < until:
-                            segs[b, m, 0] = min(segs[b, m, 0], until - t0[m])
-                            m += 1
-                        ns = m
-                        dur = _segment_starts(x0[b], segs[b], ns, starts, t0)
-                    nseg[b] = ns
-                    ok = True
+    for blk in prange(chunks):   # each block of rows with its own scratch
+        cand = np.empty((int(cf[17]), 2))
+        starts = np.empty((smax, 4))
+        t0 = np.empty(smax)
+        for b in range(blk * B // chunks, (blk + 1) * B // chunks):
+            key = keys[b]
+            c = np.int64(0)   # not the literal 0: that compiles the callees once more for Literal[int](0)
+            status[b] = 1
+            for _ in range(max_draws):
+                ok = False
+                dur = 0.0
+                sx = sy = 0.0
+                for _t in range(max_tries):
+                    ns, c = _draw_segments(key, c, cf, x0[b], segs[b])
+                    dur = _segment_starts(x0[b], segs[b], ns, starts, t0)
+                    sx, sy, until, c = _place_on_flight(key, c, int(cf[17]), cf[15], cf[16], segs[b], ns, starts,
+                                                        t0, dur, cand)
+                    until = min(until, cf[23])   # max_duration_s
+                    if until >= cf[18]:
+                        if until < dur:   # scenario._truncate: segments starting before the exit, the last cut
+                            m = 0
+                            while m < ns and t0[m] < until:
+                                segs[b, m, 0] = min(segs[b, m, 0], until - t0[m])
+                                m += 1
+                            ns = m
+                            dur = _segment_starts(x0[b], segs[b], ns, starts, t0)
+                        nseg[b] = ns
+                        ok = True
+                        break
+                if not ok:
+                    status[b] = 2
                     break
-            if not ok:
-                status[b] = 2
-                break
-            st = sites[b]
-            if mode == 2:
-                n_s = user_sites.shape[0]
-                for i in range(n_s):
-                    for col in range(_NCOL):   # (c is the stream counter)
-                        st[i, col] = user_sites[i, col]
-                    st[i, _SX] = user_sites[i, _SX] + (sx - user_sites[0, _SX])
-                    st[i, _SY] = user_sites[i, _SY] + (sy - user_sites[0, _SY])
-            elif mode == 1 and _u01(key, c) < cf[19]:
-                c += 1
-                c = _random_site(key, c, rr, sx, sy, np.bool_(True), st[0])   # np.bool_: one compilation for both
-                n_s = 1
-                if _u01(key, c) < rr[10]:
-                    d = rr[11] + (rr[12] - rr[11]) * _u01(key, c + 1)
-                    a = _TWO_PI * _u01(key, c + 2)
-                    c = _random_site(key, c + 3, rr, sx + d * math.sin(a), sy + d * math.cos(a), np.bool_(False), st[1])
-                    n_s = 2
+                st = sites[b]
+                if mode == 2:
+                    n_s = user_sites.shape[0]
+                    for i in range(n_s):
+                        for col in range(_NCOL):   # (c is the stream counter)
+                            st[i, col] = user_sites[i, col]
+                        st[i, _SX] = user_sites[i, _SX] + (sx - user_sites[0, _SX])
+                        st[i, _SY] = user_sites[i, _SY] + (sy - user_sites[0, _SY])
+                elif mode == 1 and _u01(key, c) < cf[19]:
+                    c += 1
+                    c = _random_site(key, c, rr, sx, sy, np.bool_(True), st[0])   # np.bool_: one compilation
+                    n_s = 1
+                    if _u01(key, c) < rr[10]:
+                        d = rr[11] + (rr[12] - rr[11]) * _u01(key, c + 1)
+                        a = _TWO_PI * _u01(key, c + 2)
+                        c = _random_site(key, c + 3, rr, sx + d * math.sin(a), sy + d * math.cos(a), np.bool_(False),
+                                         st[1])
+                        n_s = 2
+                    else:
+                        c += 1
                 else:
-                    c += 1
-            else:
-                if mode == 1:
-                    c += 1
-                for col in range(_NCOL):   # the ATC site (mode 0, or mode 1's ATC branch)
-                    st[0, col] = user_sites[0, col]
-                st[0, _SX], st[0, _SY] = sx, sy
-                n_s = 1
-            nsites[b] = n_s
-            k_b = _n_looks(st, n_s, dur)
-            t = np.empty(k_b)
-            idx = np.empty(k_b, dtype=np.int64)
-            _schedule(st, n_s, dur, t, idx)
-            if _detections_ok(key, c, t, idx, st, k_b, warmup):
-                K[b], cdet[b], status[b] = k_b, c, 0
-                break
-            c += 5 * k_b
+                    if mode == 1:
+                        c += 1
+                    for col in range(_NCOL):   # the ATC site (mode 0, or mode 1's ATC branch)
+                        st[0, col] = user_sites[0, col]
+                    st[0, _SX], st[0, _SY] = sx, sy
+                    n_s = 1
+                nsites[b] = n_s
+                k_b = _n_looks(st, n_s, dur)
+                t = np.empty(k_b)
+                idx = np.empty(k_b, dtype=np.int64)
+                _schedule(st, n_s, dur, t, idx)
+                if _detections_ok(key, c, t, idx, st, k_b, warmup):
+                    K[b], cdet[b], status[b] = k_b, c, 0
+                    break
+                c += 5 * k_b
     return x0, segs, nseg, sites, nsites, K, cdet, status
 
 
@@ -706,15 +713,15 @@ def _too_few_draws(name, warmup_scans, max_draws):
         "range_km) or the radar faster / more reliable (scan_period_s, detection_probability)")
 
 
-def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws):
+def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws, num_threads=1):
     if radar is not None:
         mode, user = 2, _site_table(radar)
     else:
         mode, user = (1 if name == "random_radars" else 0), _site_table(_ATC)
     p = cfg.random_radar_probability if name == "random_radars" else 0.0
     smax = 3 * int(cfg.n_legs[1])
-    return _random_rows(keys, _config_vector(cfg, p), _radar_ranges(), mode, user, int(warmup_scans),
-                        int(max_draws), RANDOM_SCENARIO_TRIES, smax)
+    return _run_rows(num_threads, keys.size, _random_rows, keys, _config_vector(cfg, p), _radar_ranges(), mode, user,
+                     int(warmup_scans), int(max_draws), RANDOM_SCENARIO_TRIES, smax)
 
 
 def _draw_random(name, keys, cfg, radar, warmup_scans, max_draws):
@@ -924,17 +931,20 @@ class LookDrawer:
                 return None
         return cls(scenario, radar, random_config, warmup_scans, radar_range_m)
 
-    def draw(self, keys, rows, tracker):
+    def draw(self, keys, rows, tracker, num_threads=1):
         """Episodes from ``keys`` (uint64, one per row) into ``rows`` (int64) of ``tracker``: looks, look counts and
         names (the track is not started). Raises as :func:`draw_episodes`. A row's looks past its ``n_looks`` are
-        not detected; the first of them repeats its last look, the others may be an earlier episode's padding."""
+        not detected; the first of them repeats its last look, the others may be an earlier episode's padding.
+        ``num_threads``: rows drawn on that many threads (:mod:`radar_env.common.parallel`; a fixed scenario's
+        placement stays serial), the same episodes."""
         w = self.warmup_scans
         if self.random:
             x0, segs, nseg, sites, nsites, K, cdet, status = _random_kernel_out(self.name, keys, self.cfg, self.radar,
-                                                                                w, self.max_draws)
+                                                                                w, self.max_draws, num_threads)
             _check_random_status(status, self.cfg, self.name, w, self.max_draws)
             tracker._ensure_capacity(int(K.max()), _HEADROOM)
-            k_fill_random_looks(rows, keys, x0, segs, nseg, sites, nsites, K, cdet, tracker._looks, tracker._it)
+            _run_rows(num_threads, rows.size, k_fill_random_looks, rows, keys, x0, segs, nseg, sites, nsites, K, cdet,
+                      tracker._looks, tracker._it)
         else:
             sc, rd, place = self.fixed
             (t, idx, truth, accel, turn, man), sites, cdet, status = _fixed_phase1(
@@ -943,7 +953,8 @@ class LookDrawer:
             if np.any(status != 0):
                 raise _too_few_draws(sc.name, w, self.max_draws)
             tracker._ensure_capacity(t.size)
-            k_fill_fixed_looks(rows, keys, sites, cdet, t, idx, truth, accel, turn, man, tracker._looks, tracker._it)
+            _run_rows(num_threads, rows.size, k_fill_fixed_looks, rows, keys, sites, cdet, t, idx, truth, accel, turn,
+                      man, tracker._looks, tracker._it)
         for r in rows:
             tracker.names[r] = self.label
 
