@@ -76,7 +76,10 @@ def test_the_other_bundles_are_one_override_away():
     assert ppo["reward_type"] == "squared" == radar_env.envs.config.EnvConfig.reward_type   # the default
     prior = bundled_env_kwargs("policy_imm_bp_prior")      # the random suites' own flights
     assert prior == {**imm, "random_config": {"random_radar_probability": 0.7}}
-    assert set(BUNDLED_ENV_IDS) | {"policy", "policy_imm_ppo", "policy_imm_bp_prior"} == set(BUNDLED_POLICIES)
+    cv_prior = bundled_env_kwargs("policy_bp_prior")
+    assert cv_prior == {**cont, "random_config": {"random_radar_probability": 0.7}}
+    assert set(BUNDLED_ENV_IDS) | {"policy", "policy_imm_ppo", "policy_imm_bp_prior", "policy_bp_prior"} == set(
+        BUNDLED_POLICIES)
     with pytest.raises(ValueError, match="unknown bundled policy 'policy_x'.*policy_bp"):
         bundled_env_kwargs("policy_x")
 

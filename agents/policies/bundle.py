@@ -26,7 +26,7 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY",
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY",
            "policy_env_kwargs", "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs",
            "embed_env_config", "recorded_env_kwargs"]
 
@@ -52,9 +52,13 @@ BUNDLED_LEARNED_IMM_RDOT = BUNDLED_BP_POLICY.parents[1] / "learned_imm_rdot" / "
 BUNDLED_LEARNED_IMM_PRIOR = BUNDLED_BP_POLICY.parents[1] / "learned_imm_prior" / "policy.npz"
 """``policy_imm_bp``'s recipe trained on the ``random`` suites' own flights (the laws ``rbpf`` assumes), not the
 broad ones: the tracker ``policy_imm_bp_prior`` (agents/bundled/learned_imm_prior/CHOICE.md)."""
+BUNDLED_BP_PRIOR = BUNDLED_BP_POLICY.parents[1] / "backprop_prior" / "policy.npz"
+"""``policy_bp``'s recipe with a wider network (GRU 128, a tanh layer of 64) trained on the ``random`` suites' own
+flights: the tracker ``policy_bp_prior`` (agents/bundled/backprop_prior/CHOICE.md)."""
 BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
                     "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
-                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR}
+                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR,
+                    "policy_bp_prior": BUNDLED_BP_PRIOR}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",
@@ -65,7 +69,8 @@ override away: ``policy`` (PPO, discrete, four stacked frames) is ``gym.make("Ra
 action_type="discrete", frame_stack=4)``; ``policy_imm_ppo`` observes ``RadarTrackIMM-v0``'s observation but was
 trained on an earlier flight distribution (its ``random_config``; pass it to get those flights);
 ``policy_imm_bp_prior`` is ``gym.make("RadarTrackIMM-v0", random_config={"random_radar_probability": 0.7})`` (the
-random suites' own flights)."""
+random suites' own flights), and so is ``policy_bp_prior``'s ``gym.make("RadarTrackContinuous-v0",
+random_config={"random_radar_probability": 0.7})``."""
 
 
 def bundled_env_kwargs(name):

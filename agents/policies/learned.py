@@ -43,7 +43,8 @@ BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / 
                    "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo",
                    "policy_bp_rdot": BUNDLED_DIR / "backprop_rdot",
                    "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot",
-                   "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior"}
+                   "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior",
+                   "policy_bp_prior": BUNDLED_DIR / "backprop_prior"}
 """The registry: bundled learned tracker name -> its folder."""
 
 

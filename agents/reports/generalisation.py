@@ -29,8 +29,8 @@ from radar_env.sim.episode import stack_episodes
 from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.evaluation.runner import run_policy
-from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM, BUNDLED_LEARNED_IMM_PRIOR,
-                                    BUNDLED_POLICY)
+from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_BP_PRIOR, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM,
+                                    BUNDLED_LEARNED_IMM_PRIOR, BUNDLED_POLICY)
 from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
@@ -67,6 +67,9 @@ IMM_PPO_RECIPE = "imm_ppo"
 IMM_PRIOR_RECIPE_DIR = BUNDLED_LEARNED_IMM_PRIOR.parent / "seeds"
 """Every trained seed of the learned IMM's recipe on the random suites' own flights: ``imm_bp_prior_s<seed>/``."""
 IMM_PRIOR_RECIPE = "imm_bp_prior"
+BP_PRIOR_RECIPE_DIR = BUNDLED_BP_PRIOR.parent / "seeds"
+"""Every trained seed of the wider q-policy's recipe on the random suites' own flights: ``bp_prior_s<seed>/``."""
+BP_PRIOR_RECIPE = "bp_prior"
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -84,6 +87,9 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            IMM_PRIOR_RECIPE: "learned IMM on the random suites' own flights: the learned IMM's recipe with the "
                              "random and random_radars suites' flight laws (RandomScenarioConfig's defaults, 70 % random "
                              "radars) instead of the broad ones (agents/bundled/learned_imm_prior/CHOICE.md)",
+           BP_PRIOR_RECIPE: "backprop on the random suites' own flights: policy_bp's recipe with a GRU of 128 and a "
+                            "tanh layer of 64, lr 5e-3, 3,000 steps, on the random and random_radars suites' flight "
+                            "laws (agents/bundled/backprop_prior/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
@@ -295,7 +301,39 @@ def targets(data):
     if "policy_imm_bp_prior" in sp["random"]["policies"]:
         seeds = data["recipes"][IMM_PRIOR_RECIPE]["seeds"] if IMM_PRIOR_RECIPE in data["recipes"] else []
         out += imm_targets(sp, "policy_imm_bp_prior", seeds, _train_minutes(IMM_PRIOR_RECIPE_DIR, seeds))
+    if "policy_bp_prior" in sp["random"]["policies"]:
+        seeds = data["recipes"][BP_PRIOR_RECIPE]["seeds"] if BP_PRIOR_RECIPE in data["recipes"] else []
+        out += bp_targets(sp, "policy_bp_prior", seeds)
+    out += causal_targets(data)
     return out
+
+
+LEARNED_RECIPES = {"policy_bp": BP_RECIPE, "policy_imm_bp": IMM_RECIPE, "policy_imm_ppo": IMM_PPO_RECIPE,
+                   "policy_imm_bp_prior": IMM_PRIOR_RECIPE, "policy_bp_prior": BP_PRIOR_RECIPE}
+"""Bundled learned tracker -> the recipe whose seeds it was chosen from (the PPO q-policy ``policy`` has its own
+recipes and targets)."""
+
+
+def causal_targets(data):
+    """Issue 38's target for the learned trackers (held-out seeds): the best one on ``random`` at most 0.88 x
+    imm_cv_ct (stretch: within 2 % of ``rbpf``), on at least 2 of 3 training seeds of its recipe; each
+    ``(target, reached, numbers)``."""
+    sp = data["spread"]["random"]
+    learned = {n: sp["policies"][n]["ratio_vs_imm_cv_ct"] for n in LEARNED_RECIPES if n in sp["policies"]}
+    if not learned or "rbpf" not in sp["trackers"]:
+        return []
+    best = min(learned, key=lambda n: learned[n][0])
+    rbpf = sp["trackers"]["rbpf"]["pos_rmse_m"] / sp["trackers"]["imm_cv_ct"]["pos_rmse_m"]
+    r = learned[best][0]
+    seeds = data["recipes"].get(LEARNED_RECIPES[best], {}).get("seeds", [])
+    good = [n for n in seeds if sp["policies"][n]["ratio_vs_imm_cv_ct"][0] <= 0.88]
+    others = ", ".join(f"{n} {learned[n][0]:.3f}" for n in sorted(learned, key=lambda n: learned[n][0]) if n != best)
+    return [("best learned tracker on random <= 0.88 x imm_cv_ct", r <= 0.88,
+             f"{best} {_f3(learned[best])} (then {others}); rbpf {rbpf:.3f}"),
+            ("stretch: within 2 % of rbpf on random", r <= 1.02 * rbpf, f"{best} / rbpf {r / rbpf:.3f}"),
+            ("on at least 2 of 3 training seeds of its recipe", len(good) >= 2,
+             f"{len(good)} of {len(seeds)}: " + ", ".join(f"{n} {sp['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f}"
+                                                          for n in seeds))]
 
 
 def _train_minutes(recipe_dir, seeds):
@@ -501,13 +539,15 @@ def main(argv=None):
         return _add_recipe(args, docs, t0)
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
     for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM),
-                       ("policy_imm_ppo", BUNDLED_IMM_PPO), ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR)):
+                       ("policy_imm_ppo", BUNDLED_IMM_PPO), ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
+                       ("policy_bp_prior", BUNDLED_BP_PRIOR)):
         if path.is_file():
             bundle[name] = load_policy(path)
     seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
                                              **recipe_policies(IMM_RECIPE_DIR),
                                              **recipe_policies(IMM_PPO_RECIPE_DIR),
-                                             **recipe_policies(IMM_PRIOR_RECIPE_DIR)}.items()}
+                                             **recipe_policies(IMM_PRIOR_RECIPE_DIR),
+                                             **recipe_policies(BP_PRIOR_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -536,13 +576,15 @@ def _add_recipe(args, docs, t0):
         raise SystemExit(f"error: --add-recipe: docs/generalisation.json was computed with --seed "
                          f"{data.get('seed')}, not {args.seed}")
     r = args.add_recipe
-    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR)
+    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR,
+                            BP_PRIOR_RECIPE_DIR)
              for n, p in recipe_policies(d).items() if n.rsplit("_s", 1)[0] == r}
     if not paths:
         raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
     pols = {n: load_policy(p) for n, p in paths.items()}
     bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO),
-               IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR)}
+               IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
+               BP_PRIOR_RECIPE: ("policy_bp_prior", BUNDLED_BP_PRIOR)}
     if r in bundled and bundled[r][1].is_file():
         pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
