@@ -67,3 +67,15 @@ def test_main_job_is_timed_cold_then_warm_and_reported_with_the_load(monkeypatch
     text = capsys.readouterr().out
     assert "warm numba cache: 30.0 s wall, 27.0 s CPU (median of 3" in text and "cold (empty cache" in text
     assert "(load 1.0)" in text and "single env" not in text
+
+
+def test_learned_cost_bench_runs(capsys):
+    """benchmarks/bench_learned_cost.py: a row per tracker with its time per look and ratio (not asserted)."""
+    path = BENCH.with_name("bench_learned_cost.py")
+    spec = importlib.util.spec_from_file_location("bench_learned_cost", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main(["--runs", "2", "--rounds", "1", "--trackers", "policy_bp"])
+    text = capsys.readouterr().out
+    rows = [line for line in text.splitlines() if line.startswith("| imm_cv_ct |") or line.startswith("| policy_bp |")]
+    assert len(rows) == 2 and rows[0].endswith("| 1.00 |")
