@@ -526,8 +526,9 @@ def test_bench_backprop_runs_with_tiny_settings(tmp_path):
 
 def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():
     """BLAS rounds a one-row product differently from a many-row one; the policy's linear layers must not (a row's
-    q would depend on the episodes sharing its batch)."""
-    from agents.policies.recurrent import linear
+    q would depend on the episodes sharing its batch), nor on the CPU: each output is summed over its inputs in
+    order, whatever the batch's size (the compiled layer takes four rows at a time) and the weights' memory order."""
+    from agents.policies.recurrent import layer_weights, linear
     rng = np.random.default_rng(7)
     for F, H in ((27, 96), (32, 96), (32, 1)):
         W = rng.normal(size=(H, F))
@@ -536,3 +537,14 @@ def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():
         assert np.allclose(full, x @ W.T, rtol=1e-12, atol=1e-12)
         for i in (0, 77, 199):
             assert np.array_equal(linear(x[i:i + 1], W)[0], full[i])
+        assert np.array_equal(linear(x, layer_weights({"w": W})["w"]), full)
+    for n in (1, 3, 4, 5, 9, 64):
+        x, W = rng.normal(size=(n, 37)), rng.normal(size=(50, 37))
+        seq = np.zeros((n, 50))
+        for f in range(37):                     # the sequential sum, term by term
+            seq = seq + x[:, f:f + 1] * W[None, :, f]
+        y = linear(x, W)
+        assert np.array_equal(y, seq)
+        assert all(np.array_equal(linear(x[i:i + 1], W)[0], y[i]) for i in range(n))
+        assert np.allclose(y, x @ W.T, rtol=1e-12, atol=1e-12)
+        assert linear(x[:, :0], W[:, :0]).shape == (n, 50) and not linear(x[:, :0], W[:, :0]).any()

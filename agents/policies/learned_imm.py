@@ -52,7 +52,7 @@ from radar_env.common.units import G0_M_S2
 
 from agents.policies.bundle import BUNDLED_LEARNED_IMM
 from agents.policies.checks import env_kwargs_from_json
-from agents.policies.recurrent import gru_cell, linear, weight_shapes as recurrent_shapes
+from agents.policies.recurrent import gru_cell, layer_weights, linear, weight_shapes as recurrent_shapes
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "BUNDLED_LEARNED_IMM", "ParamMap", "detector_inputs",
            "detector_names", "initial_detectors", "weight_shapes", "LearnedIMM", "save_learned_imm", "load_learned_imm",
@@ -130,7 +130,7 @@ class LearnedIMM:
     def __init__(self, weights, config, env_kwargs):
         self.config, self.env_kwargs = config, dict(env_kwargs)
         self.arch = config["architecture"]
-        self.w = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
+        self.w = layer_weights(weights)
         want = weight_shapes(self.arch)
         got = {k: v.shape for k, v in self.w.items()}
         if got != {k: tuple(v) for k, v in want.items()}:

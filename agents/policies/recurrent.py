@@ -91,12 +91,24 @@ def _linear(x, wT):
     return out
 
 
+def layer_weights(weights):
+    """A network's weight arrays as float64, each matrix stored column-major: :func:`linear` reads ``w.T`` of such an
+    array in place (a C-ordered ``(F, H)`` view) instead of copying every matrix at every look."""
+    out = {}
+    for k, v in weights.items():
+        a = np.asarray(v, dtype=np.float64)
+        out[k] = np.asfortranarray(a) if a.ndim == 2 else np.ascontiguousarray(a)
+    return out
+
+
 def linear(x, w):
     """``x (n, F) @ w.T``, each output summed over ``f = 0 .. F-1`` in that order, whatever ``n`` and the machine:
     a row's result does not depend on the rows that share its batch (BLAS kernels for one row and for several
     round differently, which the evaluation's batch-independence test refuses) nor on the CPU's vector width
-    (numpy's einsum, used before 2026-12-04, accumulates in SIMD lanes). Compiled: about 3.5x einsum's speed."""
-    return _linear(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(np.asarray(w, dtype=np.float64).T))
+    (numpy's einsum, used before 2026-12-04, accumulates in SIMD lanes). Compiled: about 3.5x einsum's speed. ``w``
+    column-major (:func:`layer_weights`) is read without a copy."""
+    wT = np.ascontiguousarray(np.asarray(w, dtype=np.float64).T)
+    return _linear(np.ascontiguousarray(x, dtype=np.float64), wT)
 
 
 def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
@@ -143,7 +155,7 @@ class RecurrentQPolicy:
 
     def __init__(self, weights, arch, q_levels_g, turn_rate_max_rad_s=0.0):
         self.arch = dict(arch)
-        self.w = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in weights.items()}
+        self.w = layer_weights(weights)
         self.n_head = len(self.arch.get("head", []))
         self.input_size, self.hidden_size = int(arch["input_size"]), int(arch["hidden_size"])
         self.levels_m_s2 = np.asarray(q_levels_g, dtype=np.float64) * G0_M_S2
