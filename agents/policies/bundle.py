@@ -26,9 +26,9 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_POLICIES", "ENV_CONFIG_ENTRY",
-           "policy_env_kwargs", "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS", "bundled_env_kwargs",
-           "embed_env_config", "recorded_env_kwargs"]
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_POLICIES",
+           "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS",
+           "bundled_env_kwargs", "embed_env_config", "recorded_env_kwargs"]
 
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""

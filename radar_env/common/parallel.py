@@ -6,8 +6,9 @@ prange(chunks)`` over contiguous blocks of rows, each block with its own scratch
 the same memory. Its ordinary ``@njit`` build (``prange`` is ``range`` there) is called with ``chunks = 1``: the
 serial kernel. :func:`run` with ``num_threads > 1`` (and at least two rows per thread) calls the parallel build of
 the *same* function (its ``py_func``, compiled lazily on first use, cached on disk under its own name) with
-``chunks = num_threads`` on that many of numba's threads. Each row's numbers do not depend on the block it is in (the rows are independent and every
-random draw is keyed per row), so the outputs are bit-identical to the serial build's.
+``chunks = num_threads`` on that many of numba's threads. Each row's numbers do not depend on the block it is in
+(the rows are independent and every random draw is keyed per row), so the outputs are bit-identical to the serial
+build's.
 """
 
 from __future__ import annotations

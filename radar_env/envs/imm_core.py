@@ -8,8 +8,9 @@ import math
 import numpy as np
 
 from . import env_kernels as _ek
-from .core import _NO_ROWS, _Core, _run_rows
+from .core import _NO_ROWS, _Core
 from .config import EnvConfig
+from ..common.parallel import run as _run_rows
 from ..filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors
 from .imm_env import (detector_bounds, detector_observation, feature_q_m_s2, imm_action_map, imm_spec, k_imm_emit,
                       k_imm_start, k_imm_step)
