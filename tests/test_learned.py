@@ -11,8 +11,8 @@ import pytest
 
 from agents.evaluation import evaluate as ev
 from agents.policies.bundle import BUNDLED_POLICIES
-from agents.policies.learned import (BUNDLED_LEARNED, IMM_KINDS, KINDS, Q_POLICY_KINDS, load_learned, read_kind,
-                                     resolve_learned)
+from agents.policies.learned import (BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, Q_POLICY_KINDS, load_learned,
+                                    read_kind, resolve_learned)
 
 EXPECTED_KIND = {"policy": "ppo_q_policy", "policy_bp": "gru_q_policy", "policy_imm_bp": "learned_imm_gru",
                  "policy_imm_ppo": "learned_imm_ppo", "policy_bp_rdot": "gru_q_policy",
@@ -34,7 +34,7 @@ def test_bundled_folders_share_one_layout_and_load_by_kind(name):
     assert BUNDLED_POLICIES[name].parent == folder       # the old per-file constants point into the same folder
     lt = load_learned(name)
     assert (lt.kind, lt.name, lt.folder) == (EXPECTED_KIND[name], name, folder)
-    assert bool(getattr(lt.policy, "is_tracker", False)) == (lt.kind in IMM_KINDS)
+    assert bool(getattr(lt.policy, "is_tracker", False)) == (lt.kind in IMM_KINDS + CORRECTION_KINDS)
     # by folder path: the same tracker, reported under its bundled name
     assert load_learned(str(folder)).name == name
     # its own run is the evaluation's run of it (the same numbers, under its name)
@@ -74,7 +74,7 @@ def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path, 
     monkeypatch.chdir(tmp_path)
     assert resolve_learned("policy_bp") == (BUNDLED_LEARNED["policy_bp"], None, "policy_bp")
     assert resolve_learned("./policy_bp")[0].resolve() == (tmp_path / "policy_bp").resolve()
-    assert set(Q_POLICY_KINDS) | set(IMM_KINDS) == set(KINDS)
+    assert set(Q_POLICY_KINDS) | set(IMM_KINDS) | set(CORRECTION_KINDS) == set(KINDS)
 
 
 def test_folders_before_the_layout_get_their_kind_from_their_files(tmp_path):

@@ -10,7 +10,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "SB3_KINDS",
+__all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS",
+           "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS",
            "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json"]
 
 MANIFEST = "policy.json"
@@ -29,12 +30,19 @@ KINDS = {
     "learned_imm_ppo": "a learned IMM: an MLP choosing the CV/CT IMM's parameters, trained with PPO on "
                        "tracker='imm_cv_ct' (policy.zip + its numpy export policy.npz)",
     "learned_imm_sac": "a learned IMM trained with SAC on tracker='imm_cv_ct' (policy.zip + policy.npz)",
+    "window_correction": "a learned window correction: an MLP reading the last plots in a base tracker's frame and "
+                         "moving its reported position, trained by regression (policy.npz; the base named in "
+                         "policy.json)",
 }
 """Every kind :func:`load_learned` runs -> what it is."""
 Q_POLICY_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "gru_q_policy")
 """Kinds that choose the CV filter's q (run by :func:`baselines.trackers.run_q_policy`)."""
 IMM_KINDS = ("learned_imm_gru", "learned_imm_ppo", "learned_imm_sac")
 """Kinds that choose the CV/CT IMM's parameters (run by their own ``run``)."""
+CORRECTION_KINDS = ("window_correction",)
+"""Kinds that correct a base learned tracker's output (run by their own ``run``; the base is a q-policy or an IMM)."""
+TRACKER_KINDS = IMM_KINDS + CORRECTION_KINDS
+"""Kinds that run episodes themselves (``is_tracker``), as opposed to a q-policy the evaluation steps."""
 SB3_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "learned_imm_ppo", "learned_imm_sac")
 """Kinds stored as a stable-baselines3 ``policy.zip`` beside their numpy export (loaded from the zip's path)."""
 

@@ -30,11 +30,12 @@ import dataclasses
 import json
 from pathlib import Path
 
-from agents.policies.layout import (IMM_KINDS, KINDS, MANIFEST, Q_POLICY_KINDS, SB3_KINDS, read_json, sb3_kind,
+from agents.policies.layout import (CORRECTION_KINDS, IMM_KINDS, KINDS, MANIFEST, Q_POLICY_KINDS, SB3_KINDS,
+                                    TRACKER_KINDS, read_json, sb3_kind,
                                     write_manifest, write_records)
 
-__all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST", "LearnedTracker",
-           "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
+__all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
+           "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
            "learned_label", "write_run_layout"]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
@@ -153,7 +154,7 @@ class LearnedTracker:
 
     def run(self, episodes):
         """``TrackRun`` of this tracker on ``episodes`` (labelled :attr:`name`)."""
-        if getattr(self.policy, "is_tracker", False):      # a learned IMM runs itself
+        if getattr(self.policy, "is_tracker", False):      # a learned IMM or a correction runs itself
             return self.policy.run(episodes, self.name)
         from baselines.trackers import run_q_policy
         return run_q_policy(episodes, self.policy, self.name, self.env_config)
@@ -191,10 +192,11 @@ def load_learned(path_or_name, name=None, kinds=None, allow_pickle=False) -> Lea
         file = folder / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
     policy, cfg = load_policy(file, allow_pickle=allow_pickle)
     # the per-kind loader looks at the files; the kind must agree with what it found
-    is_imm = bool(getattr(policy, "is_tracker", False))
-    if is_imm != (kind in IMM_KINDS):
-        raise ValueError(f"{source}: kind {kind!r}, but {file.name} holds a "
-                         f"{'learned IMM' if is_imm else 'q-policy'}")
+    is_tracker = bool(getattr(policy, "is_tracker", False))
+    is_correction = bool(getattr(policy, "is_correction", False))
+    if is_tracker != (kind in TRACKER_KINDS) or is_correction != (kind in CORRECTION_KINDS):
+        held = "window correction" if is_correction else "learned IMM" if is_tracker else "q-policy"
+        raise ValueError(f"{source}: kind {kind!r}, but {file.name} holds a {held}")
     return LearnedTracker(kind, name or learned_label(folder, bundled), folder, file, cfg, policy)
 
 

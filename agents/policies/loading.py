@@ -41,8 +41,10 @@ def load_policy(path, allow_pickle=False):
     or a recurrent policy trained by backpropagation (``policy.npz`` with its ``policy.json`` and
     ``env_config.json``, :func:`agents.policies.recurrent.load_recurrent_policy`; no pickle), or a learned IMM
     (the same three files, :func:`agents.policies.learned_imm.load_learned_imm`: returned as ``(LearnedIMM, cfg)``,
-    a tracker with ``is_tracker`` and ``run(episodes, name)`` in place of ``choose_q``). An SB3 model trained on the
-    IMM env (``tracker="imm_cv_ct"`` in its env config) is returned likewise, as :class:`SB3LearnedIMM`.
+    a tracker with ``is_tracker`` and ``run(episodes, name)`` in place of ``choose_q``), or a window correction
+    (:func:`agents.policies.window_correction.load_window_correction`: a tracker likewise, with its base's
+    config). An SB3 model trained on the IMM env (``tracker="imm_cv_ct"`` in its env config) is returned likewise,
+    as :class:`SB3LearnedIMM`.
 
     Returns ``(choose_q, cfg)`` where ``choose_q(obs (n, F)) -> q (n,)`` in m/s^2, evaluated in numpy wherever the
     model's structure allows (:func:`load_model`; a recurrent policy is a stateful ``choose_q`` for
@@ -57,9 +59,13 @@ def load_policy(path, allow_pickle=False):
         raise ValueError(f"policy file {str(path)!r} does not exist (or is not a file)")
     if path.suffix == ".npz":       # a recurrent policy (load_recurrent_policy says what is missing if it is not)
         from agents.policies.learned_imm import is_learned_imm_checkpoint, load_learned_imm
+        from agents.policies.window_correction import is_window_correction, load_window_correction
         if is_learned_imm_checkpoint(path):
             imm = load_learned_imm(path)
             return imm, imm.cfg
+        if is_window_correction(path):
+            wc = load_window_correction(path)
+            return wc, wc.cfg
         return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")
     kw = policy_env_kwargs(path) if cfg_file.is_file() else {}

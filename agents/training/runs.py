@@ -26,7 +26,7 @@ ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
 """The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
 HP_DIR = Path(__file__).with_name("hyperparams")
-HP_NAMES = ("ppo", "dqn", "sac", "backprop", "backprop_imm_cv_ct")
+HP_NAMES = ("ppo", "dqn", "sac", "backprop", "backprop_imm_cv_ct", "window")
 """The hyperparameter files shipped in ``agents/training/hyperparams/``."""
 
 

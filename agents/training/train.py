@@ -466,10 +466,12 @@ def build_parser(prog="radar-track train"):
                                         "is a pickle: loading it runs the code inside. Load only files you trust. "
                                         "--method backprop saves policy.npz + policy.json: arrays and JSON, no "
                                         "pickle.")
-    ap.add_argument("--method", choices=("ppo", "backprop"), default="ppo",
+    ap.add_argument("--method", choices=("ppo", "backprop", "window"), default="ppo",
                     help="ppo: reinforcement learning with stable-baselines3 (--algo); backprop: a GRU q-policy "
                          "trained by backpropagation through the filter (agents/training/backprop.py; its settings: "
-                         "agents/training/hyperparams/backprop.toml) (default: ppo)")
+                         "agents/training/hyperparams/backprop.toml); window: a window correction of a trained "
+                         "tracker (--hp base=NAME), an MLP fitted by regression (agents/training/window.py; "
+                         "hyperparams/window.toml) (default: ppo)")
     ap.add_argument("--algo", choices=ALGOS,
                     help="--method ppo: the stable-baselines3 algorithm (its settings: "
                          "agents/training/hyperparams/<algo>.toml) (default: none; required with --method ppo)")
@@ -523,6 +525,12 @@ def main(argv=None, prog="radar-track train"):
                   "torch and the env ...", file=sys.stderr, flush=True)
         from agents.training.backprop import main_from_args
         return main_from_args(args, argv)
+    if args.method == "window":
+        if not args.quiet:
+            print("radar-track train: a window correction by regression on RadarTrack-v0's flights; loading torch "
+                  "and the env ...", file=sys.stderr, flush=True)
+        from agents.training.window import main_from_args as window_main
+        return window_main(args, argv)
     if args.algo is None:
         raise SystemExit("error: --algo is required with --method ppo (one of " + ", ".join(ALGOS) + ")")
     if args.tracker is not None:

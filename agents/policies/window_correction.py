@@ -1,0 +1,245 @@
+"""A learned window correction (kind ``window_correction``): a small network that reads the last plots in its base
+tracker's frame and moves the position the base tracker reports (issue 38; docs/training.md, "A window correction").
+
+A Kalman filter's estimate after a turn lags: its state summarises the whole past with one Gaussian, so plots that
+left the straight line a few looks ago pull it only as far as its gain allows. The correction looks again at the
+last ``window_looks`` plots (detected or not, each with its time) as residuals from the base track's straight line
+through its current estimate, in the frame of its velocity (along, across), and outputs where the target is
+relative to that estimate: a regression of the truth on the window, trained on flights of training-range seeds
+(:mod:`agents.training.window`). It is causal (look k's correction uses the plots up to look k and the base's
+estimate at look k only) and has no feedback: the base tracker runs unchanged and its covariance is reported
+unchanged (the correction says nothing about its own error; the consistency rows show what that costs).
+
+A folder holds ``policy.npz`` (the weights, float64), ``policy.json`` (``kind``, ``format``, ``version``, ``base``:
+the base tracker as a bundled name or a folder relative to this one, and the ``architecture``) and
+``env_config.json`` (the base's, for the evaluation's bookkeeping); ``training.json`` and ``choice.json`` as every
+learned tracker. Loading checks every file (:mod:`agents.policies.checks`); no pickle.
+
+The network: ``layers`` tanh layers of the given widths and a linear output of two numbers, the truth's offset from
+the base estimate along and across its velocity in units of ``scale_m``. It runs through the compiled
+:func:`agents.policies.recurrent.linear` (a row's output does not depend on the batch it is in).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from agents.policies.recurrent import layer_weights, linear
+
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "window_features", "feature_count", "network_shapes",
+           "network_forward", "WindowCorrection", "is_window_correction", "load_window_correction",
+           "save_window_correction"]
+
+FORMAT = "radar-track-window-correction"
+VERSION = 1
+POLICY_FILE = "policy.npz"
+RESIDUAL_CLIP = 30.0
+"""Residuals are clipped to +-30 ``scale_m`` (9 km at the default 300 m): a plot that far off the track says only
+"far", and the network never sees values outside what it was trained on."""
+
+
+def feature_count(window_looks):
+    """Number of inputs for a window of ``window_looks`` looks: four per look (along, across, detected, time), the
+    plot noise along and across, the speed, and the base covariance's four standard deviations."""
+    return 4 * int(window_looks) + 7
+
+
+def _frame(x):
+    """Unit vector along the estimate's velocity, ``(cos, sin)`` each (B, L); east where the speed is below 1 mm/s."""
+    sp = np.hypot(x[..., 2], x[..., 3])
+    slow = ~(sp > 1e-3)
+    safe = np.where(slow, 1.0, sp)
+    return np.where(slow, 1.0, x[..., 2] / safe), np.where(slow, 0.0, x[..., 3] / safe), sp
+
+
+def _rotated_sd(C, ca, sa, i):
+    """Standard deviations along and across ``(ca, sa)`` of the 2x2 block of ``C`` (..., n, n) at ``i``."""
+    a = C[..., i, i] * ca ** 2 + 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * sa ** 2
+    c = C[..., i, i] * sa ** 2 - 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * ca ** 2
+    return np.sqrt(np.maximum(a, 0.0)), np.sqrt(np.maximum(c, 0.0))
+
+
+def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
+    """The correction's inputs at every look.
+
+    Args:
+        t_s, z_m, R_m2, detected: the episodes' looks (B, L), converted plots (B, L, 2), their R (B, L, 2, 2) and
+            detection flags (B, L), as :func:`radar_env.sim.episode.stack_episodes` holds them.
+        x, P: the base tracker's estimates (B, L, 4) and covariances (B, L, 4, 4) (NaN where it has none).
+        window_looks: how many looks, the current one included. scale_m: the length unit of the inputs.
+    Returns:
+        ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
+        velocity). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual from the base's
+        straight line ``x[k, :2] + (t[k-j] - t[k]) x[k, 2:]``, along and across, in ``scale_m`` (0 when not detected
+        or before the episode), the detection flag and ``(t[k-j] - t[k]) / 60 s``. Then log(1 + sd / 1 m) / 5 of R
+        along and across at look k, the speed in ``scale_m`` per second, and log(1 + sd) / 5 of the base's position
+        (m) and velocity (m/s) covariance along and across. Non-finite where the base estimate is.
+    """
+    B, L = t_s.shape
+    ca, sa, sp = _frame(x)
+    rows = np.arange(L)[None, :]
+    feats = []
+    for j in range(int(window_looks)):
+        kk = rows - j
+        ok = kk >= 0
+        kc = np.broadcast_to(np.maximum(kk, 0), (B, L))
+        det = np.take_along_axis(detected, kc, 1) & ok
+        tau = np.where(ok, np.take_along_axis(t_s, kc, 1) - t_s, 0.0)
+        dx = np.take_along_axis(z_m[..., 0], kc, 1) - (x[..., 0] + tau * x[..., 2])
+        dy = np.take_along_axis(z_m[..., 1], kc, 1) - (x[..., 1] + tau * x[..., 3])
+        al = np.clip((dx * ca + dy * sa) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
+        cr = np.clip((-dx * sa + dy * ca) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
+        feats += [np.where(det, al, 0.0), np.where(det, cr, 0.0), det.astype(np.float64), tau / 60.0]
+    Ra, Rc = _rotated_sd(R_m2, ca, sa, 0)
+    Pa, Pc = _rotated_sd(P, ca, sa, 0)
+    Va, Vc = _rotated_sd(P, ca, sa, 2)
+    feats += [np.log1p(Ra) / 5, np.log1p(Rc) / 5, sp / scale_m]
+    feats += [np.log1p(v) / 5 for v in (Pa, Pc, Va, Vc)]
+    F = np.stack(feats, -1)
+    F[~np.isfinite(x).all(-1)] = np.nan          # no base estimate, no correction
+    return F, ca, sa
+
+
+def network_shapes(arch):
+    """``{name: shape}`` of the weights for ``arch`` (``input_size``, ``layers``: tanh widths)."""
+    sizes = [int(arch["input_size"])] + [int(h) for h in arch["layers"]]
+    shapes = {}
+    for i in range(len(sizes) - 1):
+        shapes[f"layer.{i}.weight"] = (sizes[i + 1], sizes[i])
+        shapes[f"layer.{i}.bias"] = (sizes[i + 1],)
+    shapes["out.weight"], shapes["out.bias"] = (2, sizes[-1]), (2,)
+    return shapes
+
+
+def network_forward(w, n_layers, F):
+    """The network on inputs ``F (n, input_size)`` (weights from :func:`layer_weights`): ``(n, 2)``."""
+    y = np.ascontiguousarray(F, dtype=np.float64)
+    for i in range(n_layers):
+        y = np.tanh(linear(y, w[f"layer.{i}.weight"]) + w[f"layer.{i}.bias"])
+    return linear(y, w["out.weight"]) + w["out.bias"]
+
+
+class WindowCorrection:
+    """A loaded window correction over its base tracker, ready to run.
+
+    Args:
+        weights: ``{name: array}`` (:func:`network_shapes`). config: the ``policy.json`` dict. base: the loaded base
+            tracker (a :class:`agents.policies.learned.LearnedTracker`).
+    """
+
+    is_tracker = True
+    """It runs episodes itself (:meth:`run`)."""
+    is_correction = True
+    """It corrects a base tracker's output (kind ``window_correction``)."""
+
+    def __init__(self, weights, config, base):
+        self.config, self.base = config, base
+        self.arch = config["architecture"]
+        self.window_looks = int(config["window_looks"])
+        self.scale_m = float(config["scale_m"])
+        self.n_layers = len(self.arch["layers"])
+        self.w = layer_weights(weights)
+        self.cfg = base.env_config
+
+    def offsets_m(self, batch, x, P):
+        """The correction at every look: ``(dx, dy)`` in m (B, L, 2), NaN where the base has no estimate."""
+        F, ca, sa = window_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, self.window_looks,
+                                    self.scale_m)
+        ok = np.isfinite(F).all(-1)
+        o = np.full(F.shape[:-1] + (2,), np.nan)
+        o[ok] = network_forward(self.w, self.n_layers, F[ok]) * self.scale_m
+        return np.stack([o[..., 0] * ca - o[..., 1] * sa, o[..., 0] * sa + o[..., 1] * ca], -1)
+
+    def correct(self, batch, run, name):
+        """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
+        by the correction from its first track look on; ``P``, q and the extra series are the base's."""
+        from baselines.trackers import TrackRun
+        x = run.x.copy()
+        d = self.offsets_m(batch, run.x, run.P)
+        after = np.arange(x.shape[1])[None, :] >= np.asarray(run.start_index)[:, None]
+        x[..., :2] = np.where(after[..., None], run.x[..., :2] + d, run.x[..., :2])
+        extra = dict(run.extra)
+        extra["correction_m"] = np.where(after, np.hypot(d[..., 0], d[..., 1]), np.nan)
+        return TrackRun(name, x, run.P, run.start_index, run.q_m_s2, run.declared, extra)
+
+    def run(self, episodes, name="policy_wc"):
+        """The base tracker on ``episodes`` from the common track start, then :meth:`correct`."""
+        from radar_env.sim.episode import stack_episodes
+        episodes = list(episodes)
+        return self.correct(stack_episodes(episodes), self.base.run(episodes), name)
+
+
+def save_window_correction(directory, weights, config, env_kwargs):
+    """Write a correction folder (``policy.npz``, ``policy.json``, ``env_config.json``); returns the ``.npz`` path."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    cfg = {"kind": "window_correction", "format": FORMAT, "version": VERSION, **config}
+    np.savez(d / POLICY_FILE, **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
+    (d / "policy.json").write_text(json.dumps(cfg, indent=1, allow_nan=False))
+    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))
+    return d / POLICY_FILE
+
+
+def is_window_correction(path):
+    """Whether ``path`` (a ``policy.npz`` or its folder) is a window correction (its ``policy.json`` says so)."""
+    p = Path(path)
+    meta = (p if p.is_dir() else p.parent) / "policy.json"
+    try:
+        return json.loads(meta.read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _positive_int(meta_file, value, field, hi):
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 < value <= hi:
+        raise ValueError(f"{meta_file}: field {field!r} must be an integer in [1, {hi}], got {value!r}")
+    return value
+
+
+def load_window_correction(path):
+    """A :class:`WindowCorrection` from its folder or ``policy.npz`` (no pickle), its base loaded by
+    :func:`agents.policies.learned.load_learned` (a q-policy or a learned IMM; a correction of a correction is
+    refused). ``ValueError`` (one line, naming the file and the field) for a missing or malformed file."""
+    from agents.policies import checks
+    from agents.policies.layout import IMM_KINDS, Q_POLICY_KINDS
+    from agents.policies.learned import BUNDLED_LEARNED, load_learned
+    p = Path(path)
+    d = p if p.is_dir() else checks.check_policy_file(p, POLICY_FILE).parent
+    meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
+    for f in (meta_file, env_file, npz):
+        if not f.is_file():
+            raise ValueError(f"{d}: not a window correction (no {f.name}; it needs {POLICY_FILE}, policy.json and "
+                             "env_config.json)")
+    config = checks.read_json_object(meta_file, "a window correction's config (a JSON object)")
+    if config.get("format") != FORMAT or config.get("version") != VERSION:
+        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
+                         f"need {FORMAT!r} version {VERSION}")
+    window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
+    checks.check_finite_numbers(meta_file, config.get("scale_m"), "scale_m")
+    if not config["scale_m"] > 0:
+        raise ValueError(f"{meta_file}: field 'scale_m' must be > 0 (m), got {config['scale_m']!r}")
+    arch = config.get("architecture")
+    layers = arch.get("layers") if isinstance(arch, dict) else None
+    if not isinstance(layers, list) or not 1 <= len(layers) <= 4:
+        raise ValueError(f"{meta_file}: field 'architecture.layers' must be a list of 1-4 widths, got {layers!r}")
+    for i, h in enumerate(layers):
+        _positive_int(meta_file, h, f"architecture.layers[{i}]", 1024)
+    if arch.get("input_size") != feature_count(window):
+        raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window)} for "
+                         f"window_looks {window}, got {arch.get('input_size')!r}")
+    base = config.get("base")
+    if not isinstance(base, str) or not base:
+        raise ValueError(f"{meta_file}: field 'base' must name the base tracker (a bundled name such as "
+                         f"'policy_bp_prior', or a folder relative to {d}), got {base!r}")
+    weights = checks.read_npz(npz)
+    checks.check_weights(npz, weights, network_shapes(arch))
+    checks.check_env_config(env_file)
+    try:
+        base_tracker = load_learned(base if base in BUNDLED_LEARNED else d / base,
+                                    kinds=Q_POLICY_KINDS + IMM_KINDS)
+    except ValueError as e:
+        raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
+    return WindowCorrection(weights, config, base_tracker)

@@ -1,0 +1,164 @@
+"""The window correction (agents.policies.window_correction) and its trainer (agents.training.window): the inputs
+by hand, the correction's geometry, batch independence, the loader's checks and a small training run."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from agents.policies import window_correction as wcm
+from agents.policies.learned import BUNDLED_LEARNED, load_learned
+from agents.training.window import mirrored
+
+
+def _one_look_batch(L=3):
+    """One episode of L looks 5 s apart, target flying north at 100 m/s through the origin at the last look."""
+    t = np.arange(L) * 5.0
+    truth_y = (t - t[-1]) * 100.0
+    z = np.stack([np.zeros(L), truth_y], -1)[None]
+    R = np.broadcast_to(np.diag([100.0 ** 2, 400.0 ** 2]), (1, L, 2, 2)).copy()
+    det = np.ones((1, L), bool)
+    x = np.zeros((1, L, 4))
+    x[0, :, 1], x[0, :, 3] = truth_y, 100.0
+    P = np.broadcast_to(np.diag([50.0 ** 2, 20.0 ** 2, 5.0 ** 2, 3.0 ** 2]), (1, L, 4, 4)).copy()
+    return t[None], z, R, det, x, P
+
+
+def test_features_by_hand():
+    t, z, R, det, x, P = _one_look_batch()
+    z[0, 1] += [300.0, 600.0]            # the previous look's plot: 300 m to the right (east), 600 m ahead
+    det[0, 0] = False
+    F, ca, sa = wcm.window_features(t, z, R, det, x, P, window_looks=4, scale_m=300.0)
+    assert F.shape == (1, 3, wcm.feature_count(4)) and (ca[0, -1], sa[0, -1]) == (0.0, 1.0)   # frame: north
+    f = F[0, -1]
+    # slot 0: the current plot lies on the track; slot 1: 600 m along, 300 m to the right (across is to the left)
+    np.testing.assert_allclose(f[0:4], [0, 0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(f[4:8], [2.0, -1.0, 1.0, -5 / 60], atol=1e-12)
+    np.testing.assert_allclose(f[8:12], [0, 0, 0, -10 / 60], atol=1e-12)   # not detected: no residual
+    np.testing.assert_allclose(f[12:16], [0, 0, 0, 0], atol=1e-12)         # before the episode
+    # R and P along the track (north) and across (east)
+    np.testing.assert_allclose(f[16:], np.r_[np.log1p([400.0, 100.0]) / 5, 100 / 300,
+                                             np.log1p([20.0, 50.0, 3.0, 5.0]) / 5], atol=1e-12)
+    # no base estimate, no inputs
+    x[0, 1] = np.nan
+    assert np.isnan(wcm.window_features(t, z, R, det, x, P, 4, 300.0)[0][0, 1]).all()
+
+
+def test_mirror_flips_every_across_component():
+    rng = np.random.default_rng(0)
+    F, Y = rng.normal(size=(5, wcm.feature_count(3))), rng.normal(size=(5, 2))
+    Fm, Ym = mirrored(F, Y, 3)
+    flipped = np.zeros(F.shape[1], bool)
+    flipped[[1, 5, 9]] = True
+    np.testing.assert_array_equal(Fm[:, flipped], -F[:, flipped])
+    np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
+    np.testing.assert_array_equal(Ym, Y * [1, -1])
+
+
+def _weights(arch, rng, out_scale=1.0):
+    w = {k: rng.normal(scale=0.3, size=s) for k, s in wcm.network_shapes(arch).items()}
+    w["out.weight"] = w["out.weight"] * out_scale
+    w["out.bias"] = w["out.bias"] * out_scale
+    return w
+
+
+def _save(tmp_path, name="wc", base="policy_bp", out_scale=1.0, window=4, layers=(8, 6), seed=0):
+    arch = {"input_size": wcm.feature_count(window), "layers": list(layers)}
+    w = _weights(arch, np.random.default_rng(seed), out_scale)
+    cfg = {"base": base, "window_looks": window, "scale_m": 300.0, "architecture": arch}
+    env = json.loads((BUNDLED_LEARNED[base] / "env_config.json").read_text()) if base in BUNDLED_LEARNED else {}
+    wcm.save_window_correction(tmp_path / name, w, cfg, env)
+    return tmp_path / name
+
+
+def test_correction_moves_positions_only_by_the_network_in_the_velocity_frame(tmp_path):
+    from agents.evaluation.suites import draw_suite
+    eps = draw_suite("random", 6, seed=900_000)
+    base = load_learned("policy_bp")
+    brun = base.run(eps)
+    zero = load_learned(_save(tmp_path, "zero", out_scale=0.0))
+    assert zero.kind == "window_correction" and zero.policy.is_tracker
+    r0 = zero.run(eps)
+    np.testing.assert_array_equal(r0.x, brun.x)                   # zero output weights: the base, unchanged
+    wc = load_learned(_save(tmp_path))
+    r = wc.run(eps)
+    assert r.name == "wc" and np.array_equal(r.P, brun.P, equal_nan=True)       # the base's covariance
+    np.testing.assert_array_equal(r.x[..., 2:], brun.x[..., 2:])  # velocities untouched
+    after = np.arange(r.x.shape[1])[None] >= brun.start_index[:, None]
+    np.testing.assert_array_equal(r.x[~after], brun.x[~after])     # before the track start: the base's
+    assert np.isfinite(r.x[after & np.isfinite(brun.x).all(-1)]).all()
+    # the offset is the network's output rotated from (along, across) of the base velocity into (east, north)
+    from radar_env.sim.episode import stack_episodes
+    b = stack_episodes(eps)
+    F, ca, sa = wcm.window_features(b.t_s, b.z_m, b.R_m2, b.detected, brun.x, brun.P, 4, 300.0)
+    i, k = 2, int(brun.start_index[2]) + 5
+    o = wcm.network_forward(wc.policy.w, 2, F[i, k][None])[0] * 300.0
+    np.testing.assert_allclose(r.x[i, k, :2] - brun.x[i, k, :2],
+                               [o[0] * ca[i, k] - o[1] * sa[i, k], o[0] * sa[i, k] + o[1] * ca[i, k]], rtol=1e-12)
+    np.testing.assert_allclose(r.extra["correction_m"][i, k], np.hypot(*o), rtol=1e-12)
+
+
+def test_a_row_alone_equals_the_row_in_a_batch(tmp_path):
+    from agents.evaluation.suites import draw_suite
+    eps = draw_suite("random_radars", 5, seed=900_000)
+    wc = load_learned(_save(tmp_path))
+    batch = wc.run(eps)
+    for i in (0, 3):
+        alone = wc.run([eps[i]])
+        n = alone.x.shape[1]
+        assert np.array_equal(alone.x[0], batch.x[i, :n], equal_nan=True)
+
+
+def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
+    d = _save(tmp_path)
+    meta = json.loads((d / "policy.json").read_text())
+    cases = [({"window_looks": 0}, r"field 'window_looks' must be an integer in \[1, 64\]"),
+             ({"scale_m": -1.0}, r"field 'scale_m' must be > 0"),
+             ({"architecture": {**meta["architecture"], "input_size": 3}}, r"'architecture.input_size' must be 23"),
+             ({"architecture": {**meta["architecture"], "layers": []}}, r"'architecture.layers' must be a list of 1-4"),
+             ({"base": "nope"}, r"field 'base' \('nope'\): .*neither a bundled learned tracker"),
+             ({"base": 3}, r"field 'base' must name the base tracker"),
+             ({"version": 2}, r"format 'radar-track-window-correction' version 2")]
+    for change, msg in cases:
+        (d / "policy.json").write_text(json.dumps({**meta, **change}))
+        with pytest.raises(ValueError, match=msg) as e:
+            load_learned(d)
+        assert "\n" not in str(e.value)
+    # a correction of a correction is refused (its base must be a q-policy or a learned IMM)
+    (d / "policy.json").write_text(json.dumps(meta))
+    inner = shutil.copytree(d, tmp_path / "outer" / "inner")
+    outer = _save(tmp_path / "outer", "wc2", base="inner")
+    (outer / "policy.json").write_text(json.dumps({**json.loads((outer / "policy.json").read_text()),
+                                                   "base": "../inner"}))
+    assert load_learned(inner).kind == "window_correction"
+    with pytest.raises(ValueError, match=r"field 'base' \('../inner'\): .*kind 'window_correction'"):
+        load_learned(outer)
+    # weights of another shape
+    w = dict(np.load(d / "policy.npz"))
+    w["layer.0.weight"] = w["layer.0.weight"][:, :-1]
+    np.savez(d / "policy.npz", **w)
+    with pytest.raises(ValueError, match=r"weight 'layer.0.weight' must be float64 of shape \(8, 23\)"):
+        load_learned(d)
+
+
+def test_training_run_is_reproducible_and_loadable(tmp_path):
+    from agents.training.train import main
+    args = ["--method", "window", "--seed", "1000", "--out", str(tmp_path), "--quiet", "--hp", "base=policy_bp",
+            "--hp", "episodes=12", "--hp", "epochs=2", "--hp", "eval_every=1", "--hp", "layers=[6]",
+            "--hp", 'eval_scenarios={"random": 4}', "--hp", 'select_on=["random"]', "--hp", "batch_looks=256"]
+    a = main(args + ["--name", "a"])
+    b = main(args + ["--name", "b"])
+    assert (a / "policy.npz").read_bytes() == (b / "policy.npz").read_bytes()      # same seed, same weights
+    lt = load_learned(a / "best")
+    assert lt.kind == "window_correction" and lt.name == "a_best"
+    summary = json.loads((a / "summary.json").read_text())
+    assert [r["epoch"] for r in summary["selection_history"]] == [1, 2]
+    assert json.loads((a / "choice.json").read_text())["chosen"] == "final"
+    for bad, msg in ((["--hp", "layers=[0]"], r"--hp layers: must be a list of 1-4 integer widths"),
+                     (["--hp", "scenarios=[\"bizup2002\"]"], r"--hp scenarios: a list of distinct training"),
+                     (["--tracker", "cv"], r"--tracker does not apply to --method window"),
+                     (["--seed", "899995"], r"--seed: the training flights' seeds 899995..900006 must lie")):
+        with pytest.raises(SystemExit, match=msg):
+            main(args + ["--name", "c"] + bad)
+    assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
