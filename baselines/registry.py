@@ -13,9 +13,9 @@ velocity),
 in no default list). ``policy`` (a learned policy), ``policy_bp`` (the bundled policy trained by backpropagation)
 ``policy_imm_bp`` and ``policy_imm_ppo`` (the bundled learned IMMs, by backpropagation and by PPO), ``policy_bp_rdot``
 and ``policy_imm_bp_rdot`` (``policy_bp``'s and ``policy_imm_bp``'s recipes on the range-rate filter),
-``policy_imm_bp_prior`` and ``policy_bp_prior`` (``policy_imm_bp``'s recipe and a wider ``policy_bp`` trained on the random
-suites' own flights) are resolved by
-the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
+``policy_imm_bp_prior`` and ``policy_bp_prior`` (``policy_imm_bp``'s recipe and a wider ``policy_bp`` trained on the
+random suites' own flights) and ``policy_window`` (``policy_bp_prior`` with a learned window correction of its
+reported position) are resolved by the evaluation, which owns the model loading (:data:`POLICY_TRACKERS`). User
 trackers are added by :func:`register_tracker` (:mod:`baselines.user_trackers`); :func:`tracker_names` lists all.
 
 Tuned values (``kf_tuned``'s q, ``imm2``'s mode noises and transition probabilities) are read from
@@ -105,7 +105,7 @@ _RUNNERS = {
 }
 
 POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "policy_bp_rdot", "policy_imm_bp_rdot",
-                   "policy_imm_bp_prior", "policy_bp_prior")
+                   "policy_imm_bp_prior", "policy_bp_prior", "policy_window")
 """Tracker names of learned policies, each run by the evaluation from its file: a q-policy through
 :func:`baselines.trackers.run_q_policy`, a learned IMM by its own ``run``."""
 

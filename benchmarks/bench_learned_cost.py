@@ -19,7 +19,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--trackers", default="policy_bp,policy_bp_prior,policy_imm_bp,policy_imm_bp_prior",
+    ap.add_argument("--trackers", default="policy_bp,policy_bp_prior,policy_window,policy_imm_bp,policy_imm_bp_prior",
                     help="comma-separated bundled learned trackers (default: %(default)s)")
     args = ap.parse_args(argv)
     import numba

@@ -17,6 +17,7 @@ from agents.policies.learned import (BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KIND
 EXPECTED_KIND = {"policy": "ppo_q_policy", "policy_bp": "gru_q_policy", "policy_imm_bp": "learned_imm_gru",
                  "policy_imm_ppo": "learned_imm_ppo", "policy_bp_rdot": "gru_q_policy",
                  "policy_imm_bp_rdot": "learned_imm_gru", "policy_imm_bp_prior": "learned_imm_gru",
+                 "policy_window": "window_correction",
                  "policy_bp_prior": "gru_q_policy"}
 LAYOUT = {"policy.npz", "policy.json", "env_config.json", "training.json", "choice.json"}
 QUICK = ["--scenario", "random", "--runs", "2", "--no-plots", "--quiet"]

@@ -40,6 +40,13 @@ def test_features_by_hand():
     # R and P along the track (north) and across (east)
     np.testing.assert_allclose(f[16:], np.r_[np.log1p([400.0, 100.0]) / 5, 100 / 300,
                                              np.log1p([20.0, 50.0, 3.0, 5.0]) / 5], atol=1e-12)
+    # a missed look has no R (NaN in the episodes): R is the latest detected plot's in the window
+    R[0, 1] = np.diag([30.0 ** 2, 70.0 ** 2])
+    det[0, 2], z[0, 2], R[0, 2] = False, np.nan, np.nan
+    f = wcm.window_features(t, z, R, det, x, P, 4, 300.0)[0][0, -1]
+    np.testing.assert_allclose(f[16:18], np.log1p([70.0, 30.0]) / 5, atol=1e-12)
+    np.testing.assert_allclose(f[0:4], [0, 0, 0, 0], atol=1e-12)
+    assert np.isfinite(f).all()
     # no base estimate, no inputs
     x[0, 1] = np.nan
     assert np.isnan(wcm.window_features(t, z, R, det, x, P, 4, 300.0)[0][0, 1]).all()
@@ -104,6 +111,10 @@ def test_a_row_alone_equals_the_row_in_a_batch(tmp_path):
     eps = draw_suite("random_radars", 5, seed=900_000)
     wc = load_learned(_save(tmp_path))
     batch = wc.run(eps)
+    # missed looks (no plot, no R) inside tracks: every estimate the base makes stays finite
+    assert sum((~e.detected).sum() for e in eps) > 0
+    base = load_learned("policy_bp").run(eps)
+    assert np.array_equal(np.isfinite(batch.x), np.isfinite(base.x))
     for i in (0, 3):
         alone = wc.run([eps[i]])
         n = alone.x.shape[1]

@@ -26,7 +26,8 @@ import zipfile
 from pathlib import Path
 
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
-           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_POLICIES",
+           "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_WINDOW",
+           "BUNDLED_POLICIES",
            "ENV_CONFIG_ENTRY", "policy_env_kwargs", "make_policy_env", "ship_policy", "BUNDLED_ENV_IDS",
            "bundled_env_kwargs", "embed_env_config", "recorded_env_kwargs"]
 
@@ -55,10 +56,13 @@ broad ones: the tracker ``policy_imm_bp_prior`` (agents/bundled/learned_imm_prio
 BUNDLED_BP_PRIOR = BUNDLED_BP_POLICY.parents[1] / "backprop_prior" / "policy.npz"
 """``policy_bp``'s recipe with a wider network (GRU 128, a tanh layer of 64) trained on the ``random`` suites' own
 flights: the tracker ``policy_bp_prior`` (agents/bundled/backprop_prior/CHOICE.md)."""
+BUNDLED_WINDOW = BUNDLED_BP_POLICY.parents[1] / "window" / "policy.npz"
+"""A window correction of ``policy_bp_prior`` (an MLP over the last 12 plots moving its reported position, trained
+by regression on the random suites' flights): the tracker ``policy_window`` (agents/bundled/window/CHOICE.md)."""
 BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
                     "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
                     "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR,
-                    "policy_bp_prior": BUNDLED_BP_PRIOR}
+                    "policy_bp_prior": BUNDLED_BP_PRIOR, "policy_window": BUNDLED_WINDOW}
 """Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",

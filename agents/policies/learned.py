@@ -45,7 +45,7 @@ BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / 
                    "policy_bp_rdot": BUNDLED_DIR / "backprop_rdot",
                    "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot",
                    "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior",
-                   "policy_bp_prior": BUNDLED_DIR / "backprop_prior"}
+                   "policy_bp_prior": BUNDLED_DIR / "backprop_prior", "policy_window": BUNDLED_DIR / "window"}
 """The registry: bundled learned tracker name -> its folder."""
 
 

@@ -75,25 +75,30 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
         velocity). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual from the base's
         straight line ``x[k, :2] + (t[k-j] - t[k]) x[k, 2:]``, along and across, in ``scale_m`` (0 when not detected
         or before the episode), the detection flag and ``(t[k-j] - t[k]) / 60 s``. Then log(1 + sd / 1 m) / 5 of R
-        along and across at look k, the speed in ``scale_m`` per second, and log(1 + sd) / 5 of the base's position
+        along and across, R of the latest detected plot in the window (0 if none), the speed in ``scale_m`` per second, and log(1 + sd) / 5 of the base's position
         (m) and velocity (m/s) covariance along and across. Non-finite where the base estimate is.
     """
     B, L = t_s.shape
     ca, sa, sp = _frame(x)
     rows = np.arange(L)[None, :]
     feats = []
+    R_last = np.zeros((B, L, 2, 2))         # R of the latest detected plot in the window (a missed look has none)
+    have = np.zeros((B, L), bool)
     for j in range(int(window_looks)):
         kk = rows - j
         ok = kk >= 0
         kc = np.broadcast_to(np.maximum(kk, 0), (B, L))
         det = np.take_along_axis(detected, kc, 1) & ok
+        newest = det & ~have
+        R_last[newest] = R_m2[np.nonzero(newest)[0], kc[newest]]
+        have |= det
         tau = np.where(ok, np.take_along_axis(t_s, kc, 1) - t_s, 0.0)
         dx = np.take_along_axis(z_m[..., 0], kc, 1) - (x[..., 0] + tau * x[..., 2])
         dy = np.take_along_axis(z_m[..., 1], kc, 1) - (x[..., 1] + tau * x[..., 3])
         al = np.clip((dx * ca + dy * sa) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
         cr = np.clip((-dx * sa + dy * ca) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
         feats += [np.where(det, al, 0.0), np.where(det, cr, 0.0), det.astype(np.float64), tau / 60.0]
-    Ra, Rc = _rotated_sd(R_m2, ca, sa, 0)
+    Ra, Rc = _rotated_sd(R_last, ca, sa, 0)
     Pa, Pc = _rotated_sd(P, ca, sa, 0)
     Va, Vc = _rotated_sd(P, ca, sa, 2)
     feats += [np.log1p(Ra) / 5, np.log1p(Rc) / 5, sp / scale_m]

@@ -30,10 +30,11 @@ from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.evaluation.runner import run_policy
 from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_BP_PRIOR, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM,
-                                    BUNDLED_LEARNED_IMM_PRIOR, BUNDLED_POLICY)
+                                    BUNDLED_LEARNED_IMM_PRIOR, BUNDLED_POLICY, BUNDLED_WINDOW)
 from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
+from agents.policies.window_correction import is_window_correction
 from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
 from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
@@ -70,6 +71,9 @@ IMM_PRIOR_RECIPE = "imm_bp_prior"
 BP_PRIOR_RECIPE_DIR = BUNDLED_BP_PRIOR.parent / "seeds"
 """Every trained seed of the wider q-policy's recipe on the random suites' own flights: ``bp_prior_s<seed>/``."""
 BP_PRIOR_RECIPE = "bp_prior"
+WINDOW_RECIPE_DIR = BUNDLED_WINDOW.parent / "seeds"
+"""Every trained seed of the window correction's recipe over policy_bp_prior: ``window_s<seed>/``."""
+WINDOW_RECIPE = "window"
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -90,6 +94,10 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            BP_PRIOR_RECIPE: "backprop on the random suites' own flights: policy_bp's recipe with a GRU of 128 and a "
                             "tanh layer of 64, lr 5e-3, 3,000 steps, on the random and random_radars suites' flight "
                             "laws (agents/bundled/backprop_prior/CHOICE.md)",
+           WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 12 plots in "
+                          "the base track's frame moving its reported position, trained by regression on 4,000 "
+                          "flights of each random suite (agents/training/hyperparams/window.toml; radar-track "
+                          "train --method window; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
@@ -176,7 +184,8 @@ def recipe_policies(recipe_dir=RECIPE_DIR):
     (``policy.npz`` with ``policy.json``; the ``policy.npz`` beside an SB3 zip is that zip's numpy export)."""
     found = [*Path(recipe_dir).glob("*/policy.zip"),
              *(p for p in Path(recipe_dir).glob("*/policy.npz")
-               if (is_recurrent_checkpoint(p) or is_learned_imm_checkpoint(p)) and not p.with_suffix(".zip").is_file())]
+               if (is_recurrent_checkpoint(p) or is_learned_imm_checkpoint(p) or is_window_correction(p))
+               and not p.with_suffix(".zip").is_file())]
     return {p.parent.name: p for p in sorted(found)}
 
 
@@ -304,12 +313,16 @@ def targets(data):
     if "policy_bp_prior" in sp["random"]["policies"]:
         seeds = data["recipes"][BP_PRIOR_RECIPE]["seeds"] if BP_PRIOR_RECIPE in data["recipes"] else []
         out += bp_targets(sp, "policy_bp_prior", seeds)
+    if "policy_window" in sp["random"]["policies"]:
+        seeds = data["recipes"][WINDOW_RECIPE]["seeds"] if WINDOW_RECIPE in data["recipes"] else []
+        out += bp_targets(sp, "policy_window", seeds)
     out += causal_targets(data)
     return out
 
 
 LEARNED_RECIPES = {"policy_bp": BP_RECIPE, "policy_imm_bp": IMM_RECIPE, "policy_imm_ppo": IMM_PPO_RECIPE,
-                   "policy_imm_bp_prior": IMM_PRIOR_RECIPE, "policy_bp_prior": BP_PRIOR_RECIPE}
+                   "policy_imm_bp_prior": IMM_PRIOR_RECIPE, "policy_bp_prior": BP_PRIOR_RECIPE,
+                   "policy_window": WINDOW_RECIPE}
 """Bundled learned tracker -> the recipe whose seeds it was chosen from (the PPO q-policy ``policy`` has its own
 recipes and targets)."""
 
@@ -540,14 +553,15 @@ def main(argv=None):
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
     for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM),
                        ("policy_imm_ppo", BUNDLED_IMM_PPO), ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
-                       ("policy_bp_prior", BUNDLED_BP_PRIOR)):
+                       ("policy_bp_prior", BUNDLED_BP_PRIOR), ("policy_window", BUNDLED_WINDOW)):
         if path.is_file():
             bundle[name] = load_policy(path)
     seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
                                              **recipe_policies(IMM_RECIPE_DIR),
                                              **recipe_policies(IMM_PPO_RECIPE_DIR),
                                              **recipe_policies(IMM_PRIOR_RECIPE_DIR),
-                                             **recipe_policies(BP_PRIOR_RECIPE_DIR)}.items()}
+                                             **recipe_policies(BP_PRIOR_RECIPE_DIR),
+                                             **recipe_policies(WINDOW_RECIPE_DIR)}.items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -577,14 +591,15 @@ def _add_recipe(args, docs, t0):
                          f"{data.get('seed')}, not {args.seed}")
     r = args.add_recipe
     paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR,
-                            BP_PRIOR_RECIPE_DIR)
+                            BP_PRIOR_RECIPE_DIR, WINDOW_RECIPE_DIR)
              for n, p in recipe_policies(d).items() if n.rsplit("_s", 1)[0] == r}
     if not paths:
         raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
     pols = {n: load_policy(p) for n, p in paths.items()}
     bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO),
                IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
-               BP_PRIOR_RECIPE: ("policy_bp_prior", BUNDLED_BP_PRIOR)}
+               BP_PRIOR_RECIPE: ("policy_bp_prior", BUNDLED_BP_PRIOR),
+               WINDOW_RECIPE: ("policy_window", BUNDLED_WINDOW)}
     if r in bundled and bundled[r][1].is_file():
         pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
