@@ -173,3 +173,35 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
         with pytest.raises(SystemExit, match=msg):
             main(args + ["--name", "c"] + bad)
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
+
+
+def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path):
+    import gymnasium as gym
+    from radar_env.envs.core import draw_setup_and_episode
+    from agents.policies.checks import env_kwargs_from_json
+    wc = load_learned(_save(tmp_path))
+    base = load_learned("policy_bp")
+    cfg = base.env_config
+    seeds = [31, 32]
+    eps = [draw_setup_and_episode(cfg.scenario, cfg.radar, cfg.random_scenario_config, np.random.default_rng(s),
+                                  cfg.warmup_scans) for s in seeds]
+    run = wc.run(eps)
+    kw = env_kwargs_from_json(json.loads((BUNDLED_LEARNED["policy_bp"] / "env_config.json").read_text()))
+    env = wcm.CorrectedEstimate(gym.make("RadarTrack-v0", **kw), wc.policy)
+    with pytest.raises(ValueError, match="correction must be a WindowCorrection"):
+        wcm.CorrectedEstimate(env, base.policy)
+    worst, n = 0.0, 0
+    for r, s in enumerate(seeds):
+        obs, info = env.reset(seed=s)
+        k = int(run.start_index[r]) - 1
+        np.testing.assert_array_equal(info["corrected_estimate"], info["estimate"])   # the start look: uncorrected
+        state, start = None, True
+        while True:
+            action, state = base.policy.predict(obs, state, episode_start=start)
+            obs, _, term, trunc, info = env.step(action)
+            start, k, n = False, k + 1, n + 1
+            est = run.x[r, k]
+            worst = max(worst, float(np.max(np.abs(info["corrected_estimate"] - est) / (np.abs(est) + 1.0))))
+            if term or trunc:
+                break
+    assert n > 100 and worst < 1e-9

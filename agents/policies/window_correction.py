@@ -24,14 +24,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
+import gymnasium as gym
 import numpy as np
 
 from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "window_features", "feature_count", "network_shapes",
            "network_forward", "WindowCorrection", "is_window_correction", "load_window_correction",
-           "save_window_correction"]
+           "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
 VERSION = 1
@@ -248,3 +250,49 @@ def load_window_correction(path):
     except ValueError as e:
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
     return WindowCorrection(weights, config, base_tracker)
+
+
+class CorrectedEstimate(gym.Wrapper):
+    """A Gymnasium wrapper of a single ``RadarTrack-v0`` env that adds the window correction's estimate to ``info``.
+
+    The agent acting in the env is the correction's base (the correction has no action: the base's choices drive the
+    filter, as in the evaluation). After every ``step``, ``info["corrected_estimate"]`` is the env's
+    ``info["estimate"]`` with its position moved by the correction, computed from the plots of the looks up to the
+    current one (``env.unwrapped.episode()``, read up to the current look only: causal) and the env's estimate and
+    covariance; after ``reset`` (the track start's look, which the evaluation does not score or correct) it is the
+    estimate itself. The same numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
+    (tests/test_window_correction.py).
+
+    Args:
+        env: a single ``RadarTrack-v0`` env (or a wrapper of one). correction: a :class:`WindowCorrection` (e.g.
+            ``load_learned("policy_window").policy``).
+    """
+
+    def __init__(self, env, correction):
+        if not isinstance(correction, WindowCorrection):
+            raise ValueError(f"correction must be a WindowCorrection (load_learned(...).policy of kind "
+                             f"window_correction), got {type(correction).__name__}")
+        super().__init__(env)
+        self.correction = correction
+
+    def _corrected(self, info):
+        ep = self.env.unwrapped.episode()
+        k = int(np.searchsorted(ep["t_s"], info["time_s"]))      # the current look (times strictly increase)
+        lo = max(0, k - self.correction.window_looks + 1)
+        looks = SimpleNamespace(**{f: ep[f][None, lo:k + 1] for f in ("t_s", "z_m", "R_m2", "detected")})
+        n = k + 1 - lo
+        x = np.broadcast_to(np.asarray(info["estimate"], np.float64), (1, n, 4))
+        P = np.broadcast_to(np.asarray(info["covariance"], np.float64), (1, n, 4, 4))
+        out = np.array(info["estimate"], np.float64)
+        out[:2] += self.correction.offsets_m(looks, x, P)[0, -1]       # the current look's inputs only
+        return out
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        info["corrected_estimate"] = np.array(info["estimate"], np.float64)
+        return obs, info
+
+    def step(self, action):
+        obs, reward, term, trunc, info = self.env.step(action)
+        info["corrected_estimate"] = self._corrected(info)
+        return obs, reward, term, trunc, info

@@ -254,9 +254,11 @@ class RadarTrackEnv(gym.Env):
         return obs[0], rew[0].item(), term, trunc, info
 
     def episode(self):
-        """The current episode's stored looks (``Tracker.look_data`` views for row 0)."""
+        """The current episode's stored looks (``Tracker.look_data`` views for row 0): ``t_s``, ``truth``, ``z_m``,
+        ``R_m2`` (NaN at a missed look) and ``detected``, every look of the episode (the future ones too: what a
+        caller reads from it is its own business; the agent's observation never includes it)."""
         return {f: self._core.tracker.look_data(f)[0, : self._core.tracker.n_looks[0]]
-                for f in ("t_s", "truth", "z_m", "detected")}
+                for f in ("t_s", "truth", "z_m", "R_m2", "detected")}
 
     def _render_state(self):
         """What the scope shows: looks processed so far, the track history and the latest features."""
