@@ -76,9 +76,10 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
         ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
         velocity). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual from the base's
         straight line ``x[k, :2] + (t[k-j] - t[k]) x[k, 2:]``, along and across, in ``scale_m`` (0 when not detected
-        or before the episode), the detection flag and ``(t[k-j] - t[k]) / 60 s``. Then log(1 + sd / 1 m) / 5 of R
-        along and across, R of the latest detected plot in the window (0 if none), the speed in ``scale_m`` per second, and log(1 + sd) / 5 of the base's position
-        (m) and velocity (m/s) covariance along and across. Non-finite where the base estimate is.
+        or before the episode), the detection flag and ``(t[k-j] - t[k]) / 60 s``. Then log(1 + sd / 1 m) / 5 along
+        and across of the R of the latest detected plot in the window (0 if none), the speed in ``scale_m`` per
+        second, and log(1 + sd) / 5 of the base's position (m) and velocity (m/s) covariance along and across.
+        Non-finite where the base estimate is.
     """
     B, L = t_s.shape
     ca, sa, sp = _frame(x)

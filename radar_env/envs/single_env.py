@@ -255,8 +255,8 @@ class RadarTrackEnv(gym.Env):
 
     def episode(self):
         """The current episode's stored looks (``Tracker.look_data`` views for row 0): ``t_s``, ``truth``, ``z_m``,
-        ``R_m2`` (NaN at a missed look) and ``detected``, every look of the episode (the future ones too: what a
-        caller reads from it is its own business; the agent's observation never includes it)."""
+        ``R_m2`` (NaN at a missed look) and ``detected``, every look of the episode, the future ones too (the agent's
+        observation never includes them; a caller that must stay causal reads up to the current look)."""
         return {f: self._core.tracker.look_data(f)[0, : self._core.tracker.n_looks[0]]
                 for f in ("t_s", "truth", "z_m", "R_m2", "detected")}
 
