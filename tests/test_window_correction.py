@@ -25,6 +25,80 @@ def _one_look_batch(L=3):
     return t[None], z, R, det, x, P
 
 
+# ---- the numpy reference of the compiled inputs
+def _frame(x):
+    """Unit vector along the estimate's velocity, ``(cos, sin)`` each (B, L); east where the speed is below 1 mm/s."""
+    sp = np.hypot(x[..., 2], x[..., 3])
+    slow = ~(sp > 1e-3)
+    safe = np.where(slow, 1.0, sp)
+    return np.where(slow, 1.0, x[..., 2] / safe), np.where(slow, 0.0, x[..., 3] / safe), sp
+
+
+def _rotated_sd(C, ca, sa, i):
+    """Standard deviations along and across ``(ca, sa)`` of the 2x2 block of ``C`` (..., n, n) at ``i``."""
+    a = C[..., i, i] * ca ** 2 + 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * sa ** 2
+    c = C[..., i, i] * sa ** 2 - 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * ca ** 2
+    return np.sqrt(np.maximum(a, 0.0)), np.sqrt(np.maximum(c, 0.0))
+
+
+def _reference_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
+    """The inputs in plain numpy over all (B, L) looks (the first implementation): the independent reference."""
+    B, L = t_s.shape
+    ca, sa, sp = _frame(x)
+    rows = np.arange(L)[None, :]
+    feats = []
+    R_last = np.zeros((B, L, 2, 2))         # R of the latest detected plot in the window (a missed look has none)
+    have = np.zeros((B, L), bool)
+    for j in range(int(window_looks)):
+        kk = rows - j
+        ok = kk >= 0
+        kc = np.broadcast_to(np.maximum(kk, 0), (B, L))
+        det = np.take_along_axis(detected, kc, 1) & ok
+        newest = det & ~have
+        R_last[newest] = R_m2[np.nonzero(newest)[0], kc[newest]]
+        have |= det
+        tau = np.where(ok, np.take_along_axis(t_s, kc, 1) - t_s, 0.0)
+        dx = np.take_along_axis(z_m[..., 0], kc, 1) - (x[..., 0] + tau * x[..., 2])
+        dy = np.take_along_axis(z_m[..., 1], kc, 1) - (x[..., 1] + tau * x[..., 3])
+        al = np.clip((dx * ca + dy * sa) / scale_m, -wcm.RESIDUAL_CLIP, wcm.RESIDUAL_CLIP)
+        cr = np.clip((-dx * sa + dy * ca) / scale_m, -wcm.RESIDUAL_CLIP, wcm.RESIDUAL_CLIP)
+        feats += [np.where(det, al, 0.0), np.where(det, cr, 0.0), det.astype(np.float64), tau / 60.0]
+    Ra, Rc = _rotated_sd(R_last, ca, sa, 0)
+    Pa, Pc = _rotated_sd(P, ca, sa, 0)
+    Va, Vc = _rotated_sd(P, ca, sa, 2)
+    feats += [np.log1p(Ra) / 5, np.log1p(Rc) / 5, sp / scale_m]
+    feats += [np.log1p(v) / 5 for v in (Pa, Pc, Va, Vc)]
+    F = np.stack(feats, -1)
+    F[~np.isfinite(x).all(-1)] = np.nan          # no base estimate, no correction
+    return F, ca, sa
+
+
+
+def test_compiled_inputs_equal_the_numpy_reference():
+    from agents.evaluation.suites import draw_suite
+    from radar_env.sim.episode import stack_episodes
+    for suite in ("random", "random_radars", "kim_lee_accel"):
+        eps = draw_suite(suite, 12, seed=900_000)
+        b = stack_episodes(eps)
+        run = load_learned("policy_bp").run(eps)
+        x = run.x.copy()
+        x[3, 20:22, 2:] = 0.0                               # a standing target: the frame falls back to east
+        got = wcm.window_features(b.t_s, b.z_m, b.R_m2, b.detected, x, run.P, 12, 300.0)
+        want = _reference_features(b.t_s, b.z_m, b.R_m2, b.detected, x, run.P, 12, 300.0)
+        fin = np.isfinite(x).all(-1)
+        for g, w in zip(got, want):
+            assert np.isnan(g[~fin]).all()
+            g, w = g[fin], w[fin]
+            if g.ndim == 1:                                 # the frame
+                np.testing.assert_array_equal(g, w)
+                continue
+            # the window and the speed exactly; the log1p inputs to the last bit (numpy's vectorised log1p and the C
+            # library's, which the compiled code calls, may round differently)
+            logs = [48, 49, 51, 52, 53, 54]
+            np.testing.assert_array_equal(np.delete(g, logs, 1), np.delete(w, logs, 1))
+            np.testing.assert_allclose(g[:, logs], w[:, logs], rtol=1e-15, atol=0)
+
+
 def test_features_by_hand():
     t, z, R, det, x, P = _one_look_batch()
     z[0, 1] += [300.0, 600.0]            # the previous look's plot: 300 m to the right (east), 600 m ahead

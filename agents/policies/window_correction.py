@@ -23,15 +23,17 @@ the base estimate along and across its velocity in units of ``scale_m``. It runs
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from types import SimpleNamespace
 
 import gymnasium as gym
+import numba
 import numpy as np
 
 from agents.policies.recurrent import layer_weights, linear
 
-__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "window_features", "feature_count", "network_shapes",
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "window_features", "look_features", "feature_count", "network_shapes",
            "network_forward", "WindowCorrection", "is_window_correction", "load_window_correction",
            "save_window_correction", "CorrectedEstimate"]
 
@@ -49,19 +51,64 @@ def feature_count(window_looks):
     return 4 * int(window_looks) + 7
 
 
-def _frame(x):
-    """Unit vector along the estimate's velocity, ``(cos, sin)`` each (B, L); east where the speed is below 1 mm/s."""
-    sp = np.hypot(x[..., 2], x[..., 3])
-    slow = ~(sp > 1e-3)
-    safe = np.where(slow, 1.0, sp)
-    return np.where(slow, 1.0, x[..., 2] / safe), np.where(slow, 0.0, x[..., 3] / safe), sp
+@numba.njit(cache=True, nogil=True)
+def _rotated(c00, c01, c11, ca, sa):
+    """Standard deviations along and across ``(ca, sa)`` of the 2x2 covariance ``[[c00, c01], [c01, c11]]``."""
+    a = c00 * (ca * ca) + 2 * c01 * ca * sa + c11 * (sa * sa)
+    c = c00 * (sa * sa) - 2 * c01 * ca * sa + c11 * (ca * ca)
+    return math.sqrt(max(a, 0.0)), math.sqrt(max(c, 0.0))
 
 
-def _rotated_sd(C, ca, sa, i):
-    """Standard deviations along and across ``(ca, sa)`` of the 2x2 block of ``C`` (..., n, n) at ``i``."""
-    a = C[..., i, i] * ca ** 2 + 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * sa ** 2
-    c = C[..., i, i] * sa ** 2 - 2 * C[..., i, i + 1] * ca * sa + C[..., i + 1, i + 1] * ca ** 2
-    return np.sqrt(np.maximum(a, 0.0)), np.sqrt(np.maximum(c, 0.0))
+@numba.njit(cache=True, nogil=True)
+def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, F, frame):
+    """:func:`window_features` of look ``looks[i]`` of row ``rows[i]`` into ``F[i]`` and its frame into ``frame[i]``."""
+    for i in range(rows.size):
+        b, k = rows[i], looks[i]
+        vx, vy = x[b, k, 2], x[b, k, 3]
+        sp = math.hypot(vx, vy)
+        if sp > 1e-3:
+            ca, sa = vx / sp, vy / sp
+        else:                       # no direction to speak of: east
+            ca, sa = 1.0, 0.0
+        frame[i, 0], frame[i, 1] = ca, sa
+        r00 = r01 = r11 = 0.0
+        have = False
+        for j in range(K):
+            kk = k - j
+            det = kk >= 0 and detected[b, max(kk, 0)]
+            if det and not have:    # R of the latest detected plot in the window
+                r00, r01, r11 = R_m2[b, kk, 0, 0], R_m2[b, kk, 0, 1], R_m2[b, kk, 1, 1]
+                have = True
+            tau = t_s[b, kk] - t_s[b, k] if kk >= 0 else 0.0
+            al = cr = 0.0
+            if det:
+                dx = z_m[b, kk, 0] - (x[b, k, 0] + tau * vx)
+                dy = z_m[b, kk, 1] - (x[b, k, 1] + tau * vy)
+                al = min(max((dx * ca + dy * sa) / scale_m, -RESIDUAL_CLIP), RESIDUAL_CLIP)
+                cr = min(max((-dx * sa + dy * ca) / scale_m, -RESIDUAL_CLIP), RESIDUAL_CLIP)
+            F[i, 4 * j], F[i, 4 * j + 1], F[i, 4 * j + 2], F[i, 4 * j + 3] = al, cr, 1.0 if det else 0.0, tau / 60.0
+        m = 4 * K
+        ra, rc = _rotated(r00, r01, r11, ca, sa)
+        pa, pc = _rotated(P[b, k, 0, 0], P[b, k, 0, 1], P[b, k, 1, 1], ca, sa)
+        va, vc = _rotated(P[b, k, 2, 2], P[b, k, 2, 3], P[b, k, 3, 3], ca, sa)
+        F[i, m], F[i, m + 1], F[i, m + 2] = math.log1p(ra) / 5, math.log1p(rc) / 5, sp / scale_m
+        F[i, m + 3], F[i, m + 4] = math.log1p(pa) / 5, math.log1p(pc) / 5
+        F[i, m + 5], F[i, m + 6] = math.log1p(va) / 5, math.log1p(vc) / 5
+
+
+def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m):
+    """The correction's inputs at the looks ``(rows[i], looks[i])`` only (module docstring; arguments as
+    :func:`window_features`): ``(F (n, feature_count), frame (n, 2))``, ``frame`` the unit vector along the base
+    velocity. Compiled; the base estimate must be finite at those looks."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    looks = np.ascontiguousarray(looks, dtype=np.int64)
+    F = np.empty((rows.size, feature_count(window_looks)))
+    frame = np.empty((rows.size, 2))
+    _features(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(z_m, dtype=np.float64),
+              np.ascontiguousarray(R_m2, dtype=np.float64), np.ascontiguousarray(detected, dtype=np.bool_),
+              np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(P, dtype=np.float64), rows, looks,
+              int(window_looks), float(scale_m), F, frame)
+    return F, frame
 
 
 def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
@@ -74,40 +121,20 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
         window_looks: how many looks, the current one included. scale_m: the length unit of the inputs.
     Returns:
         ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
-        velocity). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual from the base's
-        straight line ``x[k, :2] + (t[k-j] - t[k]) x[k, 2:]``, along and across, in ``scale_m`` (0 when not detected
-        or before the episode), the detection flag and ``(t[k-j] - t[k]) / 60 s``. Then log(1 + sd / 1 m) / 5 along
-        and across of the R of the latest detected plot in the window (0 if none), the speed in ``scale_m`` per
-        second, and log(1 + sd) / 5 of the base's position (m) and velocity (m/s) covariance along and across.
-        Non-finite where the base estimate is.
+        velocity; east below 1 mm/s). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual
+        from the base's straight line ``x[k, :2] + (t[k-j] - t[k]) x[k, 2:]``, along and across, in ``scale_m``
+        (0 when not detected or before the episode; clipped to +-:data:`RESIDUAL_CLIP`), the detection flag and
+        ``(t[k-j] - t[k]) / 60 s`` (0 before the episode). Then log(1 + sd / 1 m) / 5 along and across of the R of
+        the latest detected plot in the window (0 if none), the speed in ``scale_m`` per second, and
+        log(1 + sd) / 5 of the base's position (m) and velocity (m/s) covariance along and across. NaN where the
+        base estimate is not finite.
     """
     B, L = t_s.shape
-    ca, sa, sp = _frame(x)
-    rows = np.arange(L)[None, :]
-    feats = []
-    R_last = np.zeros((B, L, 2, 2))         # R of the latest detected plot in the window (a missed look has none)
-    have = np.zeros((B, L), bool)
-    for j in range(int(window_looks)):
-        kk = rows - j
-        ok = kk >= 0
-        kc = np.broadcast_to(np.maximum(kk, 0), (B, L))
-        det = np.take_along_axis(detected, kc, 1) & ok
-        newest = det & ~have
-        R_last[newest] = R_m2[np.nonzero(newest)[0], kc[newest]]
-        have |= det
-        tau = np.where(ok, np.take_along_axis(t_s, kc, 1) - t_s, 0.0)
-        dx = np.take_along_axis(z_m[..., 0], kc, 1) - (x[..., 0] + tau * x[..., 2])
-        dy = np.take_along_axis(z_m[..., 1], kc, 1) - (x[..., 1] + tau * x[..., 3])
-        al = np.clip((dx * ca + dy * sa) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
-        cr = np.clip((-dx * sa + dy * ca) / scale_m, -RESIDUAL_CLIP, RESIDUAL_CLIP)
-        feats += [np.where(det, al, 0.0), np.where(det, cr, 0.0), det.astype(np.float64), tau / 60.0]
-    Ra, Rc = _rotated_sd(R_last, ca, sa, 0)
-    Pa, Pc = _rotated_sd(P, ca, sa, 0)
-    Va, Vc = _rotated_sd(P, ca, sa, 2)
-    feats += [np.log1p(Ra) / 5, np.log1p(Rc) / 5, sp / scale_m]
-    feats += [np.log1p(v) / 5 for v in (Pa, Pc, Va, Vc)]
-    F = np.stack(feats, -1)
-    F[~np.isfinite(x).all(-1)] = np.nan          # no base estimate, no correction
+    rows, looks = np.nonzero(np.isfinite(x).all(-1))
+    f, frame = look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m)
+    F = np.full((B, L, f.shape[1]), np.nan)
+    ca, sa = np.full((B, L), np.nan), np.full((B, L), np.nan)
+    F[rows, looks], ca[rows, looks], sa[rows, looks] = f, frame[:, 0], frame[:, 1]
     return F, ca, sa
 
 
@@ -152,25 +179,29 @@ class WindowCorrection:
         self.w = layer_weights(weights)
         self.cfg = base.env_config
 
-    def offsets_m(self, batch, x, P):
-        """The correction at every look: ``(dx, dy)`` in m (B, L, 2), NaN where the base has no estimate."""
-        F, ca, sa = window_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, self.window_looks,
-                                    self.scale_m)
-        ok = np.isfinite(F).all(-1)
-        o = np.full(F.shape[:-1] + (2,), np.nan)
-        o[ok] = network_forward(self.w, self.n_layers, F[ok]) * self.scale_m
-        return np.stack([o[..., 0] * ca - o[..., 1] * sa, o[..., 0] * sa + o[..., 1] * ca], -1)
+    def offsets_m(self, batch, x, P, rows, looks):
+        """The correction at the looks ``(rows[i], looks[i])`` (the base estimate finite there): ``(n, 2)`` in m,
+        east and north."""
+        F, frame = look_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, rows, looks,
+                                 self.window_looks, self.scale_m)
+        o = network_forward(self.w, self.n_layers, F) * self.scale_m
+        ca, sa = frame[:, 0], frame[:, 1]
+        return np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1)
 
     def correct(self, batch, run, name):
         """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
-        by the correction from its first track look on; ``P``, q and the extra series are the base's."""
+        by the correction from its first track look on, wherever its estimate is finite (a non-finite estimate
+        stays as it is: a failure is reported, never hidden); ``P``, q and the extra series are the base's."""
         from baselines.trackers import TrackRun
         x = run.x.copy()
-        d = self.offsets_m(batch, run.x, run.P)
         after = np.arange(x.shape[1])[None, :] >= np.asarray(run.start_index)[:, None]
-        x[..., :2] = np.where(after[..., None], run.x[..., :2] + d, run.x[..., :2])
+        rows, looks = np.nonzero(after & np.isfinite(run.x).all(-1))
+        d = self.offsets_m(batch, run.x, run.P, rows, looks)
+        x[rows, looks, :2] += d
+        corr = np.full(x.shape[:2], np.nan)
+        corr[rows, looks] = np.hypot(d[:, 0], d[:, 1])
         extra = dict(run.extra)
-        extra["correction_m"] = np.where(after, np.hypot(d[..., 0], d[..., 1]), np.nan)
+        extra["correction_m"] = corr
         return TrackRun(name, x, run.P, run.start_index, run.q_m_s2, run.declared, extra)
 
     def run(self, episodes, name="policy_wc"):
@@ -285,7 +316,8 @@ class CorrectedEstimate(gym.Wrapper):
         x = np.broadcast_to(np.asarray(info["estimate"], np.float64), (1, n, 4))
         P = np.broadcast_to(np.asarray(info["covariance"], np.float64), (1, n, 4, 4))
         out = np.array(info["estimate"], np.float64)
-        out[:2] += self.correction.offsets_m(looks, x, P)[0, -1]       # the current look's inputs only
+        if np.isfinite(out).all():
+            out[:2] += self.correction.offsets_m(looks, x, P, [0], [n - 1])[0]      # the current look only
         return out
 
     def reset(self, **kwargs):
