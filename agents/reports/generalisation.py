@@ -74,8 +74,6 @@ BP_PRIOR_RECIPE = "bp_prior"
 WINDOW_RECIPE_DIR = BUNDLED_WINDOW.parent / "seeds"
 """Every trained seed of the window correction's recipe over policy_bp_prior: ``window_s<seed>/``."""
 WINDOW_RECIPE = "window"
-WINDOW_RANDOM_RECIPE = "window_random"
-"""The same correction trained on ``random``'s flights only (8,000), in the same ``seeds/`` folder."""
 LONG_TURN_SUITES = ("slow_orbits", "bizup2002", "adrian_flower")
 """Long constant-rate turns: the suites the backprop policy's per-suite target leaves out (a CV filter's q cannot
 follow a long turn as a turn model can)."""
@@ -100,8 +98,6 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
                           "the base track's frame moving its reported position, trained by regression on 4,000 "
                           "flights of each random suite (agents/training/hyperparams/window.toml; radar-track "
                           "train --method window; agents/bundled/window/CHOICE.md)",
-           WINDOW_RANDOM_RECIPE: "the window correction's recipe on 8,000 flights of the random suite only (--hp "
-                                 "'scenarios=[\"random\"]' --hp episodes=8000; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
@@ -604,8 +600,7 @@ def _add_recipe(args, docs, t0):
     bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO),
                IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
                BP_PRIOR_RECIPE: ("policy_bp_prior", BUNDLED_BP_PRIOR),
-               WINDOW_RECIPE: ("policy_window", BUNDLED_WINDOW),
-               WINDOW_RANDOM_RECIPE: ("policy_window", BUNDLED_WINDOW)}
+               WINDOW_RECIPE: ("policy_window", BUNDLED_WINDOW)}
     if r in bundled and bundled[r][1].is_file():
         pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
