@@ -202,7 +202,7 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
              ({"scale_m": -1.0}, r"field 'scale_m' must be > 0"),
              ({"architecture": {**meta["architecture"], "input_size": 3}}, r"'architecture.input_size' must be 23"),
              ({"architecture": {**meta["architecture"], "layers": []}}, r"'architecture.layers' must be a list of 1-4"),
-             ({"base": "nope"}, r"field 'base' \('nope'\): .*neither a bundled learned tracker"),
+             ({"base": "nope"}, r"field 'base' \('nope'\): .*nope: no policy.json naming the base tracker's kind"),
              ({"base": 3}, r"field 'base' must name the base tracker"),
              ({"version": 2}, r"format 'radar-track-window-correction' version 2")]
     for change, msg in cases:

@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 
 __all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS",
-           "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS",
+           "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED",
            "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json"]
 
 MANIFEST = "policy.json"
@@ -45,6 +45,17 @@ TRACKER_KINDS = IMM_KINDS + CORRECTION_KINDS
 """Kinds that run episodes themselves (``is_tracker``), as opposed to a q-policy the evaluation steps."""
 SB3_KINDS = ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "learned_imm_ppo", "learned_imm_sac")
 """Kinds stored as a stable-baselines3 ``policy.zip`` beside their numpy export (loaded from the zip's path)."""
+
+
+BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
+"""Where the bundled learned trackers live, one folder each."""
+BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / "backprop",
+                   "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo",
+                   "policy_bp_rdot": BUNDLED_DIR / "backprop_rdot",
+                   "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot",
+                   "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior",
+                   "policy_bp_prior": BUNDLED_DIR / "backprop_prior", "policy_window": BUNDLED_DIR / "window"}
+"""The registry: bundled learned tracker name -> its folder."""
 
 
 def sb3_kind(algo, env_kwargs):

@@ -30,23 +30,13 @@ import dataclasses
 import json
 from pathlib import Path
 
-from agents.policies.layout import (CORRECTION_KINDS, IMM_KINDS, KINDS, MANIFEST, Q_POLICY_KINDS, SB3_KINDS,
-                                    TRACKER_KINDS, read_json, sb3_kind,
+from agents.policies.layout import (BUNDLED_DIR, BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, MANIFEST,
+                                    Q_POLICY_KINDS, SB3_KINDS, TRACKER_KINDS, read_json, sb3_kind,
                                     write_manifest, write_records)
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
            "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
            "learned_label", "write_run_layout"]
-
-BUNDLED_DIR = Path(__file__).resolve().parents[1] / "bundled"
-"""Where the bundled learned trackers live, one folder each."""
-BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / "backprop",
-                   "policy_imm_bp": BUNDLED_DIR / "learned_imm", "policy_imm_ppo": BUNDLED_DIR / "learned_imm_ppo",
-                   "policy_bp_rdot": BUNDLED_DIR / "backprop_rdot",
-                   "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot",
-                   "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior",
-                   "policy_bp_prior": BUNDLED_DIR / "backprop_prior", "policy_window": BUNDLED_DIR / "window"}
-"""The registry: bundled learned tracker name -> its folder."""
 
 
 def read_kind(folder, file=None):

@@ -64,7 +64,7 @@ def load_policy(path, allow_pickle=False):
             imm = load_learned_imm(path)
             return imm, imm.cfg
         if is_window_correction(path):
-            wc = load_window_correction(path)
+            wc = load_window_correction(path, lambda base: load_policy(base, allow_pickle=allow_pickle))
             return wc, wc.cfg
         return load_recurrent_policy(path)
     cfg_file = path.with_name("env_config.json")

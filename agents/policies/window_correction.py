@@ -42,7 +42,7 @@ VERSION = 1
 POLICY_FILE = "policy.npz"
 RESIDUAL_CLIP = 30.0
 """Residuals are clipped to +-30 ``scale_m`` (9 km at the default 300 m): a plot that far off the track says only
-"far", and the network never sees values outside what it was trained on."""
+"far", and the network's inputs stay bounded whatever the plots."""
 
 
 def feature_count(window_looks):
@@ -162,7 +162,8 @@ class WindowCorrection:
 
     Args:
         weights: ``{name: array}`` (:func:`network_shapes`). config: the ``policy.json`` dict. base: the loaded base
-            tracker (a :class:`agents.policies.learned.LearnedTracker`).
+            tracker, as :func:`agents.policies.loading.load_policy` returns it (a q-policy ``choose_q`` or a tracker
+            with ``run``). base_cfg: its env config.
     """
 
     is_tracker = True
@@ -170,14 +171,20 @@ class WindowCorrection:
     is_correction = True
     """It corrects a base tracker's output (kind ``window_correction``)."""
 
-    def __init__(self, weights, config, base):
-        self.config, self.base = config, base
+    def __init__(self, weights, config, base, base_cfg):
+        self.config, self.base, self.cfg = config, base, base_cfg
         self.arch = config["architecture"]
         self.window_looks = int(config["window_looks"])
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
-        self.cfg = base.env_config
+
+    def base_run(self, episodes, name="base"):
+        """The base tracker on ``episodes`` (a :class:`baselines.trackers.TrackRun`), as the evaluation runs it."""
+        if getattr(self.base, "is_tracker", False):
+            return self.base.run(episodes, name)
+        from baselines.trackers import run_q_policy
+        return run_q_policy(episodes, self.base, name, self.cfg)
 
     def offsets_m(self, batch, x, P, rows, looks):
         """The correction at the looks ``(rows[i], looks[i])`` (the base estimate finite there): ``(n, 2)`` in m,
@@ -208,7 +215,7 @@ class WindowCorrection:
         """The base tracker on ``episodes`` from the common track start, then :meth:`correct`."""
         from radar_env.sim.episode import stack_episodes
         episodes = list(episodes)
-        return self.correct(stack_episodes(episodes), self.base.run(episodes), name)
+        return self.correct(stack_episodes(episodes), self.base_run(episodes), name)
 
 
 def save_window_correction(directory, weights, config, env_kwargs):
@@ -238,13 +245,14 @@ def _positive_int(meta_file, value, field, hi):
     return value
 
 
-def load_window_correction(path):
-    """A :class:`WindowCorrection` from its folder or ``policy.npz`` (no pickle), its base loaded by
-    :func:`agents.policies.learned.load_learned` (a q-policy or a learned IMM; a correction of a correction is
-    refused). ``ValueError`` (one line, naming the file and the field) for a missing or malformed file."""
+def load_window_correction(path, load_base):
+    """A :class:`WindowCorrection` from its folder or ``policy.npz`` (no pickle), every file checked
+    (:mod:`agents.policies.checks`) before anything runs. Its base (``policy.json``'s ``base``: a bundled name, else
+    a folder relative to the correction's) must be a q-policy or a learned IMM whose ``policy.json`` names its kind;
+    ``load_base(file)`` loads that folder's weights file (:func:`agents.policies.loading.load_policy` passes itself).
+    ``ValueError`` (one line, naming the file and the field) for a missing or malformed file or base."""
     from agents.policies import checks
-    from agents.policies.layout import IMM_KINDS, Q_POLICY_KINDS
-    from agents.policies.learned import BUNDLED_LEARNED, load_learned
+    from agents.policies.layout import BUNDLED_LEARNED, IMM_KINDS, Q_POLICY_KINDS, SB3_KINDS
     p = Path(path)
     d = p if p.is_dir() else checks.check_policy_file(p, POLICY_FILE).parent
     meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
@@ -276,12 +284,19 @@ def load_window_correction(path):
     weights = checks.read_npz(npz)
     checks.check_weights(npz, weights, network_shapes(arch))
     checks.check_env_config(env_file)
+    folder = BUNDLED_LEARNED[base] if base in BUNDLED_LEARNED else d / base
     try:
-        base_tracker = load_learned(base if base in BUNDLED_LEARNED else d / base,
-                                    kinds=Q_POLICY_KINDS + IMM_KINDS)
+        if not (folder / "policy.json").is_file():
+            raise ValueError(f"{folder}: no policy.json naming the base tracker's kind (a bundled name is one of "
+                             f"{', '.join(BUNDLED_LEARNED)})")
+        kind = checks.read_json_object(folder / "policy.json", "a learned tracker's policy.json").get("kind")
+        if kind not in Q_POLICY_KINDS + IMM_KINDS:
+            raise ValueError(f"{folder}: kind {kind!r}; a base must be a q-policy or a learned IMM "
+                             f"({', '.join(Q_POLICY_KINDS + IMM_KINDS)})")
+        policy, cfg = load_base(folder / ("policy.zip" if kind in SB3_KINDS else POLICY_FILE))
     except ValueError as e:
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
-    return WindowCorrection(weights, config, base_tracker)
+    return WindowCorrection(weights, config, policy, cfg)
 
 
 class CorrectedEstimate(gym.Wrapper):

@@ -166,7 +166,6 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     from agents.evaluation.suites import draw_suite
     from agents.policies.window_correction import WindowCorrection
     from agents.policies.learned import read_kind, write_run_layout
-    from radar_env.sim.episode import stack_episodes
     torch.set_num_threads(1)
     import numba
     numba.set_num_threads(1)
@@ -214,7 +213,7 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
 
         def validate(epoch, train_rmse_m):
             wc = WindowCorrection(_weights(net, hp["layers"]), {**config, "architecture": {
-                "input_size": F.shape[1], "layers": hp["layers"]}}, base)
+                "input_size": F.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
             row = {"epoch": epoch, "train_rmse_m": train_rmse_m}
             for n, (batch, brun, imm) in val.items():
                 r = pooled_rmse(batch, wc.correct(batch, brun, "window"))
