@@ -35,8 +35,8 @@ from agents.policies.layout import (BUNDLED_DIR, BUNDLED_LEARNED, CORRECTION_KIN
                                     write_manifest, write_records)
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
-           "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest", "write_records",
-           "learned_label", "write_run_layout"]
+           "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest",
+           "write_records", "learned_label", "write_run_layout"]
 
 
 def read_kind(folder, file=None):
