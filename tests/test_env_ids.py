@@ -78,8 +78,9 @@ def test_the_other_bundles_are_one_override_away():
     assert prior == {**imm, "random_config": {"random_radar_probability": 0.7}}
     cv_prior = bundled_env_kwargs("policy_bp_prior")
     assert cv_prior == {**cont, "random_config": {"random_radar_probability": 0.7}}
-    assert set(BUNDLED_ENV_IDS) | {"policy", "policy_imm_ppo", "policy_imm_bp_prior", "policy_bp_prior"} == set(
-        BUNDLED_POLICIES)
+    assert bundled_env_kwargs("policy_window") == cv_prior         # its base acts
+    assert set(BUNDLED_ENV_IDS) | {"policy", "policy_imm_ppo", "policy_imm_bp_prior", "policy_bp_prior",
+                                   "policy_window"} == set(BUNDLED_POLICIES)
     with pytest.raises(ValueError, match="unknown bundled policy 'policy_x'.*policy_bp"):
         bundled_env_kwargs("policy_x")
 

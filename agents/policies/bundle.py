@@ -74,7 +74,9 @@ action_type="discrete", frame_stack=4)``; ``policy_imm_ppo`` observes ``RadarTra
 trained on an earlier flight distribution (its ``random_config``; pass it to get those flights);
 ``policy_imm_bp_prior`` is ``gym.make("RadarTrackIMM-v0", random_config={"random_radar_probability": 0.7})`` (the
 random suites' own flights), and so is ``policy_bp_prior``'s ``gym.make("RadarTrackContinuous-v0",
-random_config={"random_radar_probability": 0.7})``."""
+random_config={"random_radar_probability": 0.7})``; ``policy_window`` acts through that same base (its
+``env_config.json`` is ``policy_bp_prior``'s) and adds its estimate with
+:class:`agents.policies.window_correction.CorrectedEstimate`."""
 
 
 def bundled_env_kwargs(name):
