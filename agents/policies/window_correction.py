@@ -211,7 +211,7 @@ class WindowCorrection:
         extra["correction_m"] = corr
         return TrackRun(name, x, run.P, run.start_index, run.q_m_s2, run.declared, extra)
 
-    def run(self, episodes, name="policy_wc"):
+    def run(self, episodes, name="policy_window"):
         """The base tracker on ``episodes`` from the common track start, then :meth:`correct`."""
         from radar_env.sim.episode import stack_episodes
         episodes = list(episodes)
