@@ -76,8 +76,8 @@ from agents.evaluation.metrics import jsonable
 from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides, finish_run, load_hyperparams,
-                                  mark_failed, open_run_folder, run_cli, run_paths, write_run_files)
+from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyperparams, run_cli, run_paths,
+                                  write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -749,8 +749,7 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
         selection = SelectionSuites(hp["eval_scenarios"], SELECTION_SEED_BASE, hp["select_on"])
     except ValueError as e:
         raise ValueError(f"--hp eval_scenarios / select_on: {e}") from None
-    lock = open_run_folder(run, part, keep=resume)
-    try:
+    with writing_run(run, part, resumable=True, keep=resume):
         best = None
         if resume:
             (part / "FAILED").unlink(missing_ok=True)
@@ -770,13 +769,6 @@ def train_backprop(hp, seed=0, out="runs", progress=True, verbose=1, command=Non
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         from agents.policies.learned import read_kind, write_run_layout
         write_run_layout(part, read_kind(part)[0], jsonable(summary))      # training.json, choice.json
-    except KeyboardInterrupt:
-        mark_failed(part, lock)
-        raise RunInterrupted(part, resumable=True) from None
-    except BaseException:
-        mark_failed(part, lock)
-        raise
-    finish_run(part, run, lock)
     if verbose:
         print(f"run: {run}\n{summary['steps']} steps, {summary['episodes_done']} episodes in {summary['wall_s']:.0f} s "
               f"({summary['episodes_per_s']:.0f} training episodes/s, {summary['row_looks_per_s']:.0f} row-looks/s "

@@ -1,15 +1,16 @@
 """What every trainer shares (``radar-track train --method ppo`` in :mod:`agents.training.train`, ``--method
-backprop`` in :mod:`agents.training.backprop`): the hyperparameter files, ``--hp`` parsing, the training scenarios
-and the run folder.
+backprop`` in :mod:`agents.training.backprop`, ``--method window`` in :mod:`agents.training.window`): the
+hyperparameter files, ``--hp`` parsing, the training scenarios and the run folder.
 
 A run is written into ``<out>/<name>.partial/`` and renamed to ``<out>/<name>/`` only when complete
-(:func:`run_paths`, :func:`open_run_folder`, :func:`write_run_files`, :func:`mark_failed`, :func:`finish_run`); a
-finished ``<out>/<name>/`` is never overwritten, and while a run writes, it holds an exclusive lock on its name
-(:class:`RunLock`).
+(:func:`run_paths`; :func:`writing_run`: :func:`open_run_folder`, then :func:`finish_run` or :func:`mark_failed`;
+:func:`write_run_files`); a finished ``<out>/<name>/`` is never overwritten, and while a run writes, it holds an
+exclusive lock on its name (:class:`RunLock`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -20,7 +21,7 @@ from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
            "check_plain_name", "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed",
-           "finish_run"]
+           "finish_run", "writing_run"]
 
 ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
@@ -251,3 +252,21 @@ def finish_run(part, run, lock):
         part.rename(run)
     finally:
         lock.release()
+
+
+@contextlib.contextmanager
+def writing_run(run, part, resumable, keep=False):
+    """The body of a training run, as every trainer writes one: :func:`open_run_folder` (``keep``: a resumed run's
+    ``.partial`` stays), then the body; if it ends normally the run is finished (:func:`finish_run`), if it raises
+    the ``.partial`` folder is marked failed (:func:`mark_failed`) and Ctrl-C becomes :class:`RunInterrupted`
+    (``resumable``: whether the method resumes from its checkpoint)."""
+    lock = open_run_folder(run, part, keep=keep)
+    try:
+        yield
+    except KeyboardInterrupt:
+        mark_failed(part, lock)
+        raise RunInterrupted(part, resumable=resumable) from None
+    except BaseException:
+        mark_failed(part, lock)
+        raise
+    finish_run(part, run, lock)

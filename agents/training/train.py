@@ -51,9 +51,9 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, RunInterrupted, apply_cli_overrides,  # noqa: F401
-                                  check_plain_name, finish_run, load_hyperparams, mark_failed, open_run_folder,
-                                  run_cli, run_paths, write_run_files)
+from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
+                                  check_plain_name, load_hyperparams, run_cli, run_paths, write_run_files,
+                                  writing_run)
 
 __all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
            "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
@@ -310,8 +310,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     ckpt_freq = max(int(hp.get("checkpoint_freq", 500_000)) // n_envs, 1)
     ckpt = CheckpointCallback(ckpt_freq, str(part / "checkpoints"), name_prefix=algo)
 
-    lock = open_run_folder(run, part)   # two runs with one name: the second stops here, before the first's files
-    try:
+    with writing_run(run, part, resumable=False):   # two runs with one name: the second stops at its lock
         write_run_files(part, {"algo": algo, "env_id": ENV_ID, "seed": seed, **hp}, args, command, env_kwargs)
         t0 = time.perf_counter()
         model.learn(n_timesteps, callback=CallbackList([time_cb, eval_cb, ckpt]), progress_bar=progress,
@@ -337,13 +336,6 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         from agents.policies.learned import sb3_kind, write_run_layout
         write_run_layout(part, sb3_kind(algo, env_kwargs), jsonable(summary))    # policy.json, training/choice.json
         env.close()
-    except KeyboardInterrupt:
-        mark_failed(part, lock)
-        raise RunInterrupted(part, resumable=False) from None
-    except BaseException:
-        mark_failed(part, lock)
-        raise
-    finish_run(part, run, lock)
     if verbose:
         print(f"run: {run}\n{model.num_timesteps} steps in {wall:.0f} s ({summary['steps_per_s']:.0f} steps/s); env "
               f"share of wall time {summary['env_share_of_wall']:.2f} ({summary['env_share_of_wall_excluding_selection']:.2f}"

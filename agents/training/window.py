@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.training.runs import (TRAIN_SCENARIOS, RunInterrupted, finish_run, load_hyperparams, mark_failed,
-                                  open_run_folder, apply_cli_overrides, run_cli, run_paths, write_run_files)
+from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyperparams, run_cli, run_paths,
+                                  write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "check_hp", "training_looks", "train_window", "main_from_args"]
@@ -181,8 +181,7 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     env_kwargs = json.loads((base.folder / "env_config.json").read_text())
     run, part = run_paths(out, run_name, f"window_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
     config = {"method": "window", "env_id": "RadarTrack-v0", "seed": seed, **hp}
-    lock = open_run_folder(run, part)
-    try:
+    with writing_run(run, part, resumable=False):
         write_run_files(part, config, args, command, env_kwargs)
         t0 = time.time()
         K, scale = hp["window_looks"], float(hp["scale_m"])
@@ -252,13 +251,6 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                    "selection_history": history, "steps": hp["epochs"]}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(part, read_kind(part)[0], jsonable(summary))
-    except KeyboardInterrupt:
-        mark_failed(part, lock)
-        raise RunInterrupted(part, resumable=False) from None
-    except BaseException:
-        mark_failed(part, lock)
-        raise
-    finish_run(part, run, lock)
     if verbose:
         print(f"run: {run}\nbest selection ratio {best['selection_ratio']:.4f} at epoch {best['epoch']} "
               f"({time.time() - t0:.0f} s)", file=sys.stderr)
