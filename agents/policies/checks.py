@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["POLICY_FILE", "PICKLE_OPTION", "refuse_pickle", "read_json", "read_json_object", "read_npz",
-           "check_weights", "check_env_config", "check_policy_file", "check_finite_numbers"]
+           "check_weights", "check_env_config", "check_policy_file", "check_finite_numbers", "manifest_format",
+           "open_weights_folder"]
 
 POLICY_FILE = "policy.npz"
 PICKLE_OPTION = "--allow-pickle (allow_pickle=True)"
@@ -134,3 +135,35 @@ def check_policy_file(path, name=POLICY_FILE):
         raise ValueError(f"{path}: a learned tracker's weights are the file {name} in its folder (its policy.json "
                          f"describes that file only); give the folder or {path.with_name(name)}")
     return path
+
+
+def manifest_format(path):
+    """``format`` of the ``policy.json`` in ``path``'s folder (``path``: a ``policy.npz`` or its folder), or None if
+    there is none or it is unreadable: how a loader tells the ``policy.npz`` kinds apart without reading weights."""
+    p = Path(path)
+    try:
+        return json.loads(((p if p.is_dir() else p.parent) / "policy.json").read_text()).get("format")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def open_weights_folder(path, what, fmt, version):
+    """The first checks of a ``policy.npz`` kind's loader (a learned IMM, a window correction): ``path`` is the
+    folder or its ``policy.npz`` (:func:`check_policy_file`), the folder holds ``policy.npz``, ``policy.json`` and
+    ``env_config.json``, and ``policy.json`` is an object of format ``fmt``, version ``version``. ``what`` names the
+    kind in the refusals (e.g. ``"a learned IMM checkpoint"``).
+
+    Returns:
+        ``(folder, config, env_file, npz)``: ``config`` the ``policy.json`` dict, the other two paths.
+    """
+    p = Path(path)
+    d = p if p.is_dir() else check_policy_file(p, POLICY_FILE).parent
+    meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
+    for f in (meta_file, env_file, npz):
+        if not f.is_file():
+            raise ValueError(f"{d}: not {what} (no {f.name}; it needs {POLICY_FILE}, policy.json and env_config.json)")
+    config = read_json_object(meta_file, f"the config of {what} (a JSON object)")
+    if config.get("format") != fmt or config.get("version") != version:
+        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
+                         f"need {fmt!r} version {version}")
+    return d, config, env_file, npz

@@ -12,7 +12,7 @@ from pathlib import Path
 
 __all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS",
            "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED",
-           "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json"]
+           "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json", "write_weights_folder"]
 
 MANIFEST = "policy.json"
 """The file naming a learned tracker's kind, beside its weights."""
@@ -108,3 +108,17 @@ def write_records(folder, training=None, choice=None):
     for fname, rec in (("training.json", training), ("choice.json", choice)):
         if rec is not None:
             (folder / fname).write_text(json.dumps(rec, indent=1, allow_nan=False) + "\n")
+
+
+def write_weights_folder(directory, kind, fmt, version, weights, config, env_kwargs):
+    """Write a ``policy.npz`` kind's folder (the recurrent q-policy, the learned IMM, the window correction):
+    ``policy.npz`` (``weights`` as float64 arrays), ``policy.json`` (``kind``, ``format`` ``fmt``, ``version`` and
+    ``config``) and ``env_config.json`` (``env_kwargs``); no NaN or infinity in the JSON. Returns the ``.npz`` path."""
+    import numpy as np
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    np.savez(d / "policy.npz", **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
+    meta = {"kind": kind, "format": fmt, "version": version, **config}
+    (d / MANIFEST).write_text(json.dumps(meta, indent=1, allow_nan=False))
+    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))
+    return d / "policy.npz"

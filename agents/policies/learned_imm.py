@@ -37,9 +37,7 @@ The bundled seed is ``agents/bundled/learned_imm/`` (tracker ``policy_imm_bp`` i
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -174,23 +172,14 @@ class LearnedIMM:
 
 def save_learned_imm(directory, weights, config, env_kwargs):
     """Write a checkpoint folder (module docstring); returns the ``policy.npz`` path."""
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    cfg = {"kind": "learned_imm_gru", "format": FORMAT, "version": VERSION, **config}   # kind: agents.policies.learned
-    np.savez(d / POLICY_FILE, **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
-    (d / "policy.json").write_text(json.dumps(cfg, indent=1, allow_nan=False))
-    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))
-    return d / POLICY_FILE
+    from agents.policies.layout import write_weights_folder     # kind: agents.policies.learned
+    return write_weights_folder(directory, "learned_imm_gru", FORMAT, VERSION, weights, config, env_kwargs)
 
 
 def is_learned_imm_checkpoint(path):
     """Whether ``path`` (a ``policy.npz`` or its folder) is a learned IMM checkpoint (its ``policy.json`` says so)."""
-    p = Path(path)
-    meta = (p if p.is_dir() else p.parent) / "policy.json"
-    try:
-        return json.loads(meta.read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
+    from agents.policies.checks import manifest_format
+    return manifest_format(path) == FORMAT
 
 
 def load_learned_imm(path) -> LearnedIMM:
@@ -199,17 +188,8 @@ def load_learned_imm(path) -> LearnedIMM:
     and the field) for a missing or malformed checkpoint; a file other than the folder's ``policy.npz`` is refused."""
     from agents.policies import checks
     from agents.policies.recurrent import _checked_shapes
-    p = Path(path)
-    d = p if p.is_dir() else checks.check_policy_file(p, POLICY_FILE).parent
-    meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
-    for f in (meta_file, env_file, npz):
-        if not f.is_file():
-            raise ValueError(f"{d}: not a learned IMM checkpoint (no {f.name}; it needs {POLICY_FILE}, policy.json "
-                             "and env_config.json)")
-    config = checks.read_json_object(meta_file, "a learned IMM config (a JSON object)")
-    if config.get("format") != FORMAT or config.get("version") != VERSION:
-        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
-                         f"need {FORMAT!r} version {VERSION}")
+    d, config, env_file, npz = checks.open_weights_folder(path, "a learned IMM checkpoint", FORMAT, VERSION)
+    meta_file = d / "policy.json"
     arch = config.get("architecture")
     n_par = arch.get("n_par") if isinstance(arch, dict) else None
     if not isinstance(n_par, int) or isinstance(n_par, bool) or not 0 < n_par <= 64:

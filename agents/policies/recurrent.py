@@ -42,7 +42,6 @@ Two ways to act:
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -270,14 +269,8 @@ def save_recurrent_policy(directory, weights, config, env_kwargs):
     """Write a checkpoint into ``directory``: ``policy.npz`` (``weights``), ``policy.json`` (``config``: must hold
     ``model`` and ``architecture``; the format and version are added) and ``env_config.json`` (``env_kwargs``).
     Returns the path of ``policy.npz``."""
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in weights.items()}
-    np.savez(d / POLICY_FILE, **arrays)
-    meta = {"kind": "gru_q_policy", "format": FORMAT, "version": VERSION, **config}   # kind: agents.policies.learned
-    (d / "policy.json").write_text(json.dumps(meta, indent=1))
-    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1))
-    return d / POLICY_FILE
+    from agents.policies.layout import write_weights_folder     # kind: agents.policies.learned
+    return write_weights_folder(directory, "gru_q_policy", FORMAT, VERSION, weights, config, env_kwargs)
 
 
 def load_recurrent_policy(path):

@@ -22,9 +22,7 @@ the base estimate along and across its velocity in units of ``scale_m``. It runs
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 from types import SimpleNamespace
 
 import gymnasium as gym
@@ -220,23 +218,14 @@ class WindowCorrection:
 
 def save_window_correction(directory, weights, config, env_kwargs):
     """Write a correction folder (``policy.npz``, ``policy.json``, ``env_config.json``); returns the ``.npz`` path."""
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    cfg = {"kind": "window_correction", "format": FORMAT, "version": VERSION, **config}
-    np.savez(d / POLICY_FILE, **{k: np.asarray(v, dtype=np.float64) for k, v in weights.items()})
-    (d / "policy.json").write_text(json.dumps(cfg, indent=1, allow_nan=False))
-    (d / "env_config.json").write_text(json.dumps(env_kwargs, indent=1, allow_nan=False))
-    return d / POLICY_FILE
+    from agents.policies.layout import write_weights_folder
+    return write_weights_folder(directory, "window_correction", FORMAT, VERSION, weights, config, env_kwargs)
 
 
 def is_window_correction(path):
     """Whether ``path`` (a ``policy.npz`` or its folder) is a window correction (its ``policy.json`` says so)."""
-    p = Path(path)
-    meta = (p if p.is_dir() else p.parent) / "policy.json"
-    try:
-        return json.loads(meta.read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
-        return False
+    from agents.policies.checks import manifest_format
+    return manifest_format(path) == FORMAT
 
 
 def _positive_int(meta_file, value, field, hi):
@@ -253,17 +242,8 @@ def load_window_correction(path, load_base):
     ``ValueError`` (one line, naming the file and the field) for a missing or malformed file or base."""
     from agents.policies import checks
     from agents.policies.layout import BUNDLED_LEARNED, IMM_KINDS, Q_POLICY_KINDS, SB3_KINDS
-    p = Path(path)
-    d = p if p.is_dir() else checks.check_policy_file(p, POLICY_FILE).parent
-    meta_file, env_file, npz = d / "policy.json", d / "env_config.json", d / POLICY_FILE
-    for f in (meta_file, env_file, npz):
-        if not f.is_file():
-            raise ValueError(f"{d}: not a window correction (no {f.name}; it needs {POLICY_FILE}, policy.json and "
-                             "env_config.json)")
-    config = checks.read_json_object(meta_file, "a window correction's config (a JSON object)")
-    if config.get("format") != FORMAT or config.get("version") != VERSION:
-        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
-                         f"need {FORMAT!r} version {VERSION}")
+    d, config, env_file, npz = checks.open_weights_folder(path, "a window correction", FORMAT, VERSION)
+    meta_file = d / "policy.json"
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
     checks.check_finite_numbers(meta_file, config.get("scale_m"), "scale_m")
     if not config["scale_m"] > 0:

@@ -200,8 +200,12 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         data_s = time.time() - t0
         if verbose:
             print(f"{len(F):,} training looks ({data_s:.0f} s)", file=sys.stderr, flush=True)
-        # the validation flights: the base runs once, the correction is applied to its runs at every validation
-        val = {n: (batch, base.run(eps), imm) for n, (eps, batch, imm) in selection.suites.items()}
+        # the validation flights: the base runs once (and is scored once), the correction is applied to its runs at
+        # every validation
+        val = {}
+        for n, (eps, batch, imm) in selection.suites.items():
+            brun = base.run(eps)
+            val[n] = (batch, brun, imm, pooled_rmse(batch, brun) / imm)
         torch.manual_seed(seed)
         gen = torch.Generator().manual_seed(seed)
         net = _net(torch, F.shape[1], hp["layers"])
@@ -214,10 +218,10 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             wc = WindowCorrection(_weights(net, hp["layers"]), {**config, "architecture": {
                 "input_size": F.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
             row = {"epoch": epoch, "train_rmse_m": train_rmse_m}
-            for n, (batch, brun, imm) in val.items():
+            for n, (batch, brun, imm, base_ratio) in val.items():
                 r = pooled_rmse(batch, wc.correct(batch, brun, "window"))
                 row[f"{n}_rmse_m"], row[f"{n}_ratio_imm2"] = r, r / imm
-                row[f"{n}_base_ratio_imm2"] = pooled_rmse(batch, brun) / imm
+                row[f"{n}_base_ratio_imm2"] = base_ratio
             row["selection_ratio"] = float(np.exp(np.mean([np.log(row[f"{n}_ratio_imm2"])
                                                            for n in selection.select_on])))
             row["wall_s"] = time.time() - t0
