@@ -316,10 +316,7 @@ def targets(data):
     if "policy_window" in sp["random"]["policies"]:
         r = LEARNED_RECIPES["policy_window"]
         seeds = data["recipes"][r]["seeds"] if r in data["recipes"] else []
-        out += [t for t in bp_targets(sp, "policy_window", seeds) if not t[0].startswith("the torch chain")]
-        out.append(("the correction's compiled inputs equal the numpy reference; in the env (CorrectedEstimate) it "
-                    "equals the batched evaluation to 1e-9", None, "tested: tests/test_window_correction.py (a "
-                    "failure fails the test suite)"))
+        out += bp_targets(sp, "policy_window", seeds, tested=WINDOW_TESTED)
     out += causal_targets(data)
     return out
 
@@ -487,9 +484,18 @@ def _bp_suite_ok(p):
     return bool(r <= 1.0 and hi <= 1.03)
 
 
-def bp_targets(spread, policy="policy_bp", seeds=()):
+BP_TESTED = ("the torch chain equals the numba chain to 1e-9; acting in the env equals the batched evaluation to 1e-9",
+             "tested: tests/test_torch_chain.py, tests/test_backprop.py (a failure fails the test suite)")
+"""The last row of :func:`bp_targets` for a q-policy trained by backpropagation: what its tests check."""
+WINDOW_TESTED = ("the correction's compiled inputs equal the numpy reference; in the env (CorrectedEstimate) it equals "
+                 "the batched evaluation to 1e-9", "tested: tests/test_window_correction.py (a failure fails the test "
+                                                   "suite)")
+
+
+def bp_targets(spread, policy="policy_bp", seeds=(), tested=BP_TESTED):
     """Issue 25's targets (the backprop policy ``policy`` and its recipe's ``seeds``, held-out seeds) from a
-    seed-spread dict (``{suite: evaluate_suite(...)}``): each ``(target, reached, numbers)``."""
+    seed-spread dict (``{suite: evaluate_suite(...)}``): each ``(target, reached, numbers)``; the last row says what
+    the tracker's tests check (``tested``: ``(what, where)``)."""
     pol = {s: r["policies"][policy] for s, r in spread.items()}
     bounded = [s for s in spread if (s in NAMED_SUITES or s in HELDOUT_FAMILY_SUITES) and s not in LONG_TURN_SUITES]
     out = []
@@ -525,9 +531,7 @@ def bp_targets(spread, policy="policy_bp", seeds=()):
     out.append((f"{policy}: ANEES of its filter beside imm_cv_ct's (1 is consistent; no target)", None,
                 ", ".join(f"{s} {pol[s]['anees']:.2f} / {spread[s]['trackers']['imm_cv_ct']['anees']:.2f}"
                           for s in spread)))
-    out.append(("the torch chain equals the numba chain to 1e-9; acting in the env equals the batched evaluation "
-                "to 1e-9", None, "tested: tests/test_torch_chain.py, tests/test_backprop.py (a failure fails the "
-                                 "test suite)"))
+    out.append((tested[0], None, tested[1]))
     return out
 
 
