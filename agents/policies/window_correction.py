@@ -196,7 +196,8 @@ class WindowCorrection:
     def correct(self, batch, run, name):
         """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
         by the correction from its first track look on, wherever its estimate is finite (a non-finite estimate
-        stays as it is: a failure is reported, never hidden); ``P``, q and the extra series are the base's."""
+        stays as it is: a failure is reported, never hidden); ``P``, q and the extra series are the base's, plus
+        ``correction_m``, the length of the move (m) at each corrected look."""
         from baselines.trackers import TrackRun
         x = run.x.copy()
         after = np.arange(x.shape[1])[None, :] >= np.asarray(run.start_index)[:, None]
