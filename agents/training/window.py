@@ -38,8 +38,8 @@ from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pool
 
 __all__ = ["HP_KEYS", "check_hp", "training_looks", "train_window", "main_from_args"]
 
-HP_KEYS = ("base", "window_looks", "layers", "scale_m", "episodes", "scenarios", "mirror", "epochs",
-           "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on")
+HP_KEYS = ("base", "window_looks", "layers", "scale_m", "episodes", "scenarios", "mirror", "standardise_inputs",
+           "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
@@ -80,8 +80,9 @@ def check_hp(hp):
     if not isinstance(sc, list) or not sc or any(s not in TRAIN_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
         raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(TRAIN_SCENARIOS)}, "
                          f"got {sc!r}")
-    if not isinstance(hp["mirror"], bool):
-        raise ValueError(f"--hp mirror: must be true or false, got {hp['mirror']!r}")
+    for key in ("mirror", "standardise_inputs", "weight_suites"):
+        if not isinstance(hp[key], bool):
+            raise ValueError(f"--hp {key}: must be true or false, got {hp[key]!r}")
     if not isinstance(hp["base"], str) or not hp["base"]:
         raise ValueError(f"--hp base: a bundled learned tracker's name or a learned-tracker folder, got {hp['base']!r}")
     try:
@@ -129,15 +130,28 @@ def _net(torch, n_in, layers):
     return torch.nn.Sequential(*mods, out).double()
 
 
-def _weights(net, layers):
-    """The MLP's weights under :func:`agents.policies.window_correction.network_shapes`' names."""
+def _weights(net, layers, mean=None, sd=None):
+    """The MLP's weights under :func:`agents.policies.window_correction.network_shapes`' names. A net trained on
+    standardised inputs ``(F - mean) / sd`` has the standardisation folded into its first layer
+    (``W / sd``, ``b - W (mean / sd)``), so the saved correction reads the raw inputs as every correction does."""
     lin = [m for m in net if hasattr(m, "weight")]
     w = {}
     for i in range(len(layers)):
         w[f"layer.{i}.weight"] = lin[i].weight.detach().numpy().copy()
         w[f"layer.{i}.bias"] = lin[i].bias.detach().numpy().copy()
     w["out.weight"], w["out.bias"] = lin[-1].weight.detach().numpy().copy(), lin[-1].bias.detach().numpy().copy()
+    if mean is not None:
+        W = w["layer.0.weight"]
+        w["layer.0.bias"] = w["layer.0.bias"] - W @ (mean / sd)
+        w["layer.0.weight"] = W / sd
     return w
+
+
+def input_standardisation(F):
+    """Per-input mean and standard deviation of the training looks ``F`` (an input constant over them, such as the
+    detection flags of a suite without misses, keeps sd 1)."""
+    mean, sd = F.mean(0), F.std(0)
+    return mean, np.where(sd > 1e-6, sd, 1.0)
 
 
 def _base_field(base_name, folder):
@@ -185,18 +199,25 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         write_run_files(part, config, args, command, env_kwargs)
         t0 = time.time()
         K, scale = hp["window_looks"], float(hp["scale_m"])
-        Fs, Ys = [], []
+        Fs, Ys, Ws = [], [], []
         for name in hp["scenarios"]:
+            n0 = len(Fs)
             for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
                 eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
                 F, Y = training_looks(base, eps, K, scale)
                 Fs.append(F)
                 Ys.append(Y)
-        F, Y = np.concatenate(Fs), np.concatenate(Ys)
-        del Fs, Ys
+            # weight_suites: every suite's looks weigh 1 / (the base's mean squared error there), so a suite of long
+            # ranges and large errors (random_radars) does not drown the others in the pooled squared error
+            mse = float(np.mean(np.concatenate([(y ** 2).sum(-1) for y in Ys[n0:]]))) if hp["weight_suites"] else 1.0
+            Ws += [np.full(len(y), 1.0 / mse) for y in Ys[n0:]]
+        F, Y, Wl = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Ws)
+        Wl /= Wl.mean()
+        del Fs, Ys, Ws
         if hp["mirror"]:
             Fm, Ym = mirrored(F, Y, K)
-            F, Y = np.concatenate([F, Fm]), np.concatenate([Y, Ym])
+            F, Y, Wl = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([Wl, Wl])
+        mean, sd = input_standardisation(F) if hp["standardise_inputs"] else (None, None)
         data_s = time.time() - t0
         if verbose:
             print(f"{len(F):,} training looks ({data_s:.0f} s)", file=sys.stderr, flush=True)
@@ -211,12 +232,14 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         net = _net(torch, F.shape[1], hp["layers"])
         opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
-        Ft, Yt = torch.from_numpy(F), torch.from_numpy(Y)
+        Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
+        Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
+        del F
         history, best = [], None
 
         def validate(epoch, train_rmse_m):
-            wc = WindowCorrection(_weights(net, hp["layers"]), {**config, "architecture": {
-                "input_size": F.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
+            wc = WindowCorrection(_weights(net, hp["layers"], mean, sd), {**config, "architecture": {
+                "input_size": Ft.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
             row = {"epoch": epoch, "train_rmse_m": train_rmse_m}
             for n, (batch, brun, imm, base_ratio) in val.items():
                 r = pooled_rmse(batch, wc.correct(batch, brun, "window"))
@@ -232,25 +255,26 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             total = 0.0
             for i in range(0, len(Ft), hp["batch_looks"]):
                 idx = perm[i:i + hp["batch_looks"]]
-                loss = ((net(Ft[idx]) - Yt[idx]) ** 2).sum(-1).mean()
+                se = ((net(Ft[idx]) - Yt[idx]) ** 2).sum(-1)
+                loss = (Wt[idx] * se).mean()
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-                total += loss.item() * len(idx)
+                total += float(se.detach().sum())
             sched.step()
             if epoch % hp["eval_every"] == 0 or epoch == hp["epochs"]:
                 row = validate(epoch, float(np.sqrt(total / len(Ft))) * scale)
                 history.append(row)
                 if best is None or row["selection_ratio"] < best["selection_ratio"]:
                     best = row
-                    _save(part / "best", hp, _weights(net, hp["layers"]), env_kwargs, jsonable(row))
+                    _save(part / "best", hp, _weights(net, hp["layers"], mean, sd), env_kwargs, jsonable(row))
                 if verbose:
                     print(f"epoch {epoch}: train {row['train_rmse_m']:.1f} m, selection ratio "
                           f"{row['selection_ratio']:.4f} (base " + ", ".join(
                               f"{n} {row[f'{n}_base_ratio_imm2']:.3f} -> {row[f'{n}_ratio_imm2']:.3f}"
                               for n in val) + f") {row['wall_s']:.0f} s", file=sys.stderr, flush=True)
-        _save(part, hp, _weights(net, hp["layers"]), env_kwargs)
-        summary = {"epochs": hp["epochs"], "training_looks": len(F), "data_s": data_s, "wall_s": time.time() - t0,
+        _save(part, hp, _weights(net, hp["layers"], mean, sd), env_kwargs)
+        summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "data_s": data_s, "wall_s": time.time() - t0,
                    "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"]}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
