@@ -9,7 +9,7 @@ import pytest
 
 from agents.policies import window_correction as wcm
 from agents.policies.learned import BUNDLED_LEARNED, load_learned
-from agents.training.window import mirrored
+from agents.training.window import input_standardisation, mirrored
 
 
 def _one_look_batch(L=3):
@@ -227,6 +227,24 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
         load_learned(d)
 
 
+def test_standardisation_folded_into_the_first_layer_reads_raw_inputs():
+    import torch
+    from agents.training.window import _net, _weights
+    rng = np.random.default_rng(3)
+    F = rng.normal(size=(300, 11)) * rng.uniform(0.1, 20.0, 11) + rng.normal(size=11) * 5
+    F[:, 4] = 1.0                                   # a constant input (a suite without misses) keeps sd 1
+    mean, sd = input_standardisation(F)
+    assert sd[4] == 1.0 and np.allclose(((F - mean) / sd)[:, [0, 5]].std(0), 1.0)
+    torch.manual_seed(0)
+    net = _net(torch, 11, [7, 5])
+    with torch.no_grad():
+        net[-1].weight.mul_(100.0)                  # outputs of order 1, not 0.01
+        want = net(torch.from_numpy((F - mean) / sd)).numpy()
+    got = wcm.network_forward(wcm.layer_weights(_weights(net, [7, 5], mean, sd)), 2, F)
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
+    assert np.abs(want).max() > 0.1
+
+
 def test_training_run_is_reproducible_and_loadable(tmp_path):
     from agents.training.train import main
     args = ["--method", "window", "--seed", "1000", "--out", str(tmp_path), "--quiet", "--hp", "base=policy_bp",
@@ -240,8 +258,14 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     summary = json.loads((a / "summary.json").read_text())
     assert [r["epoch"] for r in summary["selection_history"]] == [1, 2]
     assert json.loads((a / "choice.json").read_text())["chosen"] == "final"
+    # the first recipe's plain inputs and pooled loss still train, to other weights
+    c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false"])
+    assert load_learned(c).kind == "window_correction"
+    assert (c / "policy.npz").read_bytes() != (a / "policy.npz").read_bytes()
     for bad, msg in ((["--hp", "layers=[0]"], r"--hp layers: must be a list of 1-4 integer widths"),
                      (["--hp", "scenarios=[\"bizup2002\"]"], r"--hp scenarios: a list of distinct training"),
+                     (["--hp", "weight_suites=1"], r"--hp weight_suites: must be true or false, got 1"),
+                     (["--hp", "standardise_inputs=\"yes\""], r"--hp standardise_inputs: must be true or false"),
                      (["--tracker", "cv"], r"--tracker does not apply to --method window"),
                      (["--seed", "899995"], r"--seed: the training flights' seeds 899995..900006 must lie")):
         with pytest.raises(SystemExit, match=msg):
