@@ -96,7 +96,8 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
                             "laws (agents/bundled/backprop_prior/CHOICE.md)",
            WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 12 plots in "
                           "the base track's frame moving its reported position, trained by regression on 4,000 "
-                          "flights of each random suite (agents/training/hyperparams/window.toml; radar-track "
+                          "flights of each random suite (inputs standardised, suites weighted alike, 40 epochs; "
+                          "agents/training/hyperparams/window.toml; radar-track "
                           "train --method window; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
