@@ -5,6 +5,9 @@ MLP reads in the last plots. Its target is known at every look of a simulated fl
 depends on the base tracker only (there is no feedback), so training is plain supervised regression: run the base
 tracker once over the training flights, build every look's inputs and the truth's offset from the base estimate (in
 the base's frame, in ``scale_m``), and fit the MLP by Adam on the squared offset error (float64 torch, one thread).
+``standardise_inputs`` trains on inputs scaled by their mean and sd over the training looks (folded into the first
+layer when saved, :func:`_weights`); ``weight_suites`` weighs each suite's looks by 1 / the base's mean squared error
+there, so every suite counts alike.
 
 Flights: ``episodes`` of each suite in ``scenarios`` (the random generators), suite ``s``'s flight ``i`` drawn as
 the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the
