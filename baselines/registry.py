@@ -107,7 +107,7 @@ _RUNNERS = {
 POLICY_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "policy_bp_rdot", "policy_imm_bp_rdot",
                    "policy_imm_bp_prior", "policy_bp_prior", "policy_window")
 """Tracker names of learned policies, each run by the evaluation from its file: a q-policy through
-:func:`baselines.trackers.run_q_policy`, a learned IMM by its own ``run``."""
+:func:`baselines.trackers.run_q_policy`, a learned IMM or a window correction by its own ``run``."""
 
 TRACKER_NAMES = POLICY_TRACKERS + tuple(_RUNNERS)
 """The built-in tracker names (user trackers: :func:`tracker_names`)."""

@@ -30,7 +30,7 @@ from agents.evaluation.evaluate import DEFAULT_RUNS
 from agents.evaluation.metrics import jsonable
 from agents.evaluation.runner import run_policy
 from agents.policies.bundle import (BUNDLED_BP_POLICY, BUNDLED_BP_PRIOR, BUNDLED_IMM_PPO, BUNDLED_LEARNED_IMM,
-                                    BUNDLED_LEARNED_IMM_PRIOR, BUNDLED_POLICY, BUNDLED_WINDOW)
+                                    BUNDLED_LEARNED_IMM_PRIOR, BUNDLED_POLICIES, BUNDLED_POLICY, BUNDLED_WINDOW)
 from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
@@ -327,6 +327,15 @@ LEARNED_RECIPES = {"policy_bp": BP_RECIPE, "policy_imm_bp": IMM_RECIPE, "policy_
                    "policy_window": WINDOW_RECIPE}
 """Bundled learned tracker -> the recipe whose seeds it was chosen from (the PPO q-policy ``policy`` has its own
 recipes and targets)."""
+RECIPE_DIRS = (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR, BP_PRIOR_RECIPE_DIR,
+               WINDOW_RECIPE_DIR)
+"""Every folder of shipped seeds (the PPO q-policy's recipes, then one per bundled learned tracker's recipe)."""
+
+
+def shipped_seeds():
+    """Every shipped seed of every recipe: ``{seed folder name: its weights file}`` (:func:`recipe_policies` of each
+    of :data:`RECIPE_DIRS`)."""
+    return {n: p for d in RECIPE_DIRS for n, p in recipe_policies(d).items()}
 
 
 def causal_targets(data):
@@ -560,17 +569,10 @@ def main(argv=None):
     if args.add_recipe:
         return _add_recipe(args, docs, t0)
     bundle = {"policy": load_policy(BUNDLED_POLICY)}
-    for name, path in (("policy_bp", BUNDLED_BP_POLICY), ("policy_imm_bp", BUNDLED_LEARNED_IMM),
-                       ("policy_imm_ppo", BUNDLED_IMM_PPO), ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
-                       ("policy_bp_prior", BUNDLED_BP_PRIOR), ("policy_window", BUNDLED_WINDOW)):
-        if path.is_file():
-            bundle[name] = load_policy(path)
-    seeds = {n: load_policy(p) for n, p in {**recipe_policies(), **recipe_policies(BP_RECIPE_DIR),
-                                             **recipe_policies(IMM_RECIPE_DIR),
-                                             **recipe_policies(IMM_PPO_RECIPE_DIR),
-                                             **recipe_policies(IMM_PRIOR_RECIPE_DIR),
-                                             **recipe_policies(BP_PRIOR_RECIPE_DIR),
-                                             **recipe_policies(WINDOW_RECIPE_DIR)}.items()}
+    for name in LEARNED_RECIPES:
+        if BUNDLED_POLICIES[name].is_file():
+            bundle[name] = load_policy(BUNDLED_POLICIES[name])
+    seeds = {n: load_policy(p) for n, p in shipped_seeds().items()}
     data = {"seed": args.seed, "classical": list(CLASSICAL), "recipes": {}, "families": {}, "spread": {}}
     for r, what in RECIPES.items():
         names = [n for n in seeds if n.rsplit("_s", 1)[0] == r]
@@ -599,16 +601,11 @@ def _add_recipe(args, docs, t0):
         raise SystemExit(f"error: --add-recipe: docs/generalisation.json was computed with --seed "
                          f"{data.get('seed')}, not {args.seed}")
     r = args.add_recipe
-    paths = {n: p for d in (RECIPE_DIR, BP_RECIPE_DIR, IMM_RECIPE_DIR, IMM_PPO_RECIPE_DIR, IMM_PRIOR_RECIPE_DIR,
-                            BP_PRIOR_RECIPE_DIR, WINDOW_RECIPE_DIR)
-             for n, p in recipe_policies(d).items() if n.rsplit("_s", 1)[0] == r}
+    paths = {n: p for n, p in shipped_seeds().items() if n.rsplit("_s", 1)[0] == r}
     if not paths:
         raise SystemExit(f"error: --add-recipe: no seeds of {r!r} are shipped")
     pols = {n: load_policy(p) for n, p in paths.items()}
-    bundled = {IMM_RECIPE: ("policy_imm_bp", BUNDLED_LEARNED_IMM), IMM_PPO_RECIPE: ("policy_imm_ppo", BUNDLED_IMM_PPO),
-               IMM_PRIOR_RECIPE: ("policy_imm_bp_prior", BUNDLED_LEARNED_IMM_PRIOR),
-               BP_PRIOR_RECIPE: ("policy_bp_prior", BUNDLED_BP_PRIOR),
-               WINDOW_RECIPE: ("policy_window", BUNDLED_WINDOW)}
+    bundled = {rec: (name, BUNDLED_POLICIES[name]) for name, rec in LEARNED_RECIPES.items()}   # its bundle again too
     if r in bundled and bundled[r][1].is_file():
         pols[bundled[r][0]] = load_policy(bundled[r][1])
     data["recipes"][r] = {"description": RECIPES[r], "seeds": sorted(paths)}
