@@ -11,8 +11,8 @@ import pytest
 
 from agents.evaluation import evaluate as ev
 from agents.policies.bundle import BUNDLED_POLICIES
-from agents.policies.learned import (BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, Q_POLICY_KINDS, load_learned,
-                                    read_kind, resolve_learned)
+from agents.policies.learned import (BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, Q_POLICY_KINDS, SB3_KINDS,
+                                    load_learned, read_kind, resolve_learned)
 
 EXPECTED_KIND = {"policy": "ppo_q_policy", "policy_bp": "gru_q_policy", "policy_imm_bp": "learned_imm_gru",
                  "policy_imm_ppo": "learned_imm_ppo", "policy_bp_rdot": "gru_q_policy",
@@ -32,7 +32,9 @@ def test_bundled_folders_share_one_layout_and_load_by_kind(name):
     folder = BUNDLED_LEARNED[name]
     assert LAYOUT <= {f.name for f in folder.iterdir()}, name
     assert json.loads((folder / "policy.json").read_text())["kind"] == EXPECTED_KIND[name]
-    assert BUNDLED_POLICIES[name].parent == folder       # the old per-file constants point into the same folder
+    # the weights file the --policy options take: the zip for a stable-baselines3 kind, the npz otherwise
+    assert BUNDLED_POLICIES[name].is_file()
+    assert (BUNDLED_POLICIES[name].suffix == ".zip") == (EXPECTED_KIND[name] in SB3_KINDS), name
     lt = load_learned(name)
     assert (lt.kind, lt.name, lt.folder) == (EXPECTED_KIND[name], name, folder)
     assert bool(getattr(lt.policy, "is_tracker", False)) == (lt.kind in IMM_KINDS + CORRECTION_KINDS)

@@ -25,6 +25,8 @@ import json
 import zipfile
 from pathlib import Path
 
+from agents.policies.layout import BUNDLED_LEARNED, bundled_weights_file
+
 __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLED_IMM_PPO", "BUNDLED_BP_RDOT",
            "BUNDLED_LEARNED_IMM_RDOT", "BUNDLED_LEARNED_IMM_PRIOR", "BUNDLED_BP_PRIOR", "BUNDLED_WINDOW",
            "BUNDLED_POLICIES",
@@ -34,36 +36,34 @@ __all__ = ["BUNDLED_POLICY", "BUNDLED_BP_POLICY", "BUNDLED_LEARNED_IMM", "BUNDLE
 ENV_CONFIG_ENTRY = "radar_track_env_config.json"
 """Name of the copy of the training env's arguments inside a policy zip (:func:`embed_env_config`; SB3 ignores it)."""
 
-BUNDLED_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "policy" / "policy.zip"
+BUNDLED_POLICIES = {name: bundled_weights_file(name) for name in BUNDLED_LEARNED}
+"""Learned tracker name -> its bundled weights file (run when it exists and no other file is given); derived from
+the registry :data:`agents.policies.layout.BUNDLED_LEARNED`, the one list of bundled trackers."""
+BUNDLED_POLICY = BUNDLED_POLICIES["policy"]
 """The bundled PPO policy (its env arguments in ``env_config.json`` beside it)."""
-BUNDLED_BP_POLICY = Path(__file__).resolve().parents[1] / "bundled" / "backprop" / "policy.npz"
+BUNDLED_BP_POLICY = BUNDLED_POLICIES["policy_bp"]
 """The bundled policy trained by backpropagation (``policy_bp``; a recurrent policy,
 :mod:`agents.policies.recurrent`, with ``policy.json`` and ``env_config.json`` beside it)."""
-BUNDLED_LEARNED_IMM = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm" / "policy.npz"
+BUNDLED_LEARNED_IMM = BUNDLED_POLICIES["policy_imm_bp"]
 """The bundled learned IMM trained by backpropagation (the tracker ``policy_imm_bp``;
 :mod:`agents.policies.learned_imm`, with ``policy.json`` and ``env_config.json`` beside it)."""
-BUNDLED_IMM_PPO = Path(__file__).resolve().parents[1] / "bundled" / "learned_imm_ppo" / "policy.zip"
+BUNDLED_IMM_PPO = BUNDLED_POLICIES["policy_imm_ppo"]
 """The bundled learned IMM trained with PPO on ``RadarTrack-v0`` with ``tracker="imm_cv_ct"`` (the tracker
 ``policy_imm_ppo``; its ``env_config.json`` and numpy export ``policy.npz`` beside it)."""
-BUNDLED_BP_RDOT = BUNDLED_BP_POLICY.parents[1] / "backprop_rdot" / "policy.npz"
+BUNDLED_BP_RDOT = BUNDLED_POLICIES["policy_bp_rdot"]
 """``policy_bp``'s recipe trained on the range-rate filter (``RadarTrackDoppler-v0``): the tracker
 ``policy_bp_rdot``."""
-BUNDLED_LEARNED_IMM_RDOT = BUNDLED_BP_POLICY.parents[1] / "learned_imm_rdot" / "policy.npz"
+BUNDLED_LEARNED_IMM_RDOT = BUNDLED_POLICIES["policy_imm_bp_rdot"]
 """``policy_imm_bp``'s recipe trained on the range-rate filter: the tracker ``policy_imm_bp_rdot``."""
-BUNDLED_LEARNED_IMM_PRIOR = BUNDLED_BP_POLICY.parents[1] / "learned_imm_prior" / "policy.npz"
+BUNDLED_LEARNED_IMM_PRIOR = BUNDLED_POLICIES["policy_imm_bp_prior"]
 """``policy_imm_bp``'s recipe trained on the ``random`` suites' own flights (the laws ``rbpf`` assumes), not the
 broad ones: the tracker ``policy_imm_bp_prior`` (agents/bundled/learned_imm_prior/CHOICE.md)."""
-BUNDLED_BP_PRIOR = BUNDLED_BP_POLICY.parents[1] / "backprop_prior" / "policy.npz"
+BUNDLED_BP_PRIOR = BUNDLED_POLICIES["policy_bp_prior"]
 """``policy_bp``'s recipe with a wider network (GRU 128, a tanh layer of 64) trained on the ``random`` suites' own
 flights: the tracker ``policy_bp_prior`` (agents/bundled/backprop_prior/CHOICE.md)."""
-BUNDLED_WINDOW = BUNDLED_BP_POLICY.parents[1] / "window" / "policy.npz"
+BUNDLED_WINDOW = BUNDLED_POLICIES["policy_window"]
 """A window correction of ``policy_bp_prior`` (an MLP over the last 12 plots moving its reported position, trained
 by regression on the random suites' flights): the tracker ``policy_window`` (agents/bundled/window/CHOICE.md)."""
-BUNDLED_POLICIES = {"policy": BUNDLED_POLICY, "policy_bp": BUNDLED_BP_POLICY, "policy_imm_bp": BUNDLED_LEARNED_IMM,
-                    "policy_imm_ppo": BUNDLED_IMM_PPO, "policy_bp_rdot": BUNDLED_BP_RDOT,
-                    "policy_imm_bp_rdot": BUNDLED_LEARNED_IMM_RDOT, "policy_imm_bp_prior": BUNDLED_LEARNED_IMM_PRIOR,
-                    "policy_bp_prior": BUNDLED_BP_PRIOR, "policy_window": BUNDLED_WINDOW}
-"""Learned tracker name -> its bundled file (run when it exists and no other file is given)."""
 
 BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",
                    "policy_imm_bp": "RadarTrackIMM-v0", "policy_imm_bp_rdot": "RadarTrackIMMDoppler-v0"}

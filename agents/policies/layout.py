@@ -11,7 +11,8 @@ import json
 from pathlib import Path
 
 __all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS",
-           "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED",
+           "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "BUNDLED_SB3",
+           "bundled_weights_file",
            "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json", "write_weights_folder"]
 
 MANIFEST = "policy.json"
@@ -55,7 +56,15 @@ BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / 
                    "policy_imm_bp_rdot": BUNDLED_DIR / "learned_imm_rdot",
                    "policy_imm_bp_prior": BUNDLED_DIR / "learned_imm_prior",
                    "policy_bp_prior": BUNDLED_DIR / "backprop_prior", "policy_window": BUNDLED_DIR / "window"}
-"""The registry: bundled learned tracker name -> its folder."""
+"""The registry: bundled learned tracker name -> its folder (the one list of bundled trackers; a new bundle is added
+here, and :data:`agents.policies.bundle.BUNDLED_POLICIES` follows)."""
+BUNDLED_SB3 = ("policy", "policy_imm_ppo")
+"""Bundled trackers stored as a stable-baselines3 ``policy.zip`` (the others' weights file is ``policy.npz``)."""
+
+
+def bundled_weights_file(name):
+    """The weights file of bundled learned tracker ``name``: the path the loaders and ``--policy`` options take."""
+    return BUNDLED_LEARNED[name] / ("policy.zip" if name in BUNDLED_SB3 else "policy.npz")
 
 
 def sb3_kind(algo, env_kwargs):
