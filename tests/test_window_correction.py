@@ -258,6 +258,23 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     summary = json.loads((a / "summary.json").read_text())
     assert [r["epoch"] for r in summary["selection_history"]] == [1, 2]
     assert json.loads((a / "choice.json").read_text())["chosen"] == "final"
+    # the recipe's covariance head: fitted for the final and the best weights, reported by the loaded tracker
+    assert lt.policy.has_covariance and load_learned(a).policy.has_covariance
+    cov = json.loads((a / "best" / "covariance.json").read_text())
+    assert cov["epochs"] == 10 and np.isfinite(cov["anees_training"])
+    assert summary["covariance"]["best"]["anees_training"] == cov["anees_training"]
+    # --add-covariance on the same run trained without one: the same head (the same flights, the same fit)
+    nc = main(args + ["--name", "nocov", "--hp", "covariance_epochs=0"])
+    assert not load_learned(nc).policy.has_covariance and not (nc / "covariance.json").exists()
+    assert main(["--method", "window", "--add-covariance", str(nc), "--quiet"]) == nc
+    for f in ("policy.npz", "best/policy.npz", "policy.json"):
+        assert (nc / f).read_bytes() == (a / f).read_bytes(), f
+    with pytest.raises(SystemExit, match=r"already has a covariance head"):
+        main(["--method", "window", "--add-covariance", str(nc), "--quiet"])
+    with pytest.raises(SystemExit, match=r"--add-covariance .*: no config.json"):
+        main(["--method", "window", "--add-covariance", str(tmp_path), "--quiet"])
+    with pytest.raises(SystemExit, match=r"--add-covariance applies to --method window"):
+        main(["--method", "ppo", "--algo", "ppo", "--add-covariance", str(nc)])
     # the first recipe's plain inputs and pooled loss still train, to other weights
     c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false"])
     assert load_learned(c).kind == "window_correction"
@@ -303,3 +320,105 @@ def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path):
             if term or trunc:
                 break
     assert n > 100 and worst < 1e-9
+
+
+# ---- the covariance head
+def _save_cov(tmp_path, name="wcc", base="policy_bp", window=4, layers=(8, 6), seed=0):
+    """A correction with a covariance head (random weights) and the same correction without it."""
+    arch = {"input_size": wcm.feature_count(window), "layers": list(layers), "covariance": True}
+    w = _weights(arch, np.random.default_rng(seed))
+    cfg = {"base": base, "window_looks": window, "scale_m": 300.0, "scale_m_s": 30.0, "architecture": arch}
+    env = json.loads((BUNDLED_LEARNED[base] / "env_config.json").read_text())
+    wcm.save_window_correction(tmp_path / name, w, cfg, env)
+    plain = {k: v for k, v in w.items() if not k.startswith("cov.")}
+    wcm.save_window_correction(tmp_path / (name + "_plain"), plain,
+                               {**cfg, "architecture": {**arch, "covariance": False}}, env)
+    return tmp_path / name, tmp_path / (name + "_plain")
+
+
+def test_head_covariance_by_hand():
+    raw = np.array([[np.log(2.0), 0.5, np.log(3.0), 0.0, -1.0, np.log(0.5), 0.25, 0.0, 2.0, np.log(1.5)]])
+    L = np.zeros((4, 4))
+    L[0, 0], L[1, 1], L[2, 2], L[3, 3] = 2.0, 3.0, 0.5, 1.5
+    L[1, 0], L[2, 1], L[3, 0], L[3, 2] = 0.5 * 2.0, -1.0 * 3.0, 0.25 * 2.0, 2.0 * 0.5   # multiples of the column's
+    u = np.array([300.0, 300.0, 30.0, 30.0])
+    S = (L @ L.T + wcm.COV_FLOOR * np.eye(4)) * np.outer(u, u)
+    th = 0.7
+    c, s = np.cos(th), np.sin(th)
+    rot = np.zeros((4, 4))
+    rot[:2, :2] = rot[2:, 2:] = [[c, -s], [s, c]]
+    P = wcm.head_covariance(raw, np.array([[c, s]]), 300.0, 30.0)[0]
+    np.testing.assert_allclose(P, rot @ S @ rot.T, rtol=1e-12)
+    # along the velocity (east) the frame is the world's
+    np.testing.assert_allclose(wcm.head_covariance(raw, np.array([[1.0, 0.0]]), 300.0, 30.0)[0], S, rtol=1e-12)
+    # any outputs, however extreme: exactly symmetric, positive definite to numpy's Cholesky
+    rng = np.random.default_rng(0)
+    for scale in (1.0, 30.0, 1e6):
+        raw = rng.normal(size=(5000, 10)) * scale
+        th = rng.uniform(0, 2 * np.pi, 5000)
+        P = wcm.head_covariance(raw, np.stack([np.cos(th), np.sin(th)], -1), 300.0, 30.0)
+        assert np.array_equal(P, np.swapaxes(P, 1, 2)) and np.isfinite(P).all()
+        np.linalg.cholesky(P)
+
+
+def test_a_covariance_head_reports_its_covariance_and_keeps_the_estimate(tmp_path):
+    from agents.evaluation.metrics import nees_values
+    from agents.evaluation.suites import draw_suite
+    from radar_env.sim.episode import stack_episodes
+    eps = draw_suite("random_radars", 5, seed=900_000)
+    d, plain = _save_cov(tmp_path)
+    wc, wp = load_learned(d), load_learned(plain)
+    assert wc.policy.has_covariance and not wp.policy.has_covariance
+    r, rp = wc.run(eps), wp.run(eps)
+    assert np.array_equal(r.x, rp.x, equal_nan=True)          # the head leaves the estimate as it is
+    b = stack_episodes(eps)
+    after = (np.arange(r.x.shape[1])[None] >= rp.start_index[:, None]) & np.isfinite(rp.x).all(-1)
+    assert np.array_equal(r.P[~after], rp.P[~after], equal_nan=True)          # the base's where not corrected
+    rows, looks = np.nonzero(after)
+    base = load_learned("policy_bp").run(eps)                  # the inputs read the base's estimate
+    F, frame = wcm.look_features(b.t_s, b.z_m, b.R_m2, b.detected, base.x, base.P, rows, looks, 4, 300.0)
+    raw = wcm.network_forward(wc.policy.w, 2, F, covariance=True)[1]
+    np.testing.assert_array_equal(r.P[rows, looks], wcm.head_covariance(raw, frame, 300.0, 30.0))
+    assert np.isfinite(nees_values((r.x - b.truth)[after], r.P[after])).all()     # every one a covariance
+    # a row alone equals the row in its batch, covariance included
+    alone = wc.run([eps[3]])
+    n = alone.P.shape[1]
+    assert np.array_equal(alone.P[0], r.P[3, :n], equal_nan=True)
+
+
+def test_covariance_fields_are_checked_in_one_line(tmp_path):
+    d, _ = _save_cov(tmp_path)
+    meta = json.loads((d / "policy.json").read_text())
+    arch = meta["architecture"]
+    for change, msg in (({"architecture": {**arch, "covariance": "yes"}}, r"'architecture.covariance' must be true"),
+                        ({"scale_m_s": 0.0}, r"field 'scale_m_s' must be > 0 \(m/s\) with a covariance head"),
+                        ({"scale_m_s": None}, r"field 'scale_m_s' must be a finite number")):
+        (d / "policy.json").write_text(json.dumps({**meta, **change}))
+        with pytest.raises(ValueError, match=msg) as e:
+            load_learned(d)
+        assert "\n" not in str(e.value)
+    (d / "policy.json").write_text(json.dumps(meta))
+    w = dict(np.load(d / "policy.npz"))
+    del w["cov.bias"]
+    np.savez(d / "policy.npz", **w)
+    with pytest.raises(ValueError, match=r"cov.bias"):
+        load_learned(d)
+
+
+def test_the_covariance_fit_recovers_a_constant_covariance():
+    """With errors of one covariance whatever the inputs, the likelihood's maximum is their sample covariance
+    (closed form): the head's covariance there, to the sampling and optimisation error."""
+    import torch
+    from agents.training.window import _torch_cov, fit_covariance_head
+    rng = np.random.default_rng(5)
+    n = 20_000
+    F = rng.normal(size=(n, 5))
+    w = {"layer.0.weight": rng.normal(size=(6, 5)) * 0.5, "layer.0.bias": np.zeros(6)}
+    A = np.array([[1.0, 0, 0, 0], [0.3, 0.5, 0, 0], [0.8, -0.2, 2.0, 0], [0.1, 0.4, -0.5, 0.7]])
+    E = rng.normal(size=(n, 4)) @ A.T
+    head, stats = fit_covariance_head(w, [6], F, E, epochs=200, seed=0)   # 1,000 steps
+    h = np.tanh(F @ w["layer.0.weight"].T + w["layer.0.bias"])
+    S = _torch_cov(torch, torch.from_numpy(h @ head["cov.weight"].T + head["cov.bias"])).numpy()
+    sample = E.T @ E / n
+    assert np.abs(S.mean(0) - sample).max() < 0.01 * np.abs(sample).max()
+    assert abs(stats["anees_training"] - 1.0) < 0.01

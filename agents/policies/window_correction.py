@@ -7,8 +7,11 @@ last ``window_looks`` plots (detected or not, each with its time) as residuals f
 through its current estimate, in the frame of its velocity (along, across), and outputs where the target is
 relative to that estimate: a regression of the truth on the window, trained on flights of training-range seeds
 (:mod:`agents.training.window`). It is causal (look k's correction uses the plots up to look k and the base's
-estimate at look k only) and has no feedback: the base tracker runs unchanged and its covariance is reported
-unchanged (the correction says nothing about its own error; the consistency rows show what that costs).
+estimate at look k only) and has no feedback: the base tracker runs unchanged. Without a covariance head its
+covariance is reported unchanged (the consistency rows show what that costs); with one (``policy.json``'s
+``architecture.covariance``), the reported covariance is the head's: a second linear output of the last tanh layer
+giving the Cholesky factor of the error covariance of the corrected position and the base's velocity, fitted by
+Gaussian likelihood on the training looks with the network fixed (:func:`head_covariance`).
 
 A folder holds ``policy.npz`` (the weights, float64), ``policy.json`` (``kind``, ``format``, ``version``, ``base``:
 the base tracker as a bundled name or a folder relative to this one, and the ``architecture``) and
@@ -16,7 +19,8 @@ the base tracker as a bundled name or a folder relative to this one, and the ``a
 learned tracker. Loading checks every file (:mod:`agents.policies.checks`); no pickle.
 
 The network: ``layers`` tanh layers of the given widths and a linear output of two numbers, the truth's offset from
-the base estimate along and across its velocity in units of ``scale_m``. It runs through the compiled
+the base estimate along and across its velocity in units of ``scale_m`` (and, with a covariance head, a second linear
+output of :data:`COV_OUTPUTS` numbers from the same last layer). It runs through the compiled
 :func:`agents.policies.recurrent.linear` (a row's output does not depend on the batch it is in).
 """
 
@@ -31,7 +35,7 @@ import numpy as np
 
 from agents.policies.recurrent import layer_weights, linear
 
-__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "window_features", "look_features", "feature_count", "network_shapes",
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features", "feature_count", "network_shapes",
            "network_forward", "WindowCorrection", "is_window_correction", "load_window_correction",
            "save_window_correction", "CorrectedEstimate"]
 
@@ -41,6 +45,48 @@ POLICY_FILE = "policy.npz"
 RESIDUAL_CLIP = 30.0
 """Residuals are clipped to +-30 ``scale_m`` (9 km at the default 300 m): a plot that far off the track says only
 "far", and the network's inputs stay bounded whatever the plots."""
+
+
+COV_OUTPUTS = 10
+"""Outputs of the covariance head: the lower triangle, row by row, of a Cholesky factor ``L`` of the 4x4 error
+covariance in the base frame (position along, across in ``scale_m``; velocity along, across in ``scale_m_s``): a
+diagonal entry as its logarithm, an off-diagonal one as a multiple of its column's diagonal entry."""
+COV_TRIL = ((0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2), (3, 0), (3, 1), (3, 2), (3, 3))
+"""``(row, column)`` of ``L`` for each output of the covariance head."""
+COV_LOG_DIAG_CLIP = 6.0
+"""The head's log-diagonal is clipped to +-6 (a factor of 400 either way of the unit) and its off-diagonal
+multiples to +-:data:`COV_OFFDIAG_CLIP`; with the floor :data:`COV_FLOOR` that bounds the condition number of the
+covariance (below 1e14), so it is positive definite to numpy's Cholesky whatever the weights (the head reads a tanh
+layer: its outputs are bounded anyway)."""
+COV_OFFDIAG_CLIP = 10.0
+COV_FLOOR = 1e-6
+"""Added to the covariance's diagonal in units squared: standard deviations of at least 0.001 unit (0.3 m and
+0.03 m/s at the default units), far below any error the head describes."""
+
+
+def head_covariance(raw, frame, scale_m, scale_m_s):
+    """The covariance head's outputs ``raw (n, 10)`` as 4x4 covariances ``(n, 4, 4)`` of the corrected estimate in
+    the world frame (m, m/s): ``L L^T + COV_FLOOR I`` (:data:`COV_TRIL`) scaled by ``(scale_m, scale_m, scale_m_s,
+    scale_m_s)`` and rotated from the base frame (``frame (n, 2)``, the unit vector along the base velocity).
+    Exactly symmetric and positive definite."""
+    raw = np.asarray(raw, dtype=np.float64)
+    n = raw.shape[0]
+    L = np.zeros((n, 4, 4))
+    for c, (i, j) in enumerate(COV_TRIL):
+        if i == j:
+            L[:, i, i] = np.exp(np.clip(raw[:, c], -COV_LOG_DIAG_CLIP, COV_LOG_DIAG_CLIP))
+    for c, (i, j) in enumerate(COV_TRIL):
+        if i != j:
+            L[:, i, j] = np.clip(raw[:, c], -COV_OFFDIAG_CLIP, COV_OFFDIAG_CLIP) * L[:, j, j]
+    S = L @ np.swapaxes(L, 1, 2) + COV_FLOOR * np.eye(4)
+    u = np.array([scale_m, scale_m, scale_m_s, scale_m_s])
+    S *= u[:, None] * u[None, :]
+    ca, sa = frame[:, 0], frame[:, 1]
+    rot = np.zeros((n, 4, 4))         # base frame (along, across) -> east, north, for position and velocity
+    for o in (0, 2):
+        rot[:, o, o], rot[:, o, o + 1], rot[:, o + 1, o], rot[:, o + 1, o + 1] = ca, -sa, sa, ca
+    P = rot @ S @ np.swapaxes(rot, 1, 2)
+    return 0.5 * (P + np.swapaxes(P, 1, 2))
 
 
 def feature_count(window_looks):
@@ -144,15 +190,21 @@ def network_shapes(arch):
         shapes[f"layer.{i}.weight"] = (sizes[i + 1], sizes[i])
         shapes[f"layer.{i}.bias"] = (sizes[i + 1],)
     shapes["out.weight"], shapes["out.bias"] = (2, sizes[-1]), (2,)
+    if arch.get("covariance"):
+        shapes["cov.weight"], shapes["cov.bias"] = (COV_OUTPUTS, sizes[-1]), (COV_OUTPUTS,)
     return shapes
 
 
-def network_forward(w, n_layers, F):
-    """The network on inputs ``F (n, input_size)`` (weights from :func:`layer_weights`): ``(n, 2)``."""
+def network_forward(w, n_layers, F, covariance=False):
+    """The network on inputs ``F (n, input_size)`` (weights from :func:`layer_weights`): ``(n, 2)``; with
+    ``covariance``, ``((n, 2), (n, 10))``, the covariance head's outputs too."""
     y = np.ascontiguousarray(F, dtype=np.float64)
     for i in range(n_layers):
         y = np.tanh(linear(y, w[f"layer.{i}.weight"]) + w[f"layer.{i}.bias"])
-    return linear(y, w["out.weight"]) + w["out.bias"]
+    out = linear(y, w["out.weight"]) + w["out.bias"]
+    if covariance:
+        return out, linear(y, w["cov.weight"]) + w["cov.bias"]
+    return out
 
 
 class WindowCorrection:
@@ -176,6 +228,8 @@ class WindowCorrection:
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
+        self.has_covariance = bool(self.arch.get("covariance", False))
+        self.scale_m_s = float(config.get("scale_m_s", 0.0))
 
     def base_run(self, episodes, name="base"):
         """The base tracker on ``episodes`` (a :class:`baselines.trackers.TrackRun`), as the evaluation runs it."""
@@ -184,31 +238,43 @@ class WindowCorrection:
         from baselines.trackers import run_q_policy
         return run_q_policy(episodes, self.base, name, self.cfg)
 
-    def offsets_m(self, batch, x, P, rows, looks):
-        """The correction at the looks ``(rows[i], looks[i])`` (the base estimate finite there): ``(n, 2)`` in m,
-        east and north."""
+    def corrected_at(self, batch, x, P, rows, looks):
+        """The correction at the looks ``(rows[i], looks[i])`` (the base estimate finite there): ``(d (n, 2), C)``,
+        ``d`` the move in m, east and north, and ``C (n, 4, 4)`` the corrected estimate's covariance from the
+        covariance head (:func:`head_covariance`), or ``None`` without one."""
         F, frame = look_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, rows, looks,
                                  self.window_looks, self.scale_m)
-        o = network_forward(self.w, self.n_layers, F) * self.scale_m
+        out = network_forward(self.w, self.n_layers, F, self.has_covariance)
+        o, raw = (out[0], out[1]) if self.has_covariance else (out, None)
+        o = o * self.scale_m
         ca, sa = frame[:, 0], frame[:, 1]
-        return np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1)
+        d = np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1)
+        return d, (None if raw is None else head_covariance(raw, frame, self.scale_m, self.scale_m_s))
+
+    def offsets_m(self, batch, x, P, rows, looks):
+        """The move of :meth:`corrected_at` alone: ``(n, 2)`` in m, east and north."""
+        return self.corrected_at(batch, x, P, rows, looks)[0]
 
     def correct(self, batch, run, name):
         """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
         by the correction from its first track look on, wherever its estimate is finite (a non-finite estimate
         stays as it is: a failure is reported, never hidden); ``P``, q and the extra series are the base's, plus
-        ``correction_m``, the length of the move (m) at each corrected look."""
+        ``correction_m``, the length of the move (m) at each corrected look. With a covariance head, ``P`` at the
+        corrected looks is the head's (the base's elsewhere)."""
         from baselines.trackers import TrackRun
-        x = run.x.copy()
+        x, P = run.x.copy(), run.P
         after = np.arange(x.shape[1])[None, :] >= np.asarray(run.start_index)[:, None]
         rows, looks = np.nonzero(after & np.isfinite(run.x).all(-1))
-        d = self.offsets_m(batch, run.x, run.P, rows, looks)
+        d, C = self.corrected_at(batch, run.x, run.P, rows, looks)
         x[rows, looks, :2] += d
+        if C is not None:
+            P = run.P.copy()
+            P[rows, looks] = C
         corr = np.full(x.shape[:2], np.nan)
         corr[rows, looks] = np.hypot(d[:, 0], d[:, 1])
         extra = dict(run.extra)
         extra["correction_m"] = corr
-        return TrackRun(name, x, run.P, run.start_index, run.q_m_s2, run.declared, extra)
+        return TrackRun(name, x, P, run.start_index, run.q_m_s2, run.declared, extra)
 
     def run(self, episodes, name="policy_window"):
         """The base tracker on ``episodes`` from the common track start, then :meth:`correct`."""
@@ -258,6 +324,14 @@ def load_window_correction(path, load_base):
     if arch.get("input_size") != feature_count(window):
         raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window)} for "
                          f"window_looks {window}, got {arch.get('input_size')!r}")
+    cov = arch.get("covariance", False)
+    if not isinstance(cov, bool):
+        raise ValueError(f"{meta_file}: field 'architecture.covariance' must be true or false, got {cov!r}")
+    if cov:
+        checks.check_finite_numbers(meta_file, config.get("scale_m_s"), "scale_m_s")
+        if not config["scale_m_s"] > 0:
+            raise ValueError(f"{meta_file}: field 'scale_m_s' must be > 0 (m/s) with a covariance head, got "
+                             f"{config['scale_m_s']!r}")
     base = config.get("base")
     if not isinstance(base, str) or not base:
         raise ValueError(f"{meta_file}: field 'base' must name the base tracker (a bundled name such as "
@@ -287,8 +361,8 @@ class CorrectedEstimate(gym.Wrapper):
     filter, as in the evaluation). After every ``step``, ``info["corrected_estimate"]`` is the env's
     ``info["estimate"]`` with its position moved by the correction, computed from the plots of the looks up to the
     current one (``env.unwrapped.episode()``, read up to the current look only: causal) and the env's estimate and
-    covariance; after ``reset`` (the track start's look, which the evaluation does not score or correct) it is the
-    estimate itself. The same numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
+    covariance; ``info["corrected_covariance"]`` its covariance (the covariance head's, else the env's). After
+    ``reset`` (the track start's look, which the evaluation does not score or correct) they are the env's. The same numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
     (tests/test_window_correction.py).
 
     Args:
@@ -311,17 +385,21 @@ class CorrectedEstimate(gym.Wrapper):
         n = k + 1 - lo
         x = np.broadcast_to(np.asarray(info["estimate"], np.float64), (1, n, 4))
         P = np.broadcast_to(np.asarray(info["covariance"], np.float64), (1, n, 4, 4))
-        out = np.array(info["estimate"], np.float64)
+        out, cov = np.array(info["estimate"], np.float64), np.array(info["covariance"], np.float64)
         if np.isfinite(out).all():
-            out[:2] += self.correction.offsets_m(looks, x, P, [0], [n - 1])[0]      # the current look only
-        return out
+            d, C = self.correction.corrected_at(looks, x, P, [0], [n - 1])      # the current look only
+            out[:2] += d[0]
+            if C is not None:
+                cov = C[0]
+        return out, cov
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         info["corrected_estimate"] = np.array(info["estimate"], np.float64)
+        info["corrected_covariance"] = np.array(info["covariance"], np.float64)
         return obs, info
 
     def step(self, action):
         obs, reward, term, trunc, info = self.env.step(action)
-        info["corrected_estimate"] = self._corrected(info)
+        info["corrected_estimate"], info["corrected_covariance"] = self._corrected(info)
         return obs, reward, term, trunc, info

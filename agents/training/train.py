@@ -497,6 +497,10 @@ def build_parser(prog="radar-track train"):
     ap.add_argument("--allow-pickle", action="store_true",
                     help="let --hp init_from=PATH (a stable-baselines3 zip, a pickle) be unpickled: this runs the "
                          "code inside; only for files you trust (default: refused, in one line)")
+    ap.add_argument("--add-covariance", metavar="RUN",
+                    help="--method window: instead of training, fit the covariance head of the finished window-"
+                         "correction run RUN (its folder and best/; the flights drawn again from its config.json; "
+                         "epochs from --hp covariance_epochs or hyperparams/window.toml) (default: none)")
     ap.add_argument("--no-progress", action="store_true",
                     help="no progress bar during training (default: stable-baselines3's bar)")
     ap.add_argument("--quiet", action="store_true",
@@ -523,6 +527,8 @@ def main(argv=None, prog="radar-track train"):
                   "and the env ...", file=sys.stderr, flush=True)
         from agents.training.window import main_from_args as window_main
         return window_main(args, argv)
+    if args.add_covariance is not None:
+        raise SystemExit("error: --add-covariance applies to --method window")
     if args.algo is None:
         raise SystemExit("error: --algo is required with --method ppo (one of " + ", ".join(ALGOS) + ")")
     if args.tracker is not None:

@@ -26,6 +26,7 @@ that fails or is interrupted stays ``<name>.partial/`` and starts again from scr
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shlex
@@ -39,10 +40,17 @@ from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyp
                                   write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
-__all__ = ["HP_KEYS", "check_hp", "training_looks", "train_window", "main_from_args"]
+__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "fit_covariance_head", "add_covariance",
+           "train_window", "main_from_args"]
+
+COV_SCALE_M_S = 30.0
+"""The velocity unit of the covariance head (m/s), written to ``policy.json`` as ``scale_m_s``."""
+COV_LEARNING_RATE = 1e-2
+COV_BATCH_LOOKS = 4096
 
 HP_KEYS = ("base", "window_looks", "layers", "scale_m", "episodes", "scenarios", "mirror", "standardise_inputs",
-           "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on")
+           "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on",
+           "covariance_epochs")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
@@ -73,6 +81,7 @@ def check_hp(hp):
     _int_in(hp, "epochs", 1, 10_000)
     _int_in(hp, "batch_looks", 1, 1 << 20)
     _int_in(hp, "eval_every", 1, 10_000)
+    _int_in(hp, "covariance_epochs", 0, 1_000)
     _num_in(hp, "scale_m", 0.0, 1e6)
     _num_in(hp, "learning_rate", 0.0, 1.0)
     layers = hp["layers"]
@@ -95,9 +104,11 @@ def check_hp(hp):
     return hp, base
 
 
-def training_looks(base, episodes, window_looks, scale_m):
+def training_looks(base, episodes, window_looks, scale_m, velocity=False):
     """The base tracker on ``episodes`` and every scored look's inputs and target: ``(F (n, features), Y (n, 2))``
-    with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``."""
+    with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``; with
+    ``velocity``, also ``V (n, 2)``, the truth's velocity less the base's, along and across, in
+    :data:`COV_SCALE_M_S` (the covariance head's other target)."""
     from agents.evaluation.metrics import region_masks
     from agents.policies.window_correction import window_features
     from radar_env.sim.episode import stack_episodes
@@ -108,17 +119,25 @@ def training_looks(base, episodes, window_looks, scale_m):
     dx = batch.truth[..., 0] - run.x[..., 0]
     dy = batch.truth[..., 1] - run.x[..., 1]
     Y = np.stack([dx * ca + dy * sa, -dx * sa + dy * ca], -1) / scale_m
-    used = region_masks(batch, run.start_index)["used"] & np.isfinite(F).all(-1) & np.isfinite(Y).all(-1)
-    return F[used], Y[used]
+    dvx = batch.truth[..., 2] - run.x[..., 2]
+    dvy = batch.truth[..., 3] - run.x[..., 3]
+    V = np.stack([dvx * ca + dvy * sa, -dvx * sa + dvy * ca], -1) / COV_SCALE_M_S
+    used = (region_masks(batch, run.start_index)["used"] & np.isfinite(F).all(-1) & np.isfinite(Y).all(-1)
+            & np.isfinite(V).all(-1))
+    return (F[used], Y[used], V[used]) if velocity else (F[used], Y[used])
 
 
-def mirrored(F, Y, window_looks):
-    """``(F, Y)`` reflected across the track: every across component (the window's residuals and the target's)
-    changes sign."""
+def mirrored(F, Y, window_looks, V=None):
+    """``(F, Y)`` (and ``V``, if given) reflected across the track: every across component (the window's residuals
+    and the targets') changes sign."""
     F, Y = F.copy(), Y.copy()
     F[:, 1:4 * window_looks:4] *= -1
     Y[:, 1] *= -1
-    return F, Y
+    if V is None:
+        return F, Y
+    V = V.copy()
+    V[:, 1] *= -1
+    return F, Y, V
 
 
 def _net(torch, n_in, layers):
@@ -155,6 +174,174 @@ def input_standardisation(F):
     detection flags of a suite without misses, keeps sd 1)."""
     mean, sd = F.mean(0), F.std(0)
     return mean, np.where(sd > 1e-6, sd, 1.0)
+
+
+def _torch_cov(torch, raw):
+    """:func:`agents.policies.window_correction.head_covariance` before its units and rotation: ``L L^T + floor``
+    of the head's outputs ``raw (n, 10)`` in the base frame and the head's units (the same clips)."""
+    from agents.policies.window_correction import COV_FLOOR, COV_LOG_DIAG_CLIP, COV_OFFDIAG_CLIP, COV_TRIL
+    n = raw.shape[0]
+    diag = {i: torch.exp(torch.clamp(raw[:, c], -COV_LOG_DIAG_CLIP, COV_LOG_DIAG_CLIP))
+            for c, (i, j) in enumerate(COV_TRIL) if i == j}
+    cols = []
+    for i in range(4):
+        row = []
+        for j in range(4):
+            if j > i:
+                row.append(torch.zeros(n, dtype=raw.dtype))
+            elif i == j:
+                row.append(diag[i])
+            else:
+                c = COV_TRIL.index((i, j))
+                row.append(torch.clamp(raw[:, c], -COV_OFFDIAG_CLIP, COV_OFFDIAG_CLIP) * diag[j])
+        cols.append(torch.stack(row, -1))
+    L = torch.stack(cols, -2)
+    return L @ L.transpose(1, 2) + COV_FLOOR * torch.eye(4, dtype=raw.dtype)
+
+
+def fit_covariance_head(weights, layers, F, E, epochs, seed, verbose=0):
+    """Fit the covariance head of a trained window correction: a linear map from its last tanh layer to the 10
+    outputs of :data:`agents.policies.window_correction.COV_OUTPUTS`, by the Gaussian negative log-likelihood of the
+    errors ``E (n, 4)`` (the truth less the corrected estimate: position along, across in ``scale_m``; velocity
+    along, across in :data:`COV_SCALE_M_S`) with the network fixed (the correction's estimate is unchanged). Adam
+    (:data:`COV_LEARNING_RATE`, cosine-decayed over ``epochs``), batches of :data:`COV_BATCH_LOOKS`, the batch order
+    from ``seed``; started at the errors' own standard deviations (no correlation). ``weights``: the saved
+    correction's (raw inputs ``F (n, features)``). Returns ``({"cov.weight", "cov.bias"}, stats)`` with ``stats``
+    the mean negative log-likelihood and the training looks' ANEES (NEES / 4) under the fitted head."""
+    import torch
+    h = torch.from_numpy(np.ascontiguousarray(F, dtype=np.float64))
+    with torch.no_grad():
+        for i in range(len(layers)):
+            h = torch.tanh(h @ torch.from_numpy(weights[f"layer.{i}.weight"]).T
+                           + torch.from_numpy(weights[f"layer.{i}.bias"]))
+    Et = torch.from_numpy(np.ascontiguousarray(E, dtype=np.float64))
+    from agents.policies.window_correction import COV_OUTPUTS, COV_TRIL
+    head = torch.nn.Linear(h.shape[1], COV_OUTPUTS).double()
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.zero_()
+        sd = Et.std(0)
+        for c, (i, j) in enumerate(COV_TRIL):
+            if i == j:
+                head.bias[c] = torch.log(sd[i])
+    opt = torch.optim.Adam(head.parameters(), lr=COV_LEARNING_RATE)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, epochs))
+    gen = torch.Generator().manual_seed(int(seed))
+
+    def nll_nees(idx):
+        S = _torch_cov(torch, head(h[idx]))
+        Lc = torch.linalg.cholesky(S)
+        z = torch.linalg.solve_triangular(Lc, Et[idx][..., None], upper=False)[..., 0]
+        nees = (z ** 2).sum(-1)
+        return 2 * torch.log(torch.diagonal(Lc, dim1=1, dim2=2)).sum(-1) + nees, nees
+
+    for epoch in range(1, epochs + 1):
+        perm = torch.randperm(len(h), generator=gen)
+        for i in range(0, len(h), COV_BATCH_LOOKS):
+            loss = nll_nees(perm[i:i + COV_BATCH_LOOKS])[0].mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        sched.step()
+    with torch.no_grad():
+        tot_nll = tot_nees = 0.0
+        for i in range(0, len(h), 65536):
+            nll, nees = nll_nees(torch.arange(i, min(i + 65536, len(h))))
+            tot_nll, tot_nees = tot_nll + float(nll.sum()), tot_nees + float(nees.sum())
+    stats = {"epochs": epochs, "looks": len(h), "mean_nll": tot_nll / len(h), "anees_training": tot_nees / len(h) / 4}
+    if verbose:
+        print(f"covariance head: {epochs} epochs, mean NLL {stats['mean_nll']:.3f}, ANEES on the training looks "
+              f"{stats['anees_training']:.3f}", file=sys.stderr, flush=True)
+    return {"cov.weight": head.weight.detach().numpy().copy(), "cov.bias": head.bias.detach().numpy().copy()}, stats
+
+
+def _errors_after(weights, layers, F, Y, V):
+    """The errors the covariance head describes: the truth less the corrected position, and the velocity error."""
+    from agents.policies.recurrent import layer_weights
+    from agents.policies.window_correction import network_forward
+    out = np.concatenate([network_forward(layer_weights(weights), len(layers), F[i:i + 65536])
+                          for i in range(0, len(F), 65536)])
+    return np.concatenate([Y - out, V], -1)
+
+
+def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None):
+    """Fit and write the covariance head of the correction in ``folder`` (its ``policy.npz`` and ``policy.json``
+    rewritten with the head, and ``covariance.json``: the fit's numbers and the command). ``cache`` (a dict) keeps
+    the fits by weights: a folder whose network is one already fitted (``best/`` when the best epoch is the last)
+    gets the same head without fitting it again."""
+    from agents.policies import checks
+    from agents.policies.window_correction import FORMAT, VERSION
+    folder = Path(folder)
+    d, config, env_file, npz = checks.open_weights_folder(folder, "a window correction", FORMAT, VERSION)
+    if config["architecture"].get("covariance"):
+        raise ValueError(f"{folder}: the correction already has a covariance head")
+    layers = list(config["architecture"]["layers"])
+    weights = dict(checks.read_npz(npz))
+    t0 = time.time()
+    key = hashlib.sha256(b"".join(np.ascontiguousarray(weights[k]).tobytes() for k in sorted(weights))).hexdigest()
+    if cache is not None and key in cache:
+        head, stats = cache[key]
+    else:
+        head, stats = fit_covariance_head(weights, layers, F, _errors_after(weights, layers, F, Y, V), epochs, seed,
+                                          verbose)
+        if cache is not None:
+            cache[key] = head, dict(stats)
+    stats = dict(stats)
+    weights.update(head)
+    config = {**config, "scale_m_s": COV_SCALE_M_S,
+              "architecture": {**config["architecture"], "covariance": True}}
+    from agents.policies.window_correction import save_window_correction
+    save_window_correction(folder, weights, config, json.loads(Path(env_file).read_text()))
+    stats.update({"seconds": time.time() - t0, "seed": int(seed), "command": command})
+    (folder / "covariance.json").write_text(json.dumps(stats, indent=1, allow_nan=False))
+    return stats
+
+
+def _cov_looks(base, hp, seed):
+    """The training looks with the velocity errors, as :func:`train_window` draws them: ``(F, Y, V)`` (mirrored
+    if ``hp["mirror"]``)."""
+    from agents.evaluation.suites import draw_suite
+    Fs, Ys, Vs = [], [], []
+    for name in hp["scenarios"]:
+        for c0 in range(0, hp["episodes"], 500):
+            eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
+            F, Y, V = training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), velocity=True)
+            Fs.append(F)
+            Ys.append(Y)
+            Vs.append(V)
+    F, Y, V = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs)
+    if hp["mirror"]:
+        Fm, Ym, Vm = mirrored(F, Y, hp["window_looks"], V)
+        F, Y, V = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm])
+    return F, Y, V
+
+
+def add_covariance(run, epochs, verbose=1, command=None):
+    """Add a covariance head to a finished window-correction run (its folder and ``best/``): the training looks
+    drawn again from the run's ``config.json`` (the same base, flights and seed), then :func:`fit_covariance_head`
+    for each. What ``radar-track train --method window --add-covariance RUN`` runs; a run trained with
+    ``covariance_epochs > 0`` has its head already. Returns ``{folder: stats}``."""
+    import torch
+    torch.set_num_threads(1)
+    from agents.policies.learned import load_learned
+    from agents.policies.layout import IMM_KINDS, Q_POLICY_KINDS
+    run = Path(run)
+    cfg_file = run / "config.json"
+    if not cfg_file.is_file():
+        raise ValueError(f"--add-covariance {run}: no config.json (a window-correction run folder is expected)")
+    cfg = json.loads(cfg_file.read_text())
+    if cfg.get("method") != "window":
+        raise ValueError(f"--add-covariance {run}: config.json's method is {cfg.get('method')!r}, not 'window'")
+    if not isinstance(epochs, int) or isinstance(epochs, bool) or not 1 <= epochs <= 1000:
+        raise ValueError(f"--add-covariance: the epochs must be an integer in [1, 1000], got {epochs!r}")
+    folders = [f for f in (run, run / "best") if (f / "policy.npz").is_file()]
+    base = load_learned(cfg["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
+    t0 = time.time()
+    F, Y, V = _cov_looks(base, cfg, int(cfg["seed"]))
+    if verbose:
+        print(f"{len(F):,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
+    cache = {}
+    return {str(f): _with_covariance(f, F, Y, V, epochs, int(cfg["seed"]), command, verbose, cache) for f in folders}
 
 
 def _base_field(base_name, folder):
@@ -202,24 +389,27 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         write_run_files(part, config, args, command, env_kwargs)
         t0 = time.time()
         K, scale = hp["window_looks"], float(hp["scale_m"])
-        Fs, Ys, Ws = [], [], []
+        Fs, Ys, Vs, Ws = [], [], [], []
         for name in hp["scenarios"]:
             n0 = len(Fs)
             for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
                 eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-                F, Y = training_looks(base, eps, K, scale)
+                F, Y, V = training_looks(base, eps, K, scale, velocity=True)
                 Fs.append(F)
                 Ys.append(Y)
+                Vs.append(V)
             # weight_suites: every suite's looks weigh 1 / (the base's mean squared error there), so a suite of long
             # ranges and large errors (random_radars) does not drown the others in the pooled squared error
             mse = float(np.mean(np.concatenate([(y ** 2).sum(-1) for y in Ys[n0:]]))) if hp["weight_suites"] else 1.0
             Ws += [np.full(len(y), 1.0 / mse) for y in Ys[n0:]]
-        F, Y, Wl = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Ws)
+        F, Y, V, Wl = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs), np.concatenate(Ws)
         Wl /= Wl.mean()
-        del Fs, Ys, Ws
+        del Fs, Ys, Vs, Ws
         if hp["mirror"]:
-            Fm, Ym = mirrored(F, Y, K)
-            F, Y, Wl = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([Wl, Wl])
+            Fm, Ym, Vm = mirrored(F, Y, K, V)
+            F, Y, V = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm])
+            Wl = np.concatenate([Wl, Wl])
+            del Fm, Ym, Vm
         mean, sd = input_standardisation(F) if hp["standardise_inputs"] else (None, None)
         data_s = time.time() - t0
         if verbose:
@@ -237,7 +427,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
         Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
         Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-        del F
+        if not hp["covariance_epochs"]:
+            del F, V            # else kept for the covariance head
         history, best = [], None
 
         def validate(epoch, train_rmse_m):
@@ -277,9 +468,15 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                               f"{n} {row[f'{n}_base_ratio_imm2']:.3f} -> {row[f'{n}_ratio_imm2']:.3f}"
                               for n in val) + f") {row['wall_s']:.0f} s", file=sys.stderr, flush=True)
         _save(part, hp, _weights(net, hp["layers"], mean, sd), env_kwargs)
+        covariance = {}
+        if hp["covariance_epochs"]:     # the head of the final weights and of the best epoch's, the network fixed
+            cache = {}
+            for f in (part, part / "best"):
+                covariance[f.name] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose,
+                                                      cache)
         summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "data_s": data_s, "wall_s": time.time() - t0,
                    "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
-                   "selection_history": history, "steps": hp["epochs"]}
+                   "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(part, read_kind(part)[0], jsonable(summary))
     if verbose:
@@ -306,5 +503,16 @@ def main_from_args(args, argv):
     hp = apply_cli_overrides(hp, "{}", args.hp)
     hp.pop("env_kwargs", None)
     command = " ".join(["radar-track", "train", *map(shlex.quote, argv)])
+    if args.add_covariance is not None:
+        try:
+            out = add_covariance(args.add_covariance, hp["covariance_epochs"], verbose=0 if args.quiet else 1,
+                                 command=command)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
+        if not args.quiet:
+            for f, st in out.items():
+                print(f"{f}: covariance head, ANEES on the training looks {st['anees_training']:.3f}",
+                      file=sys.stderr)
+        return Path(args.add_covariance)
     return run_cli(lambda: train_window(hp, seed=args.seed, out=args.out, verbose=0 if args.quiet else 1,
                                         command=command, args=vars(args), run_name=args.name), command, args.out)
