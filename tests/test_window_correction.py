@@ -290,11 +290,12 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
 
 
-def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path):
+@pytest.mark.parametrize("covariance", [False, True])
+def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path, covariance):
     import gymnasium as gym
     from radar_env.envs.core import draw_setup_and_episode
     from agents.policies.checks import env_kwargs_from_json
-    wc = load_learned(_save(tmp_path))
+    wc = load_learned(_save_cov(tmp_path)[0] if covariance else _save(tmp_path))
     base = load_learned("policy_bp")
     cfg = base.env_config
     seeds = [31, 32]
@@ -310,6 +311,7 @@ def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path):
         obs, info = env.reset(seed=s)
         k = int(run.start_index[r]) - 1
         np.testing.assert_array_equal(info["corrected_estimate"], info["estimate"])   # the start look: uncorrected
+        np.testing.assert_array_equal(info["corrected_covariance"], info["covariance"])
         state, start = None, True
         while True:
             action, state = base.policy.predict(obs, state, episode_start=start)
@@ -317,6 +319,8 @@ def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path):
             start, k, n = False, k + 1, n + 1
             est = run.x[r, k]
             worst = max(worst, float(np.max(np.abs(info["corrected_estimate"] - est) / (np.abs(est) + 1.0))))
+            C = run.P[r, k]         # the head's covariance, else the env's (the base's)
+            worst = max(worst, float(np.max(np.abs(info["corrected_covariance"] - C) / (np.abs(C).max() + 1e-9))))
             if term or trunc:
                 break
     assert n > 100 and worst < 1e-9
