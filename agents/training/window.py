@@ -40,8 +40,8 @@ from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyp
                                   write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
-__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "fit_covariance_head", "add_covariance",
-           "train_window", "main_from_args"]
+__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "fit_covariance_head",
+           "add_covariance", "train_window", "main_from_args"]
 
 COV_SCALE_M_S = 30.0
 """The velocity unit of the covariance head (m/s), written to ``policy.json`` as ``scale_m_s``."""
@@ -297,23 +297,31 @@ def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None
     return stats
 
 
-def _cov_looks(base, hp, seed):
-    """The training looks with the velocity errors, as :func:`train_window` draws them: ``(F, Y, V)`` (mirrored
-    if ``hp["mirror"]``)."""
+def draw_training_looks(base, hp, seed):
+    """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
+    targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
+    its suite with ``weight_suites``, else 1; mean 1), the mirrored looks appended if ``hp["mirror"]``."""
     from agents.evaluation.suites import draw_suite
-    Fs, Ys, Vs = [], [], []
+    Fs, Ys, Vs, Ws = [], [], [], []
     for name in hp["scenarios"]:
-        for c0 in range(0, hp["episodes"], 500):
+        n0 = len(Fs)
+        for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
             eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
             F, Y, V = training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), velocity=True)
             Fs.append(F)
             Ys.append(Y)
             Vs.append(V)
-    F, Y, V = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs)
+        # weight_suites: every suite's looks weigh 1 / (the base's mean squared error there), so a suite of long
+        # ranges and large errors (random_radars) does not drown the others in the pooled squared error
+        mse = float(np.mean(np.concatenate([(y ** 2).sum(-1) for y in Ys[n0:]]))) if hp["weight_suites"] else 1.0
+        Ws += [np.full(len(y), 1.0 / mse) for y in Ys[n0:]]
+    F, Y, V, W = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs), np.concatenate(Ws)
+    W /= W.mean()
+    del Fs, Ys, Vs, Ws
     if hp["mirror"]:
         Fm, Ym, Vm = mirrored(F, Y, hp["window_looks"], V)
-        F, Y, V = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm])
-    return F, Y, V
+        F, Y, V, W = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm]), np.concatenate([W, W])
+    return F, Y, V, W
 
 
 def add_covariance(run, epochs, verbose=1, command=None):
@@ -335,9 +343,12 @@ def add_covariance(run, epochs, verbose=1, command=None):
     if not isinstance(epochs, int) or isinstance(epochs, bool) or not 1 <= epochs <= 1000:
         raise ValueError(f"--add-covariance: the epochs must be an integer in [1, 1000], got {epochs!r}")
     folders = [f for f in (run, run / "best") if (f / "policy.npz").is_file()]
+    for f in folders:           # before the flights are drawn (minutes)
+        if json.loads((f / "policy.json").read_text()).get("architecture", {}).get("covariance"):
+            raise ValueError(f"--add-covariance {f}: the correction already has a covariance head")
     base = load_learned(cfg["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
     t0 = time.time()
-    F, Y, V = _cov_looks(base, cfg, int(cfg["seed"]))
+    F, Y, V, _ = draw_training_looks(base, cfg, int(cfg["seed"]))
     if verbose:
         print(f"{len(F):,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
     cache = {}
@@ -367,7 +378,6 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     before the run folder is made."""
     import torch
     from agents.evaluation.metrics import jsonable
-    from agents.evaluation.suites import draw_suite
     from agents.policies.window_correction import WindowCorrection
     from agents.policies.learned import read_kind, write_run_layout
     torch.set_num_threads(1)
@@ -388,28 +398,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     with writing_run(run, part, resumable=False):
         write_run_files(part, config, args, command, env_kwargs)
         t0 = time.time()
-        K, scale = hp["window_looks"], float(hp["scale_m"])
-        Fs, Ys, Vs, Ws = [], [], [], []
-        for name in hp["scenarios"]:
-            n0 = len(Fs)
-            for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
-                eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-                F, Y, V = training_looks(base, eps, K, scale, velocity=True)
-                Fs.append(F)
-                Ys.append(Y)
-                Vs.append(V)
-            # weight_suites: every suite's looks weigh 1 / (the base's mean squared error there), so a suite of long
-            # ranges and large errors (random_radars) does not drown the others in the pooled squared error
-            mse = float(np.mean(np.concatenate([(y ** 2).sum(-1) for y in Ys[n0:]]))) if hp["weight_suites"] else 1.0
-            Ws += [np.full(len(y), 1.0 / mse) for y in Ys[n0:]]
-        F, Y, V, Wl = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs), np.concatenate(Ws)
-        Wl /= Wl.mean()
-        del Fs, Ys, Vs, Ws
-        if hp["mirror"]:
-            Fm, Ym, Vm = mirrored(F, Y, K, V)
-            F, Y, V = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm])
-            Wl = np.concatenate([Wl, Wl])
-            del Fm, Ym, Vm
+        scale = float(hp["scale_m"])
+        F, Y, V, Wl = draw_training_looks(base, hp, seed)
         mean, sd = input_standardisation(F) if hp["standardise_inputs"] else (None, None)
         data_s = time.time() - t0
         if verbose:
