@@ -209,11 +209,15 @@ def fit_covariance_head(weights, layers, F, E, epochs, seed, verbose=0):
     correction's (raw inputs ``F (n, features)``). Returns ``({"cov.weight", "cov.bias"}, stats)`` with ``stats``
     the mean negative log-likelihood and the training looks' ANEES (NEES / 4) under the fitted head."""
     import torch
-    h = torch.from_numpy(np.ascontiguousarray(F, dtype=np.float64))
-    with torch.no_grad():
-        for i in range(len(layers)):
-            h = torch.tanh(h @ torch.from_numpy(weights[f"layer.{i}.weight"]).T
-                           + torch.from_numpy(weights[f"layer.{i}.bias"]))
+    Fa = np.ascontiguousarray(F, dtype=np.float64)
+    h = torch.empty((len(Fa), int(layers[-1])), dtype=torch.float64)
+    with torch.no_grad():       # the last tanh layer, in chunks: a few GB for millions of looks, not several times that
+        for c in range(0, len(Fa), 65536):
+            y = torch.from_numpy(Fa[c:c + 65536])
+            for i in range(len(layers)):
+                y = torch.tanh(y @ torch.from_numpy(weights[f"layer.{i}.weight"]).T
+                               + torch.from_numpy(weights[f"layer.{i}.bias"]))
+            h[c:c + 65536] = y
     Et = torch.from_numpy(np.ascontiguousarray(E, dtype=np.float64))
     from agents.policies.window_correction import COV_OUTPUTS, COV_TRIL
     head = torch.nn.Linear(h.shape[1], COV_OUTPUTS).double()
