@@ -270,9 +270,9 @@ def _errors_after(weights, layers, F, Y, V):
 
 def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None):
     """Fit and write the covariance head of the correction in ``folder`` (its ``policy.npz`` and ``policy.json``
-    rewritten with the head, and ``covariance.json``: the fit's numbers and the command). ``cache`` (a dict) keeps
-    the fits by weights: a folder whose network is one already fitted (``best/`` when the best epoch is the last)
-    gets the same head without fitting it again."""
+    rewritten with the head, and ``covariance.json``: the fit's numbers, the seconds this folder took and the
+    command). ``cache`` (a dict) keeps the fits by weights: a folder whose network is one already fitted (``best/``
+    when the best epoch is the last) gets the same head without fitting it again (in about no seconds)."""
     from agents.policies import checks
     from agents.policies.window_correction import FORMAT, VERSION
     folder = Path(folder)
