@@ -227,7 +227,9 @@ def network_forward(w, n_layers, F, covariance=False):
     ``covariance``, ``((n, 2), (n, 10))``, the covariance head's outputs too."""
     y = np.ascontiguousarray(F, dtype=np.float64)
     for i in range(n_layers):
-        y = np.tanh(linear(y, w[f"layer.{i}.weight"]) + w[f"layer.{i}.bias"])
+        y = linear(y, w[f"layer.{i}.weight"])
+        y += w[f"layer.{i}.bias"]
+        np.tanh(y, out=y)               # in place: the same numbers without two temporaries a layer
     if covariance:      # both outputs in one pass (each output's sum is the same, in the same order)
         W = w["head.weight"] if "head.weight" in w else np.asfortranarray(np.vstack([w["out.weight"],
                                                                                        w["cov.weight"]]))

@@ -557,7 +557,7 @@ def bp_targets(spread, policy="policy_bp", seeds=(), tested=BP_TESTED):
                 "worse on " + ", ".join(f"{s} ({100 * pol[s]['track_loss_rate']:.1f} % vs "
                                         f"{100 * spread[s]['trackers']['imm2']['track_loss_rate']:.1f} %)"
                                         for s in worse) if worse else f"all {len(spread)} suites"))
-    out.append((f"{policy}: ANEES of its filter beside imm_cv_ct's (1 is consistent; no target)", None,
+    out.append((f"{policy}: ANEES of its reported covariance beside imm_cv_ct's (1 is consistent; no target)", None,
                 ", ".join(f"{s} {pol[s]['anees']:.2f} / {spread[s]['trackers']['imm_cv_ct']['anees']:.2f}"
                           for s in spread)))
     out.append((tested[0], None, tested[1]))
