@@ -35,9 +35,9 @@ import numpy as np
 
 from agents.policies.recurrent import layer_weights, linear
 
-__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features", "feature_count", "network_shapes",
-           "network_forward", "WindowCorrection", "is_window_correction", "load_window_correction",
-           "save_window_correction", "CorrectedEstimate"]
+__all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
+           "feature_count", "network_shapes", "network_forward", "WindowCorrection", "is_window_correction",
+           "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
 VERSION = 1
@@ -55,9 +55,10 @@ COV_TRIL = ((0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2), (3, 0), (3, 1), (3, 
 """``(row, column)`` of ``L`` for each output of the covariance head."""
 COV_LOG_DIAG_CLIP = 6.0
 """The head's log-diagonal is clipped to +-6 (a factor of 400 either way of the unit) and its off-diagonal
-multiples to +-:data:`COV_OFFDIAG_CLIP`; with the floor :data:`COV_FLOOR` that bounds the condition number of the
-covariance (below 1e14), so it is positive definite to numpy's Cholesky whatever the weights (the head reads a tanh
-layer: its outputs are bounded anyway)."""
+multiples to +-:data:`COV_OFFDIAG_CLIP`; with the floor :data:`COV_FLOOR` that bounds the covariance's condition
+number (about 1e14 in the head's units, times ``(scale_m / scale_m_s)^2`` at most in m and m/s), so numpy's
+Cholesky factorises it whatever the weights (tested on extreme outputs; the head reads a tanh layer, so its outputs
+are bounded anyway)."""
 COV_OFFDIAG_CLIP = 10.0
 COV_FLOOR = 1e-6
 """Added to the covariance's diagonal in units squared: standard deviations of at least 0.001 unit (0.3 m and
@@ -397,7 +398,8 @@ class CorrectedEstimate(gym.Wrapper):
     ``info["estimate"]`` with its position moved by the correction, computed from the plots of the looks up to the
     current one (``env.unwrapped.episode()``, read up to the current look only: causal) and the env's estimate and
     covariance; ``info["corrected_covariance"]`` its covariance (the covariance head's, else the env's). After
-    ``reset`` (the track start's look, which the evaluation does not score or correct) they are the env's. The same numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
+    ``reset`` (the track start's look, which the evaluation does not score or correct) they are the env's. The same
+    numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
     (tests/test_window_correction.py).
 
     Args:
