@@ -20,7 +20,9 @@ geometric mean over ``select_on``); the base's runs on the validation flights ar
 
 The run folder, as ``radar-track train``'s: ``config.json``, ``args.json``, ``command.txt``, ``env_config.json``
 (the base's), ``policy.npz`` + ``policy.json`` (the final weights, kind ``window_correction``), ``best/`` (the best
-validation epoch, with ``selection.json``), ``training.json`` + ``choice.json`` in both, ``summary.json``. A run
+validation epoch, with ``selection.json``), ``training.json`` + ``choice.json`` in both, ``summary.json``; with
+``covariance_epochs`` > 0 the covariance head is fitted after the epochs for both weights (:func:`fit_covariance_head`,
+``covariance.json`` beside each; :func:`add_covariance` does it for a finished run). A run
 that fails or is interrupted stays ``<name>.partial/`` and starts again from scratch (a run takes minutes).
 """
 
