@@ -213,6 +213,12 @@ def test_stack_episodes_pads_and_roundtrips():
     e1 = b.episode(1)
     assert np.array_equal(e1.z_m, eps[1].z_m, equal_nan=True)
     assert not b.detected[~b.valid].any()
+    # a few fields alone: the batch's arrays, padding included
+    from radar_env.sim.episode import stack_fields
+    assert len({e.n_looks for e in eps}) > 1                       # some padding to compare
+    part = stack_fields(eps, ("t_s", "z_m", "R_m2", "detected"))
+    for f, a in part.items():
+        assert np.array_equal(a, getattr(b, f), equal_nan=True), f
 
 
 def test_random_radar_ranges_and_reproducible():

@@ -314,9 +314,10 @@ class WindowCorrection:
 
     def run(self, episodes, name="policy_window"):
         """The base tracker on ``episodes`` from the common track start, then :meth:`correct`."""
-        from radar_env.sim.episode import stack_episodes
+        from radar_env.sim.episode import stack_fields
         episodes = list(episodes)
-        return self.correct(stack_episodes(episodes), self.base_run(episodes), name)
+        looks = SimpleNamespace(**stack_fields(episodes, ("t_s", "z_m", "R_m2", "detected")))   # what it reads
+        return self.correct(looks, self.base_run(episodes), name)
 
 
 def save_window_correction(directory, weights, config, env_kwargs):

@@ -20,7 +20,7 @@ import numpy as np
 
 from .radar import Radar, cartesian_from_polar, converted_covariance, polar_from_cartesian, scan_schedule
 
-__all__ = ["Episode", "EpisodeBatch", "draw_episode", "stack_episodes"]
+__all__ = ["Episode", "EpisodeBatch", "draw_episode", "stack_episodes", "stack_fields"]
 
 
 @dataclass(frozen=True)
@@ -140,8 +140,21 @@ def stack_episodes(episodes) -> EpisodeBatch:
         raise ValueError("stack_episodes needs at least one episode")
     n = np.array([e.n_looks for e in eps])
     K = int(n.max())
+    out = stack_fields(eps, _ARRAY_FIELDS)
+    valid = np.arange(K)[None, :] < n[:, None]
+    return EpisodeBatch(names=tuple(e.name for e in eps), valid=valid, n_looks=n, **out)
+
+
+def stack_fields(episodes, names):
+    """``{name: (B, K, ...) array}`` of the episodes' fields ``names`` padded to the longest as
+    :func:`stack_episodes` pads them (the last look repeated; no detection, no maneuver, NaN plots and measurements
+    in the padding): for a reader of a few fields, without stacking the others."""
+    eps = list(episodes)
+    if not eps:
+        raise ValueError("stack_fields needs at least one episode")
+    K = max(e.n_looks for e in eps)
     out = {}
-    for f in _ARRAY_FIELDS:
+    for f in names:
         rows = []
         for e in eps:
             a = getattr(e, f)
@@ -154,5 +167,4 @@ def stack_episodes(episodes) -> EpisodeBatch:
                     a[-pad:] = np.nan
             rows.append(a)
         out[f] = np.stack(rows)
-    valid = np.arange(K)[None, :] < n[:, None]
-    return EpisodeBatch(names=tuple(e.name for e in eps), valid=valid, n_looks=n, **out)
+    return out
