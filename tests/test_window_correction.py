@@ -390,6 +390,18 @@ def test_a_covariance_head_reports_its_covariance_and_keeps_the_estimate(tmp_pat
     assert np.array_equal(alone.P[0], r.P[3, :n], equal_nan=True)
 
 
+def test_the_trainers_torch_covariance_is_the_compiled_one():
+    """The head's covariance is written twice (torch for the fit's gradients, numba for the tracker): along east
+    with unit scales the two are the same matrix, clips and floor included."""
+    import torch
+    from agents.training.window import _torch_cov
+    rng = np.random.default_rng(2)
+    raw = np.concatenate([rng.normal(size=(200, 10)), rng.normal(size=(50, 10)) * 40.0])     # inside and past clips
+    want = wcm.head_covariance(raw, np.tile([1.0, 0.0], (len(raw), 1)), 1.0, 1.0)
+    got = _torch_cov(torch, torch.from_numpy(raw)).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
 def test_covariance_fields_are_checked_in_one_line(tmp_path):
     d, _ = _save_cov(tmp_path)
     meta = json.loads((d / "policy.json").read_text())

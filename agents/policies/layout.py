@@ -12,7 +12,7 @@ from pathlib import Path
 
 __all__ = ["MANIFEST", "MANIFEST_FORMAT", "MANIFEST_VERSION", "KINDS", "Q_POLICY_KINDS", "IMM_KINDS",
            "CORRECTION_KINDS", "TRACKER_KINDS", "SB3_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "BUNDLED_SB3",
-           "bundled_weights_file",
+           "weights_file", "bundled_weights_file",
            "sb3_kind", "sb3_architecture", "write_manifest", "write_records", "read_json", "write_weights_folder"]
 
 MANIFEST = "policy.json"
@@ -60,6 +60,12 @@ BUNDLED_LEARNED = {"policy": BUNDLED_DIR / "policy", "policy_bp": BUNDLED_DIR / 
 here, and :data:`agents.policies.bundle.BUNDLED_POLICIES` follows)."""
 BUNDLED_SB3 = ("policy", "policy_imm_ppo")
 """Bundled trackers stored as a stable-baselines3 ``policy.zip`` (the others' weights file is ``policy.npz``)."""
+
+
+def weights_file(folder, kind):
+    """The weights file of a learned-tracker folder of ``kind``: ``policy.zip`` for a stable-baselines3 kind
+    (:data:`SB3_KINDS`; its numpy export ``policy.npz`` beside it), else ``policy.npz``."""
+    return Path(folder) / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
 
 
 def bundled_weights_file(name):

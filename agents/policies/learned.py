@@ -31,7 +31,7 @@ import json
 from pathlib import Path
 
 from agents.policies.layout import (BUNDLED_DIR, BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, MANIFEST,
-                                    Q_POLICY_KINDS, SB3_KINDS, TRACKER_KINDS, read_json, sb3_kind,
+                                    Q_POLICY_KINDS, SB3_KINDS, TRACKER_KINDS, read_json, sb3_kind, weights_file,
                                     write_manifest, write_records)
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
@@ -179,7 +179,7 @@ def load_learned(path_or_name, name=None, kinds=None, allow_pickle=False) -> Lea
     if kinds is not None and kind not in kinds:
         raise ValueError(f"{source}: kind {kind!r} ({KINDS[kind]}), expected {' or '.join(map(repr, kinds))}")
     if file is None or (kind in SB3_KINDS and file.suffix != ".zip"):
-        file = folder / ("policy.zip" if kind in SB3_KINDS else "policy.npz")
+        file = weights_file(folder, kind)
     policy, cfg = load_policy(file, allow_pickle=allow_pickle)
     # the per-kind loader looks at the files; the kind must agree with what it found
     is_tracker = bool(getattr(policy, "is_tracker", False))

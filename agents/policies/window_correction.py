@@ -232,10 +232,7 @@ def network_forward(w, n_layers, F, covariance=False):
         y += w[f"layer.{i}.bias"]
         np.tanh(y, out=y)               # in place: the same numbers without two temporaries a layer
     if covariance:      # both outputs in one pass (each output's sum is the same, in the same order)
-        W = w["head.weight"] if "head.weight" in w else np.asfortranarray(np.vstack([w["out.weight"],
-                                                                                       w["cov.weight"]]))
-        b = w["head.bias"] if "head.bias" in w else np.concatenate([w["out.bias"], w["cov.bias"]])
-        z = linear(y, W) + b
+        z = linear(y, np.vstack([w["out.weight"], w["cov.weight"]])) + np.concatenate([w["out.bias"], w["cov.bias"]])
         return z[:, :2], z[:, 2:]
     return linear(y, w["out.weight"]) + w["out.bias"]
 
@@ -262,9 +259,6 @@ class WindowCorrection:
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
         self.has_covariance = bool(self.arch.get("covariance", False))
-        if self.has_covariance:     # the two outputs stacked once (network_forward)
-            self.w["head.weight"] = np.asfortranarray(np.vstack([self.w["out.weight"], self.w["cov.weight"]]))
-            self.w["head.bias"] = np.concatenate([self.w["out.bias"], self.w["cov.bias"]])
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
 
     def base_run(self, episodes, name="base"):
@@ -286,10 +280,6 @@ class WindowCorrection:
         ca, sa = frame[:, 0], frame[:, 1]
         d = np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1)
         return d, (None if raw is None else head_covariance(raw, frame, self.scale_m, self.scale_m_s))
-
-    def offsets_m(self, batch, x, P, rows, looks):
-        """The move of :meth:`corrected_at` alone: ``(n, 2)`` in m, east and north."""
-        return self.corrected_at(batch, x, P, rows, looks)[0]
 
     def correct(self, batch, run, name):
         """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
@@ -345,7 +335,7 @@ def load_window_correction(path, load_base):
     ``load_base(file)`` loads that folder's weights file (:func:`agents.policies.loading.load_policy` passes itself).
     ``ValueError`` (one line, naming the file and the field) for a missing or malformed file or base."""
     from agents.policies import checks
-    from agents.policies.layout import BUNDLED_LEARNED, IMM_KINDS, Q_POLICY_KINDS, SB3_KINDS
+    from agents.policies.layout import BUNDLED_LEARNED, IMM_KINDS, Q_POLICY_KINDS, weights_file
     d, config, env_file, npz = checks.open_weights_folder(path, "a window correction", FORMAT, VERSION)
     meta_file = d / "policy.json"
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
@@ -385,7 +375,7 @@ def load_window_correction(path, load_base):
         if kind not in Q_POLICY_KINDS + IMM_KINDS:
             raise ValueError(f"{folder}: kind {kind!r}; a base must be a q-policy or a learned IMM "
                              f"({', '.join(Q_POLICY_KINDS + IMM_KINDS)})")
-        policy, cfg = load_base(folder / ("policy.zip" if kind in SB3_KINDS else POLICY_FILE))
+        policy, cfg = load_base(weights_file(folder, kind))
     except ValueError as e:
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
     return WindowCorrection(weights, config, policy, cfg)

@@ -106,11 +106,11 @@ def check_hp(hp):
     return hp, base
 
 
-def training_looks(base, episodes, window_looks, scale_m, velocity=False):
-    """The base tracker on ``episodes`` and every scored look's inputs and target: ``(F (n, features), Y (n, 2))``
-    with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``; with
-    ``velocity``, also ``V (n, 2)``, the truth's velocity less the base's, along and across, in
-    :data:`COV_SCALE_M_S` (the covariance head's other target)."""
+def training_looks(base, episodes, window_looks, scale_m):
+    """The base tracker on ``episodes`` and every scored look's inputs and targets: ``(F (n, features), Y (n, 2),
+    V (n, 2))`` with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``,
+    and ``V`` the truth's velocity less the base's, along and across, in :data:`COV_SCALE_M_S` (the covariance head's
+    other target)."""
     from agents.evaluation.metrics import region_masks
     from agents.policies.window_correction import window_features
     from radar_env.sim.episode import stack_episodes
@@ -126,7 +126,7 @@ def training_looks(base, episodes, window_looks, scale_m, velocity=False):
     V = np.stack([dvx * ca + dvy * sa, -dvx * sa + dvy * ca], -1) / COV_SCALE_M_S
     used = (region_masks(batch, run.start_index)["used"] & np.isfinite(F).all(-1) & np.isfinite(Y).all(-1)
             & np.isfinite(V).all(-1))
-    return (F[used], Y[used], V[used]) if velocity else (F[used], Y[used])
+    return F[used], Y[used], V[used]
 
 
 def mirrored(F, Y, window_looks, V=None):
@@ -313,7 +313,7 @@ def draw_training_looks(base, hp, seed):
         n0 = len(Fs)
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
             eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-            F, Y, V = training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), velocity=True)
+            F, Y, V = training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]))
             Fs.append(F)
             Ys.append(Y)
             Vs.append(V)
@@ -354,7 +354,8 @@ def add_covariance(run, epochs, verbose=1, command=None):
             raise ValueError(f"--add-covariance {f}: the correction already has a covariance head")
     base = load_learned(cfg["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
     t0 = time.time()
-    F, Y, V, _ = draw_training_looks(base, cfg, int(cfg["seed"]))
+    # a run of the first recipe has no weight_suites in its config (the weights do not enter the head's fit)
+    F, Y, V, _ = draw_training_looks(base, {"weight_suites": False, **cfg}, int(cfg["seed"]))
     if verbose:
         print(f"{len(F):,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
     cache = {}
