@@ -290,6 +290,33 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
 
 
+def test_fresh_flights_draw_new_seeds_and_the_head_fits_the_last_draw(tmp_path):
+    from agents.training.train import main
+    from agents.training.window import flight_draws
+    assert flight_draws({"episodes": 12, "epochs": 5, "fresh_flights_every": 0}, 7) == [7]
+    assert flight_draws({"episodes": 12, "epochs": 5, "fresh_flights_every": 2}, 7) == [7, 19, 31]
+    assert flight_draws({"episodes": 12, "epochs": 4, "fresh_flights_every": 2}, 7) == [7, 19]
+    args = ["--method", "window", "--seed", "1000", "--out", str(tmp_path), "--quiet", "--hp", "base=policy_bp",
+            "--hp", "episodes=12", "--hp", "epochs=2", "--hp", "eval_every=1", "--hp", "layers=[6]",
+            "--hp", 'eval_scenarios={"random": 4}', "--hp", 'select_on=["random"]', "--hp", "batch_looks=256"]
+    same = main(args + ["--name", "same"])
+    fresh = main(args + ["--name", "fresh", "--hp", "fresh_flights_every=1"])
+    assert json.loads((fresh / "summary.json").read_text())["flight_draws"] == 2
+    # the first epoch is on the same flights, the second on seeds 1012+: the networks part after the first
+    h = [json.loads((r / "summary.json").read_text())["selection_history"] for r in (same, fresh)]
+    assert h[0][0]["train_rmse_m"] == h[1][0]["train_rmse_m"] and h[0][1]["train_rmse_m"] != h[1][1]["train_rmse_m"]
+    assert (fresh / "policy.npz").read_bytes() != (same / "policy.npz").read_bytes()
+    # the head in training is fitted on the last draw's looks, and --add-covariance finds the same draw
+    nc = main(args + ["--name", "nocov", "--hp", "fresh_flights_every=1", "--hp", "covariance_epochs=0"])
+    assert main(["--method", "window", "--add-covariance", str(nc), "--quiet"]) == nc
+    for f in ("policy.npz", "best/policy.npz"):
+        assert (nc / f).read_bytes() == (fresh / f).read_bytes(), f
+    with pytest.raises(SystemExit, match=r"--seed: the training flights' seeds 899980..900003 must lie .* 2 draw"):
+        main(args + ["--name", "c", "--seed", "899980", "--hp", "fresh_flights_every=1"])
+    with pytest.raises(SystemExit, match=r"--hp fresh_flights_every: must be an integer in \[0, 10000\], got -1"):
+        main(args + ["--name", "c", "--hp", "fresh_flights_every=-1"])
+
+
 @pytest.mark.parametrize("covariance", [False, True])
 def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path, covariance):
     import gymnasium as gym

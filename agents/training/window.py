@@ -12,6 +12,10 @@ there, so every suite counts alike.
 Flights: ``episodes`` of each suite in ``scenarios`` (the random generators), suite ``s``'s flight ``i`` drawn as
 the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the
 training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000.
+With ``fresh_flights_every`` = ``e`` > 0 the flights are drawn afresh every ``e`` epochs: draw ``d`` (epochs
+``d e + 1 ..``) takes seeds ``S + d episodes ..`` (:func:`flight_draws`), every draw inside the training range; the
+input standardisation is the first draw's, the suite weights each draw's own, and the covariance head is fitted on
+the last draw's looks.
 Looks scored are those the evaluation scores (after the common track start, the first look excluded). ``mirror``
 adds every look reflected across the base track (a right turn for each left turn; the inputs' and the target's
 across components change sign). Validation every ``eval_every`` epochs and at the end, as every trainer's
@@ -52,7 +56,7 @@ COV_BATCH_LOOKS = 4096
 
 HP_KEYS = ("base", "window_looks", "layers", "scale_m", "episodes", "scenarios", "mirror", "standardise_inputs",
            "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on",
-           "covariance_epochs")
+           "covariance_epochs", "fresh_flights_every")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
@@ -84,6 +88,7 @@ def check_hp(hp):
     _int_in(hp, "batch_looks", 1, 1 << 20)
     _int_in(hp, "eval_every", 1, 10_000)
     _int_in(hp, "covariance_epochs", 0, 1_000)
+    _int_in(hp, "fresh_flights_every", 0, 10_000)
     _num_in(hp, "scale_m", 0.0, 1e6)
     _num_in(hp, "learning_rate", 0.0, 1.0)
     layers = hp["layers"]
@@ -303,6 +308,14 @@ def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None
     return stats
 
 
+def flight_draws(hp, seed):
+    """The first seed of each draw of training flights (module docstring): ``[S]`` without ``fresh_flights_every``,
+    else ``S + d episodes`` for each draw ``d`` over the epochs."""
+    every = hp.get("fresh_flights_every", 0)
+    n = -(-hp["epochs"] // every) if every else 1
+    return [int(seed) + d * hp["episodes"] for d in range(n)]
+
+
 def draw_training_looks(base, hp, seed):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
@@ -355,7 +368,9 @@ def add_covariance(run, epochs, verbose=1, command=None):
     base = load_learned(cfg["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
     t0 = time.time()
     # a run of the first recipe has no weight_suites in its config (the weights do not enter the head's fit)
-    F, Y, V, _ = draw_training_looks(base, {"weight_suites": False, **cfg}, int(cfg["seed"]))
+    # the looks the head was fitted on in training: the last draw's (flight_draws)
+    cfg = {"weight_suites": False, "fresh_flights_every": 0, **cfg}
+    F, Y, V, _ = draw_training_looks(base, cfg, flight_draws(cfg, cfg["seed"])[-1])
     if verbose:
         print(f"{len(F):,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
     cache = {}
@@ -392,9 +407,11 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     numba.set_num_threads(1)
     hp, base = check_hp(dict(hp))
     seed = int(seed)
-    if not 0 <= seed or seed + hp["episodes"] > SELECTION_SEED_BASE:
-        raise ValueError(f"--seed: the training flights' seeds {seed}..{seed + hp['episodes'] - 1} must lie in "
-                         f"[0, {SELECTION_SEED_BASE}) (below the selection suites' seeds)")
+    draws = flight_draws(hp, seed)
+    if not 0 <= seed or draws[-1] + hp["episodes"] > SELECTION_SEED_BASE:
+        raise ValueError(f"--seed: the training flights' seeds {seed}..{draws[-1] + hp['episodes'] - 1} must lie in "
+                         f"[0, {SELECTION_SEED_BASE}) (below the selection suites' seeds; "
+                         f"{len(draws)} draw(s) of {hp['episodes']} flights)")
     try:
         selection = SelectionSuites(hp["eval_scenarios"], SELECTION_SEED_BASE, hp["select_on"])
     except ValueError as e:
@@ -424,7 +441,7 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
         Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
         Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-        if not hp["covariance_epochs"]:
+        if not hp["covariance_epochs"] or len(draws) > 1:
             del F, V            # else kept for the covariance head
         history, best = [], None
 
@@ -442,6 +459,18 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             return row
 
         for epoch in range(1, hp["epochs"] + 1):
+            d = (epoch - 1) // hp["fresh_flights_every"] if len(draws) > 1 else 0
+            if d and (epoch - 1) % hp["fresh_flights_every"] == 0:     # fresh flights; the first draw's scaling
+                F = Y = V = Wl = Ft = Yt = Wt = None       # the last draw's looks freed first
+                t1 = time.time()
+                F, Y, V, Wl = draw_training_looks(base, hp, draws[d])
+                data_s += time.time() - t1
+                Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
+                Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
+                if not hp["covariance_epochs"] or d < len(draws) - 1:
+                    del F, V
+                if verbose:
+                    print(f"draw {d}: {len(Ft):,} training looks of seeds {draws[d]}+", file=sys.stderr, flush=True)
             perm = torch.randperm(len(Ft), generator=gen)
             total = 0.0
             for i in range(0, len(Ft), hp["batch_looks"]):
@@ -471,8 +500,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             for f in (part, part / "best"):
                 covariance[f.name] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose,
                                                       cache)
-        summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "data_s": data_s, "wall_s": time.time() - t0,
-                   "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
+        summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "flight_draws": len(draws), "data_s": data_s,
+                   "wall_s": time.time() - t0, "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(part, read_kind(part)[0], jsonable(summary))
