@@ -538,13 +538,18 @@ def test_numpy_inference_of_a_row_does_not_depend_on_its_batch():
         for i in (0, 77, 199):
             assert np.array_equal(linear(x[i:i + 1], W)[0], full[i])
         assert np.array_equal(linear(x, layer_weights({"w": W})["w"]), full)
-    for n in (1, 3, 4, 5, 9, 64):
-        x, W = rng.normal(size=(n, 37)), rng.normal(size=(50, 37))
-        seq = np.zeros((n, 50))
-        for f in range(37):                     # the sequential sum, term by term
+    # the compiled layer takes four rows and four inputs at a time and pads a narrow output to 16 columns: every
+    # remainder of rows and inputs, and widths on either side of the padding, equal the sequential sum to the bit
+    shapes = [(n, 37, 50) for n in (1, 3, 4, 5, 9, 64)] + [(7, F, H) for F in (1, 3, 4, 6, 128)
+                                                           for H in (1, 2, 9, 12, 16, 50, 64, 66)]
+    for n, F, H in shapes:
+        x, W = rng.normal(size=(n, F)), rng.normal(size=(H, F))
+        x[0, 0], W[0, 0] = -0.0, 0.0            # a signed zero's sum as the plain loop's
+        seq = np.zeros((n, H))
+        for f in range(F):                      # the sequential sum, term by term
             seq = seq + x[:, f:f + 1] * W[None, :, f]
         y = linear(x, W)
-        assert np.array_equal(y, seq)
+        assert y.shape == (n, H) and np.array_equal(y.view(np.int64), seq.view(np.int64)), (n, F, H)
         assert all(np.array_equal(linear(x[i:i + 1], W)[0], y[i]) for i in range(n))
         assert np.allclose(y, x @ W.T, rtol=1e-12, atol=1e-12)
-        assert linear(x[:, :0], W[:, :0]).shape == (n, 50) and not linear(x[:, :0], W[:, :0]).any()
+        assert linear(x[:, :0], W[:, :0]).shape == (n, H) and not linear(x[:, :0], W[:, :0]).any()

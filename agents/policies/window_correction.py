@@ -223,18 +223,29 @@ def network_shapes(arch):
     return shapes
 
 
+FORWARD_CHUNK = 1024
+"""Rows the network takes at a time: its layers' outputs then stay in the cache (all the looks of 200 episodes at once
+took 1.8x the time); a row's output does not depend on the chunk it is in."""
+
+
 def network_forward(w, n_layers, F, covariance=False):
     """The network on inputs ``F (n, input_size)`` (weights from :func:`layer_weights`): ``(n, 2)``; with
-    ``covariance``, ``((n, 2), (n, 10))``, the covariance head's outputs too."""
-    y = np.ascontiguousarray(F, dtype=np.float64)
-    for i in range(n_layers):
-        y = linear(y, w[f"layer.{i}.weight"])
-        y += w[f"layer.{i}.bias"]
-        np.tanh(y, out=y)               # in place: the same numbers without two temporaries a layer
+    ``covariance``, ``((n, 2), (n, 10))``, the covariance head's outputs too. In chunks of :data:`FORWARD_CHUNK`
+    rows."""
+    F = np.ascontiguousarray(F, dtype=np.float64)
     if covariance:      # both outputs in one pass (each output's sum is the same, in the same order)
-        z = linear(y, np.vstack([w["out.weight"], w["cov.weight"]])) + np.concatenate([w["out.bias"], w["cov.bias"]])
-        return z[:, :2], z[:, 2:]
-    return linear(y, w["out.weight"]) + w["out.bias"]
+        wo, bo = np.vstack([w["out.weight"], w["cov.weight"]]), np.concatenate([w["out.bias"], w["cov.bias"]])
+    else:
+        wo, bo = w["out.weight"], w["out.bias"]
+    z = np.empty((F.shape[0], bo.size))
+    for i in range(0, F.shape[0], FORWARD_CHUNK):
+        y = F[i:i + FORWARD_CHUNK]
+        for k in range(n_layers):
+            y = linear(y, w[f"layer.{k}.weight"])
+            y += w[f"layer.{k}.bias"]
+            np.tanh(y, out=y)               # in place: the same numbers without two temporaries a layer
+        z[i:i + FORWARD_CHUNK] = linear(y, wo) + bo
+    return (z[:, :2], z[:, 2:]) if covariance else z
 
 
 class WindowCorrection:
