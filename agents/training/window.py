@@ -311,7 +311,7 @@ def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None
 def flight_draws(hp, seed):
     """The first seed of each draw of training flights (module docstring): ``[S]`` without ``fresh_flights_every``,
     else ``S + d episodes`` for each draw ``d`` over the epochs."""
-    every = hp.get("fresh_flights_every", 0)
+    every = hp["fresh_flights_every"]
     n = -(-hp["epochs"] // every) if every else 1
     return [int(seed) + d * hp["episodes"] for d in range(n)]
 
