@@ -263,6 +263,7 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     cov = json.loads((a / "best" / "covariance.json").read_text())
     assert cov["epochs"] == 10 and np.isfinite(cov["anees_training"])
     assert summary["covariance"]["best"]["anees_training"] == cov["anees_training"]
+    assert sorted(summary["covariance"]) == sorted(["best", a.name])      # the run's name, not <name>.partial
     # --add-covariance on the same run trained without one: the same head (the same flights, the same fit)
     nc = main(args + ["--name", "nocov", "--hp", "covariance_epochs=0"])
     assert not load_learned(nc).policy.has_covariance and not (nc / "covariance.json").exists()

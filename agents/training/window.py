@@ -497,9 +497,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         covariance = {}
         if hp["covariance_epochs"]:     # the head of the final weights and of the best epoch's, the network fixed
             cache = {}
-            for f in (part, part / "best"):
-                covariance[f.name] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose,
-                                                      cache)
+            for f, key in ((part, run.name), (part / "best", "best")):    # the run's name, not the partial one
+                covariance[key] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose, cache)
         summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "flight_draws": len(draws), "data_s": data_s,
                    "wall_s": time.time() - t0, "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
