@@ -183,6 +183,18 @@ def input_standardisation(F):
     return mean, np.where(sd > 1e-6, sd, 1.0)
 
 
+def _standardised(F, mean, sd, in_place):
+    """``(F - mean) / sd`` (``F`` itself without a standardisation), in ``F``'s own memory when ``in_place`` (the
+    same numbers: the same two operations per element)."""
+    if mean is None:
+        return F
+    if not in_place:
+        return (F - mean) / sd
+    F -= mean
+    F /= sd
+    return F
+
+
 def _torch_cov(torch, raw):
     """:func:`agents.policies.window_correction.head_covariance` before its units and rotation: ``L L^T + floor``
     of the head's outputs ``raw (n, 10)`` in the base frame and the head's units (the same clips)."""
@@ -319,27 +331,38 @@ def flight_draws(hp, seed):
 def draw_training_looks(base, hp, seed):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
-    its suite with ``weight_suites``, else 1; mean 1), the mirrored looks appended if ``hp["mirror"]``."""
+    its suite with ``weight_suites``, else 1; mean 1), the mirrored looks appended if ``hp["mirror"]``
+    (:func:`mirrored`'s numbers). Each chunk of flights is copied into the final arrays as it is drawn and then
+    dropped, so the peak memory is about the result's, not three times it (4.4 M looks of 24-look windows: 3.6 GB)."""
     from agents.evaluation.suites import draw_suite
-    Fs, Ys, Vs, Ws = [], [], [], []
+    parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     for name in hp["scenarios"]:
-        n0 = len(Fs)
+        chunks = []
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
             eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-            F, Y, V = training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]))
-            Fs.append(F)
-            Ys.append(Y)
-            Vs.append(V)
+            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"])))
+        parts.append(chunks)
+        sizes.append(sum(len(c[0]) for c in chunks))
+    n = sum(sizes)
+    total = 2 * n if hp["mirror"] else n
+    nf = parts[0][0][0].shape[1]
+    F, Y, V, W = np.empty((total, nf)), np.empty((total, 2)), np.empty((total, 2)), np.empty(total)
+    i = 0
+    for chunks, size in zip(parts, sizes):
         # weight_suites: every suite's looks weigh 1 / (the base's mean squared error there), so a suite of long
         # ranges and large errors (random_radars) does not drown the others in the pooled squared error
-        mse = float(np.mean(np.concatenate([(y ** 2).sum(-1) for y in Ys[n0:]]))) if hp["weight_suites"] else 1.0
-        Ws += [np.full(len(y), 1.0 / mse) for y in Ys[n0:]]
-    F, Y, V, W = np.concatenate(Fs), np.concatenate(Ys), np.concatenate(Vs), np.concatenate(Ws)
-    W /= W.mean()
-    del Fs, Ys, Vs, Ws
-    if hp["mirror"]:
-        Fm, Ym, Vm = mirrored(F, Y, hp["window_looks"], V)
-        F, Y, V, W = np.concatenate([F, Fm]), np.concatenate([Y, Ym]), np.concatenate([V, Vm]), np.concatenate([W, W])
+        mse = float(np.mean(np.concatenate([(c[1] ** 2).sum(-1) for c in chunks]))) if hp["weight_suites"] else 1.0
+        W[i:i + size] = 1.0 / mse
+        while chunks:
+            f, y, v = chunks.pop(0)
+            F[i:i + len(f)], Y[i:i + len(f)], V[i:i + len(f)] = f, y, v
+            i += len(f)
+    W[:n] /= W[:n].mean()
+    if hp["mirror"]:            # mirrored()'s reflection, written into the second half
+        F[n:], Y[n:], V[n:], W[n:] = F[:n], Y[:n], V[:n], W[:n]
+        F[n:, 1:4 * hp["window_looks"]:4] *= -1
+        Y[n:, 1] *= -1
+        V[n:, 1] *= -1
     return F, Y, V, W
 
 
@@ -439,10 +462,11 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         net = _net(torch, F.shape[1], hp["layers"])
         opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
-        Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
+        keep = hp["covariance_epochs"] and len(draws) == 1      # the raw inputs kept for the covariance head
+        Ft = torch.from_numpy(_standardised(F, mean, sd, in_place=not keep))
         Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-        if not hp["covariance_epochs"] or len(draws) > 1:
-            del F, V            # else kept for the covariance head
+        if not keep:
+            del F, V
         history, best = [], None
 
         def validate(epoch, train_rmse_m):
@@ -465,9 +489,10 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                 t1 = time.time()
                 F, Y, V, Wl = draw_training_looks(base, hp, draws[d])
                 data_s += time.time() - t1
-                Ft = torch.from_numpy(F if mean is None else (F - mean) / sd)
+                keep = hp["covariance_epochs"] and d == len(draws) - 1
+                Ft = torch.from_numpy(_standardised(F, mean, sd, in_place=not keep))
                 Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-                if not hp["covariance_epochs"] or d < len(draws) - 1:
+                if not keep:
                     del F, V
                 if verbose:
                     print(f"draw {d}: {len(Ft):,} training looks of seeds {draws[d]}+", file=sys.stderr, flush=True)
