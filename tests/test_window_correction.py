@@ -9,7 +9,7 @@ import pytest
 
 from agents.policies import window_correction as wcm
 from agents.policies.learned import BUNDLED_LEARNED, load_learned
-from agents.training.window import input_standardisation, mirrored
+from agents.training.window import draw_training_looks, input_standardisation, mirrored, training_looks
 
 
 def _one_look_batch(L=3):
@@ -135,6 +135,27 @@ def test_mirror_flips_every_across_component():
     np.testing.assert_array_equal(Fm[:, flipped], -F[:, flipped])
     np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
     np.testing.assert_array_equal(Ym, Y * [1, -1])
+
+
+def test_training_looks_are_the_suites_chunks_then_their_mirror():
+    """draw_training_looks writes its arrays in place: the same looks as each chunk's training_looks, in order,
+    then mirrored(); each suite's weight 1 / its mean squared error, normalised to mean 1."""
+    from agents.evaluation.suites import draw_suite
+    base = load_learned("policy_bp")
+    hp = {"scenarios": ["random", "random_radars"], "episodes": 6, "window_looks": 3, "scale_m": 300.0,
+          "weight_suites": True, "mirror": True}
+    F, Y, V, W = draw_training_looks(base, hp, 11)
+    parts = [training_looks(base, draw_suite(n, 6, seed=11), 3, 300.0) for n in hp["scenarios"]]
+    F0, Y0, V0 = (np.concatenate([p[i] for p in parts]) for i in range(3))
+    n = len(F0)
+    for a, b in ((F, F0), (Y, Y0), (V, V0)):
+        np.testing.assert_array_equal(a[:n], b)
+    Fm, Ym, Vm = mirrored(F0, Y0, 3, V0)
+    for a, b in ((F, Fm), (Y, Ym), (V, Vm)):
+        np.testing.assert_array_equal(a[n:], b)
+    w = np.concatenate([np.full(len(p[1]), 1.0 / np.mean((p[1] ** 2).sum(-1))) for p in parts])
+    np.testing.assert_allclose(W, np.concatenate([w, w]) / w.mean(), rtol=1e-12)
+    assert W[:n].mean() == pytest.approx(1.0)
 
 
 def _weights(arch, rng, out_scale=1.0):

@@ -137,14 +137,17 @@ def training_looks(base, episodes, window_looks, scale_m):
 def mirrored(F, Y, window_looks, V=None):
     """``(F, Y)`` (and ``V``, if given) reflected across the track: every across component (the window's residuals
     and the targets') changes sign."""
-    F, Y = F.copy(), Y.copy()
+    out = (F.copy(), Y.copy()) + (() if V is None else (V.copy(),))
+    _reflect(*out[:2], window_looks, *out[2:])
+    return out
+
+
+def _reflect(F, Y, window_looks, V=None):
+    """:func:`mirrored` in the arrays' own memory."""
     F[:, 1:4 * window_looks:4] *= -1
     Y[:, 1] *= -1
-    if V is None:
-        return F, Y
-    V = V.copy()
-    V[:, 1] *= -1
-    return F, Y, V
+    if V is not None:
+        V[:, 1] *= -1
 
 
 def _net(torch, n_in, layers):
@@ -332,8 +335,9 @@ def draw_training_looks(base, hp, seed):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
     its suite with ``weight_suites``, else 1; mean 1), the mirrored looks appended if ``hp["mirror"]``
-    (:func:`mirrored`'s numbers). Each chunk of flights is copied into the final arrays as it is drawn and then
-    dropped, so the peak memory is about the result's, not three times it (4.4 M looks of 24-look windows: 3.6 GB)."""
+    (:func:`mirrored`'s numbers). The chunks of flights are copied into the final arrays and dropped one by one,
+    so the peak memory is about one and a half times the result's (the drawn looks, half of it with the mirror,
+    beside it), not three times (4.4 M looks of 24-look windows: 3.6 GB)."""
     from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     for name in hp["scenarios"]:
@@ -358,11 +362,9 @@ def draw_training_looks(base, hp, seed):
             F[i:i + len(f)], Y[i:i + len(f)], V[i:i + len(f)] = f, y, v
             i += len(f)
     W[:n] /= W[:n].mean()
-    if hp["mirror"]:            # mirrored()'s reflection, written into the second half
+    if hp["mirror"]:            # the mirrored looks written into the second half
         F[n:], Y[n:], V[n:], W[n:] = F[:n], Y[:n], V[:n], W[:n]
-        F[n:, 1:4 * hp["window_looks"]:4] *= -1
-        Y[n:, 1] *= -1
-        V[n:, 1] *= -1
+        _reflect(F[n:], Y[n:], hp["window_looks"], V[n:])
     return F, Y, V, W
 
 
