@@ -137,9 +137,9 @@ def training_looks(base, episodes, window_looks, scale_m):
 def mirrored(F, Y, window_looks, V=None):
     """``(F, Y)`` (and ``V``, if given) reflected across the track: every across component (the window's residuals
     and the targets') changes sign."""
-    out = (F.copy(), Y.copy()) + (() if V is None else (V.copy(),))
-    _reflect(*out[:2], window_looks, *out[2:])
-    return out
+    F, Y, V = F.copy(), Y.copy(), None if V is None else V.copy()
+    _reflect(F, Y, window_looks, V)
+    return (F, Y) if V is None else (F, Y, V)
 
 
 def _reflect(F, Y, window_looks, V=None):
