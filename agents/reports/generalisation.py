@@ -94,9 +94,10 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            BP_PRIOR_RECIPE: "backprop on the random suites' own flights: policy_bp's recipe with a GRU of 128 and a "
                             "tanh layer of 64, lr 5e-3, 3,000 steps, on the random and random_radars suites' flight "
                             "laws (agents/bundled/backprop_prior/CHOICE.md)",
-           WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 12 plots in "
+           WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 24 plots in "
                           "the base track's frame moving its reported position, trained by regression on 4,000 "
-                          "flights of each random suite (inputs standardised, suites weighted alike, 40 epochs; "
+                          "flights of each random suite (inputs standardised, suites weighted alike, 80 epochs with "
+                          "the flights drawn afresh every 10; "
                           "agents/training/hyperparams/window.toml; radar-track "
                           "train --method window; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
