@@ -291,6 +291,11 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     assert main(["--method", "window", "--add-covariance", str(nc), "--quiet"]) == nc
     for f in ("policy.npz", "best/policy.npz", "policy.json"):
         assert (nc / f).read_bytes() == (a / f).read_bytes(), f
+    ncs = json.loads((nc / "summary.json").read_text())        # its records say so, keyed as training keys them
+    assert sorted(ncs["covariance"]) == sorted(["best", nc.name])
+    assert ncs["covariance"]["best"]["anees_training"] == cov["anees_training"]
+    for f in (nc, nc / "best"):
+        assert json.loads((f / "training.json").read_text())["summary"]["covariance"] == ncs["covariance"]
     with pytest.raises(SystemExit, match=r"already has a covariance head"):
         main(["--method", "window", "--add-covariance", str(nc), "--quiet"])
     with pytest.raises(SystemExit, match=r"--add-covariance .*: no config.json"):

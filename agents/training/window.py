@@ -26,7 +26,7 @@ The run folder, as ``radar-track train``'s: ``config.json``, ``args.json``, ``co
 (the base's), ``policy.npz`` + ``policy.json`` (the final weights, kind ``window_correction``), ``best/`` (the best
 validation epoch, with ``selection.json``), ``training.json`` + ``choice.json`` in both, ``summary.json``; with
 ``covariance_epochs`` > 0 the covariance head is fitted after the epochs for both weights (:func:`fit_covariance_head`,
-``covariance.json`` beside each; :func:`add_covariance` does it for a finished run). A run
+``covariance.json`` beside each and in ``summary.json``; :func:`add_covariance` does it for a finished run). A run
 that fails or is interrupted stays ``<name>.partial/`` and starts again from scratch (a run takes minutes).
 """
 
@@ -371,7 +371,8 @@ def draw_training_looks(base, hp, seed):
 def add_covariance(run, epochs, verbose=1, command=None):
     """Add a covariance head to a finished window-correction run (its folder and ``best/``): the training looks
     drawn again from the run's ``config.json`` (the same base, flights and seed), then :func:`fit_covariance_head`
-    for each. What ``radar-track train --method window --add-covariance RUN`` runs; a run trained with
+    for each, and the stats into the run's ``summary.json`` (``covariance``, keyed as training keys them) and
+    ``training.json``. What ``radar-track train --method window --add-covariance RUN`` runs; a run trained with
     ``covariance_epochs > 0`` has its head already. Returns ``{folder: stats}``."""
     import torch
     torch.set_num_threads(1)
@@ -399,7 +400,16 @@ def add_covariance(run, epochs, verbose=1, command=None):
     if verbose:
         print(f"{len(F):,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
     cache = {}
-    return {str(f): _with_covariance(f, F, Y, V, epochs, int(cfg["seed"]), command, verbose, cache) for f in folders}
+    out = {str(f): _with_covariance(f, F, Y, V, epochs, int(cfg["seed"]), command, verbose, cache) for f in folders}
+    summary_file = run / "summary.json"
+    if summary_file.is_file():      # the run's records say it has a head, as a run trained with one does
+        from agents.evaluation.metrics import jsonable
+        from agents.policies.learned import read_kind, write_run_layout
+        summary = json.loads(summary_file.read_text())
+        summary["covariance"] = {(run.name if f == run else "best"): out[str(f)] for f in folders}
+        summary_file.write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
+        write_run_layout(run, read_kind(run)[0], summary)
+    return out
 
 
 def _base_field(base_name, folder):
