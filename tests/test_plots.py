@@ -454,3 +454,12 @@ def test_maneuver_figure_of_a_long_run_shows_a_window_from_its_first_maneuver(mo
     assert f"looks {k0}-{k0 + 19} of {int(batch.n_looks[0])}" in fig.axes[0].get_title()
     assert all(len(ln.get_xdata()) == 20 for ln in fig.axes[0].get_lines())
     plt.close(fig)
+
+
+def test_the_not_drawn_note_stays_on_one_line_and_counts_what_it_leaves_out():
+    names = ["policy_bp_rdot", "policy_imm_bp_rdot", "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "clairvoyant"]
+    assert plots._not_drawn(names[:1], 70) == "(not drawn: policy_bp_rdot)"
+    text = plots._not_drawn(names, 70)
+    assert text == "(not drawn: policy_bp_rdot, policy_imm_bp_rdot and 4 more)" and len(text) <= 70
+    assert plots._not_drawn(names, 200) == f"(not drawn: {', '.join(names)})"
+    assert plots._not_drawn(names, 10) == "(not drawn: 6 trackers)"

@@ -104,6 +104,17 @@ def _bottom_legend(fig, handles, labels, ncol, y_in=0.08):
                       ncol=ncol, fontsize=8, frameon=False, handlelength=2.2, columnspacing=1.4)
 
 
+def _not_drawn(names, width_chars):
+    """``(not drawn: a, b, c)`` in one line of at most ``width_chars`` characters: the names that fit, then how
+    many more (every name is in the legend and the left panel; a second line would run into the panel above)."""
+    for k in range(len(names), 0, -1):
+        more = f" and {len(names) - k} more" if k < len(names) else ""
+        text = f"(not drawn: {', '.join(names[:k])}{more})"
+        if len(text) <= width_chars:
+            return text
+    return f"(not drawn: {len(names)} trackers)"
+
+
 def _legend_rows(n, ncol):
     return max(1, math.ceil(n / ncol))
 
@@ -425,8 +436,9 @@ def error_figure(suite, batch, runs, scenario=None, reference="imm2"):
         ax.set_ylabel(f"median {qty} error\n|{sym}_est - {sym}| ({unit})")
         axr.set_ylabel(f"median / {ref}'s median (ratio)")
         far = [n for n in shown if n != ref and n not in near]
+        width_chars = int(axr.get_position().width * fig.get_figwidth() / 0.062)   # 8 pt characters per line
         axr.set_title(f"{qty}: the trackers within a factor {RATIO_PANEL_FACTOR:g} of {ref}"
-                      + (f"\n(not drawn: {', '.join(far)})" if far else ""), fontsize=8, color="0.3", y=1.0, pad=5)
+                      + (f"\n{_not_drawn(far, width_chars)}" if far else ""), fontsize=8, color="0.3", y=1.0, pad=5)
     clock = "scenario start" if shared else "track start"
     if shared:
         how = ("per look" if per_look else f"each run's errors averaged in {width:g} s bins") + (
