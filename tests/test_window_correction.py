@@ -99,6 +99,74 @@ def test_compiled_inputs_equal_the_numpy_reference():
             np.testing.assert_allclose(g[:, logs], w[:, logs], rtol=1e-15, atol=0)
 
 
+def test_quadratic_fits_are_least_squares_through_the_detected_plots():
+    """fit_looks: each fit equals numpy's least squares through the window's detected residuals (tau in minutes),
+    its rms residual with 3 parameters; no fit below 4 detected plots; the other inputs unchanged."""
+    from agents.evaluation.suites import draw_suite
+    from radar_env.sim.episode import stack_episodes
+    fits, K = (4, 8, 12), 12
+    o = 4 * K + 7
+    checked = 0
+    for suite in ("random", "random_radars", "kim_lee_accel"):
+        eps = draw_suite(suite, 4, seed=900_000)
+        b = stack_episodes(eps)
+        run = load_learned("policy_bp").run(eps)
+        F = wcm.window_features(b.t_s, b.z_m, b.R_m2, b.detected, run.x, run.P, K, 300.0, fits)[0]
+        F0 = wcm.window_features(b.t_s, b.z_m, b.R_m2, b.detected, run.x, run.P, K, 300.0)[0]
+        fin = np.isfinite(run.x).all(-1)
+        assert F.shape[-1] == wcm.feature_count(K, fits) == o + wcm.FIT_FEATURES * len(fits)
+        np.testing.assert_array_equal(F[fin][:, :o], F0[fin])
+        for row in F[fin][::5]:
+            for f, m in enumerate(fits):
+                got = row[o + 9 * f:o + 9 * f + 9]
+                det = row[2:4 * m:4] == 1.0
+                if det.sum() < 4:
+                    assert (got == 0).all()
+                    continue
+                tau = row[3:4 * m:4][det]
+                A = np.stack([np.ones_like(tau), tau, tau ** 2], -1)
+                for side in range(2):
+                    y = row[side:4 * m:4][det]
+                    c = np.linalg.lstsq(A, y, rcond=None)[0]
+                    np.testing.assert_allclose(got[3 * side:3 * side + 3], c, rtol=1e-8, atol=1e-10 * np.abs(c).max())
+                    r = np.sqrt(((y - A @ c) ** 2).sum() / (det.sum() - 3))
+                    np.testing.assert_allclose(got[6 + side], r, rtol=1e-6, atol=1e-12)
+                assert got[8] == 1.0
+                checked += 1
+    assert checked > 100
+
+
+def test_a_quadratic_fit_by_hand():
+    """Plots on a parabola across the track: the fit gives it back exactly, with no residual; a window of fewer than
+    4 detected plots gives no fit."""
+    K = 6
+    t, z, R, det, x, P = _one_look_batch()
+    rows, looks = np.array([0]), np.array([2])
+    F, _ = wcm.look_features(t, z, R, det, x, P, rows, looks, K, 300.0, (4,))
+    assert (F[0, 4 * K + 7:] == 0).all()                      # three looks only: no fit
+    # six looks 5 s apart, the track north at 100 m/s: across residuals 300 m x (1 + 2 tau + 3 tau^2), tau in min
+    n = 6
+    t = np.arange(n, dtype=float)[None] * 5.0
+    tau = (t[0] - t[0, -1]) / 60.0
+    x = np.zeros((1, n, 4))
+    x[0, :, 3] = 100.0
+    x[0, :, 1] = 100.0 * t[0]
+    z = np.zeros((1, n, 2))
+    z[0, :, 1] = 100.0 * t[0]
+    z[0, :, 0] = -300.0 * (1 + 2 * tau + 3 * tau ** 2)           # east of a northbound track is across < 0
+    R = np.broadcast_to(np.eye(2) * 100.0, (1, n, 2, 2)).copy()
+    P = np.broadcast_to(np.eye(4), (1, n, 4, 4)).copy()
+    det = np.ones((1, n), bool)
+    F, frame = wcm.look_features(t, z, R, det, x, P, np.array([0]), np.array([n - 1]), K, 300.0, (4, 6))
+    np.testing.assert_array_equal(frame, [[0.0, 1.0]])
+    o = 4 * K + 7
+    for f in range(2):
+        got = F[0, o + 9 * f:o + 9 * f + 9]
+        np.testing.assert_allclose(got[:3], 0, atol=1e-12)                 # along: nothing
+        np.testing.assert_allclose(got[3:6], [1, 2, 3], rtol=1e-9)           # across: the parabola
+        np.testing.assert_allclose(got[6:], [0, 0, 1], atol=1e-9)
+
+
 def test_features_by_hand():
     t, z, R, det, x, P = _one_look_batch()
     z[0, 1] += [300.0, 600.0]            # the previous look's plot: 300 m to the right (east), 600 m ahead
@@ -135,22 +203,31 @@ def test_mirror_flips_every_across_component():
     np.testing.assert_array_equal(Fm[:, flipped], -F[:, flipped])
     np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
     np.testing.assert_array_equal(Ym, Y * [1, -1])
+    # with two quadratic fits: their across coefficients too (after 4 x 3 window inputs and 7 others)
+    F = rng.normal(size=(5, wcm.feature_count(3, (4, 6))))
+    Fm, _ = mirrored(F, Y, 3, fit_looks=(4, 6))
+    flipped = np.zeros(F.shape[1], bool)
+    flipped[[1, 5, 9, 19 + 3, 19 + 4, 19 + 5, 28 + 3, 28 + 4, 28 + 5]] = True
+    np.testing.assert_array_equal(Fm[:, flipped], -F[:, flipped])
+    np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
 
 
-def test_training_looks_are_the_suites_chunks_then_their_mirror():
+@pytest.mark.parametrize("window, fits", [(3, ()), (6, (4, 6))])
+def test_training_looks_are_the_suites_chunks_then_their_mirror(window, fits):
     """draw_training_looks writes its arrays in place: the same looks as each chunk's training_looks, in order,
     then mirrored(); each suite's weight 1 / its mean squared error, normalised to mean 1."""
     from agents.evaluation.suites import draw_suite
     base = load_learned("policy_bp")
-    hp = {"scenarios": ["random", "random_radars"], "episodes": 6, "window_looks": 3, "scale_m": 300.0,
-          "weight_suites": True, "mirror": True}
+    hp = {"scenarios": ["random", "random_radars"], "episodes": 6, "window_looks": window, "scale_m": 300.0,
+          "weight_suites": True, "mirror": True, **({"fit_looks": list(fits)} if fits else {})}
     F, Y, V, W = draw_training_looks(base, hp, 11)
-    parts = [training_looks(base, draw_suite(n, 6, seed=11), 3, 300.0) for n in hp["scenarios"]]
+    parts = [training_looks(base, draw_suite(n, 6, seed=11), window, 300.0, fits) for n in hp["scenarios"]]
     F0, Y0, V0 = (np.concatenate([p[i] for p in parts]) for i in range(3))
     n = len(F0)
+    assert F0.shape[1] == wcm.feature_count(window, fits)
     for a, b in ((F, F0), (Y, Y0), (V, V0)):
         np.testing.assert_array_equal(a[:n], b)
-    Fm, Ym, Vm = mirrored(F0, Y0, 3, V0)
+    Fm, Ym, Vm = mirrored(F0, Y0, window, V0, fits)
     for a, b in ((F, Fm), (Y, Ym), (V, Vm)):
         np.testing.assert_array_equal(a[n:], b)
     w = np.concatenate([np.full(len(p[1]), 1.0 / np.mean((p[1] ** 2).sum(-1))) for p in parts])
@@ -225,7 +302,12 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
              ({"architecture": {**meta["architecture"], "layers": []}}, r"'architecture.layers' must be a list of 1-4"),
              ({"base": "nope"}, r"field 'base' \('nope'\): .*nope: no policy.json naming the base tracker's kind"),
              ({"base": 3}, r"field 'base' must name the base tracker"),
-             ({"version": 2}, r"format 'radar-track-window-correction' version 2")]
+             ({"version": 2}, r"format 'radar-track-window-correction' version 2"),
+             ({"fit_looks": [3]}, r"field 'fit_looks' must be a list of at most 8 increasing integers in \[4, "
+                                  r"window_looks = 4\], got \[3\]"),
+             ({"fit_looks": [4, 4]}, r"field 'fit_looks' must be a list of at most 8 increasing integers"),
+             ({"fit_looks": 4}, r"field 'fit_looks' must be a list"),
+             ({"fit_looks": [4]}, r"'architecture.input_size' must be 32 for window_looks 4 and fit_looks \[4\]")]
     for change, msg in cases:
         (d / "policy.json").write_text(json.dumps({**meta, **change}))
         with pytest.raises(ValueError, match=msg) as e:
@@ -302,6 +384,11 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
         main(["--method", "window", "--add-covariance", str(tmp_path), "--quiet"])
     with pytest.raises(SystemExit, match=r"--add-covariance applies to --method window"):
         main(["--method", "ppo", "--algo", "ppo", "--add-covariance", str(nc)])
+    # quadratic fits among the inputs: saved in policy.json, read back by the loader
+    f = main(args + ["--name", "fits", "--hp", "fit_looks=[4, 12]", "--hp", "covariance_epochs=0"])
+    assert json.loads((f / "best" / "policy.json").read_text())["fit_looks"] == [4, 12]
+    assert load_learned(f / "best").policy.fit_looks == (4, 12)
+    assert "fit_looks" not in json.loads((a / "policy.json").read_text())      # none: the old format
     # the first recipe's plain inputs and pooled loss still train, to other weights
     c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false"])
     assert load_learned(c).kind == "window_correction"
@@ -309,6 +396,8 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     for bad, msg in ((["--hp", "layers=[0]"], r"--hp layers: must be a list of 1-4 integer widths"),
                      (["--hp", "scenarios=[\"bizup2002\"]"], r"--hp scenarios: a list of distinct training"),
                      (["--hp", "weight_suites=1"], r"--hp weight_suites: must be true or false, got 1"),
+                     (["--hp", "fit_looks=[2]"], r"--hp fit_looks must be a list of at most 8 increasing integers in "
+                                                 r"\[4, window_looks = 24\], got \[2\]"),
                      (["--hp", "standardise_inputs=\"yes\""], r"--hp standardise_inputs: must be true or false"),
                      (["--tracker", "cv"], r"--tracker does not apply to --method window"),
                      (["--seed", "899995"], r"--seed: the training flights' seeds 899995..900006 must lie")):

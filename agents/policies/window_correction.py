@@ -36,8 +36,8 @@ import numpy as np
 from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
-           "feature_count", "network_shapes", "network_forward", "WindowCorrection", "is_window_correction",
-           "load_window_correction", "save_window_correction", "CorrectedEstimate"]
+           "feature_count", "FIT_FEATURES", "network_shapes", "network_forward", "WindowCorrection",
+           "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
 VERSION = 1
@@ -117,10 +117,100 @@ def head_covariance(raw, frame, scale_m, scale_m_s):
     return out
 
 
-def feature_count(window_looks):
+def feature_count(window_looks, fit_looks=()):
     """Number of inputs for a window of ``window_looks`` looks: four per look (along, across, detected, time), the
-    plot noise along and across, the speed, and the base covariance's four standard deviations."""
-    return 4 * int(window_looks) + 7
+    plot noise along and across, the speed, the base covariance's four standard deviations, and
+    :data:`FIT_FEATURES` per entry of ``fit_looks`` (:func:`window_features`)."""
+    return 4 * int(window_looks) + 7 + FIT_FEATURES * len(fit_looks)
+
+
+FIT_FEATURES = 9
+"""Inputs per quadratic fit (``fit_looks``): along a0, a1, a2, across a0, a1, a2, the rms residuals along and across,
+and 1 if the fit was made (else all 0)."""
+FIT_ACROSS = (3, 4, 5)
+"""A fit's across coefficients among its :data:`FIT_FEATURES` (they change sign when the track is mirrored)."""
+FIT_CLIP = 1e4
+"""A fit's coefficients are clipped to +-1e4 (``scale_m`` per minute to the power of the term): the inputs stay
+bounded however close in time its plots are."""
+
+
+def check_fit_looks(fit_looks, window_looks, where):
+    """``fit_looks`` as a tuple of ints, or ``ValueError`` naming ``where``: distinct, increasing, each in
+    ``[4, window_looks]``, at most 8."""
+    ok = (isinstance(fit_looks, (list, tuple)) and len(fit_looks) <= 8
+          and all(isinstance(m, int) and not isinstance(m, bool) and 4 <= m <= window_looks for m in fit_looks)
+          and all(a < b for a, b in zip(fit_looks, fit_looks[1:])))
+    if not ok:
+        raise ValueError(f"{where} must be a list of at most 8 increasing integers in [4, window_looks = "
+                         f"{window_looks}], got {fit_looks!r}")
+    return tuple(fit_looks)
+
+
+@numba.njit(cache=True, nogil=True)
+def _quadratic_fits(F, i, K, fit_looks, o):
+    """The quadratic fits of row ``i`` of ``F`` (its window slots already written) into ``F[i, o:]``: for each
+    ``m`` of ``fit_looks``, the weighted least-squares fit ``y = a0 + a1 tau + a2 tau^2`` (tau in minutes, 0 at the
+    current look) of the along and across residuals of the detected plots among the last ``m`` looks, solved in
+    ``s = tau / span`` (span: the oldest detected plot's ``|tau|``) for its conditioning; all 0 with fewer than 4
+    detected plots or a near-singular system."""
+    for f in range(fit_looks.size):
+        m = min(fit_looks[f], K)
+        base = o + FIT_FEATURES * f
+        for c in range(FIT_FEATURES):
+            F[i, base + c] = 0.0
+        n, span = 0, 0.0
+        for j in range(m):
+            if F[i, 4 * j + 2] != 0.0:
+                n += 1
+                span = max(span, abs(F[i, 4 * j + 3]))
+        if n < 4 or not span > 0.0:
+            continue
+        s0 = s1 = s2 = s3 = s4 = 0.0
+        ya0 = ya1 = ya2 = yc0 = yc1 = yc2 = 0.0
+        for j in range(m):
+            if F[i, 4 * j + 2] != 0.0:
+                s = F[i, 4 * j + 3] / span
+                ss = s * s
+                s0 += 1.0
+                s1 += s
+                s2 += ss
+                s3 += ss * s
+                s4 += ss * ss
+                ya, yc = F[i, 4 * j], F[i, 4 * j + 1]
+                ya0 += ya
+                ya1 += ya * s
+                ya2 += ya * ss
+                yc0 += yc
+                yc1 += yc * s
+                yc2 += yc * ss
+        # the symmetric 3x3 moment matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]]: its inverse by cofactors
+        c00, c01, c02 = s2 * s4 - s3 * s3, s2 * s3 - s1 * s4, s1 * s3 - s2 * s2
+        c11, c12, c22 = s0 * s4 - s2 * s2, s1 * s2 - s0 * s3, s0 * s2 - s1 * s1
+        det = s0 * c00 + s1 * c01 + s2 * c02
+        if not det > 1e-9 * s0 * s0 * s0:        # s in [-1, 0]: a relative threshold
+            continue
+        inv = 1.0 / det
+        ra = rc = 0.0
+        for side in range(2):
+            y0, y1, y2 = (ya0, ya1, ya2) if side == 0 else (yc0, yc1, yc2)
+            b0 = (c00 * y0 + c01 * y1 + c02 * y2) * inv
+            b1 = (c01 * y0 + c11 * y1 + c12 * y2) * inv
+            b2 = (c02 * y0 + c12 * y1 + c22 * y2) * inv
+            r2 = 0.0
+            for j in range(m):
+                if F[i, 4 * j + 2] != 0.0:
+                    s = F[i, 4 * j + 3] / span
+                    e = F[i, 4 * j + side] - (b0 + s * (b1 + s * b2))
+                    r2 += e * e
+            k = base + 3 * side
+            F[i, k] = min(max(b0, -FIT_CLIP), FIT_CLIP)
+            F[i, k + 1] = min(max(b1 / span, -FIT_CLIP), FIT_CLIP)
+            F[i, k + 2] = min(max(b2 / (span * span), -FIT_CLIP), FIT_CLIP)
+            if side == 0:
+                ra = math.sqrt(r2 / (n - 3))
+            else:
+                rc = math.sqrt(r2 / (n - 3))
+        F[i, base + 6], F[i, base + 7], F[i, base + 8] = ra, rc, 1.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -132,7 +222,7 @@ def _rotated(c00, c01, c11, ca, sa):
 
 
 @numba.njit(cache=True, nogil=True)
-def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, F, frame):
+def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, fit_looks, F, frame):
     """:func:`window_features` of look ``looks[i]`` of row ``rows[i]`` into ``F[i]`` and its frame into ``frame[i]``."""
     for i in range(rows.size):
         b, k = rows[i], looks[i]
@@ -166,24 +256,26 @@ def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, F, frame)
         F[i, m], F[i, m + 1], F[i, m + 2] = math.log1p(ra) / 5, math.log1p(rc) / 5, sp / scale_m
         F[i, m + 3], F[i, m + 4] = math.log1p(pa) / 5, math.log1p(pc) / 5
         F[i, m + 5], F[i, m + 6] = math.log1p(va) / 5, math.log1p(vc) / 5
+        if fit_looks.size:
+            _quadratic_fits(F, i, K, fit_looks, m + 7)
 
 
-def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m):
+def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks=()):
     """The correction's inputs at the looks ``(rows[i], looks[i])`` only (module docstring; arguments as
     :func:`window_features`): ``(F (n, feature_count), frame (n, 2))``, ``frame`` the unit vector along the base
     velocity. Compiled; the base estimate must be finite at those looks."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     looks = np.ascontiguousarray(looks, dtype=np.int64)
-    F = np.empty((rows.size, feature_count(window_looks)))
+    F = np.empty((rows.size, feature_count(window_looks, fit_looks)))
     frame = np.empty((rows.size, 2))
     _features(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(z_m, dtype=np.float64),
               np.ascontiguousarray(R_m2, dtype=np.float64), np.ascontiguousarray(detected, dtype=np.bool_),
               np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(P, dtype=np.float64), rows, looks,
-              int(window_looks), float(scale_m), F, frame)
+              int(window_looks), float(scale_m), np.asarray(fit_looks, dtype=np.int64).reshape(-1), F, frame)
     return F, frame
 
 
-def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
+def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_looks=()):
     """The correction's inputs at every look.
 
     Args:
@@ -191,6 +283,7 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
             detection flags (B, L), as :func:`radar_env.sim.episode.stack_episodes` holds them.
         x, P: the base tracker's estimates (B, L, 4) and covariances (B, L, 4, 4) (NaN where it has none).
         window_looks: how many looks, the current one included. scale_m: the length unit of the inputs.
+        fit_looks: the window lengths (looks) of the quadratic fits appended to the inputs (none by default).
     Returns:
         ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
         velocity; east below 1 mm/s). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual
@@ -198,12 +291,16 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m):
         (0 when not detected or before the episode; clipped to +-:data:`RESIDUAL_CLIP`), the detection flag and
         ``(t[k-j] - t[k]) / 60 s`` (0 before the episode). Then log(1 + sd / 1 m) / 5 along and across of the R of
         the latest detected plot in the window (0 if none), the speed in ``scale_m`` per second, and
-        log(1 + sd) / 5 of the base's position (m) and velocity (m/s) covariance along and across. NaN where the
-        base estimate is not finite.
+        log(1 + sd) / 5 of the base's position (m) and velocity (m/s) covariance along and across. Then, for each
+        ``m`` of ``fit_looks``, :data:`FIT_FEATURES` inputs: the least-squares quadratic ``a0 + a1 tau + a2 tau^2``
+        (tau in minutes) through the along and then the across residuals of the detected plots among the last ``m``
+        looks (a0, a1, a2 each, clipped to +-:data:`FIT_CLIP`), the rms residuals along and across, and 1 (all 0
+        with fewer than 4 detected plots): what a turn or a speed change has done to the plots lately, as a
+        curvature the network need not find by itself. NaN where the base estimate is not finite.
     """
     B, L = t_s.shape
     rows, looks = np.nonzero(np.isfinite(x).all(-1))
-    f, frame = look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m)
+    f, frame = look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks)
     F = np.full((B, L, f.shape[1]), np.nan)
     ca, sa = np.full((B, L), np.nan), np.full((B, L), np.nan)
     F[rows, looks], ca[rows, looks], sa[rows, looks] = f, frame[:, 0], frame[:, 1]
@@ -266,6 +363,7 @@ class WindowCorrection:
         self.config, self.base, self.cfg = config, base, base_cfg
         self.arch = config["architecture"]
         self.window_looks = int(config["window_looks"])
+        self.fit_looks = tuple(config.get("fit_looks", ()))
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
@@ -284,7 +382,7 @@ class WindowCorrection:
         ``d`` the move in m, east and north, and ``C (n, 4, 4)`` the corrected estimate's covariance from the
         covariance head (:func:`head_covariance`), or ``None`` without one."""
         F, frame = look_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, rows, looks,
-                                 self.window_looks, self.scale_m)
+                                 self.window_looks, self.scale_m, self.fit_looks)
         out = network_forward(self.w, self.n_layers, F, self.has_covariance)
         o, raw = (out[0], out[1]) if self.has_covariance else (out, None)
         o = o * self.scale_m
@@ -359,9 +457,10 @@ def load_window_correction(path, load_base):
         raise ValueError(f"{meta_file}: field 'architecture.layers' must be a list of 1-4 widths, got {layers!r}")
     for i, h in enumerate(layers):
         _positive_int(meta_file, h, f"architecture.layers[{i}]", 1024)
-    if arch.get("input_size") != feature_count(window):
-        raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window)} for "
-                         f"window_looks {window}, got {arch.get('input_size')!r}")
+    fits = check_fit_looks(config.get("fit_looks", []), window, f"{meta_file}: field 'fit_looks'")
+    if arch.get("input_size") != feature_count(window, fits):
+        raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window, fits)} for "
+                         f"window_looks {window} and fit_looks {list(fits)}, got {arch.get('input_size')!r}")
     cov = arch.get("covariance", False)
     if not isinstance(cov, bool):
         raise ValueError(f"{meta_file}: field 'architecture.covariance' must be true or false, got {cov!r}")

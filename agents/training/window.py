@@ -54,9 +54,9 @@ COV_SCALE_M_S = 30.0
 COV_LEARNING_RATE = 1e-2
 COV_BATCH_LOOKS = 4096
 
-HP_KEYS = ("base", "window_looks", "layers", "scale_m", "episodes", "scenarios", "mirror", "standardise_inputs",
-           "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every", "eval_scenarios", "select_on",
-           "covariance_epochs", "fresh_flights_every")
+HP_KEYS = ("base", "window_looks", "fit_looks", "layers", "scale_m", "episodes", "scenarios", "mirror",
+           "standardise_inputs", "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every",
+           "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
@@ -83,6 +83,8 @@ def check_hp(hp):
         raise ValueError(f"--hp: window hyperparameters missing {missing}, unknown {unknown} (every key of "
                          "agents/training/hyperparams/window.toml is required)")
     _int_in(hp, "window_looks", 1, 64)
+    from agents.policies.window_correction import check_fit_looks
+    hp["fit_looks"] = list(check_fit_looks(hp["fit_looks"], hp["window_looks"], "--hp fit_looks"))
     _int_in(hp, "episodes", 1, 200_000)
     _int_in(hp, "epochs", 1, 10_000)
     _int_in(hp, "batch_looks", 1, 1 << 20)
@@ -111,7 +113,7 @@ def check_hp(hp):
     return hp, base
 
 
-def training_looks(base, episodes, window_looks, scale_m):
+def training_looks(base, episodes, window_looks, scale_m, fit_looks=()):
     """The base tracker on ``episodes`` and every scored look's inputs and targets: ``(F (n, features), Y (n, 2),
     V (n, 2))`` with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``,
     and ``V`` the truth's velocity less the base's, along and across, in :data:`COV_SCALE_M_S` (the covariance head's
@@ -122,7 +124,7 @@ def training_looks(base, episodes, window_looks, scale_m):
     batch = stack_episodes(episodes)
     run = base.run(episodes)
     F, ca, sa = window_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, run.x, run.P, window_looks,
-                                scale_m)
+                                scale_m, fit_looks)
     dx = batch.truth[..., 0] - run.x[..., 0]
     dy = batch.truth[..., 1] - run.x[..., 1]
     Y = np.stack([dx * ca + dy * sa, -dx * sa + dy * ca], -1) / scale_m
@@ -134,17 +136,21 @@ def training_looks(base, episodes, window_looks, scale_m):
     return F[used], Y[used], V[used]
 
 
-def mirrored(F, Y, window_looks, V=None):
-    """``(F, Y)`` (and ``V``, if given) reflected across the track: every across component (the window's residuals
-    and the targets') changes sign."""
+def mirrored(F, Y, window_looks, V=None, fit_looks=()):
+    """``(F, Y)`` (and ``V``, if given) reflected across the track: every across component (the window's residuals,
+    the fits' across coefficients and the targets') changes sign."""
     F, Y, V = F.copy(), Y.copy(), None if V is None else V.copy()
-    _reflect(F, Y, window_looks, V)
+    _reflect(F, Y, window_looks, V, fit_looks)
     return (F, Y) if V is None else (F, Y, V)
 
 
-def _reflect(F, Y, window_looks, V=None):
+def _reflect(F, Y, window_looks, V=None, fit_looks=()):
     """:func:`mirrored` in the arrays' own memory."""
+    from agents.policies.window_correction import FIT_ACROSS, FIT_FEATURES
     F[:, 1:4 * window_looks:4] *= -1
+    o = 4 * window_looks + 7
+    for f in range(len(fit_looks)):
+        F[:, [o + FIT_FEATURES * f + c for c in FIT_ACROSS]] *= -1
     Y[:, 1] *= -1
     if V is not None:
         V[:, 1] *= -1
@@ -340,11 +346,12 @@ def draw_training_looks(base, hp, seed):
     beside it), not three times (4.4 M looks of 24-look windows: 3.6 GB)."""
     from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
+    fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
     for name in hp["scenarios"]:
         chunks = []
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
             eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"])))
+            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits))
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
     n = sum(sizes)
@@ -364,7 +371,7 @@ def draw_training_looks(base, hp, seed):
     W[:n] /= W[:n].mean()
     if hp["mirror"]:            # the mirrored looks written into the second half
         F[n:], Y[n:], V[n:], W[n:] = F[:n], Y[:n], V[:n], W[:n]
-        _reflect(F[n:], Y[n:], hp["window_looks"], V[n:])
+        _reflect(F[n:], Y[n:], hp["window_looks"], V[n:], fits)
     return F, Y, V, W
 
 
@@ -423,7 +430,10 @@ def _base_field(base_name, folder):
 def _save(folder, hp, weights, env_kwargs, extra=None):
     from agents.policies.window_correction import feature_count, save_window_correction
     config = {"base": _base_field(hp["base"], folder), "window_looks": hp["window_looks"], "scale_m": hp["scale_m"],
-              "architecture": {"input_size": feature_count(hp["window_looks"]), "layers": list(hp["layers"])}}
+              "architecture": {"input_size": feature_count(hp["window_looks"], hp["fit_looks"]),
+                               "layers": list(hp["layers"])}}
+    if hp["fit_looks"]:         # absent: none (every correction saved before the fits existed)
+        config["fit_looks"] = list(hp["fit_looks"])
     save_window_correction(folder, weights, config, env_kwargs)
     if extra is not None:
         (Path(folder) / "selection.json").write_text(json.dumps(extra, indent=1, allow_nan=False))
