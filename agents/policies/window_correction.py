@@ -149,8 +149,8 @@ def check_fit_looks(fit_looks, window_looks, where):
 @numba.njit(cache=True, nogil=True)
 def _quadratic_fits(F, i, K, fit_looks, o):
     """The quadratic fits of row ``i`` of ``F`` (its window slots already written) into ``F[i, o:]``: for each
-    ``m`` of ``fit_looks``, the weighted least-squares fit ``y = a0 + a1 tau + a2 tau^2`` (tau in minutes, 0 at the
-    current look) of the along and across residuals of the detected plots among the last ``m`` looks, solved in
+    ``m`` of ``fit_looks``, the least-squares fit ``y = a0 + a1 tau + a2 tau^2`` (tau in minutes, 0 at the current
+    look) of the along and across residuals of the detected plots among the last ``m`` looks, solved in
     ``s = tau / span`` (span: the oldest detected plot's ``|tau|``) for its conditioning; all 0 with fewer than 4
     detected plots or a near-singular system."""
     for f in range(fit_looks.size):
