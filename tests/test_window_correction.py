@@ -388,10 +388,13 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     f = main(args + ["--name", "fits", "--hp", "fit_looks=[4, 12]", "--hp", "covariance_epochs=0"])
     assert json.loads((f / "best" / "policy.json").read_text())["fit_looks"] == [4, 12]
     assert load_learned(f / "best").policy.fit_looks == (4, 12)
-    assert "fit_looks" not in json.loads((a / "policy.json").read_text())      # none: the old format
-    # the first recipe's plain inputs and pooled loss still train, to other weights
-    c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false"])
+    from agents.training.runs import load_hyperparams
+    assert json.loads((a / "policy.json").read_text())["fit_looks"] == load_hyperparams("window")["fit_looks"]
+    # the first recipe's plain inputs, pooled loss and no fits still train, to other weights
+    c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false",
+                     "--hp", "fit_looks=[]"])
     assert load_learned(c).kind == "window_correction"
+    assert "fit_looks" not in json.loads((c / "policy.json").read_text())      # none: the old format
     assert (c / "policy.npz").read_bytes() != (a / "policy.npz").read_bytes()
     for bad, msg in ((["--hp", "layers=[0]"], r"--hp layers: must be a list of 1-4 integer widths"),
                      (["--hp", "scenarios=[\"bizup2002\"]"], r"--hp scenarios: a list of distinct training"),
