@@ -194,6 +194,35 @@ def test_features_by_hand():
     assert np.isnan(wcm.window_features(t, z, R, det, x, P, 4, 300.0)[0][0, 1]).all()
 
 
+def test_q_inputs_are_the_base_q_at_the_last_looks():
+    """q_looks: log10(max(q, 1e-3)) / 2 of the base's q at looks k, k - 1, ..., after every other input; the floor
+    where the base has none (NaN: before its track start) and before the episode; the other inputs unchanged."""
+    from agents.evaluation.suites import draw_suite
+    from radar_env.sim.episode import stack_episodes
+    eps = draw_suite("random_radars", 5, seed=900_000)
+    b = stack_episodes(eps)
+    run = load_learned("policy_bp").run(eps)
+    q = run.q_m_s2.copy()
+    q[1, 30] = 1e-7                                         # below the floor
+    args = (b.t_s, b.z_m, b.R_m2, b.detected, run.x, run.P, 6, 300.0, (4, 6))
+    F0 = wcm.window_features(*args)[0]
+    F = wcm.window_features(*args, q, 5)[0]
+    assert F.shape[-1] == F0.shape[-1] + 5 == wcm.feature_count(6, (4, 6), 5)
+    fin = np.isfinite(run.x).all(-1)
+    np.testing.assert_array_equal(F[fin][:, :-5], F0[fin])
+    L = q.shape[1]
+    for j in range(5):
+        qj = np.full(q.shape, np.nan)
+        qj[:, j:] = q[:, :L - j]
+        want = np.log10(np.maximum(np.nan_to_num(qj, nan=0.0), 1e-3)) / 2
+        np.testing.assert_allclose(F[..., -5 + j][fin], want[fin], rtol=1e-15, atol=0)
+    assert F[1, 30, -5] == -1.5 and F[1, 31, -4] == -1.5      # the floor, at the look and one look later
+    s = int(run.start_index[0])
+    assert np.isnan(q[0, s - 2]) and F[0, s, -3] == -1.5        # two looks back from the start: no q there
+    with pytest.raises(ValueError, match="q_looks = 5 needs the base's q"):
+        wcm.window_features(*args, None, 5)
+
+
 def test_mirror_flips_every_across_component():
     rng = np.random.default_rng(0)
     F, Y = rng.normal(size=(5, wcm.feature_count(3))), rng.normal(size=(5, 2))
@@ -204,7 +233,9 @@ def test_mirror_flips_every_across_component():
     np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
     np.testing.assert_array_equal(Ym, Y * [1, -1])
     # with two quadratic fits: their across coefficients too (after 4 x 3 window inputs and 7 others)
-    F = rng.normal(size=(5, wcm.feature_count(3, (4, 6))))
+    # and the base's q at the last 2 looks after them: a level, the same either side of the track
+    F = rng.normal(size=(5, wcm.feature_count(3, (4, 6), 2)))
+    assert F.shape[1] == 4 * 3 + 7 + 2 * 9 + 2
     Fm, _ = mirrored(F, Y, 3, fit_looks=(4, 6))
     flipped = np.zeros(F.shape[1], bool)
     flipped[[1, 5, 9, 19 + 3, 19 + 4, 19 + 5, 28 + 3, 28 + 4, 28 + 5]] = True
@@ -242,10 +273,11 @@ def _weights(arch, rng, out_scale=1.0):
     return w
 
 
-def _save(tmp_path, name="wc", base="policy_bp", out_scale=1.0, window=4, layers=(8, 6), seed=0):
-    arch = {"input_size": wcm.feature_count(window), "layers": list(layers)}
+def _save(tmp_path, name="wc", base="policy_bp", out_scale=1.0, window=4, layers=(8, 6), seed=0, q_looks=0):
+    arch = {"input_size": wcm.feature_count(window, (), q_looks), "layers": list(layers)}
     w = _weights(arch, np.random.default_rng(seed), out_scale)
-    cfg = {"base": base, "window_looks": window, "scale_m": 300.0, "architecture": arch}
+    cfg = {"base": base, "window_looks": window, "scale_m": 300.0, "architecture": arch,
+           **({"q_looks": q_looks} if q_looks else {})}
     env = json.loads((BUNDLED_LEARNED[base] / "env_config.json").read_text()) if base in BUNDLED_LEARNED else {}
     wcm.save_window_correction(tmp_path / name, w, cfg, env)
     return tmp_path / name
@@ -307,12 +339,23 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
                                   r"window_looks = 4\], got \[3\]"),
              ({"fit_looks": [4, 4]}, r"field 'fit_looks' must be a list of at most 8 increasing integers"),
              ({"fit_looks": 4}, r"field 'fit_looks' must be a list"),
-             ({"fit_looks": [4]}, r"'architecture.input_size' must be 32 for window_looks 4 and fit_looks \[4\]")]
+             ({"fit_looks": [4]}, r"'architecture.input_size' must be 32 for window_looks 4, fit_looks \[4\] and "
+                                  r"q_looks 0"),
+             ({"q_looks": 5}, r"field 'q_looks' must be an integer in \[0, window_looks = 4\], got 5"),
+             ({"q_looks": -1}, r"field 'q_looks' must be an integer in \[0, window_looks = 4\], got -1"),
+             ({"q_looks": True}, r"field 'q_looks' must be an integer"),
+             ({"q_looks": 2}, r"'architecture.input_size' must be 25 for window_looks 4, fit_looks \[\] and "
+                              r"q_looks 2")]
     for change, msg in cases:
         (d / "policy.json").write_text(json.dumps({**meta, **change}))
         with pytest.raises(ValueError, match=msg) as e:
             load_learned(d)
         assert "\n" not in str(e.value)
+    # the base's q as inputs: a learned IMM has none
+    imm = _save(tmp_path, "wc_imm_q", base="policy_imm_bp", q_looks=2)
+    with pytest.raises(ValueError, match=r"field 'base' \('policy_imm_bp'\): .*kind 'learned_imm_gru' has no q; "
+                                         r"q_looks 2 needs a q-policy base"):
+        load_learned(imm)
     # a correction of a correction is refused (its base must be a q-policy or a learned IMM)
     (d / "policy.json").write_text(json.dumps(meta))
     inner = shutil.copytree(d, tmp_path / "outer" / "inner")
@@ -395,6 +438,15 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
                      "--hp", "fit_looks=[]"])
     assert load_learned(c).kind == "window_correction"
     assert "fit_looks" not in json.loads((c / "policy.json").read_text())      # none: the old format
+    assert "q_looks" not in json.loads((c / "policy.json").read_text())
+    # the base's q as inputs: saved, read back; refused over a base without q
+    qr = main(args + ["--name", "q", "--hp", "q_looks=3", "--hp", "covariance_epochs=0"])
+    assert json.loads((qr / "best" / "policy.json").read_text())["q_looks"] == 3
+    assert load_learned(qr / "best").policy.q_looks == 3
+    with pytest.raises(SystemExit, match=r"--hp q_looks: 3 needs a q-policy base .*learned_imm_gru"):
+        main(args + ["--name", "q2", "--hp", "q_looks=3", "--hp", "base=policy_imm_bp"])
+    with pytest.raises(SystemExit, match=r"--hp q_looks must be an integer in \[0, window_looks = 24\], got 25"):
+        main(args + ["--name", "q2", "--hp", "q_looks=25"])
     assert (c / "policy.npz").read_bytes() != (a / "policy.npz").read_bytes()
     for bad, msg in ((["--hp", "layers=[0]"], r"--hp layers: must be a list of 1-4 integer widths"),
                      (["--hp", "scenarios=[\"bizup2002\"]"], r"--hp scenarios: a list of distinct training"),
@@ -436,12 +488,13 @@ def test_fresh_flights_draw_new_seeds_and_the_head_fits_the_last_draw(tmp_path):
         main(args + ["--name", "c", "--hp", "fresh_flights_every=-1"])
 
 
-@pytest.mark.parametrize("covariance", [False, True])
-def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path, covariance):
+@pytest.mark.parametrize("covariance, q_looks", [(False, 0), (True, 0), (False, 4)])
+def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path, covariance, q_looks):
     import gymnasium as gym
     from radar_env.envs.core import draw_setup_and_episode
     from agents.policies.checks import env_kwargs_from_json
-    wc = load_learned(_save_cov(tmp_path)[0] if covariance else _save(tmp_path))
+    wc = load_learned(_save_cov(tmp_path)[0] if covariance else _save(tmp_path, q_looks=q_looks))
+    assert wc.policy.q_looks == q_looks
     base = load_learned("policy_bp")
     cfg = base.env_config
     seeds = [31, 32]

@@ -6,7 +6,8 @@ left the straight line a few looks ago pull it only as far as its gain allows. T
 last ``window_looks`` plots (detected or not, each with its time) as residuals from the base track's straight line
 through its current estimate, in the frame of its velocity (along, across), and outputs where the target is
 relative to that estimate: a regression of the truth on the window, trained on flights of training-range seeds
-(:mod:`agents.training.window`). It is causal (look k's correction uses the plots up to look k and the base's
+(:mod:`agents.training.window`). Optionally it also reads least-squares quadratics through the window's residuals
+(``fit_looks``) and the q its base chose at its last looks (``q_looks``, a q-policy base), :func:`window_features`. It is causal (look k's correction uses the plots up to look k and the base's
 estimate at look k only) and has no feedback: the base tracker runs unchanged. Without a covariance head its
 covariance is reported unchanged (the consistency rows show what that costs); with one (``policy.json``'s
 ``architecture.covariance``), the reported covariance is the head's: a second linear output of the last tanh layer
@@ -36,7 +37,7 @@ import numpy as np
 from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
-           "feature_count", "FIT_FEATURES", "network_shapes", "network_forward", "WindowCorrection",
+           "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward", "WindowCorrection",
            "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
@@ -117,11 +118,11 @@ def head_covariance(raw, frame, scale_m, scale_m_s):
     return out
 
 
-def feature_count(window_looks, fit_looks=()):
+def feature_count(window_looks, fit_looks=(), q_looks=0):
     """Number of inputs for a window of ``window_looks`` looks: four per look (along, across, detected, time), the
-    plot noise along and across, the speed, the base covariance's four standard deviations, and
-    :data:`FIT_FEATURES` per entry of ``fit_looks`` (:func:`window_features`)."""
-    return 4 * int(window_looks) + 7 + FIT_FEATURES * len(fit_looks)
+    plot noise along and across, the speed, the base covariance's four standard deviations,
+    :data:`FIT_FEATURES` per entry of ``fit_looks`` and one per look of ``q_looks`` (:func:`window_features`)."""
+    return 4 * int(window_looks) + 7 + FIT_FEATURES * len(fit_looks) + int(q_looks)
 
 
 FIT_FEATURES = 9
@@ -144,6 +145,18 @@ def check_fit_looks(fit_looks, window_looks, where):
         raise ValueError(f"{where} must be a list of at most 8 increasing integers in [4, window_looks = "
                          f"{window_looks}], got {fit_looks!r}")
     return tuple(fit_looks)
+
+
+Q_FLOOR_M_S2 = 1e-3
+"""The base's process-noise level as an input (``q_looks``) is ``log10(max(q, 1e-3 m/s^2)) / 2``; a look without
+one (before the track's start or the episode's) reads as the floor."""
+
+
+def check_q_looks(q_looks, window_looks, where):
+    """``q_looks`` as an int, or ``ValueError`` naming ``where``: an integer in ``[0, window_looks]``."""
+    if not isinstance(q_looks, int) or isinstance(q_looks, bool) or not 0 <= q_looks <= window_looks:
+        raise ValueError(f"{where} must be an integer in [0, window_looks = {window_looks}], got {q_looks!r}")
+    return int(q_looks)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -222,7 +235,7 @@ def _rotated(c00, c01, c11, ca, sa):
 
 
 @numba.njit(cache=True, nogil=True)
-def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, fit_looks, F, frame):
+def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, fit_looks, q, q_looks, F, frame):
     """:func:`window_features` of look ``looks[i]`` of row ``rows[i]`` into ``F[i]`` and its frame into ``frame[i]``."""
     for i in range(rows.size):
         b, k = rows[i], looks[i]
@@ -258,24 +271,33 @@ def _features(t_s, z_m, R_m2, detected, x, P, rows, looks, K, scale_m, fit_looks
         F[i, m + 5], F[i, m + 6] = math.log1p(va) / 5, math.log1p(vc) / 5
         if fit_looks.size:
             _quadratic_fits(F, i, K, fit_looks, m + 7)
+        o = m + 7 + FIT_FEATURES * fit_looks.size
+        for j in range(q_looks):    # the base's q at the last q_looks looks (the floor where it has none)
+            v = q[b, k - j] if k - j >= 0 else np.nan
+            F[i, o + j] = math.log10(v if v > Q_FLOOR_M_S2 else Q_FLOOR_M_S2) / 2.0
 
 
-def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks=()):
+def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks=(), q=None,
+                  q_looks=0):
     """The correction's inputs at the looks ``(rows[i], looks[i])`` only (module docstring; arguments as
     :func:`window_features`): ``(F (n, feature_count), frame (n, 2))``, ``frame`` the unit vector along the base
     velocity. Compiled; the base estimate must be finite at those looks."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     looks = np.ascontiguousarray(looks, dtype=np.int64)
-    F = np.empty((rows.size, feature_count(window_looks, fit_looks)))
+    if q_looks and q is None:
+        raise ValueError(f"q_looks = {q_looks} needs the base's q (B, L), got None")
+    q = np.full((1, 1), np.nan) if q is None else np.ascontiguousarray(q, dtype=np.float64)
+    F = np.empty((rows.size, feature_count(window_looks, fit_looks, q_looks)))
     frame = np.empty((rows.size, 2))
     _features(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(z_m, dtype=np.float64),
               np.ascontiguousarray(R_m2, dtype=np.float64), np.ascontiguousarray(detected, dtype=np.bool_),
               np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(P, dtype=np.float64), rows, looks,
-              int(window_looks), float(scale_m), np.asarray(fit_looks, dtype=np.int64).reshape(-1), F, frame)
+              int(window_looks), float(scale_m), np.asarray(fit_looks, dtype=np.int64).reshape(-1), q, int(q_looks),
+              F, frame)
     return F, frame
 
 
-def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_looks=()):
+def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_looks=(), q=None, q_looks=0):
     """The correction's inputs at every look.
 
     Args:
@@ -284,6 +306,8 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_l
         x, P: the base tracker's estimates (B, L, 4) and covariances (B, L, 4, 4) (NaN where it has none).
         window_looks: how many looks, the current one included. scale_m: the length unit of the inputs.
         fit_looks: the window lengths (looks) of the quadratic fits appended to the inputs (none by default).
+        q, q_looks: the base's process-noise level at every look (B, L) in m/s^2 (NaN where it has none), and how
+            many of its last looks are appended to the inputs (0, none, by default; ``q`` is then not read).
     Returns:
         ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
         velocity; east below 1 mm/s). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual
@@ -296,11 +320,14 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_l
         (tau in minutes) through the along and then the across residuals of the detected plots among the last ``m``
         looks (a0, a1, a2 each, clipped to +-:data:`FIT_CLIP`), the rms residuals along and across, and 1 (all 0
         with fewer than 4 detected plots): what a turn or a speed change has done to the plots lately, as a
-        curvature the network need not find by itself. NaN where the base estimate is not finite.
+        curvature the network need not find by itself. Then ``log10(max(q, 1e-3)) / 2`` of the base's q at each of
+        the last ``q_looks`` looks, the current one first (the floor before the track's start): what the base
+        itself made of the past plots. NaN where the base estimate is not finite.
     """
     B, L = t_s.shape
     rows, looks = np.nonzero(np.isfinite(x).all(-1))
-    f, frame = look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks)
+    f, frame = look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, scale_m, fit_looks, q,
+                             q_looks)
     F = np.full((B, L, f.shape[1]), np.nan)
     ca, sa = np.full((B, L), np.nan), np.full((B, L), np.nan)
     F[rows, looks], ca[rows, looks], sa[rows, looks] = f, frame[:, 0], frame[:, 1]
@@ -364,6 +391,7 @@ class WindowCorrection:
         self.arch = config["architecture"]
         self.window_looks = int(config["window_looks"])
         self.fit_looks = tuple(config.get("fit_looks", ()))
+        self.q_looks = int(config.get("q_looks", 0))
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
@@ -377,12 +405,13 @@ class WindowCorrection:
         from baselines.trackers import run_q_policy
         return run_q_policy(episodes, self.base, name, self.cfg)
 
-    def corrected_at(self, batch, x, P, rows, looks):
+    def corrected_at(self, batch, x, P, rows, looks, q=None):
         """The correction at the looks ``(rows[i], looks[i])`` (the base estimate finite there): ``(d (n, 2), C)``,
         ``d`` the move in m, east and north, and ``C (n, 4, 4)`` the corrected estimate's covariance from the
-        covariance head (:func:`head_covariance`), or ``None`` without one."""
+        covariance head (:func:`head_covariance`), or ``None`` without one. ``q``: the base's q (B, L), read only
+        with ``q_looks``."""
         F, frame = look_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, rows, looks,
-                                 self.window_looks, self.scale_m, self.fit_looks)
+                                 self.window_looks, self.scale_m, self.fit_looks, q, self.q_looks)
         out = network_forward(self.w, self.n_layers, F, self.has_covariance)
         o, raw = (out[0], out[1]) if self.has_covariance else (out, None)
         o = o * self.scale_m
@@ -400,7 +429,7 @@ class WindowCorrection:
         x, P = run.x.copy(), run.P
         after = np.arange(x.shape[1])[None, :] >= np.asarray(run.start_index)[:, None]
         rows, looks = np.nonzero(after & np.isfinite(run.x).all(-1))
-        d, C = self.corrected_at(batch, run.x, run.P, rows, looks)
+        d, C = self.corrected_at(batch, run.x, run.P, rows, looks, run.q_m_s2)
         x[rows, looks, :2] += d
         if C is not None:
             P = run.P.copy()
@@ -458,9 +487,11 @@ def load_window_correction(path, load_base):
     for i, h in enumerate(layers):
         _positive_int(meta_file, h, f"architecture.layers[{i}]", 1024)
     fits = check_fit_looks(config.get("fit_looks", []), window, f"{meta_file}: field 'fit_looks'")
-    if arch.get("input_size") != feature_count(window, fits):
-        raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window, fits)} for "
-                         f"window_looks {window} and fit_looks {list(fits)}, got {arch.get('input_size')!r}")
+    q_looks = check_q_looks(config.get("q_looks", 0), window, f"{meta_file}: field 'q_looks'")
+    if arch.get("input_size") != feature_count(window, fits, q_looks):
+        raise ValueError(f"{meta_file}: field 'architecture.input_size' must be {feature_count(window, fits, q_looks)}"
+                         f" for window_looks {window}, fit_looks {list(fits)} and q_looks {q_looks}, got "
+                         f"{arch.get('input_size')!r}")
     cov = arch.get("covariance", False)
     if not isinstance(cov, bool):
         raise ValueError(f"{meta_file}: field 'architecture.covariance' must be true or false, got {cov!r}")
@@ -485,6 +516,9 @@ def load_window_correction(path, load_base):
         if kind not in Q_POLICY_KINDS + IMM_KINDS:
             raise ValueError(f"{folder}: kind {kind!r}; a base must be a q-policy or a learned IMM "
                              f"({', '.join(Q_POLICY_KINDS + IMM_KINDS)})")
+        if q_looks and kind not in Q_POLICY_KINDS:
+            raise ValueError(f"{folder}: kind {kind!r} has no q; q_looks {q_looks} needs a q-policy base "
+                             f"({', '.join(Q_POLICY_KINDS)})")
         policy, cfg = load_base(weights_file(folder, kind))
     except ValueError as e:
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
@@ -514,6 +548,7 @@ class CorrectedEstimate(gym.Wrapper):
                              f"window_correction), got {type(correction).__name__}")
         super().__init__(env)
         self.correction = correction
+        self._q = {}                # look index -> the base's q there (q_looks: the correction reads it)
 
     def _corrected(self, info):
         ep = self.env.unwrapped.episode()
@@ -521,11 +556,13 @@ class CorrectedEstimate(gym.Wrapper):
         lo = max(0, k - self.correction.window_looks + 1)
         looks = SimpleNamespace(**{f: ep[f][None, lo:k + 1] for f in ("t_s", "z_m", "R_m2", "detected")})
         n = k + 1 - lo
+        self._q[k] = float(info["q_m_s2"])
+        q = np.array([[self._q.get(j, np.nan) for j in range(lo, k + 1)]])
         x = np.broadcast_to(np.asarray(info["estimate"], np.float64), (1, n, 4))
         P = np.broadcast_to(np.asarray(info["covariance"], np.float64), (1, n, 4, 4))
         out, cov = np.array(info["estimate"], np.float64), np.array(info["covariance"], np.float64)
         if np.isfinite(out).all():
-            d, C = self.correction.corrected_at(looks, x, P, [0], [n - 1])      # the current look only
+            d, C = self.correction.corrected_at(looks, x, P, [0], [n - 1], q)      # the current look only
             out[:2] += d[0]
             if C is not None:
                 cov = C[0]
@@ -533,6 +570,8 @@ class CorrectedEstimate(gym.Wrapper):
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
+        ep = self.env.unwrapped.episode()
+        self._q = {int(np.searchsorted(ep["t_s"], info["time_s"])): float(info["q_m_s2"])}
         info["corrected_estimate"] = np.array(info["estimate"], np.float64)
         info["corrected_covariance"] = np.array(info["covariance"], np.float64)
         return obs, info

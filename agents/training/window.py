@@ -54,7 +54,7 @@ COV_SCALE_M_S = 30.0
 COV_LEARNING_RATE = 1e-2
 COV_BATCH_LOOKS = 4096
 
-HP_KEYS = ("base", "window_looks", "fit_looks", "layers", "scale_m", "episodes", "scenarios", "mirror",
+HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", "episodes", "scenarios", "mirror",
            "standardise_inputs", "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every",
            "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
@@ -85,6 +85,8 @@ def check_hp(hp):
     _int_in(hp, "window_looks", 1, 64)
     from agents.policies.window_correction import check_fit_looks
     hp["fit_looks"] = list(check_fit_looks(hp["fit_looks"], hp["window_looks"], "--hp fit_looks"))
+    from agents.policies.window_correction import check_q_looks
+    hp["q_looks"] = check_q_looks(hp["q_looks"], hp["window_looks"], "--hp q_looks")
     _int_in(hp, "episodes", 1, 200_000)
     _int_in(hp, "epochs", 1, 10_000)
     _int_in(hp, "batch_looks", 1, 1 << 20)
@@ -110,10 +112,13 @@ def check_hp(hp):
         base = load_learned(hp["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
     except ValueError as e:
         raise ValueError(f"--hp base: {e}") from None
+    if hp["q_looks"] and base.kind not in Q_POLICY_KINDS:
+        raise ValueError(f"--hp q_looks: {hp['q_looks']} needs a q-policy base (the base's q as inputs); "
+                         f"{hp['base']!r} is a {base.kind}")
     return hp, base
 
 
-def training_looks(base, episodes, window_looks, scale_m, fit_looks=()):
+def training_looks(base, episodes, window_looks, scale_m, fit_looks=(), q_looks=0):
     """The base tracker on ``episodes`` and every scored look's inputs and targets: ``(F (n, features), Y (n, 2),
     V (n, 2))`` with ``Y`` the truth's offset from the base estimate along and across its velocity, in ``scale_m``,
     and ``V`` the truth's velocity less the base's, along and across, in :data:`COV_SCALE_M_S` (the covariance head's
@@ -124,7 +129,7 @@ def training_looks(base, episodes, window_looks, scale_m, fit_looks=()):
     batch = stack_episodes(episodes)
     run = base.run(episodes)
     F, ca, sa = window_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, run.x, run.P, window_looks,
-                                scale_m, fit_looks)
+                                scale_m, fit_looks, run.q_m_s2, q_looks)
     dx = batch.truth[..., 0] - run.x[..., 0]
     dy = batch.truth[..., 1] - run.x[..., 1]
     Y = np.stack([dx * ca + dy * sa, -dx * sa + dy * ca], -1) / scale_m
@@ -347,11 +352,12 @@ def draw_training_looks(base, hp, seed):
     from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
+    q_looks = hp.get("q_looks", 0)         # (nor the q inputs)
     for name in hp["scenarios"]:
         chunks = []
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
             eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
-            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits))
+            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks))
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
     n = sum(sizes)
@@ -430,10 +436,12 @@ def _base_field(base_name, folder):
 def _save(folder, hp, weights, env_kwargs, extra=None):
     from agents.policies.window_correction import feature_count, save_window_correction
     config = {"base": _base_field(hp["base"], folder), "window_looks": hp["window_looks"], "scale_m": hp["scale_m"],
-              "architecture": {"input_size": feature_count(hp["window_looks"], hp["fit_looks"]),
+              "architecture": {"input_size": feature_count(hp["window_looks"], hp["fit_looks"], hp["q_looks"]),
                                "layers": list(hp["layers"])}}
     if hp["fit_looks"]:         # absent: none (every correction saved before the fits existed)
         config["fit_looks"] = list(hp["fit_looks"])
+    if hp["q_looks"]:           # absent: 0 (likewise)
+        config["q_looks"] = hp["q_looks"]
     save_window_correction(folder, weights, config, env_kwargs)
     if extra is not None:
         (Path(folder) / "selection.json").write_text(json.dumps(extra, indent=1, allow_nan=False))
