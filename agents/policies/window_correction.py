@@ -7,8 +7,9 @@ last ``window_looks`` plots (detected or not, each with its time) as residuals f
 through its current estimate, in the frame of its velocity (along, across), and outputs where the target is
 relative to that estimate: a regression of the truth on the window, trained on flights of training-range seeds
 (:mod:`agents.training.window`). Optionally it also reads least-squares quadratics through the window's residuals
-(``fit_looks``) and the q its base chose at its last looks (``q_looks``, a q-policy base), :func:`window_features`. It is causal (look k's correction uses the plots up to look k and the base's
-estimate at look k only) and has no feedback: the base tracker runs unchanged. Without a covariance head its
+(``fit_looks``) and the q its base chose at its last looks (``q_looks``, a q-policy base), :func:`window_features`.
+It is causal (look k's correction uses the plots up to look k and the base's estimate and q up to look k only) and
+has no feedback: the base tracker runs unchanged. Without a covariance head its
 covariance is reported unchanged (the consistency rows show what that costs); with one (``policy.json``'s
 ``architecture.covariance``), the reported covariance is the head's: a second linear output of the last tanh layer
 giving the Cholesky factor of the error covariance of the corrected position and the base's velocity, fitted by
@@ -37,7 +38,8 @@ import numpy as np
 from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
-           "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward", "WindowCorrection",
+           "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward",
+           "WindowCorrection",
            "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
