@@ -373,6 +373,23 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
         load_learned(d)
 
 
+def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():
+    """The trainer's streaming mean and sd (no temporary of the looks' size) equal numpy's F.mean(0), F.std(0) bit
+    for bit, on real training looks (a run's numbers do not depend on which computed them) and on inputs of very
+    different scales."""
+    base = load_learned("policy_bp")
+    hp = {"scenarios": ["random", "random_radars"], "episodes": 20, "window_looks": 12, "scale_m": 300.0,
+          "weight_suites": True, "mirror": True, "fit_looks": [4, 12], "q_looks": 6}
+    F = draw_training_looks(base, hp, 17)[0]
+    rng = np.random.default_rng(4)
+    G = rng.normal(size=(30_001, 9)) * rng.lognormal(0.0, 4.0, 9) + rng.normal(size=9) * 1e3
+    for X in (F, G):
+        mean, sd = input_standardisation(X)
+        np.testing.assert_array_equal(mean, X.mean(0))
+        s = X.std(0)
+        np.testing.assert_array_equal(sd, np.where(s > 1e-6, s, 1.0))
+
+
 def test_standardisation_folded_into_the_first_layer_reads_raw_inputs():
     import torch
     from agents.training.window import _net, _weights

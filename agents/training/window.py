@@ -40,6 +40,7 @@ import sys
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyperparams, run_cli, run_paths,
@@ -192,9 +193,27 @@ def _weights(net, layers, mean=None, sd=None):
 
 def input_standardisation(F):
     """Per-input mean and standard deviation of the training looks ``F`` (an input constant over them, such as the
-    detection flags of a suite without misses, keeps sd 1)."""
-    mean, sd = F.mean(0), F.std(0)
+    detection flags of a suite without misses, keeps sd 1). numpy's ``F.mean(0)`` and ``F.std(0)`` to the bit
+    (tested), without the temporary of ``F``'s size ``F.std`` makes: that was the peak of a run's memory."""
+    mean, sd = _mean_sd(np.ascontiguousarray(F, dtype=np.float64))
     return mean, np.where(sd > 1e-6, sd, 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _mean_sd(F):
+    # row by row, in numpy's order for a reduction over the rows of a C array: the same sums to the bit
+    n, m = F.shape
+    s = np.zeros(m)
+    for i in range(n):
+        for j in range(m):
+            s[j] += F[i, j]
+    mean = s / n
+    v = np.zeros(m)
+    for i in range(n):
+        for j in range(m):
+            d = F[i, j] - mean[j]
+            v[j] += d * d
+    return mean, np.sqrt(v / n)
 
 
 def _standardised(F, mean, sd, in_place):
@@ -456,7 +475,6 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     from agents.policies.window_correction import WindowCorrection
     from agents.policies.learned import read_kind, write_run_layout
     torch.set_num_threads(1)
-    import numba
     numba.set_num_threads(1)
     hp, base = check_hp(dict(hp))
     seed = int(seed)
