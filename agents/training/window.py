@@ -84,9 +84,8 @@ def check_hp(hp):
         raise ValueError(f"--hp: window hyperparameters missing {missing}, unknown {unknown} (every key of "
                          "agents/training/hyperparams/window.toml is required)")
     _int_in(hp, "window_looks", 1, 64)
-    from agents.policies.window_correction import check_fit_looks
+    from agents.policies.window_correction import check_fit_looks, check_q_looks
     hp["fit_looks"] = list(check_fit_looks(hp["fit_looks"], hp["window_looks"], "--hp fit_looks"))
-    from agents.policies.window_correction import check_q_looks
     hp["q_looks"] = check_q_looks(hp["q_looks"], hp["window_looks"], "--hp q_looks")
     _int_in(hp, "episodes", 1, 200_000)
     _int_in(hp, "epochs", 1, 10_000)
