@@ -449,10 +449,11 @@ def test_training_run_is_reproducible_and_loadable(tmp_path):
     assert json.loads((f / "best" / "policy.json").read_text())["fit_looks"] == [4, 12]
     assert load_learned(f / "best").policy.fit_looks == (4, 12)
     from agents.training.runs import load_hyperparams
-    assert json.loads((a / "policy.json").read_text())["fit_looks"] == load_hyperparams("window")["fit_looks"]
-    # the first recipe's plain inputs, pooled loss and no fits still train, to other weights
+    for key in ("fit_looks", "q_looks"):        # the bundled recipe's, as window.toml gives them
+        assert json.loads((a / "policy.json").read_text()).get(key, 0) == (load_hyperparams("window")[key] or 0)
+    # the first recipe's plain inputs, pooled loss and no fits or q still train, to other weights
     c = main(args + ["--name", "plain", "--hp", "standardise_inputs=false", "--hp", "weight_suites=false",
-                     "--hp", "fit_looks=[]"])
+                     "--hp", "fit_looks=[]", "--hp", "q_looks=0"])
     assert load_learned(c).kind == "window_correction"
     assert "fit_looks" not in json.loads((c / "policy.json").read_text())      # none: the old format
     assert "q_looks" not in json.loads((c / "policy.json").read_text())
