@@ -6,6 +6,12 @@ lowest. The suites are drawn as the evaluation draws them (:func:`agents.evaluat
 generator settings) from seeds ``SELECTION_SEED_BASE + i`` (default 900_000 + i: inside the training range
 ``[0, 1_000_000)``, disjoint from the training streams and never the held-out evaluation seeds ``>= 10_000_000``).
 The policy runs through the evaluation's chain (:func:`baselines.trackers.run_q_policy`), deterministic.
+
+Besides the evaluation's suites, two validation suites exist for selection only (:data:`START_UNKNOWN_SUITES`):
+``random_any_start`` and ``random_radars_any_start``, the random generators with ``first_leg_min_s = 0`` (the first
+leg drawn as every other leg, so a maneuver can begin during the track start), from seeds ``seed + 20_000 + i``.
+The evaluation's random flights all start on a straight leg of at least 90 s, which a deployed tracker cannot
+know; these suites score a tracker where that does not hold, from training-range seeds.
 """
 
 from __future__ import annotations
@@ -22,9 +28,23 @@ from radar_env.common.units import G0_M_S2
 from agents.evaluation.metrics import errors, failed_runs, region_masks
 from agents.evaluation.suites import EVAL_SEED_BASE, TRAIN_SEEDS, draw_suite
 
-__all__ = ["SELECTION_SEED_BASE", "SelectionSuites", "pooled_rmse"]
+__all__ = ["SELECTION_SEED_BASE", "START_UNKNOWN_SUITES", "SelectionSuites", "draw_selection_suite", "pooled_rmse"]
 
 SELECTION_SEED_BASE = 900_000
+START_UNKNOWN_SUITES = {"random_any_start": "random", "random_radars_any_start": "random_radars"}
+"""Selection-only suites: name -> the random generator drawn with ``first_leg_min_s = 0`` (module docstring)."""
+START_UNKNOWN_SEED_OFFSET = 20_000
+
+
+def draw_selection_suite(name, runs, seed):
+    """``runs`` episodes of selection suite ``name`` from base seed ``seed``: an evaluation suite as
+    :func:`agents.evaluation.suites.draw_suite` draws it, or a :data:`START_UNKNOWN_SUITES` one (its generator with
+    ``first_leg_min_s = 0``, seeds ``seed + 20_000 + i``)."""
+    if name in START_UNKNOWN_SUITES:
+        from radar_env.sim.scenario import RandomScenarioConfig
+        return draw_suite(START_UNKNOWN_SUITES[name], runs, seed=int(seed) + START_UNKNOWN_SEED_OFFSET,
+                          random_config=RandomScenarioConfig(first_leg_min_s=0.0))
+    return draw_suite(name, runs, seed=seed)
 
 
 def pooled_rmse(batch, run):
@@ -52,7 +72,8 @@ class SelectionSuites:
 
     def __init__(self, scenarios=None, seed=SELECTION_SEED_BASE, select_on=None):
         scenarios = dict(scenarios or {"random": 100})
-        last = int(seed) + max(scenarios.values())
+        last = int(seed) + max(r + START_UNKNOWN_SEED_OFFSET * (n in START_UNKNOWN_SUITES)
+                               for n, r in scenarios.items())
         if int(seed) < TRAIN_SEEDS.start or last > TRAIN_SEEDS.stop or last > EVAL_SEED_BASE:
             raise ValueError(f"selection seeds must lie in the training range {TRAIN_SEEDS}, got {seed}..{last}")
         self.primary = "random" if "random" in scenarios else next(iter(scenarios))
@@ -62,7 +83,7 @@ class SelectionSuites:
             raise ValueError(f"select_on names {bad}, which are not among the scored suites {list(scenarios)}")
         self.suites = {}
         for name, runs in scenarios.items():
-            eps = draw_suite(name, runs, seed=int(seed))
+            eps = draw_selection_suite(name, runs, int(seed))
             batch = stack_episodes(eps)
             self.suites[name] = (eps, batch, pooled_rmse(batch, run_tracker("imm2", eps)))
 

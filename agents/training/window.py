@@ -55,8 +55,8 @@ COV_SCALE_M_S = 30.0
 COV_LEARNING_RATE = 1e-2
 COV_BATCH_LOOKS = 4096
 
-HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", "episodes", "scenarios", "mirror",
-           "standardise_inputs", "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every",
+HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", "episodes", "scenarios",
+           "first_leg_min_s", "mirror", "standardise_inputs", "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every",
            "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
@@ -95,6 +95,10 @@ def check_hp(hp):
     _int_in(hp, "fresh_flights_every", 0, 10_000)
     _num_in(hp, "scale_m", 0.0, 1e6)
     _num_in(hp, "learning_rate", 0.0, 1.0)
+    v = hp["first_leg_min_s"]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1e5:
+        raise ValueError(f"--hp first_leg_min_s: must be a number of seconds in [0, 1e5], got {v!r}")
+    hp["first_leg_min_s"] = float(v)
     layers = hp["layers"]
     if (not isinstance(layers, list) or not 1 <= len(layers) <= 4
             or not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 1024 for h in layers)):
@@ -360,6 +364,15 @@ def flight_draws(hp, seed):
     return [int(seed) + d * hp["episodes"] for d in range(n)]
 
 
+def training_config(hp):
+    """The :class:`~radar_env.sim.scenario.RandomScenarioConfig` of the training flights: the suites' own but for
+    ``first_leg_min_s`` (None, the suites' own config, when it is theirs or a run saved before the key existed)."""
+    from radar_env.sim.scenario import RandomScenarioConfig
+    default = RandomScenarioConfig()
+    v = hp.get("first_leg_min_s", default.first_leg_min_s)
+    return None if v == default.first_leg_min_s else RandomScenarioConfig(first_leg_min_s=float(v))
+
+
 def draw_training_looks(base, hp, seed):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
@@ -371,10 +384,11 @@ def draw_training_looks(base, hp, seed):
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
     q_looks = hp.get("q_looks", 0)         # (nor the q inputs)
+    cfg = training_config(hp)
     for name in hp["scenarios"]:
         chunks = []
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
-            eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0)
+            eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0, random_config=cfg)
             chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks))
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
