@@ -107,6 +107,12 @@ def check_hp(hp):
     if not isinstance(sc, list) or not sc or any(s not in TRAIN_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
         raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(TRAIN_SCENARIOS)}, "
                          f"got {sc!r}")
+    ev = hp["eval_scenarios"]
+    if not isinstance(ev, dict) or not ev or not all(isinstance(r, int) and not isinstance(r, bool) and r >= 1
+                                                     for r in ev.values()):
+        raise ValueError(f"--hp eval_scenarios: a JSON object {{suite: runs >= 1}}, got {ev!r}")
+    if not isinstance(hp["select_on"], list) or not all(isinstance(n, str) for n in hp["select_on"]):
+        raise ValueError(f"--hp select_on: a list of suite names, got {hp['select_on']!r}")
     for key in ("mirror", "standardise_inputs", "weight_suites"):
         if not isinstance(hp[key], bool):
             raise ValueError(f"--hp {key}: must be true or false, got {hp[key]!r}")
