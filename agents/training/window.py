@@ -11,7 +11,9 @@ there, so every suite counts alike.
 
 Flights: ``episodes`` of each suite in ``scenarios`` (the random generators), suite ``s``'s flight ``i`` drawn as
 the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the
-training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000.
+training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000;
+their generator's ``first_leg_min_s`` is the hyperparameter's (:func:`training_config`; 0: a flight can turn during
+its track start, so the network cannot learn where flights begin).
 With ``fresh_flights_every`` = ``e`` > 0 the flights are drawn afresh every ``e`` epochs: draw ``d`` (epochs
 ``d e + 1 ..``) takes seeds ``S + d episodes ..`` (:func:`flight_draws`), every draw inside the training range; the
 input standardisation is the first draw's, the suite weights each draw's own, and the covariance head is fitted on
@@ -56,8 +58,8 @@ COV_LEARNING_RATE = 1e-2
 COV_BATCH_LOOKS = 4096
 
 HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", "episodes", "scenarios",
-           "first_leg_min_s", "mirror", "standardise_inputs", "weight_suites", "epochs", "learning_rate", "batch_looks", "eval_every",
-           "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every")
+           "first_leg_min_s", "mirror", "standardise_inputs", "weight_suites", "epochs", "learning_rate",
+           "batch_looks", "eval_every", "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
