@@ -209,6 +209,13 @@ def test_q_inputs_are_the_base_q_at_the_last_looks():
     F = wcm.window_features(*args, q, 5)[0]
     assert F.shape[-1] == F0.shape[-1] + 5 == wcm.feature_count(6, (4, 6), 5)
     fin = np.isfinite(run.x).all(-1)
+    # not trivially equal: the base's q is finite at every look read, mostly above the floor, and changes from look to
+    # look (a q read at the wrong look, or the floor everywhere, would not match)
+    qf = q[fin]
+    assert np.isfinite(qf).all() and (qf > 1e-3).mean() > 0.9 and np.unique(qf).size > 0.9 * qf.size
+    for j in range(1, 5):
+        both = fin[:, j:] & np.isfinite(q[:, :-j])
+        assert both.sum() > 1000 and (q[:, j:] != q[:, :-j])[both].mean() > 0.9
     np.testing.assert_array_equal(F[fin][:, :-5], F0[fin])
     L = q.shape[1]
     for j in range(5):
@@ -243,19 +250,23 @@ def test_mirror_flips_every_across_component():
     np.testing.assert_array_equal(Fm[:, ~flipped], F[:, ~flipped])
 
 
-@pytest.mark.parametrize("window, fits", [(3, ()), (6, (4, 6))])
-def test_training_looks_are_the_suites_chunks_then_their_mirror(window, fits):
+@pytest.mark.parametrize("window, fits, q_looks", [(3, (), 0), (6, (4, 6), 0), (6, (4, 6), 3)])
+def test_training_looks_are_the_suites_chunks_then_their_mirror(window, fits, q_looks):
     """draw_training_looks writes its arrays in place: the same looks as each chunk's training_looks, in order,
     then mirrored(); each suite's weight 1 / its mean squared error, normalised to mean 1."""
     from agents.evaluation.suites import draw_suite
     base = load_learned("policy_bp")
     hp = {"scenarios": ["random", "random_radars"], "episodes": 6, "window_looks": window, "scale_m": 300.0,
-          "weight_suites": True, "mirror": True, **({"fit_looks": list(fits)} if fits else {})}
+          "weight_suites": True, "mirror": True, **({"fit_looks": list(fits)} if fits else {}),
+          **({"q_looks": q_looks} if q_looks else {})}
     F, Y, V, W = draw_training_looks(base, hp, 11)
-    parts = [training_looks(base, draw_suite(n, 6, seed=11), window, 300.0, fits) for n in hp["scenarios"]]
+    parts = [training_looks(base, draw_suite(n, 6, seed=11), window, 300.0, fits, q_looks) for n in hp["scenarios"]]
     F0, Y0, V0 = (np.concatenate([p[i] for p in parts]) for i in range(3))
     n = len(F0)
-    assert F0.shape[1] == wcm.feature_count(window, fits)
+    assert F.shape[1] == F0.shape[1] == wcm.feature_count(window, fits, q_looks)
+    if q_looks:                 # the q inputs: the base's q, not the floor, and not one value
+        Fq = F0[:, -q_looks:]
+        assert (Fq > -1.5).mean() > 0.9 and (Fq.std(0) > 0.05).all()
     for a, b in ((F, F0), (Y, Y0), (V, V0)):
         np.testing.assert_array_equal(a[:n], b)
     Fm, Ym, Vm = mirrored(F0, Y0, window, V0, fits)
@@ -388,6 +399,14 @@ def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():
         np.testing.assert_array_equal(mean, X.mean(0))
         s = X.std(0)
         np.testing.assert_array_equal(sd, np.where(s > 1e-6, s, 1.0))
+    # the 6 q columns are there (the last ones), vary (their sd is theirs, not the 1 of a constant input) and are
+    # standardised by numpy's mean and sd of those columns
+    assert F.shape[1] == wcm.feature_count(12, (4, 12), 6)
+    mean, sd = input_standardisation(F)
+    Fq = F[:, -6:].copy()
+    assert (Fq > -1.5).mean() > 0.9 and (Fq.std(0) > 0.05).all()
+    np.testing.assert_array_equal(mean[-6:], Fq.mean(0))
+    np.testing.assert_array_equal(sd[-6:], Fq.std(0))
 
 
 def test_standardisation_folded_into_the_first_layer_reads_raw_inputs():
@@ -519,6 +538,19 @@ def test_the_env_wrapper_gives_the_evaluations_numbers(tmp_path, covariance, q_l
     eps = [draw_setup_and_episode(cfg.scenario, cfg.radar, cfg.random_scenario_config, np.random.default_rng(s),
                                   cfg.warmup_scans) for s in seeds]
     run = wc.run(eps)
+    if q_looks:
+        # the q columns are not trivially equal: at the corrected looks the base's q is finite and changes from look
+        # to look, and the correction with another q moves the estimates far more than the tolerance below
+        from radar_env.sim.episode import stack_episodes
+        brun = wc.policy.base_run(eps)
+        corr = np.isfinite(run.extra["correction_m"])
+        rows, looks = np.nonzero(corr)
+        assert np.isfinite(brun.q_m_s2[corr]).all() and np.unique(brun.q_m_s2[corr]).size > 0.9 * corr.sum()
+        assert (brun.q_m_s2[:, 1:] != brun.q_m_s2[:, :-1])[corr[:, 1:] & corr[:, :-1]].mean() > 0.9
+        b = stack_episodes(eps)
+        d = wc.policy.corrected_at(b, brun.x, brun.P, rows, looks, brun.q_m_s2)[0]
+        d1 = wc.policy.corrected_at(b, brun.x, brun.P, rows, looks, np.full_like(brun.q_m_s2, 0.1))[0]
+        assert np.max(np.abs(d - d1) / (np.abs(brun.x[rows, looks, :2]) + 1.0)) > 1e-6
     kw = env_kwargs_from_json(json.loads((BUNDLED_LEARNED["policy_bp"] / "env_config.json").read_text()))
     env = wcm.CorrectedEstimate(gym.make("RadarTrack-v0", **kw), wc.policy)
     with pytest.raises(ValueError, match="correction must be a WindowCorrection"):
