@@ -2,6 +2,7 @@
 by hand, the correction's geometry, batch independence, the loader's checks and a small training run."""
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -228,6 +229,15 @@ def test_q_inputs_are_the_base_q_at_the_last_looks():
     assert np.isnan(q[0, s - 2]) and F[0, s, -3] == -1.5        # two looks back from the start: no q there
     with pytest.raises(ValueError, match="q_looks = 5 needs the base's q"):
         wcm.window_features(*args, None, 5)
+    # more q looks than the window (the env wrapper keeps no more) or a q of another shape (read out of its bounds)
+    for bad in (7, -1, 2.0, True):
+        with pytest.raises(ValueError, match=rf"^q_looks must be an integer in \[0, window_looks = 6\], got {bad!r}$"):
+            wcm.window_features(*args, q, bad)
+    for short in (q[:, :-1], q[:-1], q[..., None]):
+        with pytest.raises(ValueError, match=rf"^q must have t_s's shape \(B, L\) = \(5, {L}\) with q_looks = 5, "
+                                             rf"got {re.escape(str(short.shape))}$"):
+            wcm.look_features(*args[:6], [4], [L - 1], 6, 300.0, (4, 6), short, 5)
+    np.testing.assert_array_equal(wcm.window_features(*args, q[:, :-1], 0)[0], F0)     # not read without q_looks
 
 
 def test_mirror_flips_every_across_component():
@@ -382,6 +392,18 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
     np.savez(d / "policy.npz", **w)
     with pytest.raises(ValueError, match=r"weight 'layer.0.weight' must be float64 of shape \(8, 23\)"):
         load_learned(d)
+
+
+def test_a_correction_built_by_hand_checks_its_q_looks(tmp_path):
+    """WindowCorrection itself (as the trainer builds it, without the loader) refuses a q_looks outside [0,
+    window_looks]: past the window, the evaluation and the env wrapper (which keeps window_looks looks) would differ."""
+    d = _save(tmp_path, q_looks=2)
+    wc = load_learned(d).policy
+    w, config = dict(np.load(d / "policy.npz")), json.loads((d / "policy.json").read_text())
+    assert wcm.WindowCorrection(w, config, wc.base, wc.cfg).q_looks == 2
+    for bad in (5, -1, "2"):
+        with pytest.raises(ValueError, match=rf"^q_looks must be an integer in \[0, window_looks = 4\], got {bad!r}$"):
+            wcm.WindowCorrection(w, {**config, "q_looks": bad}, wc.base, wc.cfg)
 
 
 def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():

@@ -156,7 +156,7 @@ one (before the track's start or the episode's) reads as the floor."""
 
 def check_q_looks(q_looks, window_looks, where):
     """``q_looks`` as an int, or ``ValueError`` naming ``where``: an integer in ``[0, window_looks]``."""
-    if not isinstance(q_looks, int) or isinstance(q_looks, bool) or not 0 <= q_looks <= window_looks:
+    if not isinstance(q_looks, (int, np.integer)) or isinstance(q_looks, bool) or not 0 <= q_looks <= window_looks:
         raise ValueError(f"{where} must be an integer in [0, window_looks = {window_looks}], got {q_looks!r}")
     return int(q_looks)
 
@@ -283,12 +283,21 @@ def look_features(t_s, z_m, R_m2, detected, x, P, rows, looks, window_looks, sca
                   q_looks=0):
     """The correction's inputs at the looks ``(rows[i], looks[i])`` only (module docstring; arguments as
     :func:`window_features`): ``(F (n, feature_count), frame (n, 2))``, ``frame`` the unit vector along the base
-    velocity. Compiled; the base estimate must be finite at those looks."""
+    velocity. Compiled; the base estimate must be finite at those looks. ``ValueError`` for a ``q_looks`` outside
+    ``[0, window_looks]`` (the env wrapper keeps no more looks) or, with ``q_looks``, a ``q`` not of ``t_s``'s shape
+    (the compiled code does not check its indices)."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     looks = np.ascontiguousarray(looks, dtype=np.int64)
-    if q_looks and q is None:
+    q_looks = check_q_looks(q_looks, window_looks, "q_looks")
+    if not q_looks:
+        q = np.full((1, 1), np.nan)         # not read
+    elif q is None:
         raise ValueError(f"q_looks = {q_looks} needs the base's q (B, L), got None")
-    q = np.full((1, 1), np.nan) if q is None else np.ascontiguousarray(q, dtype=np.float64)
+    else:
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        if q.shape != np.shape(t_s):
+            raise ValueError(f"q must have t_s's shape (B, L) = {np.shape(t_s)} with q_looks = {q_looks}, got "
+                             f"{q.shape}")
     F = np.empty((rows.size, feature_count(window_looks, fit_looks, q_looks)))
     frame = np.empty((rows.size, 2))
     _features(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(z_m, dtype=np.float64),
@@ -308,8 +317,9 @@ def window_features(t_s, z_m, R_m2, detected, x, P, window_looks, scale_m, fit_l
         x, P: the base tracker's estimates (B, L, 4) and covariances (B, L, 4, 4) (NaN where it has none).
         window_looks: how many looks, the current one included. scale_m: the length unit of the inputs.
         fit_looks: the window lengths (looks) of the quadratic fits appended to the inputs (none by default).
-        q, q_looks: the base's process-noise level at every look (B, L) in m/s^2 (NaN where it has none), and how
-            many of its last looks are appended to the inputs (0, none, by default; ``q`` is then not read).
+        q, q_looks: the base's process-noise level at every look (B, L, ``t_s``'s shape) in m/s^2 (NaN where it
+            has none), and how many of its last looks are appended to the inputs: an integer in ``[0,
+            window_looks]`` (0, none, by default; ``q`` is then not read). Else ``ValueError``.
     Returns:
         ``(F (B, L, feature_count), ca (B, L), sa (B, L))``: the inputs and the frame (unit vector along the base
         velocity; east below 1 mm/s). Slot j (0 = the current look) holds the plot of look ``k - j`` as its residual
@@ -393,7 +403,7 @@ class WindowCorrection:
         self.arch = config["architecture"]
         self.window_looks = int(config["window_looks"])
         self.fit_looks = tuple(config.get("fit_looks", ()))
-        self.q_looks = int(config.get("q_looks", 0))
+        self.q_looks = check_q_looks(config.get("q_looks", 0), self.window_looks, "q_looks")
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
         self.w = layer_weights(weights)
