@@ -406,6 +406,33 @@ def test_a_correction_built_by_hand_checks_its_q_looks(tmp_path):
             wcm.WindowCorrection(w, {**config, "q_looks": bad}, wc.base, wc.cfg)
 
 
+def test_add_covariance_checks_the_runs_inputs_before_drawing_flights(tmp_path):
+    """add_covariance draws the training looks from the run's config.json: its window_looks, fit_looks and q_looks
+    must be the saved network's (policy.json's, architecture.input_size inputs), its q_looks needs a q-policy base;
+    refused in one line before any flight is drawn (this config.json has no flight keys: drawing would fail)."""
+    from agents.training.window import add_covariance
+    run = _save(tmp_path, "run", q_looks=2)                 # window_looks 4, no fits, q_looks 2: 25 inputs
+    meta = json.loads((run / "policy.json").read_text())
+    good = {"method": "window", "base": "policy_bp", "window_looks": 4, "fit_looks": [], "q_looks": 2, "seed": 0}
+    ins = r"policy.json's window_looks 4, fit_looks \[\], q_looks 2 and architecture.input_size 25 must be "
+    cases = [({"q_looks": 0}, {}, ins + r"config.json's window_looks 4, fit_looks \[\], q_looks 0 and their 23 inputs"),
+             ({"window_looks": 6}, {}, ins + r"config.json's window_looks 6, fit_looks \[\], q_looks 2 and their 33"),
+             ({"fit_looks": [4]}, {}, ins + r"config.json's window_looks 4, fit_looks \[4\], q_looks 2 and their 34"),
+             ({}, {"architecture": {**meta["architecture"], "input_size": 23}},
+              r"architecture.input_size 23 must be config.json's window_looks 4, fit_looks \[\], q_looks 2 and "
+              r"their 25 inputs"),
+             ({"q_looks": 5}, {}, r"config.json's q_looks must be an integer in \[0, window_looks = 4\], got 5"),
+             ({"base": "policy_imm_bp"}, {}, r"config.json's q_looks 2 needs a q-policy base \(the base's q as "
+                                            r"inputs\); its base 'policy_imm_bp' is a learned_imm_gru$")]
+    for change, meta_change, msg in cases:
+        (run / "config.json").write_text(json.dumps({**good, **change}))
+        (run / "policy.json").write_text(json.dumps({**meta, **meta_change}))
+        with pytest.raises(ValueError, match=msg) as e:
+            add_covariance(run, 1, verbose=0)
+        assert str(e.value).startswith(f"--add-covariance {run}") and "\n" not in str(e.value)
+    assert not (run / "covariance.json").exists()
+
+
 def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():
     """The trainer's streaming mean and sd (no temporary of the looks' size) equal numpy's F.mean(0), F.std(0) bit
     for bit, on real training looks (a run's numbers do not depend on which computed them) and on inputs of very

@@ -426,7 +426,8 @@ def add_covariance(run, epochs, verbose=1, command=None):
     drawn again from the run's ``config.json`` (the same base, flights and seed), then :func:`fit_covariance_head`
     for each, and the stats into the run's ``summary.json`` (``covariance``, keyed as training keys them) and
     ``training.json``. What ``radar-track train --method window --add-covariance RUN`` runs; a run trained with
-    ``covariance_epochs > 0`` has its head already. Returns ``{folder: stats}``."""
+    ``covariance_epochs > 0`` has its head already. The run's inputs are checked against each folder's network
+    first (:func:`_check_run_inputs`). Returns ``{folder: stats}``."""
     import torch
     torch.set_num_threads(1)
     from agents.policies.learned import load_learned
@@ -445,6 +446,7 @@ def add_covariance(run, epochs, verbose=1, command=None):
         if json.loads((f / "policy.json").read_text()).get("architecture", {}).get("covariance"):
             raise ValueError(f"--add-covariance {f}: the correction already has a covariance head")
     base = load_learned(cfg["base"], kinds=Q_POLICY_KINDS + IMM_KINDS)
+    _check_run_inputs(run, cfg, folders, base)
     t0 = time.time()
     # a run of the first recipe has no weight_suites in its config (the weights do not enter the head's fit)
     # the looks the head was fitted on in training: the last draw's (flight_draws)
@@ -463,6 +465,32 @@ def add_covariance(run, epochs, verbose=1, command=None):
         summary_file.write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(run, read_kind(run)[0], summary)
     return out
+
+
+def _check_run_inputs(run, cfg, folders, base):
+    """For :func:`add_covariance`, before the flights are drawn: the inputs the run's ``config.json`` makes
+    (``window_looks``, ``fit_looks``, ``q_looks``; the q only of a q-policy base) are those each folder's network
+    reads (its ``policy.json``'s, and ``architecture.input_size`` of them); else ``ValueError``, one line."""
+    from agents.policies.layout import Q_POLICY_KINDS
+    from agents.policies.window_correction import check_fit_looks, check_q_looks, feature_count
+    where = f"--add-covariance {run}: config.json's"
+    window = cfg.get("window_looks")
+    if not isinstance(window, int) or isinstance(window, bool) or not 1 <= window <= 64:
+        raise ValueError(f"{where} window_looks must be an integer in [1, 64], got {window!r}")
+    fits = check_fit_looks(cfg.get("fit_looks", []), window, f"{where} fit_looks")      # absent in older runs
+    q_looks = check_q_looks(cfg.get("q_looks", 0), window, f"{where} q_looks")
+    if q_looks and base.kind not in Q_POLICY_KINDS:
+        raise ValueError(f"{where} q_looks {q_looks} needs a q-policy base (the base's q as inputs); its base "
+                         f"{cfg['base']!r} is a {base.kind}")
+    n = feature_count(window, fits, q_looks)
+    for f in folders:
+        meta = json.loads((f / "policy.json").read_text())
+        got = (meta.get("window_looks"), meta.get("fit_looks", []), meta.get("q_looks", 0),
+               meta.get("architecture", {}).get("input_size"))
+        if got != (window, list(fits), q_looks, n):
+            raise ValueError(f"--add-covariance {f}: policy.json's window_looks {got[0]!r}, fit_looks {got[1]!r}, "
+                             f"q_looks {got[2]!r} and architecture.input_size {got[3]!r} must be config.json's "
+                             f"window_looks {window}, fit_looks {list(fits)}, q_looks {q_looks} and their {n} inputs")
 
 
 def _base_field(base_name, folder):
