@@ -456,6 +456,20 @@ def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():
     assert (Fq > -1.5).mean() > 0.9 and (Fq.std(0) > 0.05).all()
     np.testing.assert_array_equal(mean[-6:], Fq.mean(0))
     np.testing.assert_array_equal(sd[-6:], Fq.std(0))
+    # numpy sums a single column, or a Fortran-ordered array's columns, pairwise (other bits than the compiled
+    # row-by-row sums: shown here): such arrays, and any but a C-ordered float64 (n, m >= 2) one, are refused
+    from agents.training.window import _mean_sd
+    assert not np.array_equal(_mean_sd(G[:, :1].copy())[1], G[:, :1].std(0))
+    for bad, desc in ((G[:, :1].copy(), r"float64 C-ordered array of shape \(30001, 1\)"),
+                      (np.asfortranarray(G), r"float64 not C-ordered array of shape \(30001, 9\)"),
+                      (G[:, ::2], r"float64 not C-ordered array of shape \(30001, 5\)"),
+                      (G.astype(np.float32), r"float32 C-ordered array of shape \(30001, 9\)"),
+                      (G[:0], r"float64 C-ordered array of shape \(0, 9\)"),
+                      (G[:, 0].copy(), r"float64 C-ordered array of shape \(30001,\)"),
+                      (G.tolist(), "list")):
+        with pytest.raises(ValueError, match=r"^F must be a C-ordered float64 array \(n >= 1, m >= 2\) \(numpy's "
+                                             rf"mean and sd to the bit\), got a {desc}$"):
+            input_standardisation(bad)
 
 
 def test_standardisation_folded_into_the_first_layer_reads_raw_inputs():

@@ -205,8 +205,17 @@ def _weights(net, layers, mean=None, sd=None):
 def input_standardisation(F):
     """Per-input mean and standard deviation of the training looks ``F`` (an input constant over them, such as the
     detection flags of a suite without misses, keeps sd 1). numpy's ``F.mean(0)`` and ``F.std(0)`` to the bit
-    (tested), without the temporary of ``F``'s size ``F.std`` makes: that was the peak of a run's memory."""
-    mean, sd = _mean_sd(np.ascontiguousarray(F, dtype=np.float64))
+    (tested), without the temporary of ``F``'s size ``F.std`` makes: that was the peak of a run's memory.
+    ``F`` must be a C-ordered float64 array ``(n >= 1, m >= 2)``, as the trainer's are (numpy sums such an array
+    row by row, as the compiled code does; a single column, or a Fortran-ordered array's columns, it sums pairwise,
+    to other bits): else ``ValueError``."""
+    if not (isinstance(F, np.ndarray) and F.ndim == 2 and F.dtype == np.float64 and F.flags.c_contiguous
+            and F.shape[0] >= 1 and F.shape[1] > 1):
+        desc = (f"{F.dtype} {'C-ordered' if F.flags.c_contiguous else 'not C-ordered'} array of shape {F.shape}"
+                if isinstance(F, np.ndarray) else type(F).__name__)
+        raise ValueError(f"F must be a C-ordered float64 array (n >= 1, m >= 2) (numpy's mean and sd to the bit), "
+                         f"got a {desc}")
+    mean, sd = _mean_sd(F)
     return mean, np.where(sd > 1e-6, sd, 1.0)
 
 
