@@ -372,11 +372,17 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
         with pytest.raises(ValueError, match=msg) as e:
             load_learned(d)
         assert "\n" not in str(e.value)
-    # the base's q as inputs: a learned IMM has none
-    imm = _save(tmp_path, "wc_imm_q", base="policy_imm_bp", q_looks=2)
+    # the base's q as inputs: a learned IMM has none; refused in a whole message however long the paths (the base's
+    # own errors are cut to 400 characters)
+    from agents.policies.layout import Q_POLICY_KINDS
+    deep = tmp_path / ("d" * 120) / ("e" * 120)
+    deep.mkdir(parents=True)
+    imm = _save(deep, "wc_imm_q", base="policy_imm_bp", q_looks=2)
     with pytest.raises(ValueError, match=r"field 'base' \('policy_imm_bp'\): .*kind 'learned_imm_gru' has no q; "
-                                         r"q_looks 2 needs a q-policy base"):
+                                         r"q_looks 2 needs a q-policy base \(" + re.escape(", ".join(Q_POLICY_KINDS))
+                                         + r"\)$") as e:
         load_learned(imm)
+    assert len(str(e.value)) > 400 and str(e.value).startswith(str(imm / "policy.json"))
     # a correction of a correction is refused (its base must be a q-policy or a learned IMM)
     (d / "policy.json").write_text(json.dumps(meta))
     inner = shutil.copytree(d, tmp_path / "outer" / "inner")

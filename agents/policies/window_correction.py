@@ -528,9 +528,12 @@ def load_window_correction(path, load_base):
         if kind not in Q_POLICY_KINDS + IMM_KINDS:
             raise ValueError(f"{folder}: kind {kind!r}; a base must be a q-policy or a learned IMM "
                              f"({', '.join(Q_POLICY_KINDS + IMM_KINDS)})")
-        if q_looks and kind not in Q_POLICY_KINDS:
-            raise ValueError(f"{folder}: kind {kind!r} has no q; q_looks {q_looks} needs a q-policy base "
-                             f"({', '.join(Q_POLICY_KINDS)})")
+    except ValueError as e:
+        raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
+    if q_looks and kind not in Q_POLICY_KINDS:      # whole (the base's own errors are cut)
+        raise ValueError(f"{meta_file}: field 'base' ({base!r}): {folder}: kind {kind!r} has no q; q_looks {q_looks} "
+                         f"needs a q-policy base ({', '.join(Q_POLICY_KINDS)})")
+    try:
         policy, cfg = load_base(weights_file(folder, kind))
     except ValueError as e:
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {e}"[:400]) from None
