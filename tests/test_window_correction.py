@@ -240,6 +240,31 @@ def test_q_inputs_are_the_base_q_at_the_last_looks():
     np.testing.assert_array_equal(wcm.window_features(*args, q[:, :-1], 0)[0], F0)     # not read without q_looks
 
 
+def test_the_q_inputs_are_documented_as_computed():
+    """window.toml and docs/training.md give q_looks' range and the q inputs' formula with the code's floor, and
+    CorrectedEstimate's docstring says it keeps the base's q since reset."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+
+    def flat(text):
+        return " ".join(text.replace("#", " ").split())
+    assert wcm.Q_FLOOR_M_S2 == 1e-3 and np.log10(wcm.Q_FLOOR_M_S2) / 2 == -1.5
+    toml = flat((root / "agents" / "training" / "hyperparams" / "window.toml").read_text())
+    entry = toml[toml.index("q_looks an integer"):toml.index("layers widths")]
+    for text in ("q_looks an integer in [0, window_looks]", "log10(max(q, 1e-3 m/s^2)) / 2", "-1.5",
+                 "current one first"):
+        assert text in entry, text
+    md = flat((root / "docs" / "training.md").read_text())
+    for text in ("(`q_looks`, an integer in [0, `window_looks`], a q-policy base only;",
+                 "(`log10(max(q, 1e-3 m/s^2)) / 2`, the floor before its track starts)",
+                 "so it must see every step since `reset`"):
+        assert text in md, text
+    doc = flat(wcm.CorrectedEstimate.__doc__)
+    for text in ("It is stateful", 'the history of ``info["q_m_s2"]`` since the last ``reset``',
+                 "must therefore see every ``reset`` and ``step``"):
+        assert text in doc, text
+
+
 def test_mirror_flips_every_across_component():
     rng = np.random.default_rng(0)
     F, Y = rng.normal(size=(5, wcm.feature_count(3))), rng.normal(size=(5, 2))

@@ -552,6 +552,11 @@ class CorrectedEstimate(gym.Wrapper):
     numbers as :meth:`WindowCorrection.run` on the same episode when the agent is the base
     (tests/test_window_correction.py).
 
+    It is stateful: with ``q_looks`` the correction reads the base's q at the last looks, which the episode does not
+    hold, so the wrapper keeps the history of ``info["q_m_s2"]`` since the last ``reset``. It must therefore see
+    every ``reset`` and ``step`` of the env (a step taken on the inner env leaves its look without q: read as the
+    floor, :data:`Q_FLOOR_M_S2`, and the numbers are no longer the evaluation's).
+
     Args:
         env: a single ``RadarTrack-v0`` env (or a wrapper of one). correction: a :class:`WindowCorrection` (e.g.
             ``load_learned("policy_window").policy``).
