@@ -435,6 +435,10 @@ def test_a_correction_built_by_hand_checks_its_q_looks(tmp_path):
     for bad in (5, -1, "2"):
         with pytest.raises(ValueError, match=rf"^q_looks must be an integer in \[0, window_looks = 4\], got {bad!r}$"):
             wcm.WindowCorrection(w, {**config, "q_looks": bad}, wc.base, wc.cfg)
+    # and a network whose first layer does not read the inputs those make (q_looks 1: one input fewer)
+    with pytest.raises(ValueError, match=r"^architecture.input_size must be 24 \(window_looks 4, fit_looks \[\], "
+                                         r"q_looks 1\), got 25$"):
+        wcm.WindowCorrection(w, {**config, "q_looks": 1}, wc.base, wc.cfg)
 
 
 def test_add_covariance_checks_the_runs_inputs_before_drawing_flights(tmp_path):

@@ -406,6 +406,10 @@ class WindowCorrection:
         self.q_looks = check_q_looks(config.get("q_looks", 0), self.window_looks, "q_looks")
         self.scale_m = float(config["scale_m"])
         self.n_layers = len(self.arch["layers"])
+        n = feature_count(self.window_looks, self.fit_looks, self.q_looks)
+        if self.arch.get("input_size") != n:        # the loader says which file; one built by hand hears it here
+            raise ValueError(f"architecture.input_size must be {n} (window_looks {self.window_looks}, fit_looks "
+                             f"{list(self.fit_looks)}, q_looks {self.q_looks}), got {self.arch.get('input_size')!r}")
         self.w = layer_weights(weights)
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
