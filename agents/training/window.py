@@ -13,7 +13,7 @@ Flights: ``episodes`` of each suite in ``scenarios`` (the random generators), su
 the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the
 training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000;
 their generator's ``first_leg_min_s`` is the hyperparameter's (:func:`training_config`; 0: a flight can turn during
-its track start, so the network cannot learn where flights begin).
+its track start, so the network learns little of where flights begin: only that a first leg lasts 30 s or more).
 With ``fresh_flights_every`` = ``e`` > 0 the flights are drawn afresh every ``e`` epochs: draw ``d`` (epochs
 ``d e + 1 ..``) takes seeds ``S + d episodes ..`` (:func:`flight_draws`), every draw inside the training range; the
 input standardisation is the first draw's, the suite weights each draw's own, and the covariance head is fitted on
