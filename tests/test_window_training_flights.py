@@ -9,11 +9,11 @@ from radar_env.sim.scenario import RandomScenarioConfig
 
 def test_training_config_is_the_suites_own_unless_first_leg_min_s_differs():
     hp = load_hyperparams("window")
-    assert hp["first_leg_min_s"] == RandomScenarioConfig().first_leg_min_s
-    assert window.training_config(hp) is None                       # the suites' own config
+    assert hp["first_leg_min_s"] == 0.0                             # the bundled eighth recipe's
+    assert window.training_config(hp) == RandomScenarioConfig(first_leg_min_s=0.0)
+    own = RandomScenarioConfig().first_leg_min_s                    # the suites' own 90 s: their own config
+    assert window.training_config({**hp, "first_leg_min_s": own}) is None
     assert window.training_config({k: v for k, v in hp.items() if k != "first_leg_min_s"}) is None   # older runs
-    cfg = window.training_config({**hp, "first_leg_min_s": 0.0})
-    assert cfg == RandomScenarioConfig(first_leg_min_s=0.0)
 
 
 def test_training_flights_are_drawn_with_that_config(monkeypatch):
