@@ -37,10 +37,11 @@ def _headline(name="results.json"):
 
 
 def _downstream():
+    from agents.policies.bundle import BUNDLED_POLICIES
     from agents.reports.report import REPORT_TRACKERS, downstream_tables
     res = _json("results.json")
-    learned = [t for t in ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo")
-               if any(t in r["trackers"] for r in res.values())]
+    # every bundled learned tracker the results hold, in the report's order (python -m agents.reports.report)
+    learned = [t for t in BUNDLED_POLICIES if any(t in r["trackers"] for r in res.values())]
     return downstream_tables(res, learned + list(REPORT_TRACKERS))
 
 
