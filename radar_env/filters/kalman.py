@@ -36,8 +36,9 @@ bound). update: :math:`\nu = z - H x^-`, :math:`S = H P^- H^T + R`, :math:`K = P
 large prior: the position rows and columns as :math:`P^+H^T = KR`, the rest as :math:`P^-_{vv} - K_v P^-_{pv}`
 (``P - KHP`` and the Joseph form subtract prior-sized numbers in the position block: a rounding error of
 ``eps x prior``, above the posterior after a long or hard coast), symmetrised. Where rounding would still leave
-:math:`P^+` indefinite (a posterior variance below ``1.4e-14`` of its block's scale: a near-singular plot, a coast of
-minutes at 100 g), the smallest isotropic addition restores that level
+:math:`P^+` indefinite, or so near singular that a Cholesky factorisation may refuse it (the smallest eigenvalue of
+its correlation matrix below ``2^-45``: a near-singular plot, a coast of minutes at 100 g), the smallest isotropic
+addition on a grid restores that margin
 (:func:`radar_env.filters.kernels._pd_floor`; nothing changes on ordinary looks), so :math:`P^+` is symmetric positive
 definite (Cholesky) for any :math:`q \ge 0` and every radar the env accepts. NIS :math:`= \nu^T S^{-1}\nu`; the Gaussian
 log-likelihood :math:`\ell = -\tfrac12(\mathrm{NIS} + \log\det(2\pi S))`. A missed detection skips the update
@@ -137,7 +138,7 @@ def update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, detected=
         x, P: prior state (...,4) and covariance (...,4,4).
         z, R: converted position (...,2) and its covariance (...,2,2). May hold NaN where ``detected`` is False.
         detected: bool (...) or None (all detected). Where False the posterior equals the prior (bit for bit, unless the
-            prior is not positive definite to rounding: then floored as above), the
+            prior is not positive definite with that margin: then floored as above), the
             innovation is 0 and ``S = P[:2,:2] + I`` (R is not read, so NaN there does no harm).
     """
     x, P, z, R = (np.asarray(a, dtype=np.float64) for a in (x, P, z, R))

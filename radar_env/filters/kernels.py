@@ -160,41 +160,88 @@ def _predict(x, P, F, Q, u, has_u, xo, Po, FP):
 
 
 PD_FLOOR_REL = 64.0 * np.finfo(np.float64).eps
-"""Relative margin of :func:`_pd_floor` (1.4e-14): each Cholesky pivot must exceed it times its diagonal entry."""
+"""First step of :func:`_pd_floor` (1.4e-14): the least addition it tries, relative to each block's variance."""
+
+PD_MIN_EIG = 2.0 ** -45
+"""Least smallest eigenvalue (2.8e-14, 128 eps) of a covariance's correlation matrix ``H = D^-1/2 P D^-1/2``
+(D = diag P) that :func:`_chol_ok` accepts. Any Cholesky factorisation in float64 (LAPACK's, numpy's, ours) runs to
+the end on a positive definite P whose ``lambda_min(H)`` exceeds ``n gamma_(n+1)``, about 20 eps for n = 4 and 30
+eps for n = 5 (Demmel 1989; Higham, Accuracy and Stability of Numerical Algorithms, 2nd ed., Thm 10.7): a factor of
+4 or more to spare for the check's own rounding. A margin on each Cholesky pivot (64 eps of its diagonal) was not
+enough: after 1,000 s coasts at 2 g the env gave an exactly positive definite P with ``lambda_min(H)`` = 1.3 eps,
+which our check accepted and numpy's Cholesky refused."""
 
 
 @njit(cache=True, inline="always")
 def _chol_ok(P, n):
-    """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) has a Cholesky factorisation whose every
-    pivot exceeds ``PD_FLOOR_REL`` x its diagonal entry (written out: no scratch array in the hot path)."""
-    m = PD_FLOOR_REL
+    """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) is positive definite with a margin every
+    Cholesky implementation honours: ``1 / trace(H^-1) > PD_MIN_EIG``, a lower bound (within a factor n) on the
+    smallest eigenvalue of P's correlation matrix H. ``trace(H^-1) = sum_i P_ii (P^-1)_ii``, from P's Cholesky
+    factor L as the columns of ``L^-1``; each pivot is first checked against the same margin (the pivot over its
+    diagonal is one over a diagonal entry of a trailing block's ``H^-1``). Scale-free: the units of the blocks do
+    not matter. Written out: no scratch array in the hot path.
+
+    Fast path (an ordinary covariance): every pivot at least ``2^-8`` of its diagonal bounds ``trace(H^-1)`` without
+    computing it. H's factor has rows of unit norm and diagonal >= ``s^-1`` (s = 16), so ``|(L^-1)_ij| <= s^2 (1 +
+    s)^(i-j-1)`` below the diagonal and ``trace(H^-1) <= n s^2 + sum_(i>j) s^4 (1 + s)^(2(i-j-1)) < 1.7e12`` for
+    n <= 5, below ``1 / PD_MIN_EIG`` = 3.5e13."""
+    m = PD_MIN_EIG
+    fast = 0.00390625   # 2^-8
     p = P[0, 0]
-    if not p > m * abs(P[0, 0]) or not math.isfinite(p):
+    if not (p > 0.0 and math.isfinite(p)):
         return False
-    l00 = math.sqrt(p)
-    l10, l20, l30 = P[1, 0] / l00, P[2, 0] / l00, P[3, 0] / l00
+    r0 = 1.0 / math.sqrt(p)                  # r_k = 1 / L_kk
+    l10, l20, l30 = P[1, 0] * r0, P[2, 0] * r0, P[3, 0] * r0
     p = P[1, 1] - l10 * l10
-    if not p > m * abs(P[1, 1]):
+    if not p > m * P[1, 1]:
         return False
-    l11 = math.sqrt(p)
-    l21, l31 = (P[2, 1] - l20 * l10) / l11, (P[3, 1] - l30 * l10) / l11
+    clear = p > fast * P[1, 1]
+    r1 = 1.0 / math.sqrt(p)
+    l21, l31 = (P[2, 1] - l20 * l10) * r1, (P[3, 1] - l30 * l10) * r1
     p = P[2, 2] - l20 * l20 - l21 * l21
-    if not p > m * abs(P[2, 2]):
+    if not p > m * P[2, 2]:
         return False
-    l22 = math.sqrt(p)
-    l32 = (P[3, 2] - l30 * l20 - l31 * l21) / l22
+    clear = clear and p > fast * P[2, 2]
+    r2 = 1.0 / math.sqrt(p)
+    l32 = (P[3, 2] - l30 * l20 - l31 * l21) * r2
     p = P[3, 3] - l30 * l30 - l31 * l31 - l32 * l32
-    if not p > m * abs(P[3, 3]):
+    if not p > m * P[3, 3]:
         return False
-    if n == 4:
+    clear = clear and p > fast * P[3, 3]
+    if n == 4 and clear:
         return True
-    l33 = math.sqrt(p)
-    l40 = P[4, 0] / l00
-    l41 = (P[4, 1] - l40 * l10) / l11
-    l42 = (P[4, 2] - l40 * l20 - l41 * l21) / l22
-    l43 = (P[4, 3] - l40 * l30 - l41 * l31 - l42 * l32) / l33
-    p = P[4, 4] - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43
-    return p > m * abs(P[4, 4])
+    r3 = 1.0 / math.sqrt(p)
+    if n == 5:
+        l40 = P[4, 0] * r0
+        l41 = (P[4, 1] - l40 * l10) * r1
+        l42 = (P[4, 2] - l40 * l20 - l41 * l21) * r2
+        l43 = (P[4, 3] - l40 * l30 - l41 * l31 - l42 * l32) * r3
+        p4 = P[4, 4] - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43
+        if not p4 > m * P[4, 4]:
+            return False
+        if clear and p4 > fast * P[4, 4]:
+            return True
+    # M = L^-1 (lower triangular, M_kk = r_k); (P^-1)_ii = sum_k M_ki^2
+    m10 = -l10 * r0 * r1
+    m21 = -l21 * r1 * r2
+    m20 = -(l20 * r0 + l21 * m10) * r2
+    m32 = -l32 * r2 * r3
+    m31 = -(l31 * r1 + l32 * m21) * r3
+    m30 = -(l30 * r0 + l31 * m10 + l32 * m20) * r3
+    c0 = r0 * r0 + m10 * m10 + m20 * m20 + m30 * m30
+    c1 = r1 * r1 + m21 * m21 + m31 * m31
+    c2 = r2 * r2 + m32 * m32
+    c3 = r3 * r3
+    if n == 4:
+        return (P[0, 0] * c0 + P[1, 1] * c1 + P[2, 2] * c2 + P[3, 3] * c3) * m < 1.0
+    r4 = 1.0 / math.sqrt(p4)
+    m43 = -l43 * r3 * r4
+    m42 = -(l42 * r2 + l43 * m32) * r4
+    m41 = -(l41 * r1 + l42 * m21 + l43 * m31) * r4
+    m40 = -(l40 * r0 + l41 * m10 + l42 * m20 + l43 * m30) * r4
+    tr = (P[0, 0] * (c0 + m40 * m40) + P[1, 1] * (c1 + m41 * m41) + P[2, 2] * (c2 + m42 * m42)
+          + P[3, 3] * (c3 + m43 * m43) + P[4, 4] * (r4 * r4))
+    return tr * m < 1.0
 
 
 @njit(cache=True)   # not inlined: one compilation for every caller (it was 2 x _chol_ok in each), called with an int64 n
@@ -203,10 +250,10 @@ def _pd_floor(Po, n, P):
     positive definite as float64 can represent it. The update subtracts prior-sized numbers, so a posterior variance
     is known only to about eps x the prior's; one that is tiny against the prior (a near-singular or perfect plot,
     a coast of minutes at 100 g before the update, nanometre noise) can come out slightly negative. Then, and only
-    then (:func:`_chol_ok` fails), each block's diagonal gets ``tau`` x the block's largest prior (or posterior)
-    variance, ``tau`` from ``PD_FLOOR_REL`` up by factors of 16 until the Cholesky check passes: the least such
-    addition on that grid, in each block's units, at the rounding level of the computation. Changes nothing on
-    ordinary looks."""
+    then (:func:`_chol_ok` fails: not positive definite with the margin ``PD_MIN_EIG`` every Cholesky honours),
+    each block's diagonal gets ``tau`` x the block's largest prior (or posterior) variance, ``tau`` from
+    ``PD_FLOOR_REL`` up by factors of 16 until the check passes: the least such addition on that grid, in each
+    block's units, a few hundred eps of its scale. Changes nothing on ordinary looks."""
     if _chol_ok(Po, n):
         return
     sp = max(abs(Po[0, 0]), abs(Po[1, 1]), abs(P[0, 0]), abs(P[1, 1]))
@@ -453,8 +500,8 @@ def _update_nis(x, P, z, R, det, xo, Po, nu, S):
     """Kalman update with a converted position plot (H = [I 0]) by :func:`_gain_update`. Writes the posterior into
     xo, Po, the innovation and its covariance into nu, S. A missed look (``det`` False)
     leaves the prior unchanged (S from R = I, nu = 0, NIS 0, det S 0; :func:`_pd_floor` only where the prior is
-    not positive definite to rounding). Returns ``(nis, det S)``: the env's step needs no log-likelihood, so its
-    logarithm is taken only by :func:`_update`. xo/Po must not alias x/P."""
+    not positive definite with the margin of :func:`_chol_ok`). Returns ``(nis, det S)``: the env's step needs no
+    log-likelihood, so its logarithm is taken only by :func:`_update`. xo/Po must not alias x/P."""
     if det:
         r00, r01, r10, r11 = R[0, 0], R[0, 1], R[1, 0], R[1, 1]
         nu0, nu1 = z[0] - x[0], z[1] - x[1]
