@@ -76,8 +76,8 @@ from agents.evaluation.metrics import jsonable
 from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyperparams, run_cli, run_paths,
-                                  write_run_files, writing_run)
+from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
+                                  load_hyperparams, run_cli, run_paths, write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -442,10 +442,8 @@ HP_SPEC = {
     "head": ((lambda v: isinstance(v, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
                                                      for n in v)), "a list of layer widths >= 1"),
     "eval_every": _int(1),
-    "eval_scenarios": ((lambda v: isinstance(v, dict) and v and all(isinstance(r, int) and not isinstance(r, bool)
-                                                                     and r >= 1 for r in v.values())),
-                       "a JSON object {suite: runs >= 1}"),
-    "select_on": ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names"),
+    "eval_scenarios": EVAL_SCENARIOS_HP,
+    "select_on": SELECT_ON_HP,
     "env_kwargs": ((lambda v: isinstance(v, dict)), "a JSON object of RadarTrack-v0 arguments"),
     "chain": ((lambda v: v in CHAINS), f"one of {list(CHAINS)}"),
     "turn_rate_max_deg_s": _num(0.0, 180.0),

@@ -21,11 +21,16 @@ from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
            "check_plain_name", "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed",
-           "finish_run", "writing_run"]
+           "finish_run", "writing_run", "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
 
 ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
 """The random generators training may use (named scenarios, trajectories and flights are for evaluation only)."""
+EVAL_SCENARIOS_HP = ((lambda v: isinstance(v, dict) and bool(v) and all(
+    isinstance(r, int) and not isinstance(r, bool) and r >= 1 for r in v.values())), "a JSON object {suite: runs >= 1}")
+"""Every trainer's ``--hp eval_scenarios`` check: ``(check, what it must be)``."""
+SELECT_ON_HP = ((lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)), "a list of suite names")
+"""Every trainer's ``--hp select_on`` check: ``(check, what it must be)``."""
 HP_DIR = Path(__file__).with_name("hyperparams")
 HP_NAMES = ("ppo", "dqn", "sac", "backprop", "backprop_imm_cv_ct", "window")
 """The hyperparameter files shipped in ``agents/training/hyperparams/``."""

@@ -51,9 +51,9 @@ from baselines.seeds import TRAIN_SEEDS
 
 from agents.policies.bundle import embed_env_config     # JSON and zipfile only
 
-from agents.training.runs import (ENV_ID, HP_DIR, TRAIN_SCENARIOS, apply_cli_overrides,  # noqa: F401
-                                  check_plain_name, load_hyperparams, run_cli, run_paths, write_run_files,
-                                  writing_run)
+from agents.training.runs import (ENV_ID, EVAL_SCENARIOS_HP, HP_DIR, SELECT_ON_HP, TRAIN_SCENARIOS,  # noqa: F401
+                                  apply_cli_overrides, check_plain_name, load_hyperparams, run_cli, run_paths,
+                                  write_run_files, writing_run)
 
 __all__ = ["main", "load_hyperparams", "train", "trained_timesteps", "plot_training_curve", "check_plain_name",
            "ALGOS", "ENV_ID", "TRAIN_SCENARIOS"]
@@ -95,9 +95,9 @@ _SPECIAL_TYPES = {
     "normalize_reward": (lambda v: isinstance(v, bool), "true or false"),
     "env_kwargs": (lambda v: isinstance(v, dict), "a JSON object of RadarTrack-v0 arguments"),
     "policy_kwargs": (lambda v: isinstance(v, dict), "a JSON object"),
-    "eval_scenarios": (lambda v: isinstance(v, dict) and all(_is_int(r) and r >= 1 for r in v.values()),
-                       "a JSON object {suite: runs >= 1}"),
-    "select_on": (lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v), "a list of suite names"),
+    "eval_scenarios": ((lambda v: v == {} or EVAL_SCENARIOS_HP[0](v)),      # {}: eval_runs of random
+                       EVAL_SCENARIOS_HP[1]),
+    "select_on": SELECT_ON_HP,
     "init_from": (lambda v: isinstance(v, str) and v != "", "the path of a saved model"),
 }
 # ranges of common constructor arguments (the type comes from the constructor's default)

@@ -45,8 +45,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from agents.training.runs import (TRAIN_SCENARIOS, apply_cli_overrides, load_hyperparams, run_cli, run_paths,
-                                  write_run_files, writing_run)
+from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
+                                  load_hyperparams, run_cli, run_paths, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "fit_covariance_head",
@@ -109,12 +109,9 @@ def check_hp(hp):
     if not isinstance(sc, list) or not sc or any(s not in TRAIN_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
         raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(TRAIN_SCENARIOS)}, "
                          f"got {sc!r}")
-    ev = hp["eval_scenarios"]
-    if not isinstance(ev, dict) or not ev or not all(isinstance(r, int) and not isinstance(r, bool) and r >= 1
-                                                     for r in ev.values()):
-        raise ValueError(f"--hp eval_scenarios: a JSON object {{suite: runs >= 1}}, got {ev!r}")
-    if not isinstance(hp["select_on"], list) or not all(isinstance(n, str) for n in hp["select_on"]):
-        raise ValueError(f"--hp select_on: a list of suite names, got {hp['select_on']!r}")
+    for key, (ok, what) in (("eval_scenarios", EVAL_SCENARIOS_HP), ("select_on", SELECT_ON_HP)):
+        if not ok(hp[key]):
+            raise ValueError(f"--hp {key}: {what}, got {hp[key]!r}")
     for key in ("mirror", "standardise_inputs", "weight_suites"):
         if not isinstance(hp[key], bool):
             raise ValueError(f"--hp {key}: must be true or false, got {hp[key]!r}")
