@@ -172,7 +172,7 @@ enough: after 1,000 s coasts at 2 g the env gave an exactly positive definite P 
 which our check accepted and numpy's Cholesky refused."""
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a call, not inlined: inlined twice in _pd_floor it cost 0.8 s more first-use compilation
 def _chol_ok(P, n):
     """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) is positive definite with a margin every
     Cholesky implementation honours: ``1 / trace(H^-1) > PD_MIN_EIG``, a lower bound (within a factor n) on the
@@ -1215,15 +1215,16 @@ def k_imm_run(t, z, R, det, rdot, rdot_var, site, n_looks, k_start, t_start, log
 
 
 # The particle filter (radar_env.filters.rbpf) updates thousands of particles per look: its copy of the update keeps
-# the covariance floor inlined as before (a call per particle cost it about 3 %), while the env's chain calls the one
-# compiled _pd_floor (first use: inlined into every update it cost seconds of compilation). Same arithmetic.
+# the covariance floor and its check inlined (a call per particle cost it about 3 %), while the env's chain calls the
+# one compiled _pd_floor (first use: inlined into every update it cost seconds of compilation). Same arithmetic.
 def _with_globals(fn, **names):
     """A copy of the plain function ``fn`` whose global ``names`` resolve to other objects."""
     return types.FunctionType(fn.__code__, dict(fn.__globals__, **names), fn.__name__, fn.__defaults__,
                               fn.__closure__)
 
 
-_pd_floor_inlined = njit(inline="always")(_pd_floor.py_func)
+_pd_floor_inlined = njit(inline="always")(_with_globals(_pd_floor.py_func,
+                                                       _chol_ok=njit(inline="always")(_chol_ok.py_func)))
 _gain_update_in_frame_inlined = njit(inline="always")(
     _with_globals(_gain_update_in_frame.py_func, _pd_floor=_pd_floor_inlined))
 """:func:`_gain_update_in_frame` with :func:`_pd_floor` inlined (the particle filter's per-particle update)."""
