@@ -177,9 +177,9 @@ def _chol_ok(P, n):
     """Whether the symmetric P (n x n, n = 4 or 5; lower triangle read) is positive definite with a margin every
     Cholesky implementation honours: ``1 / trace(H^-1) > PD_MIN_EIG``, a lower bound (within a factor n) on the
     smallest eigenvalue of P's correlation matrix H. ``trace(H^-1) = sum_i P_ii (P^-1)_ii``, from P's Cholesky
-    factor L as the columns of ``L^-1``; each pivot is first checked against the same margin (the pivot over its
-    diagonal is one over a diagonal entry of a trailing block's ``H^-1``). Scale-free: the units of the blocks do
-    not matter. Written out: no scratch array in the hot path.
+    factor L as the columns of ``L^-1``; each pivot is first checked against the same margin (pivot k over its
+    diagonal is ``1 / (H_k^-1)_kk`` of H's leading k + 1 rows and columns ``H_k``, at least ``lambda_min(H)``).
+    Scale-free: the units of the blocks do not matter. Written out: no scratch array in the hot path.
 
     Fast path (an ordinary covariance): every pivot at least ``2^-8`` of its diagonal bounds ``trace(H^-1)`` without
     computing it. H's factor has rows of unit norm and diagonal >= ``s^-1`` (s = 16), so ``|(L^-1)_ij| <= s^2 (1 +
