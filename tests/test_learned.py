@@ -118,6 +118,29 @@ def test_evaluate_learned_by_name_and_by_user_folder(tmp_path, capsys):
 
 
 @needs_bundle
+def test_evaluate_learned_adds_a_bundled_tracker_outside_the_default_list(tmp_path):
+    """Without ``--trackers``, ``--learned policy_window`` (bundled, not among the main job's defaults: the README's
+    command) runs after the default learned trackers, and a user folder after it, in the order given (it was
+    dropped without a word)."""
+    mine = tmp_path / "my_bp"
+    shutil.copytree(BUNDLED_LEARNED["policy_bp"], mine, ignore=shutil.ignore_patterns("seeds"))
+    res = ev.main(["--learned", "policy_window", "--learned", str(mine), *QUICK])
+    names = list(res["random"]["trackers"])
+    default_learned = [t for t in names if t in BUNDLED_LEARNED and t != "policy_window"]
+    assert names[len(default_learned):len(default_learned) + 2] == ["policy_window", "my_bp"], names
+    assert np.isfinite(res["random"]["trackers"]["policy_window"]["pos_rmse_m"])
+
+
+def test_first_line_counts_each_learned_tracker_once():
+    from agents.evaluation.options import first_line
+    parse = ev.build_parser("radar-track evaluate").parse_args
+    for args, n in [(["--learned", "policy_window", "--trackers", "imm2"], 2),
+                    (["--learned", "policy_bp", "--trackers", "policy_bp,imm2"], 2),
+                    (["--learned", "runs/mine/best", "--trackers", "imm2"], 2)]:
+        assert f": {n} tracker(s) on" in first_line(parse(args)), (args, first_line(parse(args)))
+
+
+@needs_bundle
 def test_evaluate_refuses_a_wrong_kind_a_clashing_label_and_a_tracker_given_twice(tmp_path):
     imm = tmp_path / "my_imm"
     shutil.copytree(BUNDLED_LEARNED["policy_imm_bp"], imm, ignore=shutil.ignore_patterns("seeds"))

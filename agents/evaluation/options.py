@@ -133,7 +133,9 @@ def first_line(args):
     trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
                 else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t, None) or BUNDLED_POLICIES[t].is_file())
                                                  for t in BUNDLED_POLICIES))
-    trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED])     # user folders add one each
+    named = [t.strip() for t in args.trackers.split(",")] if args.trackers is not None else DEFAULT_TRACKERS
+    # user folders add one each, and so does a bundled name not already listed (policy_window, ...)
+    trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED or x not in named])
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
             + (" and the policies" if trackers and (args.trackers is None or "policy" in args.trackers
