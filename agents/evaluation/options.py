@@ -130,10 +130,11 @@ def first_line(args):
         return "radar-track evaluate: listing the suites and trackers (loading the registry) ..."
     suites = list(args.scenario or []) + list(args.trajectory or [])
     suites = suites or list(DEFAULT_SUITES)
-    trackers = (len([t for t in args.trackers.split(",") if t.strip()]) if args.trackers is not None
+    named = ([t.strip() for t in args.trackers.split(",") if t.strip()] if args.trackers is not None
+             else DEFAULT_TRACKERS)
+    trackers = (len(named) if args.trackers is not None
                 else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t, None) or BUNDLED_POLICIES[t].is_file())
                                                  for t in BUNDLED_POLICIES))
-    named = [t.strip() for t in args.trackers.split(",")] if args.trackers is not None else DEFAULT_TRACKERS
     # user folders add one each, and so does a bundled name not already listed (policy_window, ...)
     trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED or x not in named])
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
