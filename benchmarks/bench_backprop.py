@@ -1,12 +1,14 @@
 """Training throughput of ``radar-track train --method backprop`` (agents/training/backprop.py), single thread.
 
-Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--batch 1000] [--chunk 40]
-[--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
+Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--tracker cv|imm_cv_ct] [--batch 1000]
+[--chunk 40] [--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
 ``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the
 reference lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
 :mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing
 the ratios of the median step times and the load average (docs/speed.md, "Backprop training step": on the shared
-machine only the ratios mean something). With ``torch.set_num_threads(1)`` it builds
+machine only the ratios mean something). With ``--tracker imm_cv_ct`` (the learned IMM's recipe,
+``backprop_imm_cv_ct.toml``) ``--compare N`` times ``chain = "torch"`` (eager) against ``chain = "compiled"``
+(its look under ``torch.compile``; the first rounds of warm-up include the compilation). With ``torch.set_num_threads(1)`` it builds
 the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
 and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
 and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
@@ -61,9 +63,13 @@ class _Timed:
             self.seconds += time.perf_counter() - t0
 
 
-def _trainer(flights, batch, chunk, hidden, seed, chain):
-    """``(trainer, opt, hp)`` of the recipe on ``flights`` with the CV model's ``chain`` (bp.CHAINS)."""
-    hp = load_hyperparams("backprop")
+RECIPES = {"cv": "backprop", "imm_cv_ct": "backprop_imm_cv_ct"}
+"""``--tracker`` -> its recipe (agents/training/hyperparams/<name>.toml)."""
+
+
+def _trainer(flights, batch, chunk, hidden, seed, chain, tracker="cv"):
+    """``(trainer, opt, hp)`` of ``tracker``'s recipe on ``flights`` with the model's ``chain`` (bp.CHAINS)."""
+    hp = load_hyperparams(RECIPES[tracker])
     hp.update(batch_episodes=batch, chunk_looks=chunk, hidden_size=hidden, chain=chain)
     if flights == "random":
         hp["env_kwargs"] = {k: v for k, v in hp["env_kwargs"].items() if k not in ("scenario", "random_config")}
@@ -74,9 +80,9 @@ def _trainer(flights, batch, chunk, hidden, seed, chain):
     return bp.StreamingTrainer(model, cfg, batch, chunk, seed, loss=hp["loss"]), opt, hp
 
 
-def measure(flights, batch, chunk, hidden, steps, seed=0, chain="compiled"):
+def measure(flights, batch, chunk, hidden, steps, seed=0, chain="compiled", tracker="cv"):
     """Time ``steps`` optimiser steps of the trainer on ``flights`` (one of :data:`FLIGHTS`); returns a dict."""
-    trainer, opt, hp = _trainer(flights, batch, chunk, hidden, seed, chain)
+    trainer, opt, hp = _trainer(flights, batch, chunk, hidden, seed, chain, tracker)
 
     def one_step():
         bp.optimiser_step(trainer, opt, hp)
@@ -112,7 +118,7 @@ looks read from the whole store); ``torch``, ``chain = "torch"`` on this code (t
 Tracker.look_window); ``compiled``, ``chain = "compiled"`` (the default)."""
 
 
-def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
+def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2, tracker="cv"):
     """The CV recipe's optimiser step of each of :data:`PATHS` in this one process: trainers of the same seed (the
     same rows' episodes, the same initial weights; their weights then differ by rounding only), ``warmup`` steps
     each, then ``repeats`` rounds, each timing one step of each in a rotating order (a load change on the shared
@@ -120,12 +126,13 @@ def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
     compiled`` of the medians and the load average before and after."""
     import statistics
     load0 = os.getloadavg()
-    runs = {p: _trainer(flights, batch, chunk, hidden, seed, c) for p, (c, _) in PATHS.items()}
+    paths = PATHS if tracker == "cv" else {p: PATHS[p] for p in ("torch", "compiled")}   # the IMM: no "main"
+    runs = {p: _trainer(flights, batch, chunk, hidden, seed, c, tracker) for p, (c, _) in paths.items()}
     own = bp.chunk_looks
     times = {p: [] for p in runs}
 
     def step(p):
-        bp.chunk_looks = PATHS[p][1] or own
+        bp.chunk_looks = paths[p][1] or own
         try:
             t0 = time.perf_counter()
             bp.optimiser_step(*runs[p])
@@ -141,15 +148,18 @@ def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2):
         for p in names[i % len(names):] + names[:i % len(names)]:
             times[p].append(step(p))
     med = {p: statistics.median(t) for p, t in times.items()}
-    return {"flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden, "repeats": repeats,
-            "s_per_step": med, "ratio_main": med["main"] / med["compiled"],
+    ref = "main" if "main" in med else "torch"
+    return {"tracker": tracker, "flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden,
+            "repeats": repeats, "s_per_step": med, "ratio_main": med["main"] / med["compiled"] if "main" in med else None,
             "ratio_torch": med["torch"] / med["compiled"],
-            "ratio_main_per_round": [a / b for a, b in zip(times["main"], times["compiled"])],
+            "ratio_main_per_round": [a / b for a, b in zip(times[ref], times["compiled"])],
             "times": times, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--tracker", default="cv", choices=sorted(RECIPES),
+                   help="the model and its recipe: cv (policy_bp's, default) or imm_cv_ct (the learned IMM's)")
     p.add_argument("--batch", type=_positive_int, default=1000, help="episodes side by side (default 1000)")
     p.add_argument("--chunk", type=_positive_int, default=None, help="looks per optimiser step (default: the recipe's)")
     p.add_argument("--hidden", type=_positive_int, default=None, help="GRU width (default: the recipe's)")
@@ -157,7 +167,7 @@ def main(argv=None):
     p.add_argument("--flights", default=",".join(FLIGHTS), help=f"comma-separated subset of {','.join(FLIGHTS)}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", default=None, help="also write the results here")
-    p.add_argument("--chain", default="compiled", choices=bp.CHAINS, help="the CV model's chunk (default compiled)")
+    p.add_argument("--chain", default="compiled", choices=bp.CHAINS, help="the model's chain (default compiled)")
     p.add_argument("--compare", type=_positive_int, default=None, metavar="N",
                    help="instead: N interleaved rounds of one step as main ran it, one with chain=torch and one with "
                         "chain=compiled in this process; prints the per-step ratios (the first flight distribution "
@@ -169,15 +179,18 @@ def main(argv=None):
     torch.set_num_threads(1)
     import numba
     numba.set_num_threads(1)               # as train_backprop
-    rec = load_hyperparams("backprop")
+    rec = load_hyperparams(RECIPES[a.tracker])
     chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
     if a.compare:
-        r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed)
+        r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed, tracker=a.tracker)
         m, rr = r["s_per_step"], r["ratio_main_per_round"]
-        print(f"{flights[0]} flights, batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.compare} interleaved rounds, "
-              f"torch {torch.__version__}, 1 thread; median s/step: main {m['main']:.3f}, chain=torch "
-              f"{m['torch']:.3f}, chain=compiled {m['compiled']:.3f}\n  ratio main/compiled {r['ratio_main']:.2f}x "
-              f"(per round {min(rr):.2f}-{max(rr):.2f}), chain=torch/compiled {r['ratio_torch']:.2f}x; load average "
+        head = (f"main {m['main']:.3f}, " if "main" in m else "")
+        ratio = (f"ratio main/compiled {r['ratio_main']:.2f}x (per round {min(rr):.2f}-{max(rr):.2f}), "
+                 f"chain=torch/compiled {r['ratio_torch']:.2f}x" if "main" in m else
+                 f"ratio chain=torch/compiled {r['ratio_torch']:.2f}x (per round {min(rr):.2f}-{max(rr):.2f})")
+        print(f"{a.tracker}, {flights[0]} flights, batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.compare} "
+              f"interleaved rounds, torch {torch.__version__}, 1 thread; median s/step: {head}chain=torch "
+              f"{m['torch']:.3f}, chain=compiled {m['compiled']:.3f}\n  {ratio}; load average "
               f"(1, 5, 15 min) before {', '.join(f'{v:.2f}' for v in r['loadavg_before'])}, after "
               f"{', '.join(f'{v:.2f}' for v in r['loadavg_after'])}")
         if a.json:
@@ -188,7 +201,7 @@ def main(argv=None):
     print(f"batch {a.batch}, chunk {chunk}, GRU {hidden}, {a.steps} timed steps, torch {torch.__version__}, "
           f"{torch.get_num_threads()} thread(s), load average {os.getloadavg()[0]:.2f}")
     for f in flights:
-        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed, a.chain)
+        r = measure(f, a.batch, chunk, hidden, a.steps, a.seed, a.chain, a.tracker)
         res["results"].append(r)
         print(f"  {f:9s} {r['seconds_per_step']:6.3f} s/step  {r['episodes_per_s']:7.1f} episodes/s  "
               f"{r['row_looks_per_s']:9.0f} row-looks/s  {r['scored_looks_per_s']:9.0f} scored looks/s  "

@@ -201,3 +201,60 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
     assert t["policy_imm_bp"]["pos_rmse_m"] == evaluate_run(stack_episodes(eps), ref)["pos_rmse_m"]
     assert t["policy_imm_bp"]["pos_rmse_m"] != t["imm_cv_ct"]["pos_rmse_m"]
     assert json.loads(out.read_text())["meta"]["policy_imm_bp"] == str(path)
+
+
+@pytest.mark.parametrize("rdot", [False, True], ids=["position", "range_rate"])
+def test_compiled_look_equals_the_eager_look(rdot):
+    """``chain="compiled"`` (the default: :func:`agents.training.learned_imm.look_step` under ``torch.compile``)
+    against ``chain="torch"`` (eager) from the same random weights, over 12 chunks of random flights seen by two sites
+    scanning together (rows finish episodes and start new ones; the chunks hold simultaneous looks (dt = 0), missed
+    looks, and
+    CT modes near omega = 0 at each track start; with and without the range-rate update): the same loss and gradient of every parameter to 1e-8 relative,
+    the same estimates, and the carried states that require a gradient at a chunk's start (one traced graph) change
+    no gradient."""
+    from dataclasses import replace
+    from agents.training import learned_imm as LM
+    from test_torch_chain import TWO_SITES_SAME_TIME
+    env = {k: v for k, v in load_hyperparams("backprop_imm_cv_ct")["env_kwargs"].items()
+           if k not in ("scenario", "random_config")}
+    res, seen = {}, {"dt0": 0, "missed": 0}
+    for chain in ("torch", "compiled"):
+        hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain=chain,
+                                      env_kwargs={**env, "radial_velocity": rdot}))
+        cfg = replace(cfg, radar=TWO_SITES_SAME_TIME)      # the random flights seen by two sites scanning together
+        torch.manual_seed(6)
+        model = bp.make_model(hp, cfg)
+        assert model.chain == chain
+        with torch.no_grad():
+            model.out.weight.normal_(0.0, 0.3)
+        trainer = bp.StreamingTrainer(model, cfg, 6, 40, 9)
+        out = []
+        for _ in range(12):
+            model.zero_grad()
+            loss, looks = trainer.chunk()
+            loss.backward()
+            out.append((float(loss.detach()), [p.grad.clone() for p in model.parameters()], model.record.x.detach()))
+            s = looks.scored.numpy()
+            seen["dt0"] += int((s & (looks.dt_s.numpy() == 0.0)).sum())
+            seen["missed"] += int((s & ~looks.detected.numpy()).sum())
+        res[chain] = out
+    assert trainer.episodes_done >= 2 and seen["dt0"] > 0 and seen["missed"] > 0, seen
+    assert trainer.tracker.radial_velocity == rdot and (looks.rdot is not None) == rdot
+    assert LM._compiled_look_step is not None                  # the compiled path ran
+    for (lt, gt, xt), (lc, gc, xc) in zip(res["torch"], res["compiled"]):
+        assert abs(lc / lt - 1.0) < 1e-8
+        for a, b in zip(gc, gt):
+            assert float((a - b).abs().max()) <= 1e-8 * float(b.abs().max())
+        assert float((xc - xt).abs().max()) <= 1e-8 * float(xt.abs().max())
+
+
+def test_compiled_chain_needs_a_compiler(monkeypatch):
+    """Without the C++ compiler torch.compile calls, ``chain="compiled"`` is refused when the model is built, in one
+    line naming the hyperparameter and the way out; ``chain="torch"`` still builds."""
+    from agents.training import learned_imm as LM
+    monkeypatch.setenv("CXX", "no-such-compiler-xyz")
+    assert not LM.compiler_available()
+    hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=8))
+    with pytest.raises(ValueError, match=r"--hp chain: 'compiled'.*C\+\+ compiler.*--hp chain=torch"):
+        bp.make_model(hp, cfg)
+    assert bp.make_model(dict(hp, chain="torch"), cfg).chain == "torch"

@@ -92,11 +92,13 @@ weighs a look on a precise radar as much as one on a coarse radar."""
 MAX_TRAIN_SEED = SELECTION_SEED_BASE
 """Training seeds ``S`` lie in ``[0, 900_000)``: below the selection suites' seeds."""
 CHAINS = ("compiled", "torch")
-"""The CV model's chunk (hyperparameter ``chain``, optional, default ``compiled``): ``compiled``, the look loop
-steps only the GRU, the numba Tracker and the observation, then the compiled CV chain
+"""How a model's chain runs (hyperparameter ``chain``, optional, default ``compiled``). The CV model: ``compiled``,
+the look loop steps only the GRU, the numba Tracker and the observation, then the compiled CV chain
 (:mod:`radar_env.filters.compiled_chain`, numba forward and adjoint) runs the chunk at once
 (:meth:`CVQModel.chunk_forward`); ``torch``, the reference: the lockstep over the torch chain, one look at a
-time. The same gradient to rounding; ``imm_cv_ct`` always runs its torch lockstep."""
+time. ``imm_cv_ct`` (the learned IMM): ``compiled``, its look (GRU, parameters, torch IMM) under ``torch.compile``
+(:func:`agents.training.learned_imm.look_step`; needs a C++ compiler); ``torch``, eager. The same gradient to
+rounding either way."""
 
 
 # ================================================================================================= the models

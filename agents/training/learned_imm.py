@@ -3,7 +3,10 @@ imm_cv_ct``.
 
 :class:`LearnedIMMModel` is the network of :mod:`agents.policies.learned_imm` in torch (a GRU over the env's
 observation and the IMM's own detectors, whose offsets set imm_cv_ct's per-look parameters) and the differentiable
-IMM they drive (:mod:`radar_env.filters.torch_imm`, built from the one torch chain's blocks). It implements the backprop
+IMM they drive (:mod:`radar_env.filters.torch_imm`, built from the one torch chain's blocks). One look of it is one
+function, :func:`look_step`; hyperparameter ``chain`` (default ``compiled``) runs it under ``torch.compile`` (inductor:
+the look's few hundred small tensor operations and their backward fused into C++ loops, the same arithmetic to
+rounding), ``torch`` runs it eagerly (the reference). It implements the backprop
 trainer's model interface (:class:`agents.training.backprop.ChainModel`), so that trainer runs it: the rows' flights,
 the lockstep numba :class:`radar_env.filters.tracking.Tracker` (stepped at kf_tuned's constant q: the env's observation,
 as ``RadarTrack-v0`` computes it), chunks of truncated backpropagation of the pooled position MSE through the IMM
@@ -14,6 +17,9 @@ inference (:meth:`agents.training.selection.SelectionSuites.score_runs`).
 """
 
 from __future__ import annotations
+
+import os
+import shutil
 
 import numpy as np
 import torch
@@ -27,7 +33,40 @@ from agents.policies.learned_imm import (LearnedIMM, ParamMap, detector_inputs, 
                                          save_learned_imm, weight_shapes)
 from agents.training.backprop import DTYPE, ChainModel, gru_weights
 
-__all__ = ["LearnedIMMModel"]
+__all__ = ["LearnedIMMModel", "look_step", "compiler_available"]
+
+
+def look_step(model, obs, det, h, state, dt, G, z, R, mask, rr):
+    """One look of the learned IMM for every row: the GRU reads the observation ``obs (B, F)`` and the IMM's
+    detectors ``det (B, M + 2)`` of the look before, its offsets set the look's IMM parameters, the IMM filters the
+    look (``dt (B,)``, ``G``, ``z``, ``R``, ``mask``, ``rr``: column ``j`` of a
+    :class:`radar_env.filters.torch_chain.ChainLooks`). Returns ``(h', state', record, det', delta)``: the new GRU
+    and IMM states, the :class:`radar_env.filters.torch_imm.IMMRecord`, the next detectors (detached: inputs, not a
+    path for the gradient) and the offsets ``delta (B, n_par)``. Tensors and the model only: what ``torch.compile``
+    traces (:attr:`LearnedIMMModel.chain`)."""
+    delta, h = model.offsets(obs, det, h)
+    q, sig_w2, log_Pi = model.imm_parameters(delta)
+    state, rec = ti.look(state, dt, G, z, R, mask, q, sig_w2, log_Pi, model.consts, rr=rr)
+    mu = torch.exp(rec.modes.log_mu[model._inverse]).T
+    det = detector_inputs(mu, rec.omega, torch.sqrt(rec.omega_var), torch).detach()
+    return h, state, rec, det, delta
+
+
+_compiled_look_step = None
+
+
+def _compiled():
+    """:func:`look_step` under ``torch.compile`` (one wrapper for the process: torch caches its graphs per input
+    shapes; inductor's on disk, so a later process reuses them)."""
+    global _compiled_look_step
+    if _compiled_look_step is None:
+        _compiled_look_step = torch.compile(look_step, dynamic=False)
+    return _compiled_look_step
+
+
+def compiler_available():
+    """Whether the C++ compiler ``torch.compile``'s inductor calls is on this machine (``$CXX``, else ``g++``)."""
+    return shutil.which(os.environ.get("CXX", "g++")) is not None
 
 
 # ===================================================================================================== the model
@@ -39,12 +78,21 @@ class LearnedIMMModel(ChainModel):
             GRU and the output layer (may be empty).
         spec: the ``IMMCVCTSpec`` whose per-look parameters the network offsets (the tuned ``imm_cv_ct``).
         feature_q_m_s2: the constant q the lockstep numba Tracker (the observation's chain) is stepped with.
+        chain: ``compiled`` (:func:`look_step` under ``torch.compile`` when a gradient is taken; needs a C++
+            compiler) or ``torch`` (eager). The same gradient to rounding (tests/test_learned_imm.py).
     """
 
     kind = "imm_cv_ct"
 
-    def __init__(self, obs_size, hidden_size, head, spec, feature_q_m_s2):
+    def __init__(self, obs_size, hidden_size, head, spec, feature_q_m_s2, chain="compiled"):
         super().__init__()
+        if chain not in ("compiled", "torch"):
+            raise ValueError(f"chain must be 'compiled' or 'torch', got {chain!r}")
+        if chain == "compiled" and not compiler_available():
+            raise ValueError(f"--hp chain: 'compiled' (torch.compile of the learned IMM's look) needs a C++ compiler, "
+                             f"and {os.environ.get('CXX', 'g++')!r} is not on PATH: install g++ (or set CXX), or "
+                             "train with --hp chain=torch (eager, about half the speed)")
+        self.chain = chain
         self.spec = spec
         self.names = look_parameter_names(spec)
         self.base = {n: getattr(spec, n) for n, *_ in IMM_CV_CT_PARAMS if getattr(spec, n) is not None}
@@ -73,10 +121,10 @@ class LearnedIMMModel(ChainModel):
         self._iw = idx["sigma_omega_deg_s15"]
 
     # ---- the network and its parameters
-    def offsets(self, obs, h):
-        """``(delta (B, n_par), h')`` for observations ``obs (B, F)`` (float64) and state ``h``; the detectors are
-        the model's (``self.det``)."""
-        h = self.gru(torch.cat((obs, self.det), 1), h)
+    def offsets(self, obs, det, h):
+        """``(delta (B, n_par), h')`` for observations ``obs (B, F)`` (float64), the IMM's detectors ``det`` and
+        state ``h``."""
+        h = self.gru(torch.cat((obs, det), 1), h)
         y = h
         for layer in self.head:
             y = torch.tanh(layer(y))
@@ -120,16 +168,22 @@ class LearnedIMMModel(ChainModel):
 
     def begin_chunk(self, tracker):
         self.h, self.state, self.det = self.h.detach(), self.state.detach(), self.det.detach()
+        if self.chain == "compiled" and torch.is_grad_enabled():
+            # The carried states as leaves that require a gradient (which nobody reads): the chunk's first look is
+            # then traced like the others, one compiled graph instead of two (compiling is the cost: ~1 min each).
+            self.h.requires_grad_(True)
+            for t in self.state:
+                t.requires_grad_(True)
 
     def step(self, looks, j, obs):
         """Look ``j`` of ``looks`` for every row, reading ``obs (B, F)``: returns the combined estimate
         ``x (4, B)`` (components first) and the q (m/s^2, numpy) for the lockstep Tracker (``feature_q``)."""
-        delta, self.h = self.offsets(obs, self.h)
-        q, sig_w2, log_Pi = self.imm_parameters(delta)
-        self.state, rec = ti.look(self.state, looks.dt_s[j], looks.G[j], looks.z_m[j], looks.R_m2[j],
-                                     looks.mask[j], q, sig_w2, log_Pi, self.consts, rr=looks.rdot_at(j))
-        mu = torch.exp(rec.modes.log_mu[self._inverse]).T
-        self.det = detector_inputs(mu, rec.omega, torch.sqrt(rec.omega_var), torch).detach()
+        # compiled for training; a forward without a gradient (forward_episodes: tests, diagnostics) runs eagerly,
+        # where compiling another graph would cost more than it saves
+        fn = _compiled() if self.chain == "compiled" and torch.is_grad_enabled() else look_step
+        self.h, self.state, rec, self.det, delta = fn(self, obs, self.det, self.h, self.state, looks.dt_s[j],
+                                                      looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j],
+                                                      looks.rdot_at(j))
         self.record, self.delta = rec, delta
         return rec.x, np.full(looks.B, self.feature_q_m_s2)
 
@@ -166,4 +220,4 @@ class LearnedIMMModel(ChainModel):
         from baselines.tuned_params import tuned_parameters
         rd = "_rdot" if cfg.radial_velocity else ""
         return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec("imm_cv_ct" + rd),
-                   tuned_parameters()["kf" + rd]["q_g"] * G0_M_S2)
+                   tuned_parameters()["kf" + rd]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))
