@@ -204,7 +204,7 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
 
 
 @pytest.mark.parametrize("rdot", [False, True], ids=["position", "range_rate"])
-def test_compiled_look_equals_the_eager_look(rdot):
+def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
     """``chain="compiled"`` (the default: :func:`agents.training.learned_imm.look_step` under ``torch.compile``)
     against ``chain="torch"`` (eager) from the same random weights, over 12 chunks of random flights seen by two sites
     scanning together (rows finish episodes and start new ones; the chunks hold simultaneous looks (dt = 0), missed
@@ -217,7 +217,13 @@ def test_compiled_look_equals_the_eager_look(rdot):
     from test_torch_chain import TWO_SITES_SAME_TIME
     env = {k: v for k, v in load_hyperparams("backprop_imm_cv_ct")["env_kwargs"].items()
            if k not in ("scenario", "random_config")}
-    res, seen = {}, {"dt0": 0, "missed": 0}
+    res, seen = {}, {"dt0": 0, "missed": 0, "compiled_looks": 0, "looks": 0}
+    compiled = LM._compiled
+
+    def counted():                                             # every look of the compiled model runs compiled
+        seen["compiled_looks"] += 1
+        return compiled()
+    monkeypatch.setattr(LM, "_compiled", counted)
     for chain in ("torch", "compiled"):
         hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain=chain,
                                       env_kwargs={**env, "radial_velocity": rdot}))
@@ -237,10 +243,11 @@ def test_compiled_look_equals_the_eager_look(rdot):
             s = looks.scored.numpy()
             seen["dt0"] += int((s & (looks.dt_s.numpy() == 0.0)).sum())
             seen["missed"] += int((s & ~looks.detected.numpy()).sum())
+            seen["looks"] += looks.J if chain == "compiled" else 0
         res[chain] = out
     assert trainer.episodes_done >= 2 and seen["dt0"] > 0 and seen["missed"] > 0, seen
     assert trainer.tracker.radial_velocity == rdot and (looks.rdot is not None) == rdot
-    assert LM._compiled_look_step is not None                  # the compiled path ran
+    assert seen["compiled_looks"] == seen["looks"] > 0         # the compiled path ran, at every look
     for (lt, gt, xt), (lc, gc, xc) in zip(res["torch"], res["compiled"]):
         assert abs(lc / lt - 1.0) < 1e-8
         for a, b in zip(gc, gt):
