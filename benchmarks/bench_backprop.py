@@ -2,18 +2,18 @@
 
 Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--tracker cv|imm_cv_ct] [--batch 1000]
 [--chunk 40] [--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
-``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the
-reference lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
-:mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing
-the ratios of the median step times and the load average (docs/speed.md, "Backprop training step": on the shared
-machine only the ratios mean something). With ``--tracker imm_cv_ct`` (the learned IMM's recipe,
-``backprop_imm_cv_ct.toml``) ``--compare N`` times ``chain = "torch"`` (eager) against ``chain = "compiled"``
-(its look under ``torch.compile``; the first rounds of warm-up include the compilation). With ``torch.set_num_threads(1)`` it builds
-the trainer of ``agents/training/hyperparams/backprop.toml`` (``--hidden``, ``--batch``, ``--chunk`` override it)
-and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and observation, the GRU
-and the torch chain forward, the backward pass, the Adam step; validation excluded), for each flight
-distribution of ``--flights``: ``training`` (the recipe's: 70 % random radars, the broad flights, about 370 looks
-per episode) and ``random`` (the evaluation's random suite generator: ATC radar, about 165 looks).
+``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the reference
+lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
+:mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing the
+ratios of the median step times and the load average (docs/speed.md, "Backprop training step": on the shared machine
+only the ratios mean something). With ``--tracker imm_cv_ct`` (the learned IMM's recipe, ``backprop_imm_cv_ct.toml``)
+``--compare N`` times ``chain = "torch"`` (eager) against ``chain = "compiled"`` (its look under ``torch.compile``;
+the first rounds of warm-up include the compilation). With ``torch.set_num_threads(1)`` it builds the trainer of
+``agents/training/hyperparams/backprop.toml`` (``--tracker``: its recipe; ``--hidden``, ``--batch``, ``--chunk``
+override it) and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and
+observation, the GRU and the torch chain forward, the backward pass, the Adam step; validation excluded), for each
+flight distribution of ``--flights``: ``training`` (the recipe's: 70 % random radars, the broad flights, about 370
+looks per episode) and ``random`` (the evaluation's random suite generator: ATC radar, about 165 looks).
 
 Reported per distribution: training episodes/s (episodes completed per second of training, in the steady state of
 the stream), row-looks/s (rows x looks processed, padding included), scored looks/s, seconds per optimiser step,
@@ -119,11 +119,12 @@ Tracker.look_window); ``compiled``, ``chain = "compiled"`` (the default)."""
 
 
 def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2, tracker="cv"):
-    """The CV recipe's optimiser step of each of :data:`PATHS` in this one process: trainers of the same seed (the
-    same rows' episodes, the same initial weights; their weights then differ by rounding only), ``warmup`` steps
-    each, then ``repeats`` rounds, each timing one step of each in a rotating order (a load change on the shared
-    machine hits all). Returns a dict with the per-step medians, the ratios ``main / compiled`` and ``torch /
-    compiled`` of the medians and the load average before and after."""
+    """``tracker``'s optimiser step of each of :data:`PATHS` (the learned IMM: ``torch`` and ``compiled`` only) in
+    this one process: trainers of the same seed (the same rows' episodes, the same initial weights; their weights
+    then differ by rounding only), ``warmup`` steps each, then ``repeats`` rounds, each timing one step of each in
+    a rotating order (a load change on the shared machine hits all). Returns a dict with the per-step medians, the
+    ratios ``main / compiled`` (None for the IMM) and ``torch / compiled`` of the medians, the per-round ratios of
+    the ``reference`` (``main``, the IMM's ``torch``) to ``compiled``, and the load average before and after."""
     import statistics
     load0 = os.getloadavg()
     paths = PATHS if tracker == "cv" else {p: PATHS[p] for p in ("torch", "compiled")}   # the IMM: no "main"
@@ -150,9 +151,10 @@ def compare(flights, batch, chunk, hidden, repeats, seed=0, warmup=2, tracker="c
     med = {p: statistics.median(t) for p, t in times.items()}
     ref = "main" if "main" in med else "torch"
     return {"tracker": tracker, "flights": flights, "batch": batch, "chunk": chunk, "hidden": hidden,
-            "repeats": repeats, "s_per_step": med, "ratio_main": med["main"] / med["compiled"] if "main" in med else None,
+            "repeats": repeats, "s_per_step": med,
+            "ratio_main": med["main"] / med["compiled"] if "main" in med else None,
             "ratio_torch": med["torch"] / med["compiled"],
-            "ratio_main_per_round": [a / b for a, b in zip(times[ref], times["compiled"])],
+            "reference": ref, "ratio_per_round": [a / b for a, b in zip(times[ref], times["compiled"])],
             "times": times, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
 
 
@@ -183,7 +185,7 @@ def main(argv=None):
     chunk, hidden = a.chunk or rec["chunk_looks"], a.hidden or rec["hidden_size"]
     if a.compare:
         r = compare(flights[0], a.batch, chunk, hidden, a.compare, a.seed, tracker=a.tracker)
-        m, rr = r["s_per_step"], r["ratio_main_per_round"]
+        m, rr = r["s_per_step"], r["ratio_per_round"]
         head = (f"main {m['main']:.3f}, " if "main" in m else "")
         ratio = (f"ratio main/compiled {r['ratio_main']:.2f}x (per round {min(rr):.2f}-{max(rr):.2f}), "
                  f"chain=torch/compiled {r['ratio_torch']:.2f}x" if "main" in m else

@@ -399,8 +399,8 @@ def test_training_run_folder_resume_and_refusal(tmp_path):
         bp.train_backprop({**hp, "learning_rate": 1e-4}, seed=3, out=tmp_path, progress=False, verbose=0,
                           run_name="r")
     assert "\n" not in str(e.value)
-    rows = []
-    run = bp.train_backprop(hp, seed=3, out=tmp_path, progress=False, verbose=0, run_name="r",
+    rows = []       # resumed with the other chain (how it runs, not what it computes: bp.RESUME_IGNORES)
+    run = bp.train_backprop({**hp, "chain": "torch"}, seed=3, out=tmp_path, progress=False, verbose=0, run_name="r",
                             on_selection=rows.append)
     assert run == tmp_path / "r" and not part.exists()
     summary = json.loads((run / "summary.json").read_text())

@@ -28,7 +28,7 @@ def _short(eps, n):
 
 @pytest.fixture(scope="module")
 def setup():
-    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16)
+    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain="torch")    # forwards without training
     return bp.check_hp(hp)
 
 
@@ -206,12 +206,12 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
 @pytest.mark.parametrize("rdot", [False, True], ids=["position", "range_rate"])
 def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
     """``chain="compiled"`` (the default: :func:`agents.training.learned_imm.look_step` under ``torch.compile``)
-    against ``chain="torch"`` (eager) from the same random weights, over 12 chunks of random flights seen by two sites
-    scanning together (rows finish episodes and start new ones; the chunks hold simultaneous looks (dt = 0), missed
-    looks, and
-    CT modes near omega = 0 at each track start; with and without the range-rate update): the same loss and gradient of every parameter to 1e-8 relative,
-    the same estimates, and the carried states that require a gradient at a chunk's start (one traced graph) change
-    no gradient."""
+    against ``chain="torch"`` (eager) from the same random weights, over 12 chunks of random flights seen by two
+    sites scanning together (rows finish episodes and start new ones; the chunks hold simultaneous looks (dt = 0),
+    missed looks, and CT modes near omega = 0 at each track start; with and without the range-rate update): every
+    look of the compiled model runs compiled, in one graph; the same loss and gradient of every parameter to 1e-8
+    relative, the same estimates (the carried states that require a gradient at a chunk's start, which make the
+    one graph, change no gradient)."""
     from dataclasses import replace
     from agents.training import learned_imm as LM
     from test_torch_chain import TWO_SITES_SAME_TIME
@@ -224,6 +224,9 @@ def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
         seen["compiled_looks"] += 1
         return compiled()
     monkeypatch.setattr(LM, "_compiled", counted)
+    from torch._dynamo.utils import counters
+    torch._dynamo.reset()
+    counters.clear()
     for chain in ("torch", "compiled"):
         hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain=chain,
                                       env_kwargs={**env, "radial_velocity": rdot}))
@@ -248,6 +251,7 @@ def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
     assert trainer.episodes_done >= 2 and seen["dt0"] > 0 and seen["missed"] > 0, seen
     assert trainer.tracker.radial_velocity == rdot and (looks.rdot is not None) == rdot
     assert seen["compiled_looks"] == seen["looks"] > 0         # the compiled path ran, at every look
+    assert counters["stats"]["unique_graphs"] == 1, dict(counters["stats"])   # one graph: no recompile per chunk
     for (lt, gt, xt), (lc, gc, xc) in zip(res["torch"], res["compiled"]):
         assert abs(lc / lt - 1.0) < 1e-8
         for a, b in zip(gc, gt):
@@ -258,8 +262,10 @@ def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
 def test_compiled_chain_needs_a_compiler(monkeypatch):
     """Without the C++ compiler torch.compile calls, ``chain="compiled"`` is refused when the model is built, in one
     line naming the hyperparameter and the way out; ``chain="torch"`` still builds."""
+    from torch._inductor import config
     from agents.training import learned_imm as LM
-    monkeypatch.setenv("CXX", "no-such-compiler-xyz")
+    assert LM.compiler_available()                             # this machine's (the tests need one)
+    monkeypatch.setattr(config.cpp, "cxx", (None, "no-such-compiler-xyz"))
     assert not LM.compiler_available()
     hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=8))
     with pytest.raises(ValueError, match=r"--hp chain: 'compiled'.*C\+\+ compiler.*--hp chain=torch"):

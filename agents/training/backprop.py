@@ -678,8 +678,14 @@ def _save_policy(directory, model, cfg, env_kwargs, extra=None, weights=None):
     return path
 
 
+RESUME_IGNORES = ("chain",)
+"""Config keys a resume does not compare: how the chain runs, not what it computes (``chain``: the same gradient to
+rounding), so a run started with ``compiled`` may go on with ``torch`` (e.g. on a machine without a C++ compiler)."""
+
+
 def _resumable(part, config):
-    """Whether ``part`` holds a checkpoint of a run with this ``config`` (``ValueError`` if of another config)."""
+    """Whether ``part`` holds a checkpoint of a run with this ``config`` (``ValueError`` if of another config; the
+    keys of :data:`RESUME_IGNORES` may differ)."""
     if not (part / "checkpoints" / "last.json").is_file():
         return False
     try:
@@ -687,6 +693,8 @@ def _resumable(part, config):
     except (OSError, json.JSONDecodeError):
         old = None
     new = json.loads(json.dumps(config))
+    if isinstance(old, dict):
+        old, new = ({k: v for k, v in d.items() if k not in RESUME_IGNORES} for d in (old, new))
     if old != new:
         keys = sorted(k for k in set(old or {}) | set(new) if (old or {}).get(k) != new.get(k))
         raise ValueError(f"--name: {str(part)!r} holds an unfinished run with another configuration (differs in "

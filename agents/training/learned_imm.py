@@ -18,7 +18,6 @@ inference (:meth:`agents.training.selection.SelectionSuites.score_runs`).
 
 from __future__ import annotations
 
-import os
 import shutil
 
 import numpy as np
@@ -56,17 +55,26 @@ _compiled_look_step = None
 
 
 def _compiled():
-    """:func:`look_step` under ``torch.compile`` (one wrapper for the process: torch caches its graphs per input
-    shapes; inductor's on disk, so a later process reuses them)."""
+    """:func:`look_step` under ``torch.compile`` (one wrapper for the process). One graph per input shape (rows,
+    GRU width, features, range rate), compiled in about a minute and kept by inductor on disk
+    (``/tmp/torchinductor_$USER``), so a later process with the same shapes loads it in seconds; ``fullgraph``: a
+    break in the graph is an error, not a silent fall-back to Python."""
     global _compiled_look_step
     if _compiled_look_step is None:
-        _compiled_look_step = torch.compile(look_step, dynamic=False)
+        _compiled_look_step = torch.compile(look_step, dynamic=False, fullgraph=True)
     return _compiled_look_step
 
 
+def _cxx():
+    """The C++ compiler inductor calls (its ``cpp.cxx`` setting: ``$CXX`` at torch's import, else ``g++``)."""
+    from torch._inductor import config
+    cxx = config.cpp.cxx
+    return cxx[-1] if isinstance(cxx, (tuple, list)) else cxx
+
+
 def compiler_available():
-    """Whether the C++ compiler ``torch.compile``'s inductor calls is on this machine (``$CXX``, else ``g++``)."""
-    return shutil.which(os.environ.get("CXX", "g++")) is not None
+    """Whether the C++ compiler ``torch.compile``'s inductor calls (:func:`_cxx`) is on this machine."""
+    return shutil.which(_cxx()) is not None
 
 
 # ===================================================================================================== the model
@@ -90,8 +98,8 @@ class LearnedIMMModel(ChainModel):
             raise ValueError(f"chain must be 'compiled' or 'torch', got {chain!r}")
         if chain == "compiled" and not compiler_available():
             raise ValueError(f"--hp chain: 'compiled' (torch.compile of the learned IMM's look) needs a C++ compiler, "
-                             f"and {os.environ.get('CXX', 'g++')!r} is not on PATH: install g++ (or set CXX), or "
-                             "train with --hp chain=torch (eager, about half the speed)")
+                             f"and {_cxx()!r} was not found: install g++ (or set CXX), or train with --hp chain=torch "
+                             "(eager, about half the speed)")
         self.chain = chain
         self.spec = spec
         self.names = look_parameter_names(spec)
@@ -178,8 +186,8 @@ class LearnedIMMModel(ChainModel):
     def step(self, looks, j, obs):
         """Look ``j`` of ``looks`` for every row, reading ``obs (B, F)``: returns the combined estimate
         ``x (4, B)`` (components first) and the q (m/s^2, numpy) for the lockstep Tracker (``feature_q``)."""
-        # compiled for training; a forward without a gradient (forward_episodes: tests, diagnostics) runs eagerly,
-        # where compiling another graph would cost more than it saves
+        # compiled for training; a forward under torch.no_grad() (the tests' forward_episodes, diagnostics) runs
+        # eagerly, where compiling another graph would cost more than it saves
         fn = _compiled() if self.chain == "compiled" and torch.is_grad_enabled() else look_step
         self.h, self.state, rec, self.det, delta = fn(self, obs, self.det, self.h, self.state, looks.dt_s[j],
                                                       looks.G[j], looks.z_m[j], looks.R_m2[j], looks.mask[j],
