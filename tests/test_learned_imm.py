@@ -268,6 +268,7 @@ def test_compiled_chain_needs_a_compiler(monkeypatch):
     monkeypatch.setattr(config.cpp, "cxx", (None, "no-such-compiler-xyz"))
     assert not LM.compiler_available()
     hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=8))
-    with pytest.raises(ValueError, match=r"--hp chain: 'compiled'.*C\+\+ compiler.*--hp chain=torch"):
+    with pytest.raises(ValueError, match=r"--hp chain: 'compiled'.*C\+\+ compiler.*--hp chain=torch") as e:
         bp.make_model(hp, cfg)
+    assert "\n" not in str(e.value) and "no-such-compiler-xyz" in str(e.value)
     assert bp.make_model(dict(hp, chain="torch"), cfg).chain == "torch"
