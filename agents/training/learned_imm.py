@@ -18,6 +18,7 @@ inference (:meth:`agents.training.selection.SelectionSuites.score_runs`).
 
 from __future__ import annotations
 
+import functools
 import shutil
 
 import numpy as np
@@ -30,7 +31,7 @@ from radar_env.common.units import DEG, G0_M_S2
 
 from agents.policies.learned_imm import (LearnedIMM, ParamMap, detector_inputs, detector_names, initial_detectors,
                                          save_learned_imm, weight_shapes)
-from agents.training.backprop import DTYPE, ChainModel, gru_weights
+from agents.training.backprop import CHAINS, DTYPE, ChainModel, gru_weights
 
 __all__ = ["LearnedIMMModel", "look_step", "compiler_available"]
 
@@ -51,18 +52,13 @@ def look_step(model, obs, det, h, state, dt, G, z, R, mask, rr):
     return h, state, rec, det, delta
 
 
-_compiled_look_step = None
-
-
+@functools.cache
 def _compiled():
     """:func:`look_step` under ``torch.compile`` (one wrapper for the process). One graph per input shape (rows,
     GRU width, features, range rate), compiled in about a minute and kept by inductor on disk
     (``/tmp/torchinductor_$USER``), so a later process with the same shapes loads it in seconds; ``fullgraph``: a
     break in the graph is an error, not a silent fall-back to Python."""
-    global _compiled_look_step
-    if _compiled_look_step is None:
-        _compiled_look_step = torch.compile(look_step, dynamic=False, fullgraph=True)
-    return _compiled_look_step
+    return torch.compile(look_step, dynamic=False, fullgraph=True)
 
 
 def _cxx():
@@ -94,8 +90,8 @@ class LearnedIMMModel(ChainModel):
 
     def __init__(self, obs_size, hidden_size, head, spec, feature_q_m_s2, chain="compiled"):
         super().__init__()
-        if chain not in ("compiled", "torch"):
-            raise ValueError(f"chain must be 'compiled' or 'torch', got {chain!r}")
+        if chain not in CHAINS:
+            raise ValueError(f"chain must be one of {list(CHAINS)}, got {chain!r}")
         if chain == "compiled" and not compiler_available():
             raise ValueError(f"--hp chain: 'compiled' (torch.compile of the learned IMM's look) needs a C++ compiler, "
                              f"and {_cxx()!r} was not found: install g++ (or set CXX), or train with --hp chain=torch "
