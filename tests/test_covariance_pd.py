@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, example, given, settings, strategies as st
+from hypothesis import HealthCheck, assume, example, given, settings, strategies as st
 
 from radar_env.envs import env_kernels as ek
 from radar_env.filters import kernels as fk
 from radar_env.filters import kalman as kf
 from radar_env.envs.env import RadarTrackEnv
+from radar_env.sim.draws import EpisodeDrawError
 from radar_env.sim.radar import Radar, RadarSite, converted_covariance
 
 SOAK = Path(__file__).resolve().parents[1] / "scripts" / "soak_covariance.py"
@@ -58,6 +59,10 @@ def _log_uniform(lo, hi):
 # (then a margin on each Cholesky pivot) accepted and numpy's Cholesky refused (_COAST_NEAR_SINGULAR below)
 @example(scan_period_s=1000.0, range_noise_std_m=0.1, bearing_noise_std_rad=1e-4, radial_velocity_noise_std_m_s=1e-4,
          detection_probability=0.5, action_type="discrete", seed=1, radial_velocity=True)
+# found in CI: one flight had the looks of a track start, the next 200 draws did not (the env refuses at that reset)
+@example(scan_period_s=56.23413251903491, range_noise_std_m=1.0, bearing_noise_std_rad=0.01,
+         radial_velocity_noise_std_m_s=1.0, detection_probability=0.05078125, action_type="discrete", seed=0,
+         radial_velocity=False)
 def test_every_documented_radar_keeps_the_covariance_positive_definite(
         scan_period_s, range_noise_std_m, bearing_noise_std_rad, radial_velocity_noise_std_m_s,
         detection_probability, action_type, seed, radial_velocity):
@@ -70,7 +75,12 @@ def test_every_documented_radar_keeps_the_covariance_positive_definite(
     env = RadarTrackEnv(radar=Radar(site), scenario=soak.scenario_for(scan_period_s), action_type=action_type,
                         reward_nees_weight=1.0, warmup_scans=1 if slow else 12, radial_velocity=radial_velocity)
     rng = np.random.default_rng(seed)
-    obs, info = env.reset(seed=seed)
+    try:
+        obs, info = env.reset(seed=seed)
+    except EpisodeDrawError:
+        # e.g. 56 s scans at Pd 0.05 with 12 warm-up scans: too few flights give the track start its looks, and the
+        # env says so in one line; a radar the env refuses is not one it accepts (hypothesis draws another instead)
+        assume(False)
     batch = lambda i: {k: (np.asarray([v]) if not isinstance(v, dict) else  # noqa: E731
                            {t: np.asarray([x]) for t, x in v.items()}) for k, v in i.items()}
     soak.check_info(batch(info), "reset")
@@ -81,7 +91,10 @@ def test_every_documented_radar_keeps_the_covariance_positive_definite(
         assert np.isfinite(obs).all() and np.isfinite(reward)
         soak.check_info(batch(info), f"step {k}")
         if term or trunc:
-            obs, info = env.reset()
+            try:
+                obs, info = env.reset()
+            except EpisodeDrawError:     # this radar's next flights cannot start a track (as above): stop here
+                break
 
 
 def test_soak_on_the_extremes_of_the_radar_ranges():
