@@ -30,7 +30,7 @@ import numpy as np
 from radar_env.sim.episode import stack_episodes
 from radar_env.sim.looks import padded_looks
 from radar_env.filters.imm_cv_ct import (  # noqa: F401
-    DEFAULT_IMM_CV_CT, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
+    DEFAULT_CT_BANK_RATES_DEG_S, DEFAULT_IMM_CV_CT, IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
     _init_modes, _kernel, _step_kernel, check_look_parameters, ct_jacobian, ct_motion, detector_inputs,
     imm_cv_ct_spec_from_params, initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector,
     range_rate_block)
@@ -38,22 +38,29 @@ from radar_env.common.units import DEG, G0_M_S2
 
 from .trackers import TrackRun, _tracker, _with_range_rate, observation_layout
 
-__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
+__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "IMM_CT_BANK_PARAMS", "LOOK_PARAMS",
+           "default_ct_bank_spec", "imm_cv_ct_spec_from_params",
            "tuned_imm_cv_ct_spec", "imm_cv_ct_filter", "IMMCVCTResult", "IMMCVCTStepper", "IMMCVCTStep",
            "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
            "run_imm_cv_ct", "run_imm_lockstep", "ct_motion", "ct_jacobian"]
 
 
+def default_ct_bank_spec() -> IMMCVCTSpec:
+    """:data:`DEFAULT_IMM_CV_CT` with the bank of CT modes at :data:`DEFAULT_CT_BANK_RATES_DEG_S` (the tuner's start)."""
+    return imm_cv_ct_spec_from_params({f"ct_rate_{k + 1}_deg_s": r for k, r in enumerate(DEFAULT_CT_BANK_RATES_DEG_S)})
+
+
 def tuned_imm_cv_ct_spec(key="imm_cv_ct") -> IMMCVCTSpec:
-    """The spec of the registered ``imm_cv_ct`` (``key`` ``"imm_cv_ct_rdot"``: of ``imm_cv_ct_rdot``):
-    ``baselines/tuned.json``'s entry ``key`` (its parameter names; other keys such as the tuning RMSE are ignored)
-    if present, else :data:`DEFAULT_IMM_CV_CT`."""
+    """The spec of the registered ``imm_cv_ct`` (``key`` ``"imm_cv_ct_rdot"``: of ``imm_cv_ct_rdot``;
+    ``"imm_ct_bank"``: of the bank of CT modes): ``baselines/tuned.json``'s entry ``key`` (its parameter names;
+    other keys such as the tuning RMSE are ignored) if present, else :data:`DEFAULT_IMM_CV_CT` (the bank:
+    :func:`default_ct_bank_spec`)."""
     from .tuned_params import TUNED_PATH, tuned_parameters
 
     entry = tuned_parameters().get(key) if TUNED_PATH.is_file() else None
     if entry is None:
-        return DEFAULT_IMM_CV_CT
-    names = {p[0] for p in IMM_CV_CT_PARAMS}
+        return default_ct_bank_spec() if key.startswith("imm_ct_bank") else DEFAULT_IMM_CV_CT
+    names = {p[0] for p in IMM_CT_BANK_PARAMS}
     return imm_cv_ct_spec_from_params({k: v for k, v in entry.items() if k in names})
 
 
@@ -116,10 +123,12 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
         raise ValueError("give modes or params, not both (modes fixes q and the transition matrix)")
     if modes is not None:
         is_ct, q, log_Pi, log_mu0 = _modes_from_arrays(*modes)
+        entry_w = np.zeros(is_ct.size)
         sig_w = spec.sigma_omega_deg_s15 * DEG
         q, sig_w2, log_Pi = q[None, None], np.full((1, 1), sig_w * sig_w), log_Pi[None, None]
     else:
         is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())
+        entry_w = spec.entry_rates()
         q, sig_w2, log_Pi = kernel_parameters(
             spec, None if params is None else check_look_parameters(spec, params, B, K))
     M = is_ct.size
@@ -134,7 +143,7 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
     out_Pm = np.full(shape_m + (M, 5, 5), np.nan)
     sig_w0 = spec.sigma_omega0_deg_s * DEG
     rr = range_rate_block((B, K), radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
-    _kernel(t, z, R, det, rr, n, ks, x0, P0, is_ct, q, sig_w2, sig_w0 * sig_w0, log_Pi, log_mu0, *_bounds(spec), out_x,
+    _kernel(t, z, R, det, rr, n, ks, x0, P0, is_ct, entry_w, q, sig_w2, sig_w0 * sig_w0, log_Pi, log_mu0, *_bounds(spec), out_x,
             out_P, out_mu, out_w, out_wv, out_nis, bool(keep_modes), out_xm, out_Pm)
     return IMMCVCTResult(out_x, out_P, out_mu, out_w, out_nis, out_xm if keep_modes else None,
                          out_Pm if keep_modes else None, np.sqrt(out_wv))
@@ -172,6 +181,7 @@ class IMMCVCTStepper:
         B = self.B = self._t.shape[0]
         self._rr = range_rate_block(self._t.shape, radial_velocity_m_s, site_xy_m, radial_velocity_std_m_s)
         self.is_ct, _, _, log_mu0 = _modes_from_arrays(*spec.mode_arrays())
+        self._entry_w = spec.entry_rates()
         M = self.is_ct.size
         sig_w0 = spec.sigma_omega0_deg_s * DEG
         self._sig_w0_2 = sig_w0 * sig_w0
@@ -200,9 +210,8 @@ class IMMCVCTStepper:
         M = self.is_ct.size
         out = IMMCVCTStep(self.k[rows].copy(), np.empty((n, 4)), np.empty((n, 4, 4)), np.empty((n, M)),
                           np.empty(n), np.empty(n), np.empty(n), None)
-        _step_kernel(rows, self._t, self._z, self._R, self._det, self._rr, self.is_ct, q, sig_w2, self._sig_w0_2,
-                     log_Pi,
-                     *_bounds(self.spec), self.x_modes, self.P_modes, self.log_mu, self.k, self.t_last, out.x,
+        _step_kernel(rows, self._t, self._z, self._R, self._det, self._rr, self.is_ct, self._entry_w, q, sig_w2,
+                     self._sig_w0_2, log_Pi, *_bounds(self.spec), self.x_modes, self.P_modes, self.log_mu, self.k, self.t_last, out.x,
                      out.P, out.mu, out.omega_rad_s, out.omega_std_rad_s, out.nis)
         np.sqrt(out.omega_std_rad_s, out=out.omega_std_rad_s)
         return out._replace(done=self.k[rows] >= self.n_looks[rows])

@@ -4,6 +4,7 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``kf_low`` (0.03 g), ``kf_high`` (2 g), ``kf_blair``, ``cmin``, ``ckf``, ``reinit``, ``kim_lee``, ``alpha_beta``,
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct_runner`),
+``imm_ct_bank`` (the same IMM over a bank of six CT modes entered at three tuned turn rates, right and left),
 ``kf_tuned_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot`` (the same three also updating on each plot's radial velocity,
 tuned on their own: :func:`radar_env.filters.kernels._rdot_update`),
 ``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
@@ -77,6 +78,7 @@ _RUNNERS = {
     "imm2_bizup": lambda eps, cfg: T.run_imm(eps, T.IMM2_BIZUP, "imm2_bizup", cfg),
     "imm3_ct": lambda eps, cfg: T.run_imm(eps, T.IMM3_CT, "imm3_ct", cfg),
     "imm_cv_ct": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), "imm_cv_ct", cfg),
+    "imm_ct_bank": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec("imm_ct_bank"), "imm_ct_bank", cfg),
     "kf_tuned_rdot": _kf_rdot,
     "imm2_rdot": lambda eps, cfg: T.run_imm(eps, tuned_imm2_spec("imm2_rdot"), "imm2_rdot", cfg,
                                             radial_velocity=True),

@@ -1,6 +1,6 @@
 """Tune the classical baselines on the training scenario distribution (never on evaluation seeds).
 
-``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot]`` draws ``N``
+``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot,imm_ct_bank]`` draws ``N``
 random-scenario episodes with tuning seeds (:data:`baselines.seeds.TUNING_SEEDS`, disjoint from the evaluation's
 held-out seeds) and, for each tuned tracker, minimises the pooled position RMSE after the track start over its
 parameters with a continuous optimizer (:func:`minimize_with_restarts`):
@@ -18,7 +18,9 @@ Tuned trackers (:data:`TUNED_TRACKERS`): ``kf`` (``kf_tuned``'s constant q), ``i
 noises and two stay probabilities), ``imm_cv_ct`` (from ``baselines.imm_cv_ct_runner``; skipped with a message if that
 module or its tuning interface is not there), and ``kf_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot``: the same trackers also
 updating on each plot's radial velocity, tuned on their own over the same parameters (first start: their
-position-only sibling's values). The 2-mode IMM as tuned by the grid search of earlier versions is
+position-only sibling's values), and ``imm_ct_bank`` (``imm_cv_ct`` over a bank of six CT modes: its eight
+parameters and three entry rates; first start: ``imm_cv_ct``'s values, the rates at
+``DEFAULT_CT_BANK_RATES_DEG_S``). The 2-mode IMM as tuned by the grid search of earlier versions is
 kept as ``imm2_grid`` (:data:`IMM2_GRID_PARAMS`, its RMSE re-measured on each run), so a change is visible.
 
 Writes ``baselines/tuned.json``: per tracker the optimum, its tuning RMSE, the bounds and transforms, whether each
@@ -277,27 +279,34 @@ stay low 0.9-0.995, stay high 0.7-0.98) on the same 200 tuning episodes, on the 
 Registered as ``imm2_grid``."""
 
 
-def _imm_cv_ct_entry(radial_velocity=False):
+FIRST_START_FROM = {"imm_ct_bank": "imm_cv_ct"}
+"""A tracker with no previous tuned values starts from this one's (the parameters they share)."""
+
+
+def _imm_cv_ct_entry(radial_velocity=False, bank=False):
     """The ``imm_cv_ct`` entry, built from ``baselines.imm_cv_ct_runner`` (engineer I's module) if it offers:
     ``imm_cv_ct_spec_from_params(dict)``, ``run_imm_cv_ct(episodes, spec, name, cfg[, start])``, the parameter
     table ``IMM_CV_CT_PARAMS`` (rows ``(name, unit, low, high, log_scale)``: ``log`` space if ``log_scale``, else
     ``logit``: the probabilities; the bounds are the valid ranges its spec accepts) and ``DEFAULT_IMM_CV_CT`` (a
-    dataclass: the first start; a ``None`` value starts at the geometric mean of its bounds).
-    Returns ``(entry, None)`` or ``(None, why it is skipped)``."""
+    dataclass: the first start; a ``None`` value starts at the geometric mean of its bounds). ``bank``:
+    ``imm_ct_bank``, the same IMM with a bank of six CT modes (``IMM_CT_BANK_PARAMS``: three entry rates more,
+    starting at ``DEFAULT_CT_BANK_RATES_DEG_S``). Returns ``(entry, None)`` or ``(None, why it is skipped)``."""
     try:
         from . import imm_cv_ct_runner as mod
     except ImportError as e:
         return None, f"baselines.imm_cv_ct_runner is not importable ({e})"
-    missing = [a for a in ("imm_cv_ct_spec_from_params", "run_imm_cv_ct", "IMM_CV_CT_PARAMS", "DEFAULT_IMM_CV_CT")
-               if not hasattr(mod, a)]
+    missing = [a for a in ("imm_cv_ct_spec_from_params", "run_imm_cv_ct", "IMM_CV_CT_PARAMS", "DEFAULT_IMM_CV_CT",
+                           "IMM_CT_BANK_PARAMS", "default_ct_bank_spec") if not hasattr(mod, a)]
     if missing:
         return None, f"baselines.imm_cv_ct_runner has no {', '.join(missing)} (the tuning interface)"
     where = "the valid range of baselines.imm_cv_ct_runner.IMMCVCTSpec"
     params = tuple(Param(name, float(lo), float(hi), "log" if log_scale else "logit", where, where)
-                   for name, _unit, lo, hi, log_scale in mod.IMM_CV_CT_PARAMS)
+                   for name, _unit, lo, hi, log_scale in (mod.IMM_CT_BANK_PARAMS if bank else mod.IMM_CV_CT_PARAMS))
+    default = mod.default_ct_bank_spec() if bank else mod.DEFAULT_IMM_CV_CT
     x0 = {}
     for p in params:
-        v = getattr(mod.DEFAULT_IMM_CV_CT, p.name, None)
+        v = (default.ct_rates_deg_s[int(p.name.split("_")[2]) - 1] if p.name.startswith("ct_rate_")
+             else getattr(default, p.name, None))
         x0[p.name] = float(v) if v is not None else math.sqrt(p.lower * p.upper)
     starts = {}
 
@@ -309,15 +318,16 @@ def _imm_cv_ct_entry(radial_velocity=False):
         return mod.run_imm_cv_ct(episodes, mod.imm_cv_ct_spec_from_params(p), "imm_cv_ct", cfg, start=starts[key],
                                  radial_velocity=radial_velocity)
 
-    return TunedTracker("imm_cv_ct_rdot" if radial_velocity else "imm_cv_ct", params, run, x0,
+    name = ("imm_ct_bank" if bank else "imm_cv_ct") + ("_rdot" if radial_velocity else "")
+    return TunedTracker(name, params, run, x0,
                         RDOT_MAX_ANEES if radial_velocity else None), None
 
 
 def tuned_tracker(name):
     """The :class:`TunedTracker` ``name`` (:data:`TUNABLE`); ``(None, reason)`` semantics of
     :func:`_imm_cv_ct_entry` for ``imm_cv_ct`` and ``imm_cv_ct_rdot``, ``ValueError`` for an unknown name."""
-    if name in ("imm_cv_ct", "imm_cv_ct_rdot"):
-        return _imm_cv_ct_entry(name == "imm_cv_ct_rdot")
+    if name in ("imm_cv_ct", "imm_cv_ct_rdot", "imm_ct_bank"):
+        return _imm_cv_ct_entry(name.endswith("_rdot"), bank=name == "imm_ct_bank")
     if name not in TUNED_TRACKERS:
         raise ValueError(f"unknown tuned tracker {name!r}; valid: {list(TUNABLE)}")
     return TUNED_TRACKERS[name], None
@@ -384,8 +394,9 @@ def main(argv=None, prog="radar-track tune"):
             if n % 25 == 0:
                 print(f"  {name}: {n} evaluations, last {v:.2f} m ({time.time() - t0:.0f} s)", flush=True)
 
-        # a range-rate variant's first start: its own previous values, else its position-only sibling's
-        x0 = old.get(name) or old.get(name.removesuffix("_rdot"))
+        # a range-rate variant's first start: its own previous values, else its position-only sibling's; the bank
+        # of CT modes starts from imm_cv_ct's (the rates from their defaults)
+        x0 = old.get(name) or old.get(name.removesuffix("_rdot")) or old.get(FIRST_START_FROM.get(name))
         res = tune(entry, episodes, batch, cfg, x0=x0, starts=args.starts, progress=progress)
         out[name] = res
         flags = ", ".join(f"{k} {v['value']:.4g}" + ("" if v["interior"] else f" (at {v['at']} bound)")

@@ -134,6 +134,9 @@ class LearnedIMM:
         if got != {k: tuple(v) for k, v in want.items()}:
             raise ValueError(f"learned IMM weights do not match the architecture {self.arch}: got {got}, need {want}")
         self.spec = imm_cv_ct_spec_from_params(config["base_parameters"])
+        if self.spec.is_bank:
+            raise ValueError(f"policy.json base_parameters: a learned IMM over a bank of CT modes "
+                             f"(ct_rates_deg_s {self.spec.ct_rates_deg_s}) is not supported (one CT mode)")
         self.names = look_parameter_names(self.spec)
         if tuple(config["parameters"]) != self.names:
             raise ValueError(f"policy.json parameters {config['parameters']} != {list(self.names)}")

@@ -43,7 +43,7 @@ __all__ = ["CLASSICAL", "RECIPES", "FAMILY_RUNS", "main", "families_table", "spr
            "track_start_table", "NAMED_SUITES", "bp_targets", "imm_targets", "LONG_TURN_SUITES", "evaluate_suite",
            "BP_RECIPE", "IMM_RECIPE"]
 
-CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
+CLASSICAL = ("imm2", "imm2_grid", "imm_cv_ct", "imm_ct_bank", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "cmin")
 """The classical field the *strongest classical tracker* is taken from (tuned IMMs, the particle filter over the
 random flights' regimes, Bizup's IMM, the tuned KF, Bizup's c_min rule)."""
 BOUNDS = ("hindsight_q", "clairvoyant")

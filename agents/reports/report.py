@@ -24,7 +24,7 @@ from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite,
 
 __all__ = ["main", "markdown_tables"]
 
-REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
+REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm_ct_bank", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
                    "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "oracle_q", "clairvoyant")
 FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
@@ -92,8 +92,8 @@ LEARNED_WHAT = {"policy_bp": "trained by backpropagation", "policy_imm_bp": "the
 """What each bundled learned tracker is, for the results page's header."""
 ROOT = Path(__file__).resolve().parents[2]
 
-HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "rbpf", "kf_tuned", "cmin",
-                     "policy_bp_rdot", "policy_imm_bp_rdot", "imm_cv_ct_rdot", "hindsight_q", "hindsight_q_turn",
+HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "imm_ct_bank", "rbpf",
+                     "kf_tuned", "cmin", "policy_bp_rdot", "policy_imm_bp_rdot", "imm_cv_ct_rdot", "hindsight_q", "hindsight_q_turn",
                      "clairvoyant")
 
 

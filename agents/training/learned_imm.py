@@ -96,6 +96,9 @@ class LearnedIMMModel(ChainModel):
             raise ValueError(f"--hp chain: 'compiled' (torch.compile of the learned IMM's look) needs a C++ compiler, "
                              f"and {_cxx()!r} was not found: install g++ (or set CXX), or train with --hp chain=torch "
                              "(eager, about half the speed)")
+        if spec.is_bank:
+            raise ValueError(f"spec: a learned IMM over a bank of CT modes (ct_rates_deg_s {spec.ct_rates_deg_s}) is "
+                             "not supported; the learned IMM has one CT mode")
         self.chain = chain
         self.spec = spec
         self.names = look_parameter_names(spec)

@@ -113,6 +113,10 @@ def check_imm_config(cfg, p="RadarTrack-v0: "):
         if not isinstance(cfg.imm_parameters, dict):
             raise ValueError(f"{p}imm_parameters must be a dict of {[n for n, *_ in IMM_CV_CT_PARAMS]}, got "
                              f"{type(cfg.imm_parameters).__name__}")
+        bank = [k for k in cfg.imm_parameters if str(k).startswith("ct_rate_")]
+        if bank:
+            raise ValueError(f"{p}imm_parameters {bank}: a bank of CT modes (baselines' imm_ct_bank) is not an env "
+                             f"tracker; the env's IMM has one CT mode (valid: {[n for n, *_ in IMM_CV_CT_PARAMS]})")
         try:
             imm_spec(cfg)
         except ValueError as e:

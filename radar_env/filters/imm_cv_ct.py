@@ -54,6 +54,19 @@ modes' 4-state marginals, the combined turn rate :math:`\sum_j \mu_j \omega_j` (
 maneuver probability :math:`1 - \mu_{cv}` (the CT mode's probability when there is no third mode; with a third mode,
 the high-noise CV mode counts as maneuvering too); declared = maneuver probability > 0.5.
 
+A bank of CT modes
+------------------
+With ``ct_rates_deg_s = (r_1, ..., r_K)`` (:class:`IMMCVCTSpec`; the registered tracker ``imm_ct_bank``, K = 3) the
+single CT mode becomes 2K CT modes, in the order ``+r_1, -r_1, +r_2, ...`` after the CV mode (the high-noise CV mode
+last). They share ``q_ct_g``, ``sigma_omega_deg_s15`` and ``p_stay_ct`` and differ only where a turn starts: a CV
+mode mixes into CT mode ``k`` as :math:`[x, \pm r_k]`, variance :math:`\sigma_{\omega 0}^2` (instead of
+:math:`[x, 0]`), so the prior of a turn's rate at its onset is a mixture of narrow peaks at both signs of several
+rates, which one CT mode with a wide :math:`\sigma_{\omega 0}` cannot hold. Everything else is the model above
+(a CT mode mixing into another brings its own turn rate; every mode leaves with ``1 - p_stay`` split equally among
+the others; every mode starts at the common track start, turn rate 0). Why: on the random flights (training-range
+seeds) the tuned bank is 0.96x ``imm_cv_ct`` on ``random`` and 0.94x on ``random_radars`` (docs/trackers.md);
+with two rates it was 0.98x / 0.95x. The default (``ct_rates_deg_s = ()``) is the single CT mode, bit for bit.
+
 The turn-rate bound
 -------------------
 With plots ``T`` seconds apart, a turn rate :math:`\omega` and :math:`\omega + 2\pi/T` give the same velocity at the
@@ -102,10 +115,14 @@ from ..sim.looks import L_DET, L_RDOT, L_RDSTD, L_SITE, range_rate_inputs
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_known_keys, check_number
 
-__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
+__all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "IMM_CT_BANK_PARAMS", "DEFAULT_CT_BANK_RATES_DEG_S",
+           "LOOK_PARAMS", "imm_cv_ct_spec_from_params",
            "look_parameter_names", "look_parameter_vector", "check_look_parameters", "kernel_parameters",
            "ct_motion", "ct_jacobian", "initial_modes", "predict_modes", "update_modes", "ModePrediction",
            "ModeUpdate", "detector_names", "detector_inputs", "initial_detectors"]
+
+MAX_CT_RATES = 4
+"""Most rates of a bank of CT modes (:attr:`IMMCVCTSpec.ct_rates_deg_s`; 2 modes each)."""
 
 SERIES_THETA = 0.1
 """Below this |omega dt| (rad) the CT coefficients are evaluated by their Taylor series."""
@@ -160,6 +177,9 @@ class IMMCVCTSpec:
         omega_max_deg_s: turn-rate bound, deg/s.
         turn_accel_max_g: g-limit of the turn-rate bound (``|omega| <= a_max / |v|``), g.
         mu0_cv: initial CV mode probability (the rest split equally).
+        ct_rates_deg_s: a bank of CT modes (module docstring, "A bank of CT modes"): for each rate ``r`` (deg/s,
+            in ``(0, omega_max_deg_s]``) two CT modes a CV mode enters at ``+r`` and ``-r`` (right and left
+            turns); stored sorted, at most :data:`MAX_CT_RATES` rates. Empty (default): one CT mode entered at 0.
     """
 
     q_cv_g: float = 1e-4
@@ -173,32 +193,60 @@ class IMMCVCTSpec:
     omega_max_deg_s: float = 20.0
     turn_accel_max_g: float = 8.0
     mu0_cv: float = 0.9
+    ct_rates_deg_s: tuple = ()
 
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "q_high_g" and v is None:
+            if (f.name == "q_high_g" and v is None) or f.name == "ct_rates_deg_s":
                 continue
             lo, hi = _RANGES[f.name]
             object.__setattr__(self, f.name, check_number(f"IMMCVCTSpec.{f.name}", v, lo, hi))
+        rates = self.ct_rates_deg_s
+        if isinstance(rates, (str, bytes)) or not hasattr(rates, "__len__") or len(rates) > MAX_CT_RATES:
+            raise ValueError(f"IMMCVCTSpec.ct_rates_deg_s must be a sequence of at most {MAX_CT_RATES} turn rates "
+                             f"(deg/s), got {rates!r}")
+        rates = tuple(sorted(check_number("IMMCVCTSpec.ct_rates_deg_s", r, 0.0, self.omega_max_deg_s, lo_open=True)
+                             for r in rates))
+        object.__setattr__(self, "ct_rates_deg_s", rates)
+
+    @property
+    def n_ct(self):
+        """Number of CT modes: 2 per bank rate, else 1."""
+        return 2 * len(self.ct_rates_deg_s) if self.ct_rates_deg_s else 1
 
     @property
     def n_modes(self):
-        return 2 if self.q_high_g is None else 3
+        return 1 + self.n_ct + (self.q_high_g is not None)
+
+    @property
+    def is_bank(self):
+        """Whether the CT modes are a bank (:attr:`ct_rates_deg_s` given)."""
+        return bool(self.ct_rates_deg_s)
 
     def mode_arrays(self):
-        """``(is_ct (M,) bool, q_m_s2 (M,), log_Pi (M, M), log_mu0 (M,))`` in mode order CV, CT[, high CV]."""
-        M = self.n_modes
-        stay = [self.p_stay_cv, self.p_stay_ct] + ([self.p_stay_high] if M == 3 else [])
+        """``(is_ct (M,) bool, q_m_s2 (M,), log_Pi (M, M), log_mu0 (M,))`` in mode order CV, CT (the bank's
+        ``+r_1, -r_1, +r_2, ...``)[, high CV]. Every mode stays with its ``p_stay`` and leaves to each other mode
+        with ``(1 - p_stay) / (M - 1)``; every CT mode has ``q_ct_g`` and ``p_stay_ct``."""
+        M, n_ct, high = self.n_modes, self.n_ct, self.q_high_g is not None
+        stay = [self.p_stay_cv] + [self.p_stay_ct] * n_ct + ([self.p_stay_high] if high else [])
         Pi = np.empty((M, M))
         for i in range(M):
             Pi[i] = (1.0 - stay[i]) / (M - 1)
             Pi[i, i] = stay[i]
         mu0 = np.full(M, (1.0 - self.mu0_cv) / (M - 1))
         mu0[0] = self.mu0_cv
-        q = [self.q_cv_g, self.q_ct_g] + ([self.q_high_g] if M == 3 else [])
-        is_ct = np.array([False, True] + ([False] if M == 3 else []))
+        q = [self.q_cv_g] + [self.q_ct_g] * n_ct + ([self.q_high_g] if high else [])
+        is_ct = np.array([False] + [True] * n_ct + ([False] if high else []))
         return is_ct, np.asarray(q) * G0_M_S2, np.log(Pi), np.log(mu0)
+
+    def entry_rates(self):
+        """``(M,)`` each mode's entry turn rate (rad/s): a CT mode's (the bank's ``+r_1, -r_1, ...``, else 0), 0 for a
+        CV mode (the kernel's ``entry_w``)."""
+        w = np.zeros(self.n_modes)
+        for k, r in enumerate(self.ct_rates_deg_s):
+            w[1 + 2 * k], w[2 + 2 * k] = r * DEG, -r * DEG
+        return w
 
     def filter_constants(self):
         """What the filter holds fixed whatever the per-look parameters, as plain numbers (the keyword arguments
@@ -206,24 +254,42 @@ class IMMCVCTSpec:
         ``omega_max_rad_s``, ``accel_max_m_s2``, ``min_speed_m_s``."""
         is_ct, _, _, log_mu0 = self.mode_arrays()
         sig_w0 = self.sigma_omega0_deg_s * DEG
-        return dict(is_ct=tuple(bool(c) for c in is_ct), log_mu0=tuple(float(v) for v in log_mu0),
-                    sig_w0_2=sig_w0 * sig_w0, omega_max_rad_s=self.omega_max_deg_s * DEG,
-                    accel_max_m_s2=self.turn_accel_max_g * G0_M_S2, min_speed_m_s=MIN_SPEED_FOR_BOUND_M_S)
+        out = dict(is_ct=tuple(bool(c) for c in is_ct), log_mu0=tuple(float(v) for v in log_mu0),
+                   sig_w0_2=sig_w0 * sig_w0, omega_max_rad_s=self.omega_max_deg_s * DEG,
+                   accel_max_m_s2=self.turn_accel_max_g * G0_M_S2, min_speed_m_s=MIN_SPEED_FOR_BOUND_M_S)
+        if self.is_bank:
+            out["entry_w"] = tuple(float(v) for v in self.entry_rates())
+        return out
 
 
 DEFAULT_IMM_CV_CT = IMMCVCTSpec()
 """Defaults (see the module docstring for how they were chosen)."""
 
+IMM_CT_BANK_PARAMS = IMM_CV_CT_PARAMS + tuple((f"ct_rate_{k + 1}_deg_s", "deg/s", 0.3, 20.0, True) for k in range(3))
+"""The tunable parameters of ``imm_ct_bank`` (a bank of six CT modes, module docstring): those of
+:data:`IMM_CV_CT_PARAMS` and three entry rates (the spec's ``ct_rates_deg_s``; the bounds span the random flights'
+turn rates, 0.9-20 deg/s)."""
+
+DEFAULT_CT_BANK_RATES_DEG_S = (2.0, 6.0, 12.0)
+"""The bank's entry rates where the tuner starts (spread over the random flights' turn rates)."""
+
 
 def imm_cv_ct_spec_from_params(params) -> IMMCVCTSpec:
     """A spec from a dict of :data:`IMM_CV_CT_PARAMS` names (missing ones keep :data:`DEFAULT_IMM_CV_CT`'s value;
-    ``q_high_g`` present = three modes). Unknown names raise ``ValueError`` listing the valid ones."""
+    ``q_high_g`` present = three modes) and, for a bank of CT modes, the rates of :data:`IMM_CT_BANK_PARAMS`
+    (``ct_rate_<k>_deg_s``: the spec's ``ct_rates_deg_s``). Unknown names raise ``ValueError`` listing the valid
+    ones."""
+    names = [p[0] for p in IMM_CT_BANK_PARAMS]
     if not isinstance(params, dict):
-        raise ValueError(f"params must be a dict of {[p[0] for p in IMM_CV_CT_PARAMS]}, got {type(params).__name__}")
-    check_known_keys("imm_cv_ct parameter", params, [p[0] for p in IMM_CV_CT_PARAMS], noun="name")
+        raise ValueError(f"params must be a dict of {names}, got {type(params).__name__}")
+    check_known_keys("imm_cv_ct parameter", params, names, noun="name")
     d = asdict(DEFAULT_IMM_CV_CT)
-    d.update({k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
-                  else v) for k, v in params.items()})
+    num = lambda v: float(v) if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool) \
+        else v   # noqa: E731
+    d.update({k: num(v) for k, v in params.items() if not k.startswith("ct_rate_")})
+    rates = [num(params[n]) for n in names if n.startswith("ct_rate_") and n in params]
+    if rates:
+        d["ct_rates_deg_s"] = tuple(rates)
     return IMMCVCTSpec(**d)
 
 
@@ -437,10 +503,14 @@ def _init_modes(x_init, P_init, is_ct, sig_w0_2, log_mu0, xm, Pm, log_mu):
 
 
 @numba.njit(cache=True)
-def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work):
+def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work,
+                  entry_w=None):
     """The first half of :func:`_look`: mixing and mode-matched prediction of the posterior modes ``xm (M, 5)``,
-    ``Pm (M, 5, 5)``, ``log_mu (M,)`` (read only) over ``dt``. Writes the predicted modes and the log mixing
-    normalisers (the predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``."""
+    ``Pm (M, 5, 5)``, ``log_mu (M,)`` over ``dt``. Writes the predicted modes and the log mixing normalisers (the
+    predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``. ``entry_w (M,)``: each CT
+    mode's entry rate (rad/s; a bank of CT modes, :attr:`IMMCVCTSpec.ct_rates_deg_s`): a CV mode mixes into CT
+    mode ``j`` with the turn rate ``entry_w[j]`` (variance ``sig_w0_2``) instead of 0; None: 0 for every CT mode.
+    ``xm`` is left as it was given (the CV modes' turn rate is set to the entry rate while mixing, then back to 0)."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
     # ---- mixing (log space): a[j, i] = log Pi_ij + log mu_i (stored transposed: a[j] is a contiguous row, so
@@ -452,11 +522,19 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
         log_c[j] = _logsumexp(a[j], M)
         for i in range(M):
             w[i] = math.exp(a[j, i] - log_c[j])
+        if entry_w is not None:
+            for i in range(M):      # a CV mode enters CT mode j at its entry rate (a CV target: 0, reset below)
+                if not is_ct[i]:
+                    xm[i, 4] = entry_w[j] if is_ct[j] else 0.0
         _moments(w, xm, Pm, np.int64(5), x0[j], P0[j])
         if is_ct[j]:
             _clip_omega(x0[j], omega_max, accel_max)
         else:   # a CV mode keeps its 4-state marginal and its turn-rate augmentation (0, sigma_omega0^2)
             _set_cv_augmentation(x0[j], P0[j], sig_w0_2)
+    if entry_w is not None:
+        for i in range(M):
+            if not is_ct[i]:
+                xm[i, 4] = 0.0
     # ---- mode-matched prediction
     for j in range(M):
         if is_ct[j]:
@@ -542,20 +620,20 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
 
 @numba.njit(cache=True)
 def _look(dt, z, R, det, rr, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work,
-          x_out, P_out, mu_out):
+          x_out, P_out, mu_out, entry_w=None):
     """One look of one row with this look's parameters ``q (M,)``, ``sig_w2``, ``log_Pi (M, M)``: mixing,
     mode-matched prediction and update (``rr``: the range-rate input of :func:`_look_update`), mode probabilities
     (:func:`_look_predict` then :func:`_look_update`).
     Updates ``xm, Pm, log_mu`` in place, writes the combination of the modes' 4-state marginals into ``x_out (4,)``,
     ``P_out (4, 4)`` and ``mu_out (M,)``; returns ``(NIS of the combined prediction, combined turn rate, its
-    variance)``."""
-    _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work)
+    variance)``. ``entry_w``: the CT modes' entry rates (:func:`_look_predict`)."""
+    _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, xm, Pm, log_mu, work, entry_w)
     return _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, work, x_out, P_out, mu_out)
 
 
 @numba.njit(cache=True)
-def _row(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0, omega_max,
-         accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
+def _row(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, entry_w, q, sig_w2, sig_w0_2, log_Pi, log_mu0,
+         omega_max, accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
     """One track: looks ``k_start .. n_looks - 1`` (the previous one, ``k_start - 1``, is the start; ``rr (K, 4)``
     their range-rate inputs, :func:`_look_update`). The
     parameters ``q (Kp, M)``, ``sig_w2 (Kp,)``, ``log_Pi (Kp, M, M)`` are per look (``Kp`` = K, indexed by the
@@ -572,7 +650,7 @@ def _row(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, s
         i = min(k, last)
         out_nis[k], out_omega[k], out_omega_var[k] = _look(
             t[k] - t_last, z[k], R[k], det[k], rr[k], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2, omega_max,
-            accel_max, xm, Pm, log_mu, work, out_x[k], out_P[k], out_mu[k])
+            accel_max, xm, Pm, log_mu, work, out_x[k], out_P[k], out_mu[k], entry_w)
         if keep_modes:
             out_xm[k] = xm
             out_Pm[k] = Pm
@@ -580,7 +658,7 @@ def _row(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, s
 
 
 @numba.njit(cache=True, parallel=True)
-def _kernel(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2, sig_w0_2, log_Pi, log_mu0,
+def _kernel(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, entry_w, q, sig_w2, sig_w0_2, log_Pi, log_mu0,
             omega_max, accel_max, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis, keep_modes, out_xm, out_Pm):
     last = q.shape[0] - 1           # parameters (Bp, Kp, ...): Bp = B (per row) or 1 (every row)
     for b in numba.prange(t.shape[0]):
@@ -588,14 +666,14 @@ def _kernel(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, q, sig_w2
         # without keep_modes the per-mode outputs are (1, 1, ...) placeholders
         xm_b = out_xm[b] if keep_modes else out_xm[0]
         Pm_b = out_Pm[b] if keep_modes else out_Pm[0]
-        _row(t[b], z[b], R[b], det[b], rr[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, q[i], sig_w2[i],
+        _row(t[b], z[b], R[b], det[b], rr[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, entry_w, q[i], sig_w2[i],
              sig_w0_2, log_Pi[i], log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b], out_omega[b],
              out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
 
 
 @numba.njit(cache=True)
-def _step_kernel(rows, t, z, R, det, rr, is_ct, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm, log_mu,
-                 k, t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
+def _step_kernel(rows, t, z, R, det, rr, is_ct, entry_w, q, sig_w2, sig_w0_2, log_Pi, omega_max, accel_max, xm, Pm,
+                 log_mu, k, t_last, out_x, out_P, out_mu, out_omega, out_omega_var, out_nis):
     """The next look ``k[r]`` of each row ``r = rows[i]`` with that row's parameters ``q[i]``, ``sig_w2[i]``,
     ``log_Pi[i]``; the modes ``xm, Pm, log_mu (B, ...)`` and cursors ``k, t_last (B,)`` are updated in place.
     Serial, one scratch set per call: a look is microseconds per row, less than a thread pool's start."""
@@ -605,7 +683,7 @@ def _step_kernel(rows, t, z, R, det, rr, is_ct, q, sig_w2, sig_w0_2, log_Pi, ome
         kk = k[r]
         out_nis[i], out_omega[i], out_omega_var[i] = _look(
             t[r, kk] - t_last[r], z[r, kk], R[r, kk], det[r, kk], rr[r, kk], is_ct, q[i], sig_w2[i], log_Pi[i], sig_w0_2,
-            omega_max, accel_max, xm[r], Pm[r], log_mu[r], work, out_x[i], out_P[i], out_mu[i])
+            omega_max, accel_max, xm[r], Pm[r], log_mu[r], work, out_x[i], out_P[i], out_mu[i], entry_w)
         t_last[r] = t[r, kk]
         k[r] = kk + 1
 
@@ -686,7 +764,8 @@ def predict_modes(spec: IMMCVCTSpec, x_modes, P_modes, log_mu, dt_s, params=None
     q, sig_w2, log_Pi = kernel_parameters(spec, p)
     sig_w0_2, omega_max, accel_max = _spec_constants(spec)
     work = _work(M)
-    _look_predict(dt, is_ct, q[0, 0], sig_w2[0, 0], log_Pi[0, 0], sig_w0_2, omega_max, accel_max, xm, Pm, lm, work)
+    _look_predict(dt, is_ct, q[0, 0], sig_w2[0, 0], log_Pi[0, 0], sig_w0_2, omega_max, accel_max, xm, Pm, lm, work,
+                  spec.entry_rates())
     xp, Pp, log_c, w, xc, Pc = work[2].copy(), work[3].copy(), work[4].copy(), work[6], work[10], work[11]
     _predicted_combination(xp, Pp, log_c, w, xc, Pc)
     return ModePrediction(xp, Pp, log_c, xc[:4].copy(), Pc[:4, :4].copy())
@@ -734,7 +813,7 @@ def look_parameter_names(spec: IMMCVCTSpec | None = None):
     """The parameters that may change from look to look, in the order of a parameter vector: those of
     :data:`LOOK_PARAMS` that ``spec``'s modes have (the last two only with the third mode)."""
     spec = spec or DEFAULT_IMM_CV_CT
-    return LOOK_PARAMS if spec.n_modes == 3 else LOOK_PARAMS[:5]
+    return LOOK_PARAMS if spec.q_high_g is not None else LOOK_PARAMS[:5]
 
 
 def look_parameter_vector(spec: IMMCVCTSpec | None = None) -> np.ndarray:
@@ -780,11 +859,11 @@ def kernel_parameters(spec=None, params=None):
         _, q, log_Pi, _ = spec.mode_arrays()
         sig_w = spec.sigma_omega_deg_s15 * DEG
         return q[None, None], np.full((1, 1), sig_w * sig_w), log_Pi[None, None]
-    M = spec.n_modes
+    M, n_ct, high = spec.n_modes, spec.n_ct, spec.q_high_g is not None
     names = look_parameter_names(spec)
     col = {n: params[..., i] for i, n in enumerate(names)}
-    q_g = np.stack([col["q_cv_g"], col["q_ct_g"]] + ([col["q_high_g"]] if M == 3 else []), axis=-1)
-    stay = np.stack([col["p_stay_cv"], col["p_stay_ct"]] + ([col["p_stay_high"]] if M == 3 else []), axis=-1)
+    q_g = np.stack([col["q_cv_g"]] + [col["q_ct_g"]] * n_ct + ([col["q_high_g"]] if high else []), axis=-1)
+    stay = np.stack([col["p_stay_cv"]] + [col["p_stay_ct"]] * n_ct + ([col["p_stay_high"]] if high else []), axis=-1)
     Pi = np.repeat(((1.0 - stay) / (M - 1))[..., None], M, axis=-1)
     i = np.arange(M)
     Pi[..., i, i] = stay

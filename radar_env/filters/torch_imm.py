@@ -64,7 +64,8 @@ class IMMConstants(NamedTuple):
     """What the IMM holds fixed (``baselines.imm_cv_ct_runner.IMMCVCTSpec`` gives them): ``is_ct`` (M,) bool per mode in
     mode order, ``log_mu0`` (M,) initial log mode probabilities, ``sig_w0_2`` the CV augmentation's turn-rate
     variance (rad^2/s^2), the turn-rate bound ``omega_max_rad_s``, ``accel_max_m_s2`` and its speed floor
-    ``min_speed_m_s``."""
+    ``min_speed_m_s``; ``entry_w`` (M,) each CT mode's entry rate (rad/s; a bank of CT modes: a CV mode mixes into
+    CT mode ``k`` with the turn rate ``entry_w[k]``), empty for 0."""
 
     is_ct: tuple
     log_mu0: tuple
@@ -72,6 +73,13 @@ class IMMConstants(NamedTuple):
     omega_max_rad_s: float
     accel_max_m_s2: float
     min_speed_m_s: float = 1.0
+    entry_w: tuple = ()
+
+    @property
+    def entry_ct(self) -> tuple:
+        """The CT modes' entry rates (rad/s) in the grouped order (``entry_w`` is per mode in the spec's order,
+        empty: 0 for every CT mode)."""
+        return tuple(float(self.entry_w[m]) if self.entry_w else 0.0 for m in range(self.M) if self.is_ct[m])
 
     @property
     def M(self) -> int:
@@ -242,17 +250,23 @@ def _step(state, dt, G, z, R, mask, q, sig_w2, log_Pi, consts, with_nis, rr=None
     x4 = torch.cat((state.x_cv, state.x_ct[:4]), 1)            # every mode's 4-state part (4, M, B)
     P4 = torch.cat((state.P_cv, state.P_ct[:4, :4]), 2)
     x0, P0 = _mixture(w, x4, P4)                               # the 4-state marginals of the mixtures (4, Mk, B)
-    # the CT targets' turn-rate row: modes' [P[4, :4], P[4, 4]] and turn rates (a CV mode's: 0, sig_w0_2, 0)
+    # the CT targets' turn-rate row: modes' [P[4, :4], P[4, 4]] and turn rates; a CV mode's: 0, sig_w0_2 and,
+    # into CT mode k, its entry rate (om (Mi, Mct, B): the sources' turn rates as seen by each CT target)
     B = x4.shape[-1]
     cv_row = torch.zeros((5, n_cv, B), dtype=DTYPE)
     cv_row[4] = consts.sig_w0_2
     row = torch.cat((cv_row, state.P_ct[4]), 1)                # (5, M, B)
-    om = torch.cat((torch.zeros((n_cv, B), dtype=DTYPE), state.x_ct[4]))
+    n_ct = consts.M - n_cv
+    entry = torch.tensor(consts.entry_ct, dtype=DTYPE)[None, :, None].expand(n_cv, n_ct, B)
+    om = torch.cat((entry, state.x_ct[4][:, None].expand(n_ct, n_ct, B)))
     e, e4 = x4 - x4[:, :1], om - om[:1]
     wc = w[:, n_cv:]
-    m, m4 = _mix(wc, e), _mix(wc, e4)                          # (4, Mct, B), (Mct, B)
-    r = _mix(wc, row + e4 * torch.cat((e, e4[None]))) - m4 * torch.cat((m, m4[None]))
-    x0_ct = clip_turn_rate(torch.cat((x0[:, n_cv:], (om[:1] + m4)[None])), consts)
+    we4 = wc * e4                                              # (Mi, Mct, B)
+    m, m4 = _mix(wc, e), we4.sum(0)                            # (4, Mct, B), (Mct, B)
+    r4 = _mix(wc, row[:4]) + _mix(we4, e) - m4 * m              # (4, Mct, B)
+    r44 = _mix(wc, row[4:])[0] + (we4 * e4).sum(0) - m4 * m4    # (Mct, B)
+    r = torch.cat((r4, r44[None]))
+    x0_ct = clip_turn_rate(torch.cat((x0[:, n_cv:], (om[0] + m4)[None])), consts)
     P0_ct = torch.cat((torch.cat((P0[:, :, n_cv:], r[:4, None]), 1), r[None]), 0)
     # ---- mode-matched prediction
     xp_cv, Pp_cv = tc.predict_cv(x0[:, :n_cv], P0[:, :, :n_cv], dt, (q[:n_cv] * q[:n_cv]) * G[:, :, None])

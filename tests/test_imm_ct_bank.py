@@ -1,0 +1,108 @@
+"""The IMM over a bank of CT modes (``IMMCVCTSpec.ct_rates_deg_s``; the registered ``imm_ct_bank``): the numba kernel
+against the torch IMM (an independent implementation of the mixing: per-target turn rates of the CV sources as
+tensors) to 1e-9 on every kind of look stream, with constant and per-look parameters; the mixing against its closed
+form; the default spec unchanged; the spec's checks; the refusals where a bank is not supported."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from baselines import imm_cv_ct_runner as I  # noqa: E402
+from radar_env.filters import imm_cv_ct as C  # noqa: E402
+from radar_env.filters import torch_chain as tc  # noqa: E402
+from radar_env.filters import torch_imm as ti  # noqa: E402
+from radar_env.common.units import DEG  # noqa: E402
+from test_torch_chain import SUITES, _episodes, _loaded  # noqa: E402
+from test_torch_imm import _compare, _consts, _drawn_params, _numba, _torch_params  # noqa: E402
+
+BANK = I.IMMCVCTSpec(q_cv_g=1.8e-4, q_ct_g=0.26, sigma_omega_deg_s15=0.001, sigma_omega0_deg_s=2.0, p_stay_cv=0.991,
+                     p_stay_ct=0.977, q_high_g=7.2, p_stay_high=0.984, ct_rates_deg_s=(17.3, 1.25, 8.56))
+BANK_SUITES = ("random", "random_radars", "adrian_flower", "two_sites_same_time", "three_sites_irregular",
+               "missed_looks")
+
+
+def test_bank_spec_layout():
+    assert BANK.ct_rates_deg_s == (1.25, 8.56, 17.3)            # stored sorted
+    assert (BANK.n_ct, BANK.n_modes, BANK.is_bank) == (6, 8, True)
+    is_ct, q, log_Pi, log_mu0 = BANK.mode_arrays()
+    assert is_ct.tolist() == [False] + [True] * 6 + [False]
+    np.testing.assert_allclose(np.exp(log_Pi).sum(1), 1.0, rtol=1e-14)
+    np.testing.assert_allclose(np.diag(np.exp(log_Pi)), [0.991] + [0.977] * 6 + [0.984], rtol=1e-14)
+    assert np.all(q[1:7] == q[1]) and np.exp(log_mu0).sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(BANK.entry_rates() / DEG, [0, 1.25, -1.25, 8.56, -8.56, 17.3, -17.3, 0], rtol=1e-14)
+    d = C.IMMCVCTSpec()                                          # the default: one CT mode entered at 0
+    assert (d.n_ct, d.n_modes, d.is_bank) == (1, 3, False) and not d.entry_rates().any()
+    assert "entry_w" not in d.filter_constants()
+    assert C.imm_cv_ct_spec_from_params({"ct_rate_1_deg_s": 3, "ct_rate_2_deg_s": 1}).ct_rates_deg_s == (1.0, 3.0)
+
+
+@pytest.mark.parametrize("rates, match", [((0.0,), "ct_rates_deg_s"), ((25.0,), "ct_rates_deg_s"),
+                                          ((1, 2, 3, 4, 5), "at most 4"), ("5", "sequence"),
+                                          ((float("nan"),), "ct_rates_deg_s")])
+def test_bank_spec_refuses(rates, match):
+    with pytest.raises(ValueError, match=match):
+        C.IMMCVCTSpec(ct_rates_deg_s=rates)
+
+
+@pytest.mark.parametrize("per_look", [False, True], ids=["constant", "per_look"])
+@pytest.mark.parametrize("suite", BANK_SUITES)
+def test_bank_torch_equals_the_numba_kernel(suite, per_look):
+    sc, radar, n = SUITES[suite]
+    eps = _episodes(sc, n, seed=12, radar=radar)
+    tr, _ = _loaded(eps)
+    state, looks = tc.handover(tr)
+    B, K = len(eps), max(e.n_looks for e in eps)
+    params = _drawn_params(BANK, (B, K), seed=3) if per_look else None
+    out = ti.run(ti.start(state, _consts(BANK)), looks, _torch_params(BANK, looks, params), _consts(BANK),
+                 with_nis=True)
+    res = _numba(eps, BANK, params)
+    _compare(out, res, looks)
+    # the CT modes took different turn rates (the bank is not one mode six times), and the CV modes' stored turn
+    # rate is back at 0 after every look (the kernel sets it to each entry rate while mixing)
+    m = looks.scored_mask.numpy()
+    w = looks.align(res.x_modes[..., 4]).numpy()[m]
+    assert np.all(w[:, [0, 7]] == 0.0)
+    assert np.ptp(w[:, 1:7], axis=1).max() > 1.0 * DEG
+
+
+def test_bank_mixing_closed_form():
+    """At dt = 0 the CT mode k's predicted turn rate is the mixture's: the CV modes (CV and high CV) enter at
+    r_k, CT mode j brings its own rate: x0_k[4] = sum_i w_ik om_ik, w_ik = Pi_ik mu_i / c_k (then the clip)."""
+    x = np.array([1e4, 2e4, 150.0, -80.0])
+    P = np.diag([400.0, 400.0, 100.0, 100.0])
+    xm, Pm, lm = C.initial_modes(BANK, x, P)
+    xm[1:7, 4] = np.array([0.5, -1.0, 3.0, 7.0, -2.0, 0.1]) * DEG     # the CT modes' own rates
+    lm = np.log(np.array([0.5, 0.05, 0.1, 0.05, 0.1, 0.05, 0.05, 0.1]))
+    pred = C.predict_modes(BANK, xm, Pm, lm, 0.0)
+    _, _, log_Pi, _ = BANK.mode_arrays()
+    a = np.exp(log_Pi + lm[:, None])                               # a[i, k] = Pi_ik mu_i
+    om = np.where(BANK.mode_arrays()[0][:, None], xm[:, 4][:, None], BANK.entry_rates()[None, :])
+    want = (a * om).sum(0) / a.sum(0)
+    np.testing.assert_allclose(pred.x_modes[1:7, 4], want[1:7], rtol=1e-12)
+    np.testing.assert_allclose(pred.log_c, np.log(a.sum(0)), rtol=1e-12)
+    assert np.all(xm[[0, 7], 4] == 0.0)                            # the inputs are not modified
+
+
+def test_default_spec_has_no_entry_rates_in_torch():
+    c = _consts(I.tuned_imm_cv_ct_spec())
+    assert c.entry_w == () and c.entry_ct == (0.0,)
+
+
+def test_tuned_bank_is_registered():
+    from baselines.registry import TRACKER_NAMES, run_tracker
+    spec = I.tuned_imm_cv_ct_spec("imm_ct_bank")
+    assert "imm_ct_bank" in TRACKER_NAMES and spec.is_bank and len(spec.ct_rates_deg_s) == 3
+    eps = _episodes("random", 3, seed=5)
+    r = run_tracker("imm_ct_bank", eps)
+    assert r.name == "imm_ct_bank" and np.isfinite(r.x[:, r.start_index.max():][:, :50]).all()
+
+
+def test_a_bank_is_refused_where_it_is_not_supported():
+    import gymnasium as gym
+    import radar_env  # noqa: F401
+    with pytest.raises(ValueError, match="bank of CT modes"):
+        gym.make("RadarTrack-v0", tracker="imm_cv_ct", imm_parameters={"ct_rate_1_deg_s": 3.0})
+    from agents.training.learned_imm import LearnedIMMModel
+    with pytest.raises(ValueError, match="bank of CT modes"):
+        LearnedIMMModel(10, 8, [], BANK, 1.0, chain="torch")
