@@ -1,7 +1,8 @@
 """The IMM over a bank of CT modes (``IMMCVCTSpec.ct_rates_deg_s``; the registered ``imm_ct_bank``): the numba kernel
 against the torch IMM (an independent implementation of the mixing: per-target turn rates of the CV sources as
 tensors) to 1e-9 on every kind of look stream, with constant and per-look parameters; the mixing against its closed
-form; the default spec unchanged; the spec's checks; the refusals where a bank is not supported."""
+form; the default spec unchanged; the spec's checks; the refusals where a bank is not supported (the env;
+the learned IMM's range-rate variant)."""
 
 import numpy as np
 import pytest
@@ -103,6 +104,14 @@ def test_a_bank_is_refused_where_it_is_not_supported():
     import radar_env  # noqa: F401
     with pytest.raises(ValueError, match="bank of CT modes"):
         gym.make("RadarTrack-v0", tracker="imm_cv_ct", imm_parameters={"ct_rate_1_deg_s": 3.0})
-    from agents.training.learned_imm import LearnedIMMModel
-    with pytest.raises(ValueError, match="bank of CT modes"):
-        LearnedIMMModel(10, 8, [], BANK, 1.0, chain="torch")
+    from agents.training import backprop as bp
+    from agents.training.runs import load_hyperparams
+    with pytest.raises(ValueError, match="--hp imm: an option of the learned IMM"):
+        bp.check_hp(dict(load_hyperparams("backprop"), imm="imm_ct_bank"))
+    with pytest.raises(ValueError, match="--hp imm: must be one of"):
+        bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), imm="imm3_ct"))
+    hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), imm="imm_ct_bank", chain="torch",
+                                  env_kwargs={**load_hyperparams("backprop_imm_cv_ct")["env_kwargs"],
+                                              "radial_velocity": True}))
+    with pytest.raises(ValueError, match="no range-rate variant"):
+        bp.make_model(hp, cfg)

@@ -1,6 +1,6 @@
 """The learned IMM (agents/policies/learned_imm.py, agents/training/learned_imm.py): at its initial weights it is
 imm_cv_ct with its tuned values (numpy inference and torch forward, to 1e-9, on drawn episodes of several
-scenario kinds); with other weights the numpy GRU + numba per-look kernel equals the torch forward in lockstep to
+scenario kinds), and built around the bank of CT modes (``--hp imm=imm_ct_bank``) it is imm_ct_bank; with other weights the numpy GRU + numba per-look kernel equals the torch forward in lockstep to
 1e-9 (estimate, covariance, mode probabilities, the parameters); every output inside its documented range; the
 checkpoint round trip without pickle; a tiny training run end to end."""
 
@@ -30,6 +30,14 @@ def _short(eps, n):
 def setup():
     hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain="torch")    # forwards without training
     return bp.check_hp(hp)
+
+
+@pytest.fixture(scope="module", params=["imm_cv_ct", "imm_ct_bank"])
+def around(request):
+    """The setup of a learned IMM around ``imm_cv_ct`` and around the bank of CT modes (``--hp imm=imm_ct_bank``),
+    and the name of that classical tracker."""
+    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain="torch", imm=request.param)
+    return bp.check_hp(hp), request.param
 
 
 @pytest.fixture(scope="module")
@@ -63,10 +71,11 @@ def _torch_run(model, eps, cfg):
     return x.numpy(), P, mu, delta, looks, m
 
 
-def test_initial_weights_are_imm_cv_ct(setup, episodes):
-    hp, env_kwargs, cfg = setup
+def test_initial_weights_are_imm_cv_ct(around, episodes):
+    (hp, env_kwargs, cfg), name = around
     model = bp.make_model(hp, cfg)
-    ref = run_tracker("imm_cv_ct", episodes)
+    assert model.spec.is_bank == (name == "imm_ct_bank")
+    ref = run_tracker(name, episodes)
     got = model.inference(cfg, env_kwargs).run(episodes)
     assert _rel(got.x, ref.x) < TOL and _rel_P(got.P, ref.P) < TOL
     np.testing.assert_array_equal(got.start_index, ref.start_index)
@@ -75,13 +84,13 @@ def test_initial_weights_are_imm_cv_ct(setup, episodes):
     assert _rel(x[m], looks.align(ref.x).numpy()[m]) < TOL
     assert _rel_P(P[m], looks.align(ref.P).numpy()[m]) < TOL
     assert np.all(delta == 0.0)
-    vec = I.look_parameter_vector(I.tuned_imm_cv_ct_spec())
+    vec = I.look_parameter_vector(I.tuned_imm_cv_ct_spec(name))
     for i, n in enumerate(I.LOOK_PARAMS):
         np.testing.assert_allclose(got.extra[f"param_{n}"][np.isfinite(got.extra[f"param_{n}"])], vec[i], rtol=1e-13)
 
 
-def test_numpy_inference_equals_the_torch_forward(setup, episodes):
-    hp, env_kwargs, cfg = setup
+def test_numpy_inference_equals_the_torch_forward(around, episodes):
+    (hp, env_kwargs, cfg), name = around
     torch.manual_seed(3)
     model = bp.make_model(hp, cfg)
     with torch.no_grad():
@@ -89,7 +98,7 @@ def test_numpy_inference_equals_the_torch_forward(setup, episodes):
             p.add_(0.4 * torch.randn_like(p))
     got = model.inference(cfg, env_kwargs).run(episodes)
     x, P, mu, delta, looks, m = _torch_run(model, episodes, cfg)
-    ref = run_tracker("imm_cv_ct", episodes)
+    ref = run_tracker(name, episodes)
     assert np.nanmax(np.abs(got.x - ref.x)) > 50.0                       # the parameters moved the estimate
     errs = {"x": _rel(x[m], looks.align(got.x).numpy()[m]), "P": _rel_P(P[m], looks.align(got.P).numpy()[m]),
             "mu_cv": float(np.max(np.abs(1.0 - mu[m][:, 0] - looks.align(got.extra["maneuver_probability"])
@@ -203,15 +212,17 @@ def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
     assert json.loads(out.read_text())["meta"]["policy_imm_bp"] == str(path)
 
 
-@pytest.mark.parametrize("rdot", [False, True], ids=["position", "range_rate"])
-def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
+@pytest.mark.parametrize("rdot, imm", [(True, "imm_cv_ct"), (False, "imm_ct_bank")], ids=["range_rate", "bank"])
+def test_compiled_look_equals_the_eager_look(rdot, imm, monkeypatch):
     """``chain="compiled"`` (the default: :func:`agents.training.learned_imm.look_step` under ``torch.compile``)
     against ``chain="torch"`` (eager) from the same random weights, over 12 chunks of random flights seen by two
     sites scanning together (rows finish episodes and start new ones; the chunks hold simultaneous looks (dt = 0),
-    missed looks, and CT modes near omega = 0 at each track start; with and without the range-rate update): every
-    look of the compiled model runs compiled, in one graph; the same loss and gradient of every parameter to 1e-8
-    relative, the same estimates (the carried states that require a gradient at a chunk's start, which make the
-    one graph, change no gradient)."""
+    missed looks, and CT modes near omega = 0 at each track start): every look of the compiled model runs compiled,
+    in one graph; the same loss and gradient of every parameter to 1e-8 relative, the same estimates (the carried
+    states that require a gradient at a chunk's start, which make the one graph, change no gradient). Two cases,
+    each a cold compile of about a minute: imm_cv_ct's one CT mode with the range-rate update, and the bank of six
+    CT modes (``--hp imm=imm_ct_bank``) on position only; together they run every operation of the look (the
+    position-only IMM of one CT mode is the bank's code with other constants)."""
     from dataclasses import replace
     from agents.training import learned_imm as LM
     from test_torch_chain import TWO_SITES_SAME_TIME
@@ -228,12 +239,12 @@ def test_compiled_look_equals_the_eager_look(rdot, monkeypatch):
     torch._dynamo.reset()
     counters.clear()
     for chain in ("torch", "compiled"):
-        hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain=chain,
+        hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain=chain, imm=imm,
                                       env_kwargs={**env, "radial_velocity": rdot}))
         cfg = replace(cfg, radar=TWO_SITES_SAME_TIME)      # the random flights seen by two sites scanning together
         torch.manual_seed(6)
         model = bp.make_model(hp, cfg)
-        assert model.chain == chain
+        assert model.chain == chain and model.spec.is_bank == (imm == "imm_ct_bank")
         with torch.no_grad():
             model.out.weight.normal_(0.0, 0.3)
         trainer = bp.StreamingTrainer(model, cfg, 6, 40, 9)

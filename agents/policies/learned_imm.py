@@ -134,9 +134,6 @@ class LearnedIMM:
         if got != {k: tuple(v) for k, v in want.items()}:
             raise ValueError(f"learned IMM weights do not match the architecture {self.arch}: got {got}, need {want}")
         self.spec = imm_cv_ct_spec_from_params(config["base_parameters"])
-        if self.spec.is_bank:
-            raise ValueError(f"policy.json base_parameters: a learned IMM over a bank of CT modes "
-                             f"(ct_rates_deg_s {self.spec.ct_rates_deg_s}) is not supported (one CT mode)")
         self.names = look_parameter_names(self.spec)
         if tuple(config["parameters"]) != self.names:
             raise ValueError(f"policy.json parameters {config['parameters']} != {list(self.names)}")
@@ -144,7 +141,7 @@ class LearnedIMM:
         self.cfg = EnvConfig.from_kwargs(**env_kwargs_from_json(self.env_kwargs))
         self.feature_q_m_s2 = float(config["feature_q_g"]) * G0_M_S2
         self.layout, _ = observation_layout(self.cfg)
-        n_in = len(self.cfg.features) + len(detector_names(self.spec.n_modes))
+        n_in = len(self.cfg.features) + len(detector_names(self.spec))
         if self.arch["input_size"] != n_in or tuple(config["input_features"]) != tuple(self.cfg.features):
             raise ValueError(f"policy.json: input_size {self.arch['input_size']} / features do not match the env's "
                              f"{len(self.cfg.features)} features + {n_in - len(self.cfg.features)} detectors")

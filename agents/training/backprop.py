@@ -430,6 +430,10 @@ def _num(lo, hi=None, open_lo=False):
     return ok, f"a number {'>' if open_lo else '>='} {lo}" + ("" if hi is None else f" and <= {hi}")
 
 
+IMM_SPECS = ("imm_cv_ct", "imm_ct_bank")
+"""The classical IMMs a learned IMM may be built around (hyperparameter ``imm``, ``--tracker imm_cv_ct`` only): its
+modes and the tuned values its untrained weights give."""
+
 HP_SPEC = {
     "tracker": ((lambda v: v in MODELS), f"one of {sorted(MODELS)}"),
     "n_steps": _int(1),
@@ -451,13 +455,16 @@ HP_SPEC = {
     "turn_rate_max_deg_s": _num(0.0, 180.0),
     "turn_gain": _num(0.0, 1.0, open_lo=True),
     "init_from": ((lambda v: isinstance(v, str) and v != ""), "the path of a trained q-policy's policy.npz"),
+    "imm": ((lambda v: v in IMM_SPECS), f"one of {list(IMM_SPECS)}"),
 }
 """Every hyperparameter of ``--method backprop`` (``agents/training/hyperparams/backprop.toml`` documents them):
 ``{key: (check, what it must be)}``."""
-HP_OPTIONAL = ("chain", "turn_rate_max_deg_s", "turn_gain", "init_from")
+HP_OPTIONAL = ("chain", "turn_rate_max_deg_s", "turn_gain", "init_from", "imm")
 """Keys that may be absent (then their default: ``chain`` ``compiled``, ``turn_rate_max_deg_s`` 0 (q only),
-``turn_gain`` 1, no ``init_from``); absent from the recipes' files, so that their runs' ``config.json`` (what a
-resume compares) is the same as before the key existed. The last three are the CV model's (``tracker`` ``cv``)."""
+``turn_gain`` 1, no ``init_from``, ``imm`` ``imm_cv_ct``); absent from the recipes' files, so that their runs'
+``config.json`` (what a resume compares) is the same as before the key existed. ``turn_rate_max_deg_s``,
+``turn_gain`` and ``init_from`` are the CV model's (``tracker`` ``cv``), ``imm`` the learned IMM's."""
+
 
 
 def check_hp(hp):
@@ -478,6 +485,8 @@ def check_hp(hp):
     if cv_only:
         raise ValueError(f"--hp {cv_only[0]}: an option of the CV q-policy (--tracker cv), not of "
                          f"{hp['tracker']!r}")
+    if "imm" in hp and hp["tracker"] != "imm_cv_ct":
+        raise ValueError(f"--hp imm: an option of the learned IMM (--tracker imm_cv_ct), not of {hp['tracker']!r}")
     bad = [n for n in hp["select_on"] if n not in hp["eval_scenarios"]]
     if bad:
         raise ValueError(f"--hp select_on: {bad} are not among the validation suites (eval_scenarios) "

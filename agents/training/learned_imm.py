@@ -96,19 +96,17 @@ class LearnedIMMModel(ChainModel):
             raise ValueError(f"--hp chain: 'compiled' (torch.compile of the learned IMM's look) needs a C++ compiler, "
                              f"and {_cxx()!r} was not found: install g++ (or set CXX), or train with --hp chain=torch "
                              "(eager, about half the speed)")
-        if spec.is_bank:
-            raise ValueError(f"spec: a learned IMM over a bank of CT modes (ct_rates_deg_s {spec.ct_rates_deg_s}) is "
-                             "not supported; the learned IMM has one CT mode")
         self.chain = chain
         self.spec = spec
         self.names = look_parameter_names(spec)
         self.base = {n: getattr(spec, n) for n, *_ in IMM_CV_CT_PARAMS if getattr(spec, n) is not None}
+        self.base.update({f"ct_rate_{k + 1}_deg_s": r for k, r in enumerate(spec.ct_rates_deg_s)})   # a bank
         self.pmap = ParamMap(self.base, self.names)
         self._pmap_t = self.pmap.tensors(torch)
         self.consts = ti.IMMConstants(**spec.filter_constants())
         self._inverse = torch.argsort(self.consts.order)
         self.obs_size, self.hidden_size, self.head_sizes = int(obs_size), int(hidden_size), [int(n) for n in head]
-        self.n_det = len(detector_names(spec.n_modes))
+        self.n_det = len(detector_names(spec))
         self.gru = torch.nn.GRUCell(self.obs_size + self.n_det, self.hidden_size, dtype=DTYPE)
         layers, prev = [], self.hidden_size
         for n in self.head_sizes:
@@ -122,9 +120,9 @@ class LearnedIMMModel(ChainModel):
         self.feature_q_m_s2 = float(feature_q_m_s2)
         self.h = self.state = self.det = None
         idx = {n: i for i, n in enumerate(self.names)}
-        M = spec.n_modes
-        self._iq = [idx["q_cv_g"], idx["q_ct_g"]] + ([idx["q_high_g"]] if M == 3 else [])
-        self._ip = [idx["p_stay_cv"], idx["p_stay_ct"]] + ([idx["p_stay_high"]] if M == 3 else [])
+        n_ct, high = spec.n_ct, spec.q_high_g is not None      # every CT mode of a bank takes the same offsets
+        self._iq = [idx["q_cv_g"]] + [idx["q_ct_g"]] * n_ct + ([idx["q_high_g"]] if high else [])
+        self._ip = [idx["p_stay_cv"]] + [idx["p_stay_ct"]] * n_ct + ([idx["p_stay_high"]] if high else [])
         self._iw = idx["sigma_omega_deg_s15"]
 
     # ---- the network and its parameters
@@ -203,7 +201,7 @@ class LearnedIMMModel(ChainModel):
 
     def policy_config(self, cfg):
         return {"model": self.kind, "architecture": self.architecture(), "input_features": list(cfg.features),
-                "detectors": list(detector_names(self.spec.n_modes)), "parameters": list(self.names),
+                "detectors": list(detector_names(self.spec)), "parameters": list(self.names),
                 "base_parameters": dict(self.base), "feature_q_g": self.feature_q_m_s2 / G0_M_S2,
                 "output": "s = L + (H - L) sigmoid(u0 + out(head(h))) per parameter, L, H its range in log (noises) "
                           "or logit (stay probabilities) space, u0 at the base value; param = exp(s) or sigmoid(s)"}
@@ -222,9 +220,14 @@ class LearnedIMMModel(ChainModel):
 
     @classmethod
     def build(cls, hp, cfg):
-        """Around the registered imm_cv_ct's tuned spec, the observation's chain at kf_tuned's q (with
-        ``radial_velocity``: imm_cv_ct_rdot's and kf_tuned_rdot's, the trackers with the same measurements)."""
+        """Around the registered imm_cv_ct's tuned spec (hyperparameter ``imm`` ``imm_ct_bank``: the bank of CT
+        modes'), the observation's chain at kf_tuned's q (with ``radial_velocity``: imm_cv_ct_rdot's and
+        kf_tuned_rdot's, the trackers with the same measurements; no bank)."""
         from baselines.tuned_params import tuned_parameters
         rd = "_rdot" if cfg.radial_velocity else ""
-        return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec("imm_cv_ct" + rd),
+        imm = hp.get("imm", "imm_cv_ct")
+        if rd and imm != "imm_cv_ct":
+            raise ValueError(f"--hp imm: {imm!r} has no range-rate variant; with radial_velocity the learned IMM is "
+                             "built around imm_cv_ct_rdot")
+        return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec(imm + rd),
                    tuned_parameters()["kf" + rd]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))

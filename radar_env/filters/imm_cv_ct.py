@@ -240,6 +240,12 @@ class IMMCVCTSpec:
         is_ct = np.array([False] + [True] * n_ct + ([False] if high else []))
         return is_ct, np.asarray(q) * G0_M_S2, np.log(Pi), np.log(mu0)
 
+    def mode_names(self):
+        """The modes' names in the spec's order: ``cv``, ``ct`` (a bank's: ``ct+r``, ``ct-r`` per rate, deg/s)[,
+        ``high``]."""
+        ct = [f"ct{s}{r:g}" for r in self.ct_rates_deg_s for s in "+-"] if self.is_bank else ["ct"]
+        return tuple(["cv"] + ct + (["high"] if self.q_high_g is not None else []))
+
     def entry_rates(self):
         """``(M,)`` each mode's entry turn rate (rad/s): a CT mode's (the bank's ``+r_1, -r_1, ...``, else 0), 0 for a
         CV mode (the kernel's ``entry_w``)."""
@@ -873,9 +879,11 @@ def kernel_parameters(spec=None, params=None):
 
 
 # ------------------------------------------------------------------------------------------------ detectors
-def detector_names(n_modes):
-    """Names of :func:`detector_inputs`' columns."""
-    return tuple(f"mu_{m}" for m in ("cv", "ct", "high")[:n_modes]) + ("omega_over_20deg_s", "log10_omega_std_deg_s_over_3")
+def detector_names(modes):
+    """Names of :func:`detector_inputs`' columns; ``modes``: the number of modes of a spec with one CT mode (2 or 3),
+    or a spec (a bank's CT modes named by their entry rates, e.g. ``mu_ct+6.77``)."""
+    names = modes.mode_names() if isinstance(modes, IMMCVCTSpec) else ("cv", "ct", "high")[:modes]
+    return tuple(f"mu_{m}" for m in names) + ("omega_over_20deg_s", "log10_omega_std_deg_s_over_3")
 
 
 def detector_inputs(mu, omega_rad_s, omega_std_rad_s, xp=np):
