@@ -331,6 +331,45 @@ def test_two_modes_and_other_imm_parameters():
     np.testing.assert_allclose(est, run.x[0, k0:k0 + len(est)], rtol=1e-9, atol=1e-9)
 
 
+def test_a_bank_of_ct_modes_in_the_env():
+    """``imm_parameters`` with ``ct_rate_<k>_deg_s`` (imm_ct_bank's tuned values): six CT modes, the same 7 actions
+    (the CT modes share q_ct and p_stay_ct), a detector per mode; any action is IMMCVCTStepper with the bank's spec
+    and the mapped parameters, to 1e-9."""
+    from baselines.imm_cv_ct_runner import IMM_CT_BANK_PARAMS
+    from radar_env.filters.imm_cv_ct import imm_cv_ct_spec_from_params
+    names = [n for n, *_ in IMM_CT_BANK_PARAMS]
+    bank = {k: v for k, v in _tuned_entry("imm_ct_bank").items() if k in names}
+    env = gym.make("RadarTrack-v0", action_type="continuous", imm_parameters=bank, **IMM)
+    core = env.unwrapped._core
+    assert core.spec.is_bank and env.action_space.shape == (7,)
+    assert env.observation_space.shape == (27 + 8 + 2,) and core.detector_names[1] == "mu_ct+1.77559"
+    seed = 4
+    rng = np.random.default_rng(1)
+    acts = rng.uniform(-1, 1, (400, 7))
+    steps = _run_env(env, seed, lambda i: acts[i])
+    ep = _episode(seed)
+    spec = imm_cv_ct_spec_from_params({**imm_env_defaults()["imm_parameters"], **bank})
+    tr = env.unwrapped.config.track_start.tracker(1)
+    out = tr.load([0], [ep])
+    b = stack_episodes([ep])
+    x5 = np.concatenate([tr.x, np.zeros((1, 1))], 1)
+    P5 = np.zeros((1, 5, 5))
+    P5[:, :4, :4] = tr.P
+    P5[:, 4, 4] = (spec.sigma_omega0_deg_s * DEG) ** 2
+    imm = IMMCVCTStepper(b.t_s, b.z_m, b.R_m2, b.detected, b.n_looks, [int(out.look_index[0]) + 1], x5, P5, spec)
+    for i, (obs, _, info) in enumerate(steps[1:]):
+        o = imm.step(core.action_to_parameters(acts[i][None]))
+        np.testing.assert_allclose(info["estimate"], o.x[0], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(info["covariance"], o.P[0], rtol=1e-9, atol=1e-9)
+    assert np.ptp([i["estimate"][0] for _, _, i in steps]) > 0
+
+
+def _tuned_entry(key):
+    import json
+    from baselines.tuned_params import TUNED_PATH
+    return json.loads(TUNED_PATH.read_text())[key]
+
+
 def test_max_episode_steps_truncates_as_in_the_default_env():
     venv = gym.make_vec("RadarTrack-v0", num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=5,
                         **IMM)

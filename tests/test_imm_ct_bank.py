@@ -1,8 +1,8 @@
 """The IMM over a bank of CT modes (``IMMCVCTSpec.ct_rates_deg_s``; the registered ``imm_ct_bank``): the numba kernel
 against the torch IMM (an independent implementation of the mixing: per-target turn rates of the CV sources as
 tensors) to 1e-9 on every kind of look stream, with constant and per-look parameters; the mixing against its closed
-form; the default spec unchanged; the spec's checks; the refusals where a bank is not supported (the env;
-the learned IMM's range-rate variant)."""
+form; the default spec unchanged; the spec's checks; the refusals (a rate out of range in the env; the learned IMM's
+range-rate variant)."""
 
 import numpy as np
 import pytest
@@ -99,11 +99,11 @@ def test_tuned_bank_is_registered():
     assert r.name == "imm_ct_bank" and np.isfinite(r.x[:, r.start_index.max():][:, :50]).all()
 
 
-def test_a_bank_is_refused_where_it_is_not_supported():
+def test_refusals_of_a_bank():
     import gymnasium as gym
     import radar_env  # noqa: F401
-    with pytest.raises(ValueError, match="bank of CT modes"):
-        gym.make("RadarTrack-v0", tracker="imm_cv_ct", imm_parameters={"ct_rate_1_deg_s": 3.0})
+    with pytest.raises(ValueError, match="imm_parameters: IMMCVCTSpec.ct_rates_deg_s"):
+        gym.make("RadarTrack-v0", tracker="imm_cv_ct", imm_parameters={"ct_rate_1_deg_s": 30.0})
     from agents.training import backprop as bp
     from agents.training.runs import load_hyperparams
     with pytest.raises(ValueError, match="--hp imm: an option of the learned IMM"):

@@ -13,7 +13,7 @@ from .config import EnvConfig
 from ..common.parallel import run as _run_rows
 from ..filters.imm_cv_ct import detector_inputs, detector_names, initial_detectors
 from .imm_env import (detector_bounds, detector_observation, feature_q_m_s2, imm_action_map, imm_spec, k_imm_emit,
-                      k_imm_start, k_imm_step)
+                      k_imm_start, k_imm_step, mode_parameter_columns)
 from ..common.units import DEG, G0_M_S2
 
 __all__ = ["make_core"]
@@ -47,10 +47,12 @@ class _IMMCore(_Core):
         self._ep_chain, self._level0 = ep, np.zeros(n)
         M = spec.n_modes
         self.n_features = self.obs_width
-        self.detector_names = detector_names(M)
+        self.detector_names = detector_names(spec)
         self.obs_width += len(self.detector_names)
         is_ct, _, _, log_mu0 = spec.mode_arrays()
         self._is_ct, self._log_mu0 = np.ascontiguousarray(is_ct), np.ascontiguousarray(log_mu0)
+        self._q_of, self._stay_of = mode_parameter_columns(spec)
+        self._entry_w = spec.entry_rates()
         sig_w0 = spec.sigma_omega0_deg_s * DEG
         self._sig_w0_2, self._p_w0 = sig_w0 * sig_w0, (spec.sigma_omega0_deg_s * DEG) ** 2
         self._bounds = spec.omega_max_deg_s * DEG, spec.turn_accel_max_g * G0_M_S2
@@ -97,7 +99,8 @@ class _IMMCore(_Core):
         obs, fo, fs, bo = blocks
         m, tr = self.action_map, self.tracker
         par, x, P, mu, om, om_var, elapsed = self._scratch   # the IMM's look, copied into the blocks below
-        status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._sig_w0_2, *self._bounds,
+        status = k_imm_step(a, m.discrete, m.levels, m.table, self._is_ct, self._q_of, self._stay_of, self._entry_w,
+                            self._sig_w0_2, *self._bounds,
                             1.0 if tr.radial_velocity else 0.0, tr._looks, tr._it, self.xm, self.Pm, self.log_mu, par, x, P, mu, om, om_var)
         if status != _ek.ST_OK:
             self._refuse(status, action)

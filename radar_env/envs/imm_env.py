@@ -85,6 +85,17 @@ def feature_q_m_s2(cfg):
     return float(q) * G0_M_S2
 
 
+def mode_parameter_columns(spec):
+    """``(q_of, stay_of)`` (M,) int64: the column of :func:`radar_env.filters.imm_cv_ct.look_parameter_names` that
+    gives each mode's q and stay probability (the CV mode's, every CT mode's, the high-noise mode's), as
+    ``kernel_parameters`` builds them."""
+    names = look_parameter_names(spec)
+    i = {n: j for j, n in enumerate(names)}
+    kinds = ["cv"] + ["ct"] * spec.n_ct + (["high"] if spec.q_high_g is not None else [])
+    return (np.array([i[f"q_{m}_g"] for m in kinds], dtype=np.int64),
+            np.array([i[f"p_stay_{m}"] for m in kinds], dtype=np.int64))
+
+
 def imm_action_map(cfg, spec=None):
     """The :class:`IMMActionMap` of an env config (``spec``: its :func:`imm_spec`, if already built)."""
     return IMMActionMap(spec or imm_spec(cfg), cfg.action_type == "discrete",
@@ -113,10 +124,6 @@ def check_imm_config(cfg, p="RadarTrack-v0: "):
         if not isinstance(cfg.imm_parameters, dict):
             raise ValueError(f"{p}imm_parameters must be a dict of {[n for n, *_ in IMM_CV_CT_PARAMS]}, got "
                              f"{type(cfg.imm_parameters).__name__}")
-        bank = [k for k in cfg.imm_parameters if str(k).startswith("ct_rate_")]
-        if bank:
-            raise ValueError(f"{p}imm_parameters {bank}: a bank of CT modes (baselines' imm_ct_bank) is not an env "
-                             f"tracker; the env's IMM has one CT mode (valid: {[n for n, *_ in IMM_CV_CT_PARAMS]})")
         try:
             imm_spec(cfg)
         except ValueError as e:
@@ -229,11 +236,13 @@ def k_imm_start(rows, st, is_ct, sig_w0_2, p_w0, log_mu0, xm, Pm, log_mu):
 
 
 @njit(cache=True)
-def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_max, rdot_scale, looks, it, xm, Pm,
-               log_mu, par, x, P, mu, om, om_var):
+def k_imm_step(act, discrete, levels, table, is_ct, q_of, stay_of, entry_w, sig_w0_2, omega_max, accel_max, rdot_scale,
+               looks, it, xm, Pm, log_mu, par, x, P, mu, om, om_var):
     """The IMM's next look of every row (the look the chain processes next, ``it[r, I_K]``) with the parameters of
     action ``act[r]``: ``par (n, n_par)``, the combined ``x (n, 4)``, ``P (n, 4, 4)``, ``mu (n, M)``, turn rate
-    ``om`` and its variance ``om_var``; the modes ``xm, Pm, log_mu`` in place. The per-look arrays are those of
+    ``om`` and its variance ``om_var``; the modes ``xm, Pm, log_mu`` in place. Mode ``a`` takes its q from
+    ``par[:, q_of[a]]`` and its stay probability from ``par[:, stay_of[a]]`` (:func:`mode_parameter_columns`: a bank's
+    CT modes share theirs), ``entry_w (M,)`` the modes' entry turn rates. The per-look arrays are those of
     ``radar_env.filters.imm_cv_ct.kernel_parameters`` (same operations). ``rdot_scale`` > 0: the modes also update
     on the look's radial velocity, its noise std the radar's times ``rdot_scale`` (0: position only). Returns a
     status ``ST_*`` (nothing changed unless
@@ -254,11 +263,9 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
     for r in range(n):
         for j in range(act.shape[1]):
             par[r, j] = _map_value(act[r, j], discrete, levels, table[j])
-        q[0], q[1] = par[r, 0] * G0_M_S2, par[r, 1] * G0_M_S2
+        for a in range(M):
+            q[a], stay[a] = par[r, q_of[a]] * G0_M_S2, par[r, stay_of[a]]
         sw = par[r, 2] * DEG
-        stay[0], stay[1] = par[r, 3], par[r, 4]
-        if M == 3:
-            q[2], stay[2] = par[r, 5] * G0_M_S2, par[r, 6]
         for a in range(M):
             off = math.log((1.0 - stay[a]) / (M - 1))
             for b in range(M):
@@ -270,7 +277,7 @@ def k_imm_step(act, discrete, levels, table, is_ct, sig_w0_2, omega_max, accel_m
         _look_range_rate(lk, rdot_scale, rr)
         # imm_cv_ct._look's two halves called directly: one level of compiled calls less to link and optimise
         _look_predict(lk[_k.L_T] - looks[r, k - 1, _k.L_T], is_ct, q, sw * sw, log_Pi, sig_w0_2, omega_max,
-                      accel_max, xm[r], Pm[r], log_mu[r], work)
+                      accel_max, xm[r], Pm[r], log_mu[r], work, entry_w)
         _, om[r], om_var[r] = _look_update(lk[_k.L_Z:_k.L_Z + 2], R, lk[_k.L_DET] != 0.0, rr, is_ct, omega_max,
                                            accel_max, xm[r], Pm[r], log_mu[r], work, x[r], P[r], mu[r])
     return _ek.ST_OK
