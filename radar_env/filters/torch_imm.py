@@ -11,7 +11,8 @@ random walk, rad^2/s^3) and ``log_Pi (M, M)`` (``Pi[i, k] = P(mode k | mode i)``
 
     a[i, k]  = log Pi[i, k] + log mu[i];   log c[k] = logsumexp_i a[i, k];   w[i, k] = exp(a[i, k] - log c[k])
     x0_k, P0_k = moment-matched mixture of the modes' 5-state (x_i, P_i) with weights w[:, k]
-                 (a CV mode enters as [x, 0], blockdiag(P, sigma_omega0^2), and keeps only its 4-state marginal)
+                 (a CV mode enters as [x, 0], blockdiag(P, sigma_omega0^2), into CT mode k of a bank as [x, w_k],
+                 and keeps only its 4-state marginal)
     CT mode:  x0[4] clipped to +- min(omega_max, a_max / max(|v|, v_min));  x- = f_ct(x0),  P- = sym(J P0 J^T + Q5)
     CV mode:  x-, P- = F_cv x0, F_cv P0 F_cv^T + q^2 Gamma Gamma^T
     update:   Joseph form (a missed look: posterior = prior, log-likelihood 0); the CT mode's omega clipped again
