@@ -30,7 +30,8 @@ import numpy as np
 from radar_env.sim.episode import stack_episodes
 from radar_env.sim.looks import padded_looks
 from radar_env.filters.imm_cv_ct import (  # noqa: F401
-    DEFAULT_CT_BANK_RATES_DEG_S, DEFAULT_IMM_CV_CT, IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, LOOK_PARAMS, MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
+    DEFAULT_CT_BANK_RATES_DEG_S, DEFAULT_IMM_CV_CT, IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, LOOK_PARAMS,
+    MIN_SPEED_FOR_BOUND_M_S, SERIES_THETA, IMMCVCTSpec,
     _init_modes, _kernel, _step_kernel, check_look_parameters, ct_jacobian, ct_motion, detector_inputs,
     imm_cv_ct_spec_from_params, initial_detectors, kernel_parameters, look_parameter_names, look_parameter_vector,
     range_rate_block)

@@ -64,7 +64,7 @@ mode mixes into CT mode ``k`` as :math:`[x, \pm r_k]`, variance :math:`\sigma_{\
 rates, which one CT mode with a wide :math:`\sigma_{\omega 0}` cannot hold. Everything else is the model above
 (a CT mode mixing into another brings its own turn rate; every mode leaves with ``1 - p_stay`` split equally among
 the others; every mode starts at the common track start, turn rate 0). Why: on the random flights (training-range
-seeds) the tuned bank is 0.96x ``imm_cv_ct`` on ``random`` and 0.94x on ``random_radars`` (docs/trackers.md);
+seeds) the tuned bank is 0.96x ``imm_cv_ct`` on ``random`` and 0.93x on ``random_radars`` (docs/trackers.md);
 with two rates it was 0.98x / 0.95x. The default (``ct_rates_deg_s = ()``) is the single CT mode, bit for bit.
 
 The turn-rate bound
@@ -257,7 +257,8 @@ class IMMCVCTSpec:
     def filter_constants(self):
         """What the filter holds fixed whatever the per-look parameters, as plain numbers (the keyword arguments
         of ``radar_env.filters.torch_imm.IMMConstants``): ``is_ct``, ``log_mu0``, ``sig_w0_2`` (rad^2/s^2),
-        ``omega_max_rad_s``, ``accel_max_m_s2``, ``min_speed_m_s``."""
+        ``omega_max_rad_s``, ``accel_max_m_s2``, ``min_speed_m_s`` and, for a bank, ``entry_w``
+        (:meth:`entry_rates`)."""
         is_ct, _, _, log_mu0 = self.mode_arrays()
         sig_w0 = self.sigma_omega0_deg_s * DEG
         out = dict(is_ct=tuple(bool(c) for c in is_ct), log_mu0=tuple(float(v) for v in log_mu0),
@@ -516,7 +517,8 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
     predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``. ``entry_w (M,)``: each CT
     mode's entry rate (rad/s; a bank of CT modes, :attr:`IMMCVCTSpec.ct_rates_deg_s`): a CV mode mixes into CT
     mode ``j`` with the turn rate ``entry_w[j]`` (variance ``sig_w0_2``) instead of 0; None: 0 for every CT mode.
-    ``xm`` is left as it was given (the CV modes' turn rate is set to the entry rate while mixing, then back to 0)."""
+    ``xm`` is left as it was given (the CV modes' stored turn rate, always 0, is set to the entry rate while mixing,
+    then back to 0)."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
     # ---- mixing (log space): a[j, i] = log Pi_ij + log mu_i (stored transposed: a[j] is a contiguous row, so
@@ -672,9 +674,9 @@ def _kernel(t, z, R, det, rr, n_looks, k_start, x_init, P_init, is_ct, entry_w, 
         # without keep_modes the per-mode outputs are (1, 1, ...) placeholders
         xm_b = out_xm[b] if keep_modes else out_xm[0]
         Pm_b = out_Pm[b] if keep_modes else out_Pm[0]
-        _row(t[b], z[b], R[b], det[b], rr[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, entry_w, q[i], sig_w2[i],
-             sig_w0_2, log_Pi[i], log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b], out_omega[b],
-             out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
+        _row(t[b], z[b], R[b], det[b], rr[b], n_looks[b], k_start[b], x_init[b], P_init[b], is_ct, entry_w, q[i],
+             sig_w2[i], sig_w0_2, log_Pi[i], log_mu0, omega_max, accel_max, out_x[b], out_P[b], out_mu[b],
+             out_omega[b], out_omega_var[b], out_nis[b], keep_modes, xm_b, Pm_b)
 
 
 @numba.njit(cache=True)
