@@ -120,6 +120,9 @@ def imm_cv_ct_filter(t_s, z_m, R_m2, detected, n_looks, k_start, x0, P0, spec: I
     B, K = t.shape
     x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(B, 5)
     P0 = np.ascontiguousarray(P0, dtype=np.float64).reshape(B, 5, 5)
+    if modes is not None and spec.is_bank:
+        raise ValueError("modes overrides the spec's modes and drops a bank's entry rates; give a bank's spec alone "
+                         f"(ct_rates_deg_s {spec.ct_rates_deg_s})")
     if modes is not None and params is not None:
         raise ValueError("give modes or params, not both (modes fixes q and the transition matrix)")
     if modes is not None:

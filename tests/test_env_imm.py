@@ -342,7 +342,8 @@ def test_a_bank_of_ct_modes_in_the_env():
     env = gym.make("RadarTrack-v0", action_type="continuous", imm_parameters=bank, **IMM)
     core = env.unwrapped._core
     assert core.spec.is_bank and env.action_space.shape == (7,)
-    assert env.observation_space.shape == (27 + 8 + 2,) and core.detector_names[1] == "mu_ct+1.77559"
+    assert env.observation_space.shape == (27 + 8 + 2,)
+    assert core.detector_names[1] == f"mu_ct+{core.spec.ct_rates_deg_s[0]:g}"
     seed = 4
     rng = np.random.default_rng(1)
     acts = rng.uniform(-1, 1, (400, 7))

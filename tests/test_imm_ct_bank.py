@@ -39,7 +39,7 @@ def test_bank_spec_layout():
 
 
 @pytest.mark.parametrize("rates, match", [((0.0,), "ct_rates_deg_s"), ((25.0,), "ct_rates_deg_s"),
-                                          ((1, 2, 3, 4, 5), "at most 4"), ("5", "sequence"),
+                                          ((1, 2, 3, 4), "at most 3"), ("5", "sequence"), ({1: 2}, "sequence"),
                                           ((float("nan"),), "ct_rates_deg_s")])
 def test_bank_spec_refuses(rates, match):
     with pytest.raises(ValueError, match=match):
@@ -59,21 +59,21 @@ def test_bank_torch_equals_the_numba_kernel(suite, per_look):
                  with_nis=True)
     res = _numba(eps, BANK, params)
     _compare(out, res, looks)
-    # the CT modes took different turn rates (the bank is not one mode six times), and the CV modes' stored turn
-    # rate is back at 0 after every look (the kernel sets it to each entry rate while mixing)
+    # the CT modes took different turn rates (the bank is not one mode six times)
     m = looks.scored_mask.numpy()
     w = looks.align(res.x_modes[..., 4]).numpy()[m]
-    assert np.all(w[:, [0, 7]] == 0.0)
     assert np.ptp(w[:, 1:7], axis=1).max() > 1.0 * DEG
 
 
 def test_bank_mixing_closed_form():
     """At dt = 0 the CT mode k's predicted turn rate is the mixture's: the CV modes (CV and high CV) enter at
-    r_k, CT mode j brings its own rate: x0_k[4] = sum_i w_ik om_ik, w_ik = Pi_ik mu_i / c_k (then the clip)."""
+    r_k with variance sigma_omega0^2, CT mode j brings its own rate and variance: x0_k[4] = sum_i w_ik om_ik,
+    P0_k[4, 4] = sum_i w_ik (P_i44 + (om_ik - x0_k[4])^2), w_ik = Pi_ik mu_i / c_k (inside the turn-rate bound)."""
     x = np.array([1e4, 2e4, 150.0, -80.0])
     P = np.diag([400.0, 400.0, 100.0, 100.0])
     xm, Pm, lm = C.initial_modes(BANK, x, P)
-    xm[1:7, 4] = np.array([0.5, -1.0, 3.0, 7.0, -2.0, 0.1]) * DEG     # the CT modes' own rates
+    xm[1:7, 4] = np.array([0.5, -1.0, 3.0, 7.0, -2.0, 0.1]) * DEG     # the CT modes' own rates and variances
+    Pm[1:7, 4, 4] = np.array([1.0, 4.0, 0.5, 2.0, 3.0, 1.5]) * DEG ** 2
     lm = np.log(np.array([0.5, 0.05, 0.1, 0.05, 0.1, 0.05, 0.05, 0.1]))
     pred = C.predict_modes(BANK, xm, Pm, lm, 0.0)
     _, _, log_Pi, _ = BANK.mode_arrays()
@@ -82,7 +82,9 @@ def test_bank_mixing_closed_form():
     want = (a * om).sum(0) / a.sum(0)
     np.testing.assert_allclose(pred.x_modes[1:7, 4], want[1:7], rtol=1e-12)
     np.testing.assert_allclose(pred.log_c, np.log(a.sum(0)), rtol=1e-12)
-    assert np.all(xm[[0, 7], 4] == 0.0)                            # the inputs are not modified
+    var = np.where(BANK.mode_arrays()[0], Pm[:, 4, 4], (BANK.sigma_omega0_deg_s * DEG) ** 2)[:, None]
+    want_var = (a * (var + (om - want[None]) ** 2)).sum(0) / a.sum(0)
+    np.testing.assert_allclose(pred.P_modes[1:7, 4, 4], want_var[1:7], rtol=1e-10)
 
 
 def test_default_spec_has_no_entry_rates_in_torch():

@@ -36,7 +36,7 @@ from numba import njit
 
 from . import env_kernels as _ek
 from ..filters import kernels as _k
-from ..filters.imm_cv_ct import (IMM_CV_CT_PARAMS, _init_modes, _look_predict, _look_range_rate, _look_update, _work,
+from ..filters.imm_cv_ct import (IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, _init_modes, _look_predict, _look_range_rate, _look_update, _work,
                                  imm_cv_ct_spec_from_params, look_parameter_names, look_parameter_vector)
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_number
@@ -122,7 +122,7 @@ def check_imm_config(cfg, p="RadarTrack-v0: "):
                              f"action_type={cfg.action_type!r}")
     if cfg.imm_parameters is not None:
         if not isinstance(cfg.imm_parameters, dict):
-            raise ValueError(f"{p}imm_parameters must be a dict of {[n for n, *_ in IMM_CV_CT_PARAMS]}, got "
+            raise ValueError(f"{p}imm_parameters must be a dict of {[n for n, *_ in IMM_CT_BANK_PARAMS]}, got "
                              f"{type(cfg.imm_parameters).__name__}")
         try:
             imm_spec(cfg)

@@ -62,7 +62,7 @@ ARGUMENTS = {
     "imm_action_levels": "levels per IMM parameter, odd (the middle one is the tuned value); discrete IMM only "
                          "(`None`: 5)",
     "imm_parameters": "a dict of IMM parameters ({imm_params}) moving the a = 0 point, and `ct_rate_1_deg_s`, "
-                      "`ct_rate_2_deg_s`, ... for a bank of CT modes entered at +-each rate (the tracker "
+                      "`ct_rate_2_deg_s`, `ct_rate_3_deg_s` for a bank of CT modes entered at +-each rate (the tracker "
                       "`imm_ct_bank`; a detector per mode); IMM only (`None`: the tuned values, one CT mode)",
     "feature_q_g": "q (g) of the CV chain that computes the IMM env's features; IMM only (`None`: {feature_q:.4g}, "
                    "`kf`'s tuned q)",

@@ -121,8 +121,9 @@ __all__ = ["IMMCVCTSpec", "DEFAULT_IMM_CV_CT", "IMM_CV_CT_PARAMS", "IMM_CT_BANK_
            "ct_motion", "ct_jacobian", "initial_modes", "predict_modes", "update_modes", "ModePrediction",
            "ModeUpdate", "detector_names", "detector_inputs", "initial_detectors"]
 
-MAX_CT_RATES = 4
-"""Most rates of a bank of CT modes (:attr:`IMMCVCTSpec.ct_rates_deg_s`; 2 modes each)."""
+MAX_CT_RATES = 3
+"""Most rates of a bank of CT modes (:attr:`IMMCVCTSpec.ct_rates_deg_s`; 2 modes each; the parameters
+``ct_rate_1_deg_s`` .. ``ct_rate_3_deg_s`` of :data:`IMM_CT_BANK_PARAMS`)."""
 
 SERIES_THETA = 0.1
 """Below this |omega dt| (rad) the CT coefficients are evaluated by their Taylor series."""
@@ -179,7 +180,8 @@ class IMMCVCTSpec:
         mu0_cv: initial CV mode probability (the rest split equally).
         ct_rates_deg_s: a bank of CT modes (module docstring, "A bank of CT modes"): for each rate ``r`` (deg/s,
             in ``(0, omega_max_deg_s]``) two CT modes a CV mode enters at ``+r`` and ``-r`` (right and left
-            turns); stored sorted, at most :data:`MAX_CT_RATES` rates. Empty (default): one CT mode entered at 0.
+            turns); a tuple or list, stored sorted, at most :data:`MAX_CT_RATES` rates (a repeated rate gives
+            redundant modes). Empty (default): one CT mode entered at 0.
     """
 
     q_cv_g: float = 1e-4
@@ -203,7 +205,7 @@ class IMMCVCTSpec:
             lo, hi = _RANGES[f.name]
             object.__setattr__(self, f.name, check_number(f"IMMCVCTSpec.{f.name}", v, lo, hi))
         rates = self.ct_rates_deg_s
-        if isinstance(rates, (str, bytes)) or not hasattr(rates, "__len__") or len(rates) > MAX_CT_RATES:
+        if not isinstance(rates, (tuple, list)) or len(rates) > MAX_CT_RATES:
             raise ValueError(f"IMMCVCTSpec.ct_rates_deg_s must be a sequence of at most {MAX_CT_RATES} turn rates "
                              f"(deg/s), got {rates!r}")
         rates = tuple(sorted(check_number("IMMCVCTSpec.ct_rates_deg_s", r, 0.0, self.omega_max_deg_s, lo_open=True)
@@ -272,7 +274,8 @@ class IMMCVCTSpec:
 DEFAULT_IMM_CV_CT = IMMCVCTSpec()
 """Defaults (see the module docstring for how they were chosen)."""
 
-IMM_CT_BANK_PARAMS = IMM_CV_CT_PARAMS + tuple((f"ct_rate_{k + 1}_deg_s", "deg/s", 0.3, 20.0, True) for k in range(3))
+IMM_CT_BANK_PARAMS = IMM_CV_CT_PARAMS + tuple((f"ct_rate_{k + 1}_deg_s", "deg/s", 0.3, 20.0, True)
+                                              for k in range(MAX_CT_RATES))
 """The tunable parameters of ``imm_ct_bank`` (a bank of six CT modes, module docstring): those of
 :data:`IMM_CV_CT_PARAMS` and three entry rates (the spec's ``ct_rates_deg_s``; the bounds span the random flights'
 turn rates, 0.9-20 deg/s)."""
@@ -517,8 +520,8 @@ def _look_predict(dt, is_ct, q, sig_w2, log_Pi, sig_w0_2, omega_max, accel_max, 
     predicted mode probabilities, ``log c_j``) into ``work``'s ``xp``, ``Pp``, ``log_c``. ``entry_w (M,)``: each CT
     mode's entry rate (rad/s; a bank of CT modes, :attr:`IMMCVCTSpec.ct_rates_deg_s`): a CV mode mixes into CT
     mode ``j`` with the turn rate ``entry_w[j]`` (variance ``sig_w0_2``) instead of 0; None: 0 for every CT mode.
-    ``xm`` is left as it was given (the CV modes' stored turn rate, always 0, is set to the entry rate while mixing,
-    then back to 0)."""
+    A CV mode's stored turn rate is not read: it mixes in at the target's entry rate (0 into a CV mode); it is set
+    to that rate while mixing and left at 0, as every update leaves it."""
     x0, P0, xp, Pp, log_c, a, w, ll, J, tmp, xc, Pc = work
     M = q.shape[0]
     # ---- mixing (log space): a[j, i] = log Pi_ij + log mu_i (stored transposed: a[j] is a contiguous row, so
