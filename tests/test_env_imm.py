@@ -338,7 +338,8 @@ def test_a_bank_of_ct_modes_in_the_env():
     from baselines.imm_cv_ct_runner import IMM_CT_BANK_PARAMS
     from radar_env.filters.imm_cv_ct import imm_cv_ct_spec_from_params
     names = [n for n, *_ in IMM_CT_BANK_PARAMS]
-    bank = {k: v for k, v in _tuned_entry("imm_ct_bank").items() if k in names}
+    from baselines.tuned_params import tuned_parameters
+    bank = {k: v for k, v in tuned_parameters()["imm_ct_bank"].items() if k in names}
     env = gym.make("RadarTrack-v0", action_type="continuous", imm_parameters=bank, **IMM)
     core = env.unwrapped._core
     assert core.spec.is_bank and env.action_space.shape == (7,)
@@ -363,12 +364,6 @@ def test_a_bank_of_ct_modes_in_the_env():
         np.testing.assert_allclose(info["estimate"], o.x[0], rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(info["covariance"], o.P[0], rtol=1e-9, atol=1e-9)
     assert np.ptp([i["estimate"][0] for _, _, i in steps]) > 0
-
-
-def _tuned_entry(key):
-    import json
-    from baselines.tuned_params import TUNED_PATH
-    return json.loads(TUNED_PATH.read_text())[key]
 
 
 def test_max_episode_steps_truncates_as_in_the_default_env():

@@ -11,11 +11,9 @@ torch = pytest.importorskip("torch")
 
 from baselines import imm_cv_ct_runner as I  # noqa: E402
 from radar_env.filters import imm_cv_ct as C  # noqa: E402
-from radar_env.filters import torch_chain as tc  # noqa: E402
-from radar_env.filters import torch_imm as ti  # noqa: E402
 from radar_env.common.units import DEG  # noqa: E402
-from test_torch_chain import SUITES, _episodes, _loaded  # noqa: E402
-from test_torch_imm import _compare, _consts, _drawn_params, _numba, _torch_params  # noqa: E402
+from test_torch_chain import _episodes  # noqa: E402
+from test_torch_imm import _consts, torch_and_numba  # noqa: E402
 
 BANK = I.IMMCVCTSpec(q_cv_g=1.8e-4, q_ct_g=0.26, sigma_omega_deg_s15=0.001, sigma_omega0_deg_s=2.0, p_stay_cv=0.991,
                      p_stay_ct=0.977, q_high_g=7.2, p_stay_high=0.984, ct_rates_deg_s=(17.3, 1.25, 8.56))
@@ -49,16 +47,7 @@ def test_bank_spec_refuses(rates, match):
 @pytest.mark.parametrize("per_look", [False, True], ids=["constant", "per_look"])
 @pytest.mark.parametrize("suite", BANK_SUITES)
 def test_bank_torch_equals_the_numba_kernel(suite, per_look):
-    sc, radar, n = SUITES[suite]
-    eps = _episodes(sc, n, seed=12, radar=radar)
-    tr, _ = _loaded(eps)
-    state, looks = tc.handover(tr)
-    B, K = len(eps), max(e.n_looks for e in eps)
-    params = _drawn_params(BANK, (B, K), seed=3) if per_look else None
-    out = ti.run(ti.start(state, _consts(BANK)), looks, _torch_params(BANK, looks, params), _consts(BANK),
-                 with_nis=True)
-    res = _numba(eps, BANK, params)
-    _compare(out, res, looks)
+    _, res, looks = torch_and_numba(BANK, suite, per_look, seed=12, param_seed=3)
     # the CT modes took different turn rates (the bank is not one mode six times)
     m = looks.scored_mask.numpy()
     w = looks.align(res.x_modes[..., 4]).numpy()[m]

@@ -75,15 +75,24 @@ def _compare(out, res, looks):
 @pytest.mark.parametrize("per_look", [False, True], ids=["constant", "per_look"])
 @pytest.mark.parametrize("suite", list(SUITES))
 def test_torch_imm_equals_the_numba_kernel(suite, per_look):
+    torch_and_numba(SPEC, suite, per_look, seed=11, param_seed=2)
+
+
+def torch_and_numba(spec, suite, per_look, seed, param_seed):
+    """The torch IMM and the numba kernel with ``spec`` on suite ``suite``'s drawn episodes (per-look parameters
+    drawn around the spec's with ``per_look``), compared by :func:`_compare`; returns ``(torch run, numba result,
+    looks)``."""
     sc, radar, n = SUITES[suite]
-    eps = _episodes(sc, n, seed=11, radar=radar)
+    eps = _episodes(sc, n, seed=seed, radar=radar)
     tr, _ = _loaded(eps)
     state, looks = tc.handover(tr)
     B, K = len(eps), max(e.n_looks for e in eps)
-    params = _drawn_params(SPEC, (B, K), seed=2) if per_look else None
-    out = ti.run(ti.start(state, _consts(SPEC)), looks, _torch_params(SPEC, looks, params), _consts(SPEC),
+    params = _drawn_params(spec, (B, K), seed=param_seed) if per_look else None
+    out = ti.run(ti.start(state, _consts(spec)), looks, _torch_params(spec, looks, params), _consts(spec),
                  with_nis=True)
-    _compare(out, _numba(eps, SPEC, params), looks)
+    res = _numba(eps, spec, params)
+    _compare(out, res, looks)
+    return out, res, looks
 
 
 def test_two_modes_and_an_active_turn_rate_clip():
