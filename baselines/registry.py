@@ -5,8 +5,8 @@ Names (the evaluation's ``--trackers``): ``imm2`` (tuned 2-mode IMM), ``imm2_biz
 ``alpha_beta_adaptive``, ``adrian1``, ``adrian2``, ``konle``, ``clairvoyant``, ``oracle_q``, ``imm2_grid`` (``imm2``
 as tuned by the earlier grid search), ``imm_cv_ct`` (the mixed-order CV / CT-EKF IMM, :mod:`baselines.imm_cv_ct_runner`),
 ``imm_ct_bank`` (the same IMM over a bank of six CT modes entered at three tuned turn rates, right and left),
-``kf_tuned_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot`` (the same three also updating on each plot's radial velocity,
-tuned on their own: :func:`radar_env.filters.kernels._rdot_update`),
+``kf_tuned_rdot``, ``imm2_rdot``, ``imm_cv_ct_rdot``, ``imm_ct_bank_rdot`` (the same four also updating on each
+plot's radial velocity, tuned on their own: :func:`radar_env.filters.kernels._rdot_update`),
 ``rbpf`` (the particle filter over the random flights' regimes, :mod:`baselines.rbpf`) and ``rbpf_ref`` (the same
 knowing the flight's start: the causal reference on ``random``), ``rbpf_rdot`` (``rbpf`` also updating on the radial
 velocity),
@@ -84,6 +84,8 @@ _RUNNERS = {
                                             radial_velocity=True),
     "imm_cv_ct_rdot": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec("imm_cv_ct_rdot"), "imm_cv_ct_rdot",
                                                      cfg, radial_velocity=True),
+    "imm_ct_bank_rdot": lambda eps, cfg: run_imm_cv_ct(eps, tuned_imm_cv_ct_spec("imm_ct_bank_rdot"),
+                                                       "imm_ct_bank_rdot", cfg, radial_velocity=True),
     "rbpf": lambda eps, cfg: run_rbpf(eps, name="rbpf", cfg=cfg),
     "rbpf_ref": lambda eps, cfg: run_rbpf(eps, RBPF_REF, name="rbpf_ref", cfg=cfg),
     "rbpf_rdot": lambda eps, cfg: run_rbpf(eps, RBPF_RDOT, name="rbpf_rdot", cfg=cfg),
@@ -147,7 +149,7 @@ def tracker_names():
     """Every tracker name :func:`run_tracker` and ``--trackers`` accept: the built-ins, then user trackers."""
     return POLICY_TRACKERS + tuple(_RUNNERS)
 
-RANGE_RATE_TRACKERS = ("kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "rbpf_rdot")
+RANGE_RATE_TRACKERS = ("kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank_rdot", "rbpf_rdot")
 """The classical trackers that also update on each plot's radial velocity (a learned tracker does when its env
 config has ``radial_velocity``)."""
 

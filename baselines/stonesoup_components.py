@@ -29,7 +29,8 @@ Conventions (Stone Soup's on the outside, ours inside):
   range rate ``(p - site) . v / |p - site|`` is ours (positive receding, the same sign). The plot converts as
   above, then every mode updates on the range rate after its position and that likelihood joins the mode's: the
   range-rate IMM, ``imm_cv_ct_rdot`` (``IMMCVCTPredictor(spec=tuned_imm_cv_ct_spec("imm_cv_ct_rdot"))``; equal to
-  ``run_imm_cv_ct(..., radial_velocity=True)``, tested).
+  ``run_imm_cv_ct(..., radial_velocity=True)``, tested), and so the bank of CT modes with range rate,
+  ``imm_ct_bank_rdot`` (its spec likewise; tested).
 * Gating. :meth:`IMMCVCTUpdater.predict_measurement` is Stone Soup's extended-Kalman one on the combined Gaussian
   (the IMM's moment-matched prediction): a hypothesiser gates in the detection's own (polar) space with the
   linearised innovation covariance. The update itself uses the converted plot, as our chain does; the two

@@ -1,6 +1,6 @@
 """Tune the classical baselines on the training scenario distribution (never on evaluation seeds).
 
-``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot,imm_ct_bank]`` draws ``N``
+``python -m baselines.tuning [--runs N] [--trackers kf,imm2,imm_cv_ct,kf_rdot,...]`` (:data:`TUNABLE`) draws ``N``
 random-scenario episodes with tuning seeds (:data:`baselines.seeds.TUNING_SEEDS`, disjoint from the evaluation's
 held-out seeds) and, for each tuned tracker, minimises the pooled position RMSE after the track start over its
 parameters with a continuous optimizer (:func:`minimize_with_restarts`):
@@ -20,8 +20,10 @@ module or its tuning interface is not there), and ``kf_rdot``, ``imm2_rdot``, ``
 updating on each plot's radial velocity, tuned on their own over the same parameters (first start: their
 position-only sibling's values), and ``imm_ct_bank`` (``imm_cv_ct`` over a bank of six CT modes: its eight
 parameters and three entry rates; first start: ``imm_cv_ct``'s values, the rates at
-``DEFAULT_CT_BANK_RATES_DEG_S``). The 2-mode IMM as tuned by the grid search of earlier versions is
-kept as ``imm2_grid`` (:data:`IMM2_GRID_PARAMS`, its RMSE re-measured on each run), so a change is visible.
+``DEFAULT_CT_BANK_RATES_DEG_S``), and ``imm_ct_bank_rdot`` (the bank with range rate; first start: the bank's
+rates and ``imm_cv_ct_rdot``'s other values, :data:`FIRST_START_FROM`). The 2-mode IMM as tuned by the grid search
+of earlier versions is kept as ``imm2_grid`` (:data:`IMM2_GRID_PARAMS`, its RMSE re-measured on each run), so a
+change is visible.
 
 Writes ``baselines/tuned.json``: per tracker the optimum, its tuning RMSE, the bounds and transforms, whether each
 parameter is interior, every start's result, the evaluation count; and the seeds, runs and command. Trackers not
@@ -279,8 +281,16 @@ stay low 0.9-0.995, stay high 0.7-0.98) on the same 200 tuning episodes, on the 
 Registered as ``imm2_grid``."""
 
 
-FIRST_START_FROM = {"imm_ct_bank": "imm_cv_ct"}
-"""A tracker with no previous tuned values starts from this one's (the parameters they share)."""
+FIRST_START_FROM = {"imm_ct_bank": ("imm_cv_ct",), "imm_ct_bank_rdot": ("imm_ct_bank", "imm_cv_ct_rdot")}
+"""A tracker with no previous tuned values starts from these trackers' (the parameters they share; a later one's
+value wins): the bank with range rate takes the bank's rates and imm_cv_ct_rdot's noises and switching, which
+meet its ANEES constraint."""
+
+
+def _first_start(old, name):
+    """The merged previous values of :data:`FIRST_START_FROM`'s trackers for ``name`` (None: none of them)."""
+    found = [old[k] for k in FIRST_START_FROM.get(name, ()) if k in old]
+    return {k: v for entry in found for k, v in entry.items()} if found else None
 
 
 def _imm_cv_ct_entry(radial_velocity=False, bank=False):
@@ -325,9 +335,10 @@ def _imm_cv_ct_entry(radial_velocity=False, bank=False):
 
 def tuned_tracker(name):
     """The :class:`TunedTracker` ``name`` (:data:`TUNABLE`); ``(None, reason)`` semantics of
-    :func:`_imm_cv_ct_entry` for ``imm_cv_ct`` and ``imm_cv_ct_rdot``, ``ValueError`` for an unknown name."""
-    if name in ("imm_cv_ct", "imm_cv_ct_rdot", "imm_ct_bank"):
-        return _imm_cv_ct_entry(name.endswith("_rdot"), bank=name == "imm_ct_bank")
+    :func:`_imm_cv_ct_entry` for ``imm_cv_ct``, ``imm_ct_bank`` and their ``_rdot`` variants, ``ValueError`` for an
+    unknown name."""
+    if name in ("imm_cv_ct", "imm_cv_ct_rdot", "imm_ct_bank", "imm_ct_bank_rdot"):
+        return _imm_cv_ct_entry(name.endswith("_rdot"), bank=name.startswith("imm_ct_bank"))
     if name not in TUNED_TRACKERS:
         raise ValueError(f"unknown tuned tracker {name!r}; valid: {list(TUNABLE)}")
     return TUNED_TRACKERS[name], None
@@ -394,9 +405,9 @@ def main(argv=None, prog="radar-track tune"):
             if n % 25 == 0:
                 print(f"  {name}: {n} evaluations, last {v:.2f} m ({time.time() - t0:.0f} s)", flush=True)
 
-        # a range-rate variant's first start: its own previous values, else its position-only sibling's; the bank
-        # of CT modes starts from imm_cv_ct's (the rates from their defaults)
-        x0 = old.get(name) or old.get(name.removesuffix("_rdot")) or old.get(FIRST_START_FROM.get(name))
+        # the first start: its own previous values, else FIRST_START_FROM's (the bank of CT modes: imm_cv_ct's, the
+        # rates from their defaults), else a range-rate variant's position-only sibling's
+        x0 = old.get(name) or _first_start(old, name) or old.get(name.removesuffix("_rdot"))
         res = tune(entry, episodes, batch, cfg, x0=x0, starts=args.starts, progress=progress)
         out[name] = res
         flags = ", ".join(f"{k} {v['value']:.4g}" + ("" if v["interior"] else f" (at {v['at']} bound)")

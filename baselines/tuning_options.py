@@ -7,7 +7,7 @@ import argparse
 
 __all__ = ["build_parser", "first_line", "TUNABLE"]
 
-TUNABLE = ("kf", "imm2", "imm_cv_ct", "kf_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank")
+TUNABLE = ("kf", "imm2", "imm_cv_ct", "kf_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank", "imm_ct_bank_rdot")
 """The tuned trackers' keys in ``tuned.json`` (:func:`baselines.tuning.tuned_tracker`)."""
 
 

@@ -103,7 +103,7 @@ def _first_line_s(args):
      "1 tracker(s) on 1 suite(s) (bizup2002)"),
     (["train", "--algo", "ppo", "--timesteps", "8", "--out", "/nonexistent-dir/never"], "ppo on RadarTrack-v0"),
     (["tune", "--runs", "1", "--out", "/nonexistent-dir/never.json"],
-     "tuning kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot,imm_ct_bank on 1"),
+     "tuning kf,imm2,imm_cv_ct,kf_rdot,imm2_rdot,imm_cv_ct_rdot,imm_ct_bank,imm_ct_bank_rdot on 1"),
 ])
 def test_first_line_comes_before_the_slow_imports(args, words):
     base = _best_of([sys.executable, "-c", "pass"], n=2)

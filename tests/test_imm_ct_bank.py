@@ -1,8 +1,8 @@
 """The IMM over a bank of CT modes (``IMMCVCTSpec.ct_rates_deg_s``; the registered ``imm_ct_bank``): the numba kernel
 against the torch IMM (an independent implementation of the mixing: per-target turn rates of the CV sources as
 tensors) to 1e-9 on every kind of look stream, with constant and per-look parameters; the mixing against its closed
-form; the default spec unchanged; the spec's checks; the refusals (a rate out of range in the env; the learned IMM's
-range-rate variant)."""
+form; the default spec unchanged; the spec's checks; the refusals (a rate out of range in the env, the learned IMM's
+option on a q-policy); the learned IMM around the bank with range rate built on imm_ct_bank_rdot."""
 
 import numpy as np
 import pytest
@@ -81,13 +81,27 @@ def test_default_spec_has_no_entry_rates_in_torch():
     assert c.entry_w == () and c.entry_ct == (0.0,)
 
 
-def test_tuned_bank_is_registered():
-    from baselines.registry import TRACKER_NAMES, run_tracker
-    spec = I.tuned_imm_cv_ct_spec("imm_ct_bank")
-    assert "imm_ct_bank" in TRACKER_NAMES and spec.is_bank and len(spec.ct_rates_deg_s) == 3
+@pytest.mark.parametrize("name", ["imm_ct_bank", "imm_ct_bank_rdot"])
+def test_tuned_bank_is_registered(name):
+    from baselines.registry import RANGE_RATE_TRACKERS, TRACKER_NAMES, run_tracker
+    spec = I.tuned_imm_cv_ct_spec(name)
+    assert name in TRACKER_NAMES and spec.is_bank and len(spec.ct_rates_deg_s) == 3
+    assert (name in RANGE_RATE_TRACKERS) == name.endswith("_rdot")
     eps = _episodes("random", 3, seed=5)
-    r = run_tracker("imm_ct_bank", eps)
-    assert r.name == "imm_ct_bank" and np.isfinite(r.x[:, r.start_index.max():][:, :50]).all()
+    r = run_tracker(name, eps)
+    assert r.name == name and np.isfinite(r.x[:, r.start_index.max():][:, :50]).all()
+    if name.endswith("_rdot"):      # it updates on the radial velocity: not the position-only run of its spec
+        plain = I.run_imm_cv_ct(eps, spec, name, None)
+        assert np.nanmax(np.abs(plain.x - r.x)) > 1.0
+
+
+def test_first_start_of_the_bank_with_range_rate():
+    """The tuner's first start of imm_ct_bank_rdot: imm_ct_bank's rates, imm_cv_ct_rdot's other values (the later
+    tracker of FIRST_START_FROM wins); its own previous values when it has them."""
+    from baselines.tuning import _first_start
+    old = {"imm_ct_bank": {"q_cv_g": 1.0, "ct_rate_1_deg_s": 3.0}, "imm_cv_ct_rdot": {"q_cv_g": 2.0, "p_stay_cv": 0.9}}
+    assert _first_start(old, "imm_ct_bank_rdot") == {"q_cv_g": 2.0, "ct_rate_1_deg_s": 3.0, "p_stay_cv": 0.9}
+    assert _first_start(old, "imm_ct_bank") is None and _first_start(old, "kf") is None
 
 
 def test_refusals_of_a_bank():
@@ -104,5 +118,5 @@ def test_refusals_of_a_bank():
     hp, _, cfg = bp.check_hp(dict(load_hyperparams("backprop_imm_cv_ct"), imm="imm_ct_bank", chain="torch",
                                   env_kwargs={**load_hyperparams("backprop_imm_cv_ct")["env_kwargs"],
                                               "radial_velocity": True}))
-    with pytest.raises(ValueError, match="no range-rate variant"):
-        bp.make_model(hp, cfg)
+    model = bp.make_model(hp, cfg)         # with range rate: around imm_ct_bank_rdot's tuned spec
+    assert model.spec == I.tuned_imm_cv_ct_spec("imm_ct_bank_rdot")

@@ -112,24 +112,27 @@ def test_stonesoup_chain_equals_run_imm_cv_ct_on_every_look(which, radial_veloci
     assert max(np.abs(x - run.x[0, k]).max() for k, x, *_ in other) > 1.0
 
 
-def test_stonesoup_chain_runs_the_bank_of_ct_modes():
-    """The same components with imm_ct_bank's spec (six CT modes entered at their rates) give run_imm_cv_ct with it
-    on every look (the kernel's two halves take the spec's entry rates)."""
+@pytest.mark.parametrize("radial_velocity", [False, True], ids=["imm_ct_bank", "imm_ct_bank_rdot"])
+def test_stonesoup_chain_runs_the_bank_of_ct_modes(radial_velocity):
+    """The same components with imm_ct_bank's spec (six CT modes entered at their rates; with range rate
+    imm_ct_bank_rdot's on range-rate detections) give run_imm_cv_ct with it on every look (the kernel's two halves
+    take the spec's entry rates)."""
     eps = _episodes("two_sites_with_misses")
-    spec = tuned_imm_cv_ct_spec("imm_ct_bank")
+    spec = tuned_imm_cv_ct_spec("imm_ct_bank_rdot" if radial_velocity else "imm_ct_bank")
     assert spec.is_bank
-    start = common_start(eps)
-    run = run_imm_cv_ct(eps, spec, start=start)
+    start = common_start(eps, _with_range_rate(None, radial_velocity))
+    run = run_imm_cv_ct(eps, spec, start=start, radial_velocity=radial_velocity)
     _, k0, x4, P4 = start
     n_checked = 0
     for b, e in enumerate(eps):
-        for k, x, P, p_man, state in _run_stonesoup(e, spec, x4[b], P4[b], k0[b]):
+        for k, x, P, p_man, state in _run_stonesoup(e, spec, x4[b], P4[b], k0[b], radial_velocity=radial_velocity):
             np.testing.assert_allclose(x, run.x[b, k], rtol=0, atol=REL * np.abs(run.x[b, k]).max())
             np.testing.assert_allclose(P, run.P[b, k], rtol=0, atol=REL * np.abs(run.P[b, k]).max())
             np.testing.assert_allclose(p_man, run.extra["maneuver_probability"][b, k], rtol=REL, atol=1e-12)
             n_checked += 1
     assert n_checked == sum(e.n_looks - k - 1 for e, k in zip(eps, k0))
-    other = run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), start=start)      # the test can fail: one CT mode differs
+    other = run_imm_cv_ct(eps, tuned_imm_cv_ct_spec(), start=start,      # the test can fail: one CT mode differs
+                          radial_velocity=radial_velocity)
     assert np.nanmax(np.abs(other.x - run.x)) > 1.0
 
 

@@ -223,24 +223,27 @@ def test_ct_jacobian_column_equals_the_numba_one_and_is_smooth(theta):
                                     (w,), eps=1e-7, atol=1e-7, rtol=1e-5)
 
 
-@pytest.mark.parametrize("suite", ["random_radars", "three_sites_irregular", "missed_looks"])
-def test_torch_imm_with_range_rate_equals_the_numba_kernel(suite):
+@pytest.mark.parametrize("suite,key", [("random_radars", None), ("three_sites_irregular", None),
+                                       ("missed_looks", None), ("three_sites_irregular", "imm_ct_bank_rdot")])
+def test_torch_imm_with_range_rate_equals_the_numba_kernel(suite, key):
     """Every mode updates on the radial velocity after the position, its likelihood joining the mode's: the torch
-    IMM on the looks of a Tracker(radial_velocity=True) equals imm_cv_ct_filter with the same inputs to 1e-9."""
+    IMM on the looks of a Tracker(radial_velocity=True) equals imm_cv_ct_filter with the same inputs to 1e-9 (with
+    ``key``: the tuned spec of that tracker, the bank of CT modes of ``imm_ct_bank_rdot``)."""
     from radar_env.filters.tracking import TrackStart
+    spec = I.tuned_imm_cv_ct_spec(key) if key else SPEC
     sc, radar, n = SUITES[suite]
     eps = _episodes(sc, n, seed=13, radar=radar)
     tr = TrackStart(radial_velocity=True).tracker(len(eps))
     tr.load(np.arange(len(eps)), eps)
     state, looks = tc.handover(tr)
-    out = ti.run(ti.start(state, _consts(SPEC)), looks, _torch_params(SPEC, looks), _consts(SPEC), with_nis=True)
+    out = ti.run(ti.start(state, _consts(spec)), looks, _torch_params(spec, looks), _consts(spec), with_nis=True)
     batch, k0 = I.stack_episodes(eps), tr.k - 1
     B = len(eps)
     x5, P5 = np.c_[tr.x, np.zeros(B)], np.zeros((B, 5, 5))
-    P5[:, :4, :4], P5[:, 4, 4] = tr.P, (SPEC.sigma_omega0_deg_s * DEG) ** 2
-    res = I.imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, SPEC,
+    P5[:, :4, :4], P5[:, 4, 4] = tr.P, (spec.sigma_omega0_deg_s * DEG) ** 2
+    res = I.imm_cv_ct_filter(batch.t_s, batch.z_m, batch.R_m2, batch.detected, batch.n_looks, k0 + 1, x5, P5, spec,
                              keep_modes=True, **I._batch_range_rate(batch))
     _compare(out, res, looks)
-    plain = ti.run(ti.start(state, _consts(SPEC)), looks._replace(rdot=None), _torch_params(SPEC, looks),
-                   _consts(SPEC))
+    plain = ti.run(ti.start(state, _consts(spec)), looks._replace(rdot=None), _torch_params(spec, looks),
+                   _consts(spec))
     assert float((plain.x - out.x).abs().max()) > 1.0       # the range rate changed the estimates

@@ -26,7 +26,8 @@ __all__ = ["main", "markdown_tables"]
 
 REPORT_TRACKERS = ("imm2", "imm2_grid", "imm_cv_ct", "imm_ct_bank", "rbpf", "imm2_bizup", "imm3_ct", "kf_tuned", "kf_low", "kf_high", "kf_blair", "cmin", "ckf",
                    "reinit", "kim_lee", "alpha_beta", "alpha_beta_adaptive", "adrian1", "adrian2", "konle",
-                   "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "oracle_q", "clairvoyant")
+                   "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank_rdot", "oracle_q",
+                   "clairvoyant")
 FIGURE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm_cv_ct", "rbpf", "imm2_bizup", "kf_tuned", "cmin", "clairvoyant")
 """The trackers of the figures: the main job's (the strongest classical tracker, imm_cv_ct, included)."""
 PER_FLIGHT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_bizup", "kf_tuned", "clairvoyant", "kf_low")

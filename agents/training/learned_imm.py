@@ -221,13 +221,10 @@ class LearnedIMMModel(ChainModel):
     @classmethod
     def build(cls, hp, cfg):
         """Around the registered imm_cv_ct's tuned spec (hyperparameter ``imm`` ``imm_ct_bank``: the bank of CT
-        modes'), the observation's chain at kf_tuned's q (with ``radial_velocity``: imm_cv_ct_rdot's and
-        kf_tuned_rdot's, the trackers with the same measurements; no bank)."""
+        modes'), the observation's chain at kf_tuned's q (with ``radial_velocity``: imm_cv_ct_rdot's or
+        imm_ct_bank_rdot's and kf_tuned_rdot's, the trackers with the same measurements)."""
         from baselines.tuned_params import tuned_parameters
         rd = "_rdot" if cfg.radial_velocity else ""
         imm = hp.get("imm", "imm_cv_ct")
-        if rd and imm != "imm_cv_ct":
-            raise ValueError(f"--hp imm: {imm!r} has no range-rate variant; with radial_velocity the learned IMM is "
-                             "built around imm_cv_ct_rdot")
         return cls(len(cfg.features), hp["hidden_size"], hp["head"], tuned_imm_cv_ct_spec(imm + rd),
                    tuned_parameters()["kf" + rd]["q_g"] * G0_M_S2, chain=hp.get("chain", "compiled"))
