@@ -1,6 +1,7 @@
 """The learned IMM (agents/policies/learned_imm.py, agents/training/learned_imm.py): at its initial weights it is
 imm_cv_ct with its tuned values (numpy inference and torch forward, to 1e-9, on drawn episodes of several
-scenario kinds), and built around the bank of CT modes (``--hp imm=imm_ct_bank``) it is imm_ct_bank; with other weights the numpy GRU + numba per-look kernel equals the torch forward in lockstep to
+scenario kinds), and built around the bank of CT modes (``--hp imm=imm_ct_bank``) it is imm_ct_bank, with range rate
+imm_ct_bank_rdot; with other weights the numpy GRU + numba per-look kernel equals the torch forward in lockstep to
 1e-9 (estimate, covariance, mode probabilities, the parameters); every output inside its documented range; the
 checkpoint round trip without pickle; a tiny training run end to end."""
 
@@ -32,11 +33,15 @@ def setup():
     return bp.check_hp(hp)
 
 
-@pytest.fixture(scope="module", params=["imm_cv_ct", "imm_ct_bank"])
+@pytest.fixture(scope="module", params=["imm_cv_ct", "imm_ct_bank", "imm_ct_bank_rdot"])
 def around(request):
-    """The setup of a learned IMM around ``imm_cv_ct`` and around the bank of CT modes (``--hp imm=imm_ct_bank``),
-    and the name of that classical tracker."""
-    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain="torch", imm=request.param)
+    """The setup of a learned IMM around ``imm_cv_ct``, around the bank of CT modes (``--hp imm=imm_ct_bank``) and
+    around the bank with range rate (the same with ``radial_velocity``: ``imm_ct_bank_rdot``), and the name of that
+    classical tracker."""
+    hp = dict(load_hyperparams("backprop_imm_cv_ct"), hidden_size=16, chain="torch",
+              imm=request.param.removesuffix("_rdot"))
+    if request.param.endswith("_rdot"):
+        hp["env_kwargs"] = {**hp["env_kwargs"], "radial_velocity": True}
     return bp.check_hp(hp), request.param
 
 
@@ -74,7 +79,7 @@ def _torch_run(model, eps, cfg):
 def test_initial_weights_are_imm_cv_ct(around, episodes):
     (hp, env_kwargs, cfg), name = around
     model = bp.make_model(hp, cfg)
-    assert model.spec.is_bank == (name == "imm_ct_bank")
+    assert model.spec.is_bank == name.startswith("imm_ct_bank") and cfg.radial_velocity == name.endswith("_rdot")
     ref = run_tracker(name, episodes)
     got = model.inference(cfg, env_kwargs).run(episodes)
     assert _rel(got.x, ref.x) < TOL and _rel_P(got.P, ref.P) < TOL
