@@ -53,7 +53,8 @@ def default_ct_bank_spec() -> IMMCVCTSpec:
 
 def tuned_imm_cv_ct_spec(key="imm_cv_ct") -> IMMCVCTSpec:
     """The spec of the registered ``imm_cv_ct`` (``key`` ``"imm_cv_ct_rdot"``: of ``imm_cv_ct_rdot``;
-    ``"imm_ct_bank"``: of the bank of CT modes): ``baselines/tuned.json``'s entry ``key`` (its parameter names;
+    ``"imm_ct_bank"``, ``"imm_ct_bank_rdot"``: of the bank of CT modes, without and with range rate):
+    ``baselines/tuned.json``'s entry ``key`` (its parameter names;
     other keys such as the tuning RMSE are ignored) if present, else :data:`DEFAULT_IMM_CV_CT` (the bank:
     :func:`default_ct_bank_spec`)."""
     from .tuned_params import TUNED_PATH, tuned_parameters

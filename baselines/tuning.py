@@ -293,6 +293,13 @@ def _first_start(old, name):
     return {k: v for entry in found for k, v in entry.items()} if found else None
 
 
+def first_start_values(old, name):
+    """The first start of tuned tracker ``name`` from the previous tuned file's entries ``old``: its own previous
+    values, else :data:`FIRST_START_FROM`'s (the bank of CT modes: imm_cv_ct's, the rates from their defaults), else
+    a range-rate variant's position-only sibling's; None: the tracker's default start."""
+    return old.get(name) or _first_start(old, name) or old.get(name.removesuffix("_rdot"))
+
+
 def _imm_cv_ct_entry(radial_velocity=False, bank=False):
     """The ``imm_cv_ct`` entry, built from ``baselines.imm_cv_ct_runner`` (engineer I's module) if it offers:
     ``imm_cv_ct_spec_from_params(dict)``, ``run_imm_cv_ct(episodes, spec, name, cfg[, start])``, the parameter
@@ -405,9 +412,7 @@ def main(argv=None, prog="radar-track tune"):
             if n % 25 == 0:
                 print(f"  {name}: {n} evaluations, last {v:.2f} m ({time.time() - t0:.0f} s)", flush=True)
 
-        # the first start: its own previous values, else FIRST_START_FROM's (the bank of CT modes: imm_cv_ct's, the
-        # rates from their defaults), else a range-rate variant's position-only sibling's
-        x0 = old.get(name) or _first_start(old, name) or old.get(name.removesuffix("_rdot"))
+        x0 = first_start_values(old, name)
         res = tune(entry, episodes, batch, cfg, x0=x0, starts=args.starts, progress=progress)
         out[name] = res
         flags = ", ".join(f"{k} {v['value']:.4g}" + ("" if v["interior"] else f" (at {v['at']} bound)")

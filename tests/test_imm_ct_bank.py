@@ -90,18 +90,29 @@ def test_tuned_bank_is_registered(name):
     eps = _episodes("random", 3, seed=5)
     r = run_tracker(name, eps)
     assert r.name == name and np.isfinite(r.x[:, r.start_index.max():][:, :50]).all()
-    if name.endswith("_rdot"):      # it updates on the radial velocity: not the position-only run of its spec
+    rdot = name.endswith("_rdot")      # the registry runs its own tuned spec, with range rate for the _rdot one
+    ref = I.run_imm_cv_ct(eps, spec, name, None, radial_velocity=rdot)
+    np.testing.assert_array_equal(r.x, ref.x)
+    if rdot:                          # the range rate moved the estimates: not the position-only run of its spec
         plain = I.run_imm_cv_ct(eps, spec, name, None)
         assert np.nanmax(np.abs(plain.x - r.x)) > 1.0
+        other = I.run_imm_cv_ct(eps, I.tuned_imm_cv_ct_spec("imm_cv_ct_rdot"), name, None, radial_velocity=True)
+        assert np.nanmax(np.abs(other.x - r.x)) > 1.0      # nor imm_cv_ct_rdot's
 
 
 def test_first_start_of_the_bank_with_range_rate():
-    """The tuner's first start of imm_ct_bank_rdot: imm_ct_bank's rates, imm_cv_ct_rdot's other values (the later
-    tracker of FIRST_START_FROM wins); its own previous values when it has them."""
-    from baselines.tuning import _first_start
-    old = {"imm_ct_bank": {"q_cv_g": 1.0, "ct_rate_1_deg_s": 3.0}, "imm_cv_ct_rdot": {"q_cv_g": 2.0, "p_stay_cv": 0.9}}
-    assert _first_start(old, "imm_ct_bank_rdot") == {"q_cv_g": 2.0, "ct_rate_1_deg_s": 3.0, "p_stay_cv": 0.9}
-    assert _first_start(old, "imm_ct_bank") is None and _first_start(old, "kf") is None
+    """The tuner's first start (first_start_values): imm_ct_bank_rdot's is imm_ct_bank's rates with imm_cv_ct_rdot's
+    other values (the later tracker of FIRST_START_FROM wins), its own previous values when it has them; the bank's
+    is imm_cv_ct's; another range-rate tracker's its own, else its position-only sibling's."""
+    from baselines.tuning import first_start_values
+    old = {"imm_cv_ct": {"q_cv_g": 4.0}, "imm_ct_bank": {"q_cv_g": 1.0, "ct_rate_1_deg_s": 3.0},
+           "imm_cv_ct_rdot": {"q_cv_g": 2.0, "p_stay_cv": 0.9}, "imm2": {"q_low_g": 0.01}}
+    assert first_start_values(old, "imm_ct_bank_rdot") == {"q_cv_g": 2.0, "ct_rate_1_deg_s": 3.0, "p_stay_cv": 0.9}
+    assert first_start_values({**old, "imm_ct_bank_rdot": {"q_cv_g": 5.0}}, "imm_ct_bank_rdot") == {"q_cv_g": 5.0}
+    assert first_start_values({"imm_cv_ct": {"q_cv_g": 4.0}}, "imm_ct_bank") == {"q_cv_g": 4.0}
+    assert first_start_values(old, "imm_ct_bank") == old["imm_ct_bank"]
+    assert first_start_values(old, "imm_cv_ct_rdot") == old["imm_cv_ct_rdot"]
+    assert first_start_values(old, "imm2_rdot") == old["imm2"] and first_start_values(old, "kf") is None
 
 
 def test_refusals_of_a_bank():
