@@ -94,8 +94,8 @@ LEARNED_WHAT = {"policy_bp": "trained by backpropagation", "policy_imm_bp": "the
 ROOT = Path(__file__).resolve().parents[2]
 
 HEADLINE_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "imm2", "imm2_grid", "imm_cv_ct", "imm_ct_bank", "rbpf",
-                     "kf_tuned", "cmin", "policy_bp_rdot", "policy_imm_bp_rdot", "imm_cv_ct_rdot", "hindsight_q", "hindsight_q_turn",
-                     "clairvoyant")
+                     "kf_tuned", "cmin", "policy_bp_rdot", "policy_imm_bp_rdot", "imm_cv_ct_rdot", "imm_ct_bank_rdot", "hindsight_q",
+                     "hindsight_q_turn", "clairvoyant")
 
 
 BOUNDS_SUITES = ("random", "bizup2002", "kim_lee_accel")
