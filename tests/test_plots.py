@@ -463,3 +463,11 @@ def test_the_not_drawn_note_stays_on_one_line_and_counts_what_it_leaves_out():
     assert text == "(not drawn: policy_bp_rdot, policy_imm_bp_rdot and 4 more)" and len(text) <= 70
     assert plots._not_drawn(names, 200) == f"(not drawn: {', '.join(names)})"
     assert plots._not_drawn(names, 10) == "(not drawn: 6 trackers)"
+
+
+def test_the_main_jobs_trackers_each_have_their_own_colour():
+    """Every tracker the main job draws has a colour no other one has (the legend names each line once)."""
+    from agents.evaluation.options import DEFAULT_TRACKERS
+    from agents.evaluation.plots import _colors
+    colors = _colors(list(DEFAULT_TRACKERS))
+    assert len(set(colors.values())) == len(DEFAULT_TRACKERS)

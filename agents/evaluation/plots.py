@@ -59,7 +59,10 @@ whose curves in metres overlap the reference's); the others are apart in the lef
 _COLORS = {"policy": "tab:blue", "imm2": "tab:orange", "imm_cv_ct": "tab:green", "imm2_bizup": "tab:olive",
            "kf_tuned": "tab:red", "cmin": "tab:purple", "clairvoyant": "0.25", "kf_low": "tab:brown",
            "kf_high": "tab:pink", "oracle_q": "tab:cyan"}
-_MORE_COLORS = ("tab:brown", "tab:pink", "tab:cyan", "tab:gray", "gold", "navy", "teal", "maroon")
+_MORE_COLORS = ("tab:brown", "tab:pink", "tab:cyan", "tab:gray", "gold", "navy", "teal", "maroon", "darkviolet",
+                "crimson", "steelblue", "yellowgreen", "sienna", "slategray")
+"""The colours of the other trackers, in order of appearance: the main job draws 18 trackers, 11 of them without a
+colour of their own, so each gets its own colour (8 repeated colours before 2026-12-06)."""
 _BOUND_STYLE = {"clairvoyant": "--", "oracle_q": "--", "hindsight_q": "--", "hindsight_q_turn": "--"}
 _TRUTH = {"color": "0.6", "lw": 4.0}      # drawn under the tracks, which stay visible
 _TRUTH_ZOOM = {"color": "0.78", "lw": 7.0}   # a halo the tracks lie in
