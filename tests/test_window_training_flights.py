@@ -1,4 +1,5 @@
-"""The window trainer's training flights: first_leg_min_s and the hyperparameter checks around it."""
+"""The window trainer's training flights: first_leg_min_s, the broad generators and the hyperparameter checks around
+them."""
 
 import pytest
 
@@ -44,3 +45,36 @@ def test_bad_values_are_refused_in_one_line(key, value, match):
     with pytest.raises(ValueError, match=match) as e:
         window.check_hp(hp)
     assert "\n" not in str(e.value)
+
+
+def test_broad_generators_draw_the_backprop_recipes_flights_at_offset_seeds(monkeypatch):
+    """random_broad / random_radars_broad: the random generators with backprop.toml's broad laws (its
+    random_radar_probability aside), seeds BROAD_SEED_OFFSET above the suite's own; the own suites unchanged."""
+    import agents.evaluation.suites as suites
+    seen = []
+
+    def fake(name, runs, seed, random_config=None):
+        seen.append((name, runs, seed, random_config))
+        raise StopIteration
+
+    monkeypatch.setattr(suites, "draw_suite", fake)
+    rc = dict(load_hyperparams("backprop")["env_kwargs"]["random_config"])
+    assert rc.pop("random_radar_probability") == 0.7
+    laws = RandomScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in rc.items()})
+    assert window.broad_config() == laws and laws.speed_change_accel_g == (0.1, 5.0)
+    for name, gen in window.BROAD_SCENARIOS.items():
+        seen.clear()
+        hp = window.check_hp({**load_hyperparams("window"), "scenarios": [name], "episodes": 7})[0]
+        with pytest.raises(StopIteration):
+            window.draw_training_looks(None, hp, 123)
+        assert seen == [(gen, 7, 123 + window.BROAD_SEED_OFFSET, laws)]
+
+
+def test_broad_generators_are_checked_and_keep_their_seeds_in_the_training_range():
+    hp = {**load_hyperparams("window"), "scenarios": ["random", "random_broad", "random_radars_broad"]}
+    assert window.check_hp(hp)[0]["scenarios"] == hp["scenarios"]
+    with pytest.raises(ValueError, match="scenarios: a list of distinct training generators from"):
+        window.check_hp({**hp, "scenarios": ["random", "broad"]})
+    # seed 600,000: the broad flights would reach 600,000 + 300,000 + the draws: past the selection suites' seeds
+    with pytest.raises(ValueError, match=r"--seed: the training flights' seeds 600000\.\.9\d{5} must lie in"):
+        window.train_window(hp, seed=600_000, out="/nonexistent")

@@ -14,6 +14,9 @@ the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_
 training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000;
 their generator's ``first_leg_min_s`` is the hyperparameter's (:func:`training_config`; 0: a flight can turn during
 its track start, so the network learns little of where flights begin: only that a first leg lasts 30 s or more).
+A suite may also be a broad version of a random generator (:data:`BROAD_SCENARIOS`, ``random_broad`` and
+``random_radars_broad``: the backprop recipe's broad flights, :func:`broad_config`), its flights at seeds
+``S + BROAD_SEED_OFFSET ..``.
 With ``fresh_flights_every`` = ``e`` > 0 the flights are drawn afresh every ``e`` epochs: draw ``d`` (epochs
 ``d e + 1 ..``) takes seeds ``S + d episodes ..`` (:func:`flight_draws`), every draw inside the training range; the
 input standardisation is the first draw's, the suite weights each draw's own, and the covariance head is fitted on
@@ -75,6 +78,25 @@ def _num_in(hp, key, lo, hi):
         raise ValueError(f"--hp {key}: must be a number in ({lo}, {hi}], got {v!r}")
 
 
+BROAD_SCENARIOS = {"random_broad": "random", "random_radars_broad": "random_radars"}
+"""Training generators with the broad flights' laws (:func:`broad_config`): name -> the random generator drawn with
+them. Their flights take seeds ``BROAD_SEED_OFFSET`` above the suite's own (:func:`draw_training_looks`)."""
+BROAD_SEED_OFFSET = 300_000
+WINDOW_SCENARIOS = TRAIN_SCENARIOS + tuple(BROAD_SCENARIOS)
+"""The generators ``scenarios`` may name: the random suites' own and their broad versions."""
+
+
+def broad_config():
+    """The broad flights' :class:`~radar_env.sim.scenario.RandomScenarioConfig`: the backprop recipe's training
+    flights (``agents/training/hyperparams/backprop.toml``'s ``random_config``, the PPO bundle's too: speed changes
+    to 5 g, turns to 9 g and 540 deg at up to 30 deg/s, speeds 80-1,200 kt, any first leg), without its
+    ``random_radar_probability`` (a window suite is drawn as ``random`` or ``random_radars``)."""
+    from radar_env.sim.scenario import RandomScenarioConfig
+    rc = dict(load_hyperparams("backprop")["env_kwargs"]["random_config"])
+    rc.pop("random_radar_probability", None)
+    return RandomScenarioConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in rc.items()})
+
+
 def check_hp(hp):
     """The hyperparameters checked (``ValueError`` naming the key and its range) and the base loaded:
     ``(hp, base)`` with ``base`` a :class:`agents.policies.learned.LearnedTracker`."""
@@ -106,8 +128,8 @@ def check_hp(hp):
             or not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 1024 for h in layers)):
         raise ValueError(f"--hp layers: must be a list of 1-4 integer widths in [1, 1024], got {layers!r}")
     sc = hp["scenarios"]
-    if not isinstance(sc, list) or not sc or any(s not in TRAIN_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
-        raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(TRAIN_SCENARIOS)}, "
+    if not isinstance(sc, list) or not sc or any(s not in WINDOW_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
+        raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(WINDOW_SCENARIOS)}, "
                          f"got {sc!r}")
     for key, (ok, what) in (("eval_scenarios", EVAL_SCENARIOS_HP), ("select_on", SELECT_ON_HP)):
         if not ok(hp[key]):
@@ -401,8 +423,10 @@ def draw_training_looks(base, hp, seed):
     cfg = training_config(hp)
     for name in hp["scenarios"]:
         chunks = []
+        gen, laws, s0 = ((BROAD_SCENARIOS[name], broad_config(), seed + BROAD_SEED_OFFSET) if name in BROAD_SCENARIOS
+                         else (name, cfg, seed))
         for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
-            eps = draw_suite(name, min(500, hp["episodes"] - c0), seed=seed + c0, random_config=cfg)
+            eps = draw_suite(gen, min(500, hp["episodes"] - c0), seed=s0 + c0, random_config=laws)
             chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks))
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
@@ -534,8 +558,9 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     hp, base = check_hp(dict(hp))
     seed = int(seed)
     draws = flight_draws(hp, seed)
-    if not 0 <= seed or draws[-1] + hp["episodes"] > SELECTION_SEED_BASE:
-        raise ValueError(f"--seed: the training flights' seeds {seed}..{draws[-1] + hp['episodes'] - 1} must lie in "
+    last = draws[-1] + hp["episodes"] + (BROAD_SEED_OFFSET if set(hp["scenarios"]) & set(BROAD_SCENARIOS) else 0)
+    if not 0 <= seed or last > SELECTION_SEED_BASE:
+        raise ValueError(f"--seed: the training flights' seeds {seed}..{last - 1} must lie in "
                          f"[0, {SELECTION_SEED_BASE}) (below the selection suites' seeds; "
                          f"{len(draws)} draw(s) of {hp['episodes']} flights)")
     try:
