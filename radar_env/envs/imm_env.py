@@ -36,8 +36,9 @@ from numba import njit
 
 from . import env_kernels as _ek
 from ..filters import kernels as _k
-from ..filters.imm_cv_ct import (IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, _init_modes, _look_predict, _look_range_rate, _look_update, _work,
-                                 imm_cv_ct_spec_from_params, look_parameter_names, look_parameter_vector)
+from ..filters.imm_cv_ct import (IMM_CT_BANK_PARAMS, IMM_CV_CT_PARAMS, _init_modes, _look_predict, _look_range_rate,
+                                 _look_update, _work, imm_cv_ct_spec_from_params, look_parameter_names,
+                                 look_parameter_vector)
 from ..common.units import DEG, G0_M_S2
 from ..common.validate import check_number
 
