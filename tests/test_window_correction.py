@@ -312,6 +312,41 @@ def test_training_looks_are_the_suites_chunks_then_their_mirror(window, fits, q_
     assert W[:n].mean() == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("mirror, standardise", [(True, True), (True, False), (False, True)])
+def test_training_batches_are_the_mirrored_standardised_looks_to_the_bit(mirror, standardise):
+    """The trainer holds the drawn looks only and makes each batch's mirrored looks (training_batch): its batches,
+    and the standardisation over the looks and their mirror, are the rows of the mirrored arrays
+    draw_training_looks makes (standardised as numpy does, (F - mean) / sd) to the bit, in the order asked for."""
+    from agents.training.window import mirror_signs, training_batch
+    base = load_learned("policy_bp")
+    hp = {"scenarios": ["random", "random_radars"], "episodes": 4, "window_looks": 6, "scale_m": 300.0,
+          "weight_suites": True, "mirror": mirror, "fit_looks": [4, 6], "q_looks": 3}
+    F, Y, _, W = draw_training_looks(base, hp, 5)
+    Fh, Yh, _, Wh = draw_training_looks(base, hp, 5, with_mirror=False)
+    n = len(Fh)
+    assert len(F) == (2 * n if mirror else n) and n > 100
+    signs = mirror_signs(F.shape[1], 6, (4, 6)) if mirror else None
+    if mirror:          # the flipped inputs are the across ones, and a flip is what mirrored() does
+        assert 0 < (signs < 0).sum() < len(signs)
+        np.testing.assert_array_equal(F[n:], Fh * signs)
+    mean, sd = input_standardisation(F) if standardise else (None, None)
+    if standardise:
+        np.testing.assert_array_equal(np.stack(input_standardisation(Fh, signs)), np.stack((mean, sd)))
+        Fs = F.copy()
+        Fs -= mean
+        Fs /= sd
+    else:
+        Fs = F
+    idx = np.random.default_rng(0).permutation(len(F))[:300]
+    X, Yb, Wb = training_batch(Fh, Yh, Wh, idx, signs, mean, sd)
+    for a, b in ((X, Fs[idx]), (Yb, Y[idx]), (Wb, W[idx])):
+        np.testing.assert_array_equal(a, b)
+    assert (idx >= n).any() == mirror
+    np.testing.assert_array_equal(Fh, F[:n])            # the drawn looks themselves are left as they were
+    with pytest.raises(ValueError, match=r"signs must be"):
+        input_standardisation(Fh, np.ones(3))
+
+
 def _weights(arch, rng, out_scale=1.0):
     w = {k: rng.normal(scale=0.3, size=s) for k, s in wcm.network_shapes(arch).items()}
     w["out.weight"] = w["out.weight"] * out_scale
@@ -494,7 +529,7 @@ def test_input_standardisation_is_numpys_mean_and_sd_to_the_bit():
     # numpy sums a single column, or a Fortran-ordered array's columns, pairwise (other bits than the compiled
     # row-by-row sums: shown here): such arrays, and any but a C-ordered float64 (n, m >= 2) one, are refused
     from agents.training.window import _mean_sd
-    assert not np.array_equal(_mean_sd(G[:, :1].copy())[1], G[:, :1].std(0))
+    assert not np.array_equal(_mean_sd(G[:, :1].copy(), np.ones(1), False)[1], G[:, :1].std(0))
     for bad, desc in ((G[:, :1].copy(), r"float64 C-ordered array of shape \(30001, 1\)"),
                       (np.asfortranarray(G), r"float64 not C-ordered array of shape \(30001, 9\)"),
                       (G[:, ::2], r"float64 not C-ordered array of shape \(30001, 5\)"),

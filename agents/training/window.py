@@ -52,7 +52,8 @@ from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARI
                                   load_hyperparams, run_cli, run_paths, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
-__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "fit_covariance_head",
+__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
+           "training_batch", "input_standardisation", "fit_covariance_head",
            "add_covariance", "train_window", "main_from_args"]
 
 COV_SCALE_M_S = 30.0
@@ -192,6 +193,35 @@ def _reflect(F, Y, window_looks, V=None, fit_looks=()):
         V[:, 1] *= -1
 
 
+def mirror_signs(n_inputs, window_looks, fit_looks=()):
+    """The sign each input takes when a look is mirrored (:func:`mirrored`): ``-1.0`` for the across components,
+    ``1.0`` for the others (``(n_inputs,)``)."""
+    signs = np.ones((1, n_inputs))
+    _reflect(signs, np.ones((1, 2)), window_looks, None, fit_looks)
+    return signs[0]
+
+
+def training_batch(F, Y, W, idx, signs=None, mean=None, sd=None):
+    """The batch of looks ``idx`` (integers) of a run's training looks, as the trainer feeds it: ``(X, Yb, Wb)``.
+    ``F, Y, W`` hold the drawn looks (``n`` rows, :func:`draw_training_looks` with ``with_mirror=False``); with
+    ``signs`` (:func:`mirror_signs`) an index ``i >= n`` is look ``i - n`` mirrored, as row ``i`` of the
+    mirrored arrays is; ``X`` standardised by ``mean`` and ``sd`` if given. The numbers are those of the rows
+    ``idx`` of the mirrored, standardised arrays, to the bit (the same operations per element: a sign flip, then
+    ``(x - mean) / sd``; tested), for half their memory."""
+    n = len(F)
+    idx = np.asarray(idx)
+    src = idx % n if signs is not None else idx
+    X, Yb, Wb = F[src], Y[src], W[src]
+    if signs is not None:
+        m = idx >= n
+        X[m] *= signs
+        Yb[m, 1] *= -1
+    if mean is not None:
+        X -= mean
+        X /= sd
+    return X, Yb, Wb
+
+
 def _net(torch, n_in, layers):
     mods, w = [], n_in
     for h in layers:
@@ -221,10 +251,11 @@ def _weights(net, layers, mean=None, sd=None):
     return w
 
 
-def input_standardisation(F):
+def input_standardisation(F, signs=None):
     """Per-input mean and standard deviation of the training looks ``F`` (an input constant over them, such as the
-    detection flags of a suite without misses, keeps sd 1). numpy's ``F.mean(0)`` and ``F.std(0)`` to the bit
-    (tested), without the temporary of ``F``'s size ``F.std`` makes: that was the peak of a run's memory.
+    detection flags of a suite without misses, keeps sd 1); with ``signs`` (:func:`mirror_signs`), of ``F`` and its
+    mirrored looks after it, without making them. numpy's ``F.mean(0)`` and ``F.std(0)`` (of the mirrored array) to
+    the bit (tested), without the temporary of ``F``'s size ``F.std`` makes: that was the peak of a run's memory.
     ``F`` must be a C-ordered float64 array ``(n >= 1, m >= 2)``, as the trainer's are (numpy sums such an array
     row by row, as the compiled code does; a single column, or a Fortran-ordered array's columns, it sums pairwise,
     to other bits): else ``ValueError``."""
@@ -234,37 +265,33 @@ def input_standardisation(F):
                 if isinstance(F, np.ndarray) else type(F).__name__)
         raise ValueError(f"F must be a C-ordered float64 array (n >= 1, m >= 2) (numpy's mean and sd to the bit), "
                          f"got a {desc}")
-    mean, sd = _mean_sd(F)
+    if signs is not None:
+        signs = np.asarray(signs, dtype=np.float64)
+        if signs.shape != (F.shape[1],) or not np.isin(signs, (-1.0, 1.0)).all():
+            raise ValueError(f"signs must be {F.shape[1]} values of -1 or 1 (mirror_signs), got shape {signs.shape}")
+    mean, sd = _mean_sd(F, np.ones(F.shape[1]) if signs is None else signs, signs is not None)
     return mean, np.where(sd > 1e-6, sd, 1.0)
 
 
 @numba.njit(cache=True, nogil=True)
-def _mean_sd(F):
-    # row by row, in numpy's order for a reduction over the rows of a C array: the same sums to the bit
+def _mean_sd(F, signs, mirror):
+    # row by row, in numpy's order for a reduction over the rows of a C array: the same sums to the bit; with
+    # ``mirror`` the rows of F then the rows of F * signs (a sign flip is exact: the mirrored array's numbers)
     n, m = F.shape
+    passes = 2 if mirror else 1
     s = np.zeros(m)
-    for i in range(n):
-        for j in range(m):
-            s[j] += F[i, j]
-    mean = s / n
+    for p in range(passes):
+        for i in range(n):
+            for j in range(m):
+                s[j] += F[i, j] * signs[j] if p else F[i, j]
+    mean = s / (n * passes)
     v = np.zeros(m)
-    for i in range(n):
-        for j in range(m):
-            d = F[i, j] - mean[j]
-            v[j] += d * d
-    return mean, np.sqrt(v / n)
-
-
-def _standardised(F, mean, sd, in_place):
-    """``(F - mean) / sd`` (``F`` itself without a standardisation), in ``F``'s own memory when ``in_place`` (the
-    same numbers: the same two operations per element)."""
-    if mean is None:
-        return F
-    if not in_place:
-        return (F - mean) / sd
-    F -= mean
-    F /= sd
-    return F
+    for p in range(passes):
+        for i in range(n):
+            for j in range(m):
+                d = (F[i, j] * signs[j] if p else F[i, j]) - mean[j]
+                v[j] += d * d
+    return mean, np.sqrt(v / (n * passes))
 
 
 def _torch_cov(torch, raw):
@@ -409,13 +436,15 @@ def training_config(hp):
     return None if v == default.first_leg_min_s else RandomScenarioConfig(first_leg_min_s=float(v))
 
 
-def draw_training_looks(base, hp, seed):
+def draw_training_looks(base, hp, seed, with_mirror=True):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
     its suite with ``weight_suites``, else 1; mean 1), the mirrored looks appended if ``hp["mirror"]``
-    (:func:`mirrored`'s numbers). The chunks of flights are copied into the final arrays and dropped one by one,
-    so the peak memory is about one and a half times the result's (the drawn looks, half of it with the mirror,
-    beside it), not three times (4.4 M looks of 24-look windows: 3.6 GB)."""
+    (:func:`mirrored`'s numbers) and ``with_mirror``. ``with_mirror=False`` returns the drawn looks only, half the
+    memory: the trainer makes each batch's mirrored looks from them (:func:`training_batch`, the same numbers).
+    The chunks of flights are copied into the final arrays and dropped one by one, so the peak memory is about one
+    and a half times the result's (the drawn looks, half of it with the mirror, beside it), not three times (4.4 M
+    looks of 24-look windows and their mirror: 5.6 GB)."""
     from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
@@ -431,7 +460,7 @@ def draw_training_looks(base, hp, seed):
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
     n = sum(sizes)
-    total = 2 * n if hp["mirror"] else n
+    total = 2 * n if hp["mirror"] and with_mirror else n
     nf = parts[0][0][0].shape[1]
     F, Y, V, W = np.empty((total, nf)), np.empty((total, 2)), np.empty((total, 2)), np.empty(total)
     i = 0
@@ -445,7 +474,7 @@ def draw_training_looks(base, hp, seed):
             F[i:i + len(f)], Y[i:i + len(f)], V[i:i + len(f)] = f, y, v
             i += len(f)
     W[:n] /= W[:n].mean()
-    if hp["mirror"]:            # the mirrored looks written into the second half
+    if hp["mirror"] and with_mirror:        # the mirrored looks written into the second half
         F[n:], Y[n:], V[n:], W[n:] = F[:n], Y[:n], V[:n], W[:n]
         _reflect(F[n:], Y[n:], hp["window_looks"], V[n:], fits)
     return F, Y, V, W
@@ -574,11 +603,15 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         write_run_files(part, config, args, command, env_kwargs)
         t0 = time.time()
         scale = float(hp["scale_m"])
-        F, Y, V, Wl = draw_training_looks(base, hp, seed)
-        mean, sd = input_standardisation(F) if hp["standardise_inputs"] else (None, None)
+        # the drawn looks only (with_mirror=False): each batch makes its mirrored looks (training_batch), so a
+        # run holds half the inputs (8.8 M looks of 160 inputs: 5.6 GB, not 11)
+        F, Y, _, Wl = draw_training_looks(base, hp, seed, with_mirror=False)
+        signs = mirror_signs(F.shape[1], hp["window_looks"], hp["fit_looks"]) if hp["mirror"] else None
+        n_looks = 2 * len(F) if hp["mirror"] else len(F)
+        mean, sd = input_standardisation(F, signs) if hp["standardise_inputs"] else (None, None)
         data_s = time.time() - t0
         if verbose:
-            print(f"{len(F):,} training looks ({data_s:.0f} s)", file=sys.stderr, flush=True)
+            print(f"{n_looks:,} training looks ({data_s:.0f} s)", file=sys.stderr, flush=True)
         # the validation flights: the base runs once (and is scored once), the correction is applied to its runs at
         # every validation
         val = {}
@@ -590,16 +623,11 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         net = _net(torch, F.shape[1], hp["layers"])
         opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
-        keep = hp["covariance_epochs"] and len(draws) == 1      # the raw inputs kept for the covariance head
-        Ft = torch.from_numpy(_standardised(F, mean, sd, in_place=not keep))
-        Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-        if not keep:
-            del F, V
         history, best = [], None
 
         def validate(epoch, train_rmse_m):
             wc = WindowCorrection(_weights(net, hp["layers"], mean, sd), {**config, "architecture": {
-                "input_size": Ft.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
+                "input_size": F.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
             row = {"epoch": epoch, "train_rmse_m": train_rmse_m}
             for n, (batch, brun, imm, base_ratio) in val.items():
                 r = pooled_rmse(batch, wc.correct(batch, brun, "window"))
@@ -613,30 +641,27 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         for epoch in range(1, hp["epochs"] + 1):
             d = (epoch - 1) // hp["fresh_flights_every"] if len(draws) > 1 else 0
             if d and (epoch - 1) % hp["fresh_flights_every"] == 0:     # fresh flights; the first draw's scaling
-                F = Y = V = Wl = Ft = Yt = Wt = None       # the last draw's looks freed first
+                F = Y = Wl = None       # the last draw's looks freed first
                 t1 = time.time()
-                F, Y, V, Wl = draw_training_looks(base, hp, draws[d])
+                F, Y, _, Wl = draw_training_looks(base, hp, draws[d], with_mirror=False)
                 data_s += time.time() - t1
-                keep = hp["covariance_epochs"] and d == len(draws) - 1
-                Ft = torch.from_numpy(_standardised(F, mean, sd, in_place=not keep))
-                Yt, Wt = torch.from_numpy(Y), torch.from_numpy(Wl)
-                if not keep:
-                    del F, V
+                n_looks = 2 * len(F) if hp["mirror"] else len(F)
                 if verbose:
-                    print(f"draw {d}: {len(Ft):,} training looks of seeds {draws[d]}+", file=sys.stderr, flush=True)
-            perm = torch.randperm(len(Ft), generator=gen)
+                    print(f"draw {d}: {n_looks:,} training looks of seeds {draws[d]}+", file=sys.stderr, flush=True)
+            perm = torch.randperm(n_looks, generator=gen).numpy()
             total = 0.0
-            for i in range(0, len(Ft), hp["batch_looks"]):
-                idx = perm[i:i + hp["batch_looks"]]
-                se = ((net(Ft[idx]) - Yt[idx]) ** 2).sum(-1)
-                loss = (Wt[idx] * se).mean()
+            for i in range(0, n_looks, hp["batch_looks"]):
+                X, Yb, Wb = (torch.from_numpy(a) for a in training_batch(F, Y, Wl, perm[i:i + hp["batch_looks"]],
+                                                                         signs, mean, sd))
+                se = ((net(X) - Yb) ** 2).sum(-1)
+                loss = (Wb * se).mean()
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
                 total += float(se.detach().sum())
             sched.step()
             if epoch % hp["eval_every"] == 0 or epoch == hp["epochs"]:
-                row = validate(epoch, float(np.sqrt(total / len(Ft))) * scale)
+                row = validate(epoch, float(np.sqrt(total / n_looks)) * scale)
                 history.append(row)
                 if best is None or row["selection_ratio"] < best["selection_ratio"]:
                     best = row
@@ -649,10 +674,12 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         _save(part, hp, _weights(net, hp["layers"], mean, sd), env_kwargs)
         covariance = {}
         if hp["covariance_epochs"]:     # the head of the final weights and of the best epoch's, the network fixed
+            F = Y = Wl = None       # the last draw's looks again, with their mirror made (add_covariance's inputs)
+            F, Y, V, _ = draw_training_looks(base, hp, draws[-1])
             cache = {}
             for f, key in ((part, run.name), (part / "best", "best")):    # the run's name, not the partial one
                 covariance[key] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose, cache)
-        summary = {"epochs": hp["epochs"], "training_looks": len(Ft), "flight_draws": len(draws), "data_s": data_s,
+        summary = {"epochs": hp["epochs"], "training_looks": n_looks, "flight_draws": len(draws), "data_s": data_s,
                    "wall_s": time.time() - t0, "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
