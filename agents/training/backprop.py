@@ -77,7 +77,7 @@ from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, run_cli, run_paths, write_run_files, writing_run)
+                                  load_hyperparams, resumable, run_cli, run_paths, write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -693,22 +693,9 @@ rounding), so a run started with ``compiled`` may go on with ``torch`` (e.g. on 
 
 
 def _resumable(part, config):
-    """Whether ``part`` holds a checkpoint of a run with this ``config`` (``ValueError`` if of another config; the
-    keys of :data:`RESUME_IGNORES` may differ)."""
-    if not (part / "checkpoints" / "last.json").is_file():
-        return False
-    try:
-        old = json.loads((part / "config.json").read_text())
-    except (OSError, json.JSONDecodeError):
-        old = None
-    new = json.loads(json.dumps(config))
-    if isinstance(old, dict):
-        old, new = ({k: v for k, v in d.items() if k not in RESUME_IGNORES} for d in (old, new))
-    if old != new:
-        keys = sorted(k for k in set(old or {}) | set(new) if (old or {}).get(k) != new.get(k))
-        raise ValueError(f"--name: {str(part)!r} holds an unfinished run with another configuration (differs in "
-                         f"{keys}); rerun its own command to resume it, or remove it, or choose another --name")
-    return True
+    """Whether ``part`` holds a checkpoint of a run with this ``config`` (:func:`agents.training.runs.resumable`;
+    the keys of :data:`RESUME_IGNORES` may differ)."""
+    return resumable(part, config, RESUME_IGNORES)
 
 
 # =================================================================================================== training

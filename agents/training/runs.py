@@ -20,7 +20,7 @@ from importlib import resources
 from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
-           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "write_run_files", "mark_failed",
+           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_run_files", "mark_failed",
            "finish_run", "writing_run", "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
 
 ENV_ID = "RadarTrack-v0"
@@ -170,6 +170,25 @@ def open_run_folder(run, part, keep=False):
         lock.release()
         raise
     return lock
+
+
+def resumable(part, config, ignores=()):
+    """Whether the unfinished run folder ``part`` holds a checkpoint (``checkpoints/last.json``) of a run with this
+    ``config``; ``ValueError`` naming ``--name`` if it is of another config (the keys ``ignores`` may differ)."""
+    if not (part / "checkpoints" / "last.json").is_file():
+        return False
+    try:
+        old = json.loads((part / "config.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        old = None
+    new = json.loads(json.dumps(config))
+    if isinstance(old, dict):
+        old, new = ({k: v for k, v in d.items() if k not in ignores} for d in (old, new))
+    if old != new:
+        keys = sorted(k for k in set(old or {}) | set(new) if (old or {}).get(k) != new.get(k))
+        raise ValueError(f"--name: {str(part)!r} holds an unfinished run with another configuration (differs in "
+                         f"{keys}); rerun its own command to resume it, or remove it, or choose another --name")
+    return True
 
 
 def write_run_files(part, config, args, command, env_kwargs):

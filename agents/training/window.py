@@ -32,7 +32,16 @@ The run folder, as ``radar-track train``'s: ``config.json``, ``args.json``, ``co
 validation epoch, with ``selection.json``), ``training.json`` + ``choice.json`` in both, ``summary.json``; with
 ``covariance_epochs`` > 0 the covariance head is fitted after the epochs for both weights (:func:`fit_covariance_head`,
 ``covariance.json`` beside each and in ``summary.json``; :func:`add_covariance` does it for a finished run). A run
-that fails or is interrupted stays ``<name>.partial/`` and starts again from scratch (a run takes minutes).
+that fails or is interrupted stays ``<name>.partial/`` with its last validation's checkpoint
+(``checkpoints/last.npz`` + ``last.json``: the network, Adam's moments, the batch order's generator, the
+standardisation, the best epoch's weights; no pickle); the same command resumes it from there, to the numbers of a
+run never stopped (``summary.json``'s ``resumed_at`` lists the epochs it resumed after), and refuses a run folder of
+another configuration.
+
+Memory: the run holds the drawn looks only; each batch makes its mirrored looks from them (:func:`training_batch`)
+and the standardisation covers them without making them (:func:`input_standardisation` with ``signs``), the numbers
+of the mirrored arrays to the bit: about 5.6 GB for the 8.8 M looks of four suites of 4,000 flights (24-look
+windows, 160 inputs), half what the mirrored arrays took.
 """
 
 from __future__ import annotations
@@ -49,7 +58,7 @@ import numba
 import numpy as np
 
 from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, run_cli, run_paths, write_run_files, writing_run)
+                                  load_hyperparams, resumable, run_cli, run_paths, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
@@ -574,6 +583,56 @@ def _save(folder, hp, weights, env_kwargs, extra=None):
         (Path(folder) / "selection.json").write_text(json.dumps(extra, indent=1, allow_nan=False))
 
 
+def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
+    """``checkpoints/last.npz`` (the network, Adam's moments, the batch order's generator, the standardisation, the
+    best epoch's saved weights) + ``last.json`` (``meta``: the epoch, the history, the scheduler), each written then
+    renamed (a kill leaves the previous pair or the new one). No pickle: numbers and JSON only."""
+    from agents.evaluation.metrics import jsonable
+    d = part / "checkpoints"
+    d.mkdir(exist_ok=True)
+    arrays = {f"net/{k}": v.detach().numpy() for k, v in net.state_dict().items()}
+    for i, st in opt.state_dict()["state"].items():
+        for k, v in st.items():
+            arrays[f"adam/{i}/{k}"] = v.detach().numpy() if hasattr(v, "detach") else np.asarray(v)
+    arrays["generator"] = gen.get_state().numpy()
+    if mean is not None:
+        arrays["mean"], arrays["sd"] = mean, sd
+    arrays.update(best_weights)
+    tmp = d / "last.tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, d / "last.npz")
+    meta = {**meta, "scheduler": sched.state_dict(), "lr": [g["lr"] for g in opt.param_groups]}
+    (d / "last.tmp.json").write_text(json.dumps(jsonable(meta), indent=1, allow_nan=False))
+    os.replace(d / "last.tmp.json", d / "last.json")
+
+
+def _load_checkpoint(part):
+    """``(meta, arrays)`` of :func:`_save_checkpoint`'s files (read without pickle)."""
+    d = part / "checkpoints"
+    meta = json.loads((d / "last.json").read_text())
+    with np.load(d / "last.npz", allow_pickle=False) as z:
+        return meta, {k: z[k].copy() for k in z.files}
+
+
+def _restore(saved, meta, net, opt, sched, gen):
+    """The training state of :func:`_save_checkpoint` back into ``net``, ``opt``, ``sched`` and ``gen``: the run
+    goes on with the numbers it would have had without the stop (tested to the bit)."""
+    import torch
+    net.load_state_dict({k[4:]: torch.from_numpy(v) for k, v in saved.items() if k.startswith("net/")})
+    state = {}
+    for k, v in saved.items():
+        if k.startswith("adam/"):
+            _, i, name = k.split("/")
+            state.setdefault(int(i), {})[name] = torch.from_numpy(v)
+    sd = opt.state_dict()
+    sd["state"] = state
+    opt.load_state_dict(sd)
+    sched.load_state_dict(meta["scheduler"])
+    for g, lr in zip(opt.param_groups, meta["lr"]):
+        g["lr"] = lr
+    gen.set_state(torch.from_numpy(saved["generator"]))
+
+
 def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run_name=None):
     """Train a window correction (module docstring) with hyperparameters ``hp`` (every key of
     ``agents/training/hyperparams/window.toml``). Returns the run folder. Everything is checked (``ValueError``)
@@ -599,19 +658,38 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     env_kwargs = json.loads((base.folder / "env_config.json").read_text())
     run, part = run_paths(out, run_name, f"window_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
     config = {"method": "window", "env_id": "RadarTrack-v0", "seed": seed, **hp}
-    with writing_run(run, part, resumable=False):
-        write_run_files(part, config, args, command, env_kwargs)
+    resume = part.exists() and resumable(part, config)
+    every = hp["fresh_flights_every"] if len(draws) > 1 else 0
+
+    def draw_of(epoch):         # the draw epoch `epoch` trains on
+        return (epoch - 1) // every if every else 0
+
+    with writing_run(run, part, resumable=True, keep=resume):
         t0 = time.time()
+        if resume:
+            (part / "FAILED").unlink(missing_ok=True)
+            meta, saved = _load_checkpoint(part)
+            start = int(meta["epoch"])
+            if verbose:
+                print(f"resuming {part} after epoch {start}", file=sys.stderr, flush=True)
+        else:
+            write_run_files(part, config, args, command, env_kwargs)
+            meta, saved, start = {"history": [], "best": None, "data_s": 0.0, "wall_s": 0.0, "resumed_at": []}, {}, 0
+        wall0 = float(meta["wall_s"])
         scale = float(hp["scale_m"])
         # the drawn looks only (with_mirror=False): each batch makes its mirrored looks (training_batch), so a
         # run holds half the inputs (8.8 M looks of 160 inputs: 5.6 GB, not 11)
-        F, Y, _, Wl = draw_training_looks(base, hp, seed, with_mirror=False)
+        d = draw_of(start + 1)
+        F, Y, _, Wl = draw_training_looks(base, hp, draws[d], with_mirror=False)
         signs = mirror_signs(F.shape[1], hp["window_looks"], hp["fit_looks"]) if hp["mirror"] else None
         n_looks = 2 * len(F) if hp["mirror"] else len(F)
-        mean, sd = input_standardisation(F, signs) if hp["standardise_inputs"] else (None, None)
-        data_s = time.time() - t0
+        if resume:              # the first draw's standardisation, as the checkpoint keeps it
+            mean, sd = (saved["mean"], saved["sd"]) if "mean" in saved else (None, None)
+        else:
+            mean, sd = input_standardisation(F, signs) if hp["standardise_inputs"] else (None, None)
+        data_s = float(meta["data_s"]) + time.time() - t0
         if verbose:
-            print(f"{n_looks:,} training looks ({data_s:.0f} s)", file=sys.stderr, flush=True)
+            print(f"{n_looks:,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
         # the validation flights: the base runs once (and is scored once), the correction is applied to its runs at
         # every validation
         val = {}
@@ -623,7 +701,13 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         net = _net(torch, F.shape[1], hp["layers"])
         opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
-        history, best = [], None
+        history, best = meta["history"], meta["best"]
+        if resume:
+            _restore(saved, meta, net, opt, sched, gen)
+            meta["resumed_at"].append(start)
+            if best is not None:    # best/ as the checkpoint knows it (a kill may have left a newer one)
+                _save(part / "best", hp, {k[5:]: v for k, v in saved.items() if k.startswith("best/")}, env_kwargs,
+                      best)
 
         def validate(epoch, train_rmse_m):
             wc = WindowCorrection(_weights(net, hp["layers"], mean, sd), {**config, "architecture": {
@@ -635,12 +719,12 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                 row[f"{n}_base_ratio_imm2"] = base_ratio
             row["selection_ratio"] = float(np.exp(np.mean([np.log(row[f"{n}_ratio_imm2"])
                                                            for n in selection.select_on])))
-            row["wall_s"] = time.time() - t0
+            row["wall_s"] = wall0 + time.time() - t0
             return row
 
-        for epoch in range(1, hp["epochs"] + 1):
-            d = (epoch - 1) // hp["fresh_flights_every"] if len(draws) > 1 else 0
-            if d and (epoch - 1) % hp["fresh_flights_every"] == 0:     # fresh flights; the first draw's scaling
+        for epoch in range(start + 1, hp["epochs"] + 1):
+            if draw_of(epoch) != d:     # fresh flights; the first draw's standardisation
+                d = draw_of(epoch)
                 F = Y = Wl = None       # the last draw's looks freed first
                 t1 = time.time()
                 F, Y, _, Wl = draw_training_looks(base, hp, draws[d], with_mirror=False)
@@ -665,7 +749,11 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                 history.append(row)
                 if best is None or row["selection_ratio"] < best["selection_ratio"]:
                     best = row
-                    _save(part / "best", hp, _weights(net, hp["layers"], mean, sd), env_kwargs, jsonable(row))
+                    saved = {f"best/{k}": v for k, v in _weights(net, hp["layers"], mean, sd).items()}
+                    _save(part / "best", hp, {k[5:]: v for k, v in saved.items()}, env_kwargs, jsonable(row))
+                meta.update(epoch=epoch, history=history, best=best, data_s=data_s, wall_s=row["wall_s"])
+                _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd,
+                                 {k: v for k, v in saved.items() if k.startswith("best/")})
                 if verbose:
                     print(f"epoch {epoch}: train {row['train_rmse_m']:.1f} m, selection ratio "
                           f"{row['selection_ratio']:.4f} (base " + ", ".join(
@@ -680,13 +768,13 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             for f, key in ((part, run.name), (part / "best", "best")):    # the run's name, not the partial one
                 covariance[key] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose, cache)
         summary = {"epochs": hp["epochs"], "training_looks": n_looks, "flight_draws": len(draws), "data_s": data_s,
-                   "wall_s": time.time() - t0, "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
+                   "wall_s": wall0 + time.time() - t0, "resumed_at": meta["resumed_at"], "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(part, read_kind(part)[0], jsonable(summary))
     if verbose:
         print(f"run: {run}\nbest selection ratio {best['selection_ratio']:.4f} at epoch {best['epoch']} "
-              f"({time.time() - t0:.0f} s)", file=sys.stderr)
+              f"({wall0 + time.time() - t0:.0f} s)", file=sys.stderr)
     return run
 
 
