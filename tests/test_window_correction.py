@@ -330,8 +330,10 @@ def test_training_batches_are_the_mirrored_standardised_looks_to_the_bit(mirror,
         assert 0 < (signs < 0).sum() < len(signs)
         np.testing.assert_array_equal(F[n:], Fh * signs)
     mean, sd = input_standardisation(F) if standardise else (None, None)
-    if standardise:
+    if standardise and mirror:      # the stats of the looks and their mirror, without making the mirror
         np.testing.assert_array_equal(np.stack(input_standardisation(Fh, signs)), np.stack((mean, sd)))
+        assert not np.array_equal(input_standardisation(Fh)[0], mean)     # (they are not the drawn looks' own)
+    if standardise:
         Fs = F.copy()
         Fs -= mean
         Fs /= sd

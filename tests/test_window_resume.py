@@ -53,3 +53,42 @@ def test_a_stopped_window_run_resumes_to_the_numbers_of_one_never_stopped(tmp_pa
     assert hw == hr and len(hw) == 4
     assert sr["resumed_at"] == [2] and sw["resumed_at"] == [] and sr["best_epoch"] == sw["best_epoch"]
     assert not (resumed / "FAILED").exists()
+
+
+def test_a_run_stopped_after_its_last_epoch_resumes_to_its_end(tmp_path, monkeypatch):
+    """Stopped during the covariance head's fit (after the last epoch's checkpoint): the same command finishes the
+    run without training again, with the weights and heads of a run never stopped."""
+    hp = {**HP, "covariance_epochs": 1, "epochs": 2, "fresh_flights_every": 2}      # one draw: the last is the first
+    whole = window.train_window(hp, seed=701, out=tmp_path, verbose=0, run_name="whole")
+    real = window._with_covariance
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(window, "_with_covariance", stop)
+    with pytest.raises(RunInterrupted):
+        window.train_window(hp, seed=701, out=tmp_path, verbose=0, run_name="stopped")
+    monkeypatch.setattr(window, "_with_covariance", real)
+    resumed = window.train_window(hp, seed=701, out=tmp_path, verbose=0, run_name="stopped")
+    for f in ("policy.npz", "best/policy.npz"):
+        a, b = np.load(whole / f), np.load(resumed / f)
+        assert sorted(a.files) == sorted(b.files) and "cov.weight" in a.files
+        for k in a.files:
+            np.testing.assert_array_equal(a[k], b[k])
+    (sw, hw), (sr, hr) = _history(whole), _history(resumed)
+    assert hw == hr and sr["resumed_at"] == [2] and sr["training_looks"] == sw["training_looks"]
+
+
+def test_a_damaged_checkpoint_is_refused_in_one_line(tmp_path, monkeypatch):
+    with monkeypatch.context() as m:
+        _stop_at_second_draw(m)
+        with pytest.raises(RunInterrupted):
+            window.train_window(HP, seed=702, out=tmp_path, verbose=0, run_name="r")
+    npz = tmp_path / "r.partial" / "checkpoints" / "last.npz"
+    good = npz.read_bytes()
+    for damage in (good[: len(good) // 2], b"not a checkpoint"):
+        npz.write_bytes(damage)
+        with pytest.raises(ValueError, match=r"^--name: the checkpoint .*last\.npz cannot be resumed \(.*\); remove "):
+            window.train_window(HP, seed=702, out=tmp_path, verbose=0, run_name="r")
+    npz.write_bytes(good)       # intact again: it resumes
+    assert json.loads((window.train_window(HP, seed=702, out=tmp_path, verbose=0, run_name="r")
+                       / "summary.json").read_text())["resumed_at"] == [2]

@@ -643,8 +643,10 @@ def forward_episodes(model, episodes, cfg, on_look=None):
 
 # ================================================================================================ checkpoints
 def _save_resume(part, model, opt, meta, best_weights):
-    """``checkpoints/last.npz`` (weights, Adam moments, the best checkpoint's policy weights) + ``last.json``
-    (``meta``), each written then renamed (a kill leaves the previous pair or the new one)."""
+    """``checkpoints/last.npz`` (weights, Adam moments, the best checkpoint's policy weights and ``meta`` as a JSON
+    string) written then renamed, so a kill leaves the previous checkpoint or the new one, never a mix; ``last.json``
+    beside it is ``meta`` again, for reading (and for checkpoints written before 2026-12-06, which lack it in the
+    npz)."""
     d = part / "checkpoints"
     d.mkdir(exist_ok=True)
     arrays = {f"model/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
@@ -652,18 +654,20 @@ def _save_resume(part, model, opt, meta, best_weights):
     for i, st in opt.state_dict()["state"].items():
         for k, v in st.items():
             arrays[f"adam/{i}/{k}"] = v.detach().numpy() if torch.is_tensor(v) else np.asarray(v)
+    text = json.dumps(jsonable(meta), indent=1, allow_nan=False)
+    arrays["meta_json"] = np.array(text)
     tmp = d / "last.tmp.npz"
     np.savez(tmp, **arrays)
     os.replace(tmp, d / "last.npz")
-    (d / "last.tmp.json").write_text(json.dumps(jsonable(meta), indent=1, allow_nan=False))
+    (d / "last.tmp.json").write_text(text)
     os.replace(d / "last.tmp.json", d / "last.json")
 
 
 def _load_resume(part, model, opt):
     """Restore ``model`` and ``opt`` from ``checkpoints/last.*``; returns ``(meta, best policy weights or None)``."""
     d = part / "checkpoints"
-    meta = json.loads((d / "last.json").read_text())
     with np.load(d / "last.npz", allow_pickle=False) as z:
+        meta = json.loads(str(z["meta_json"]) if "meta_json" in z.files else (d / "last.json").read_text())
         model.load_state_dict({k[len("model/"):]: torch.from_numpy(z[k].copy()) for k in z.files
                                if k.startswith("model/")})
         best = {k[len("best/"):]: z[k].copy() for k in z.files if k.startswith("best/")} or None

@@ -40,8 +40,9 @@ another configuration.
 
 Memory: the run holds the drawn looks only; each batch makes its mirrored looks from them (:func:`training_batch`)
 and the standardisation covers them without making them (:func:`input_standardisation` with ``signs``), the numbers
-of the mirrored arrays to the bit: about 5.6 GB for the 8.8 M looks of four suites of 4,000 flights (24-look
-windows, 160 inputs), half what the mirrored arrays took.
+of the mirrored arrays to the bit. Four suites of 4,000 flights (24-look windows, 160 inputs): 4.6 M drawn looks,
+5.5 GiB of inputs, 6.8 GiB resident in training, against 12.8 GiB with the mirrored arrays. A covariance head
+(``covariance_epochs``) draws the last draw's looks again at the end with their mirror made, twice that.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ import os
 import shlex
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numba
@@ -453,7 +455,8 @@ def draw_training_looks(base, hp, seed, with_mirror=True):
     memory: the trainer makes each batch's mirrored looks from them (:func:`training_batch`, the same numbers).
     The chunks of flights are copied into the final arrays and dropped one by one, so the peak memory is about one
     and a half times the result's (the drawn looks, half of it with the mirror, beside it), not three times (4.4 M
-    looks of 24-look windows and their mirror: 5.6 GB)."""
+    looks of 24-look windows, their mirror included: 5.6 GB; without the mirror the drawn chunks beside an array of
+    their own size)."""
     from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
@@ -584,9 +587,10 @@ def _save(folder, hp, weights, env_kwargs, extra=None):
 
 
 def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
-    """``checkpoints/last.npz`` (the network, Adam's moments, the batch order's generator, the standardisation, the
-    best epoch's saved weights) + ``last.json`` (``meta``: the epoch, the history, the scheduler), each written then
-    renamed (a kill leaves the previous pair or the new one). No pickle: numbers and JSON only."""
+    """``checkpoints/last.npz``: the network, Adam's moments, the batch order's generator, the standardisation, the
+    best epoch's saved weights and ``meta`` (the epoch, the history, the scheduler) as a JSON string, in one file
+    written then renamed (a kill leaves the previous checkpoint or the new one, never a mix); ``last.json`` beside it
+    is ``meta`` again, for reading. No pickle: numbers and text only."""
     from agents.evaluation.metrics import jsonable
     d = part / "checkpoints"
     d.mkdir(exist_ok=True)
@@ -598,20 +602,35 @@ def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
     if mean is not None:
         arrays["mean"], arrays["sd"] = mean, sd
     arrays.update(best_weights)
+    meta = json.dumps(jsonable({**meta, "scheduler": sched.state_dict(), "lr": [g["lr"] for g in opt.param_groups]}),
+                      indent=1, allow_nan=False)
+    arrays["meta_json"] = np.array(meta)
     tmp = d / "last.tmp.npz"
     np.savez(tmp, **arrays)
     os.replace(tmp, d / "last.npz")
-    meta = {**meta, "scheduler": sched.state_dict(), "lr": [g["lr"] for g in opt.param_groups]}
-    (d / "last.tmp.json").write_text(json.dumps(jsonable(meta), indent=1, allow_nan=False))
+    (d / "last.tmp.json").write_text(meta)
     os.replace(d / "last.tmp.json", d / "last.json")
 
 
-def _load_checkpoint(part):
-    """``(meta, arrays)`` of :func:`_save_checkpoint`'s files (read without pickle)."""
+def _resume(part, hp, net, opt, sched, gen):
+    """Load ``part``'s checkpoint (:func:`_save_checkpoint`; read without pickle) into ``net``, ``opt``, ``sched``
+    and ``gen``; returns ``(meta, arrays)``. A checkpoint that cannot be read, or that does not fit the run, is a
+    ``ValueError`` of one line naming it."""
     d = part / "checkpoints"
-    meta = json.loads((d / "last.json").read_text())
-    with np.load(d / "last.npz", allow_pickle=False) as z:
-        return meta, {k: z[k].copy() for k in z.files}
+    try:
+        with np.load(d / "last.npz", allow_pickle=False) as z:
+            saved = {k: z[k].copy() for k in z.files}
+        meta = json.loads(str(saved.pop("meta_json")))
+        if bool(hp["standardise_inputs"]) != ("mean" in saved):
+            raise ValueError("its standardisation does not match standardise_inputs")
+        for key in ("epoch", "history", "best", "data_s", "wall_s", "resumed_at", "n_looks", "scheduler", "lr"):
+            if key not in meta:
+                raise ValueError(f"its meta_json has no {key!r}")
+        _restore(saved, meta, net, opt, sched, gen)
+    except (OSError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile) as e:
+        raise ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: {e}); "
+                         f"remove {part} to start the run again, or choose another --name") from None
+    return meta, saved
 
 
 def _restore(saved, meta, net, opt, sched, gen):
@@ -639,7 +658,7 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     before the run folder is made."""
     import torch
     from agents.evaluation.metrics import jsonable
-    from agents.policies.window_correction import WindowCorrection
+    from agents.policies.window_correction import WindowCorrection, feature_count
     from agents.policies.learned import read_kind, write_run_layout
     torch.set_num_threads(1)
     numba.set_num_threads(1)
@@ -664,12 +683,20 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     def draw_of(epoch):         # the draw epoch `epoch` trains on
         return (epoch - 1) // every if every else 0
 
+    n_in = feature_count(hp["window_looks"], hp["fit_looks"], hp["q_looks"])
+    signs = mirror_signs(n_in, hp["window_looks"], hp["fit_looks"]) if hp["mirror"] else None
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    net = _net(torch, n_in, hp["layers"])
+    opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
     with writing_run(run, part, resumable=True, keep=resume):
         t0 = time.time()
         if resume:
             (part / "FAILED").unlink(missing_ok=True)
-            meta, saved = _load_checkpoint(part)
+            meta, saved = _resume(part, hp, net, opt, sched, gen)
             start = int(meta["epoch"])
+            meta["resumed_at"].append(start)
             if verbose:
                 print(f"resuming {part} after epoch {start}", file=sys.stderr, flush=True)
         else:
@@ -677,41 +704,34 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             meta, saved, start = {"history": [], "best": None, "data_s": 0.0, "wall_s": 0.0, "resumed_at": []}, {}, 0
         wall0 = float(meta["wall_s"])
         scale = float(hp["scale_m"])
+        data_s = float(meta["data_s"])
         # the drawn looks only (with_mirror=False): each batch makes its mirrored looks (training_batch), so a
-        # run holds half the inputs (8.8 M looks of 160 inputs: 5.6 GB, not 11)
-        d = draw_of(start + 1)
-        F, Y, _, Wl = draw_training_looks(base, hp, draws[d], with_mirror=False)
-        signs = mirror_signs(F.shape[1], hp["window_looks"], hp["fit_looks"]) if hp["mirror"] else None
-        n_looks = 2 * len(F) if hp["mirror"] else len(F)
+        # run holds half the inputs (4.6 M drawn looks of 160 inputs: 5.5 GiB, not 11)
+        d, F, Y, Wl, n_looks = None, None, None, None, meta.get("n_looks")
+        if start < hp["epochs"]:        # (a run stopped after its last epoch has nothing left to train)
+            d = draw_of(start + 1)
+            F, Y, _, Wl = draw_training_looks(base, hp, draws[d], with_mirror=False)
+            n_looks = 2 * len(F) if hp["mirror"] else len(F)
+            data_s += time.time() - t0
+            if verbose:
+                print(f"{n_looks:,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
         if resume:              # the first draw's standardisation, as the checkpoint keeps it
             mean, sd = (saved["mean"], saved["sd"]) if "mean" in saved else (None, None)
         else:
             mean, sd = input_standardisation(F, signs) if hp["standardise_inputs"] else (None, None)
-        data_s = float(meta["data_s"]) + time.time() - t0
-        if verbose:
-            print(f"{n_looks:,} training looks ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
         # the validation flights: the base runs once (and is scored once), the correction is applied to its runs at
         # every validation
         val = {}
         for n, (eps, batch, imm) in selection.suites.items():
             brun = base.run(eps)
             val[n] = (batch, brun, imm, pooled_rmse(batch, brun) / imm)
-        torch.manual_seed(seed)
-        gen = torch.Generator().manual_seed(seed)
-        net = _net(torch, F.shape[1], hp["layers"])
-        opt = torch.optim.Adam(net.parameters(), lr=hp["learning_rate"])
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, hp["epochs"])
         history, best = meta["history"], meta["best"]
-        if resume:
-            _restore(saved, meta, net, opt, sched, gen)
-            meta["resumed_at"].append(start)
-            if best is not None:    # best/ as the checkpoint knows it (a kill may have left a newer one)
-                _save(part / "best", hp, {k[5:]: v for k, v in saved.items() if k.startswith("best/")}, env_kwargs,
-                      best)
+        if resume and best is not None:     # best/ as the checkpoint knows it (a kill may have left a newer one)
+            _save(part / "best", hp, {k[5:]: v for k, v in saved.items() if k.startswith("best/")}, env_kwargs, best)
 
         def validate(epoch, train_rmse_m):
             wc = WindowCorrection(_weights(net, hp["layers"], mean, sd), {**config, "architecture": {
-                "input_size": F.shape[1], "layers": hp["layers"]}}, base.policy, base.env_config)
+                "input_size": n_in, "layers": hp["layers"]}}, base.policy, base.env_config)
             row = {"epoch": epoch, "train_rmse_m": train_rmse_m}
             for n, (batch, brun, imm, base_ratio) in val.items():
                 r = pooled_rmse(batch, wc.correct(batch, brun, "window"))
@@ -751,7 +771,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
                     best = row
                     saved = {f"best/{k}": v for k, v in _weights(net, hp["layers"], mean, sd).items()}
                     _save(part / "best", hp, {k[5:]: v for k, v in saved.items()}, env_kwargs, jsonable(row))
-                meta.update(epoch=epoch, history=history, best=best, data_s=data_s, wall_s=row["wall_s"])
+                meta.update(epoch=epoch, history=history, best=best, data_s=data_s, wall_s=row["wall_s"],
+                            n_looks=n_looks)
                 _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd,
                                  {k: v for k, v in saved.items() if k.startswith("best/")})
                 if verbose:
@@ -763,12 +784,15 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         covariance = {}
         if hp["covariance_epochs"]:     # the head of the final weights and of the best epoch's, the network fixed
             F = Y = Wl = None       # the last draw's looks again, with their mirror made (add_covariance's inputs)
+            t1 = time.time()
             F, Y, V, _ = draw_training_looks(base, hp, draws[-1])
+            data_s += time.time() - t1
             cache = {}
             for f, key in ((part, run.name), (part / "best", "best")):    # the run's name, not the partial one
                 covariance[key] = _with_covariance(f, F, Y, V, hp["covariance_epochs"], seed, command, verbose, cache)
         summary = {"epochs": hp["epochs"], "training_looks": n_looks, "flight_draws": len(draws), "data_s": data_s,
-                   "wall_s": wall0 + time.time() - t0, "resumed_at": meta["resumed_at"], "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
+                   "wall_s": wall0 + time.time() - t0, "resumed_at": meta["resumed_at"],
+                   "best_selection_ratio": best["selection_ratio"], "best_epoch": best["epoch"],
                    "selection_history": history, "steps": hp["epochs"], "covariance": covariance}
         (part / "summary.json").write_text(json.dumps(jsonable(summary), indent=1, allow_nan=False))
         write_run_layout(part, read_kind(part)[0], jsonable(summary))
