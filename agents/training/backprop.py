@@ -77,7 +77,8 @@ from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
 from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, resumable, run_cli, run_paths, write_run_files, writing_run)
+                                  load_hyperparams, resumable, run_cli, run_paths, write_checkpoint,
+                                  write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -647,20 +648,12 @@ def _save_resume(part, model, opt, meta, best_weights):
     string) written then renamed, so a kill leaves the previous checkpoint or the new one, never a mix; ``last.json``
     beside it is ``meta`` again, for reading (and for checkpoints written before 2026-12-06, which lack it in the
     npz)."""
-    d = part / "checkpoints"
-    d.mkdir(exist_ok=True)
     arrays = {f"model/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
     arrays.update({f"best/{k}": v for k, v in (best_weights or {}).items()})
     for i, st in opt.state_dict()["state"].items():
         for k, v in st.items():
             arrays[f"adam/{i}/{k}"] = v.detach().numpy() if torch.is_tensor(v) else np.asarray(v)
-    text = json.dumps(jsonable(meta), indent=1, allow_nan=False)
-    arrays["meta_json"] = np.array(text)
-    tmp = d / "last.tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, d / "last.npz")
-    (d / "last.tmp.json").write_text(text)
-    os.replace(d / "last.tmp.json", d / "last.json")
+    write_checkpoint(part, arrays, meta)
 
 
 def _load_resume(part, model, opt):

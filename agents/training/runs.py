@@ -20,7 +20,7 @@ from importlib import resources
 from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
-           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_run_files", "mark_failed",
+           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_checkpoint", "write_run_files", "mark_failed",
            "finish_run", "writing_run", "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
 
 ENV_ID = "RadarTrack-v0"
@@ -189,6 +189,23 @@ def resumable(part, config, ignores=()):
         raise ValueError(f"--name: {str(part)!r} holds an unfinished run with another configuration (differs in "
                          f"{keys}); rerun its own command to resume it, or remove it, or choose another --name")
     return True
+
+
+def write_checkpoint(part, arrays, meta):
+    """A trainer's resume checkpoint in ``<part>/checkpoints``: ``last.npz`` holds ``arrays`` and ``meta`` (a dict)
+    as a JSON string (``meta_json``), written then renamed, so a kill leaves the previous checkpoint or the new one,
+    never a mix; ``last.json`` beside it is ``meta`` again, for reading (and what :func:`resumable` looks for). No
+    pickle: numbers and text only."""
+    import numpy as np
+    from agents.evaluation.metrics import jsonable
+    d = Path(part) / "checkpoints"
+    d.mkdir(exist_ok=True)
+    text = json.dumps(jsonable(meta), indent=1, allow_nan=False)
+    tmp = d / "last.tmp.npz"
+    np.savez(tmp, **arrays, meta_json=np.array(text))
+    os.replace(tmp, d / "last.npz")
+    (d / "last.tmp.json").write_text(text)
+    os.replace(d / "last.tmp.json", d / "last.json")
 
 
 def write_run_files(part, config, args, command, env_kwargs):

@@ -60,7 +60,8 @@ import numba
 import numpy as np
 
 from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, resumable, run_cli, run_paths, write_run_files, writing_run)
+                                  load_hyperparams, resumable, run_cli, run_paths, write_checkpoint,
+                                  write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
@@ -591,9 +592,6 @@ def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
     best epoch's saved weights and ``meta`` (the epoch, the history, the scheduler) as a JSON string, in one file
     written then renamed (a kill leaves the previous checkpoint or the new one, never a mix); ``last.json`` beside it
     is ``meta`` again, for reading. No pickle: numbers and text only."""
-    from agents.evaluation.metrics import jsonable
-    d = part / "checkpoints"
-    d.mkdir(exist_ok=True)
     arrays = {f"net/{k}": v.detach().numpy() for k, v in net.state_dict().items()}
     for i, st in opt.state_dict()["state"].items():
         for k, v in st.items():
@@ -602,14 +600,8 @@ def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
     if mean is not None:
         arrays["mean"], arrays["sd"] = mean, sd
     arrays.update(best_weights)
-    meta = json.dumps(jsonable({**meta, "scheduler": sched.state_dict(), "lr": [g["lr"] for g in opt.param_groups]}),
-                      indent=1, allow_nan=False)
-    arrays["meta_json"] = np.array(meta)
-    tmp = d / "last.tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, d / "last.npz")
-    (d / "last.tmp.json").write_text(meta)
-    os.replace(d / "last.tmp.json", d / "last.json")
+    write_checkpoint(part, arrays, {**meta, "scheduler": sched.state_dict(),
+                                    "lr": [g["lr"] for g in opt.param_groups]})
 
 
 def _resume(part, hp, net, opt, sched, gen):
