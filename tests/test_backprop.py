@@ -399,6 +399,20 @@ def test_training_run_folder_resume_and_refusal(tmp_path):
         bp.train_backprop({**hp, "learning_rate": 1e-4}, seed=3, out=tmp_path, progress=False, verbose=0,
                           run_name="r")
     assert "\n" not in str(e.value)
+    # a damaged checkpoint is refused in one line naming it; intact again, it resumes
+    npz = part / "checkpoints" / "last.npz"
+    good = npz.read_bytes()
+    with np.load(npz) as z:
+        wrong_shape = {k: (np.zeros(3) if k.startswith("model/") else z[k]) for k in z.files}
+    np.savez(npz, **wrong_shape)
+    damaged = [npz.read_bytes(), good[: len(good) // 2], b"not a checkpoint"]
+    for damage in damaged:
+        npz.write_bytes(damage)
+        with pytest.raises(ValueError, match=r"^--name: the checkpoint .*last\.npz cannot be resumed \(.*\); remove "
+                           ) as e:
+            bp.train_backprop(hp, seed=3, out=tmp_path, progress=False, verbose=0, run_name="r")
+        assert "\n" not in str(e.value)
+    npz.write_bytes(good)
     rows = []       # resumed with the other chain (how it runs, not what it computes: bp.RESUME_IGNORES)
     run = bp.train_backprop({**hp, "chain": "torch"}, seed=3, out=tmp_path, progress=False, verbose=0, run_name="r",
                             on_selection=rows.append)

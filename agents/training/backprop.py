@@ -60,6 +60,7 @@ import os
 import shlex
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -657,22 +658,42 @@ def _save_resume(part, model, opt, meta, best_weights):
 
 
 def _load_resume(part, model, opt):
-    """Restore ``model`` and ``opt`` from ``checkpoints/last.*``; returns ``(meta, best policy weights or None)``."""
+    """Restore ``model`` and ``opt`` from ``checkpoints/last.*``; returns ``(meta, best policy weights or None)``.
+    A checkpoint that cannot be read, or that does not fit the run, is a ``ValueError`` of one line naming it."""
     d = part / "checkpoints"
-    with np.load(d / "last.npz", allow_pickle=False) as z:
-        meta = json.loads(str(z["meta_json"]) if "meta_json" in z.files else (d / "last.json").read_text())
-        model.load_state_dict({k[len("model/"):]: torch.from_numpy(z[k].copy()) for k in z.files
-                               if k.startswith("model/")})
-        best = {k[len("best/"):]: z[k].copy() for k in z.files if k.startswith("best/")} or None
-        state = {}
-        for k in z.files:
-            if k.startswith("adam/"):
-                _, i, name = k.split("/")
-                state.setdefault(int(i), {})[name] = torch.from_numpy(z[k].copy())
-    sd = opt.state_dict()
-    sd["state"] = state
-    opt.load_state_dict(sd)
+    try:
+        with np.load(d / "last.npz", allow_pickle=False) as z:
+            meta = json.loads(str(z["meta_json"]) if "meta_json" in z.files else (d / "last.json").read_text())
+            weights = {k[len("model/"):]: torch.from_numpy(z[k].copy()) for k in z.files if k.startswith("model/")}
+            best = {k[len("best/"):]: z[k].copy() for k in z.files if k.startswith("best/")} or None
+            state = {}
+            for k in z.files:
+                if k.startswith("adam/"):
+                    _, i, name = k.split("/")
+                    state.setdefault(int(i), {})[name] = torch.from_numpy(z[k].copy())
+        missing = [k for k in RESUME_META_KEYS if k not in meta]
+        if missing:
+            raise ValueError(f"its meta has no {missing}")
+        if best is not None and not any(r.get("timesteps") == meta["best_step"] for r in meta["history"]):
+            raise ValueError(f"its history has no row of its best step {meta['best_step']}")
+        model.load_state_dict(weights)
+        sd = opt.state_dict()
+        sd["state"] = state
+        opt.load_state_dict(sd)
+    except (OSError, EOFError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile) as e:
+        raise ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: "
+                         f"{_one_line(e)}); remove {part} to start the run again, or choose another --name") from None
     return meta, best
+
+
+RESUME_META_KEYS = ("step", "best_ratio", "best_step", "history", "episodes_done", "row_looks", "scored_looks",
+                    "train_s", "wall_s", "resumed_at")
+"""What a checkpoint's meta must hold for :func:`_run` to go on from it (the keys a new run starts with)."""
+
+
+def _one_line(e):
+    """An exception's message on one line (torch's ``load_state_dict`` errors span several)."""
+    return " ".join(str(e).split())
 
 
 def _save_policy(directory, model, cfg, env_kwargs, extra=None, weights=None):
