@@ -77,9 +77,9 @@ from agents.evaluation.metrics import jsonable
 from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, resumable, run_cli, run_paths, write_checkpoint,
-                                  write_run_files, writing_run)
+from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
+                                  apply_cli_overrides, load_adam, load_hyperparams, resumable, run_cli, run_paths,
+                                  write_checkpoint, write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -651,9 +651,7 @@ def _save_resume(part, model, opt, meta, best_weights):
     npz)."""
     arrays = {f"model/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
     arrays.update({f"best/{k}": v for k, v in (best_weights or {}).items()})
-    for i, st in opt.state_dict()["state"].items():
-        for k, v in st.items():
-            arrays[f"adam/{i}/{k}"] = v.detach().numpy() if torch.is_tensor(v) else np.asarray(v)
+    arrays.update(adam_arrays(opt))
     write_checkpoint(part, arrays, meta)
 
 
@@ -666,20 +664,14 @@ def _load_resume(part, model, opt):
             meta = json.loads(str(z["meta_json"]) if "meta_json" in z.files else (d / "last.json").read_text())
             weights = {k[len("model/"):]: torch.from_numpy(z[k].copy()) for k in z.files if k.startswith("model/")}
             best = {k[len("best/"):]: z[k].copy() for k in z.files if k.startswith("best/")} or None
-            state = {}
-            for k in z.files:
-                if k.startswith("adam/"):
-                    _, i, name = k.split("/")
-                    state.setdefault(int(i), {})[name] = torch.from_numpy(z[k].copy())
+            adam = {k: z[k].copy() for k in z.files if k.startswith("adam/")}
         missing = [k for k in RESUME_META_KEYS if k not in meta]
         if missing:
             raise ValueError(f"its meta has no {missing}")
         if best is not None and not any(r.get("timesteps") == meta["best_step"] for r in meta["history"]):
             raise ValueError(f"its history has no row of its best step {meta['best_step']}")
         model.load_state_dict(weights)
-        sd = opt.state_dict()
-        sd["state"] = state
-        opt.load_state_dict(sd)
+        load_adam(opt, adam)
     except (OSError, EOFError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile) as e:
         raise ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: "
                          f"{_one_line(e)}); remove {part} to start the run again, or choose another --name") from None

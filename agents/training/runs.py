@@ -20,8 +20,9 @@ from importlib import resources
 from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
-           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_checkpoint", "write_run_files", "mark_failed",
-           "finish_run", "writing_run", "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
+           "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_checkpoint",
+           "adam_arrays", "load_adam", "write_run_files", "mark_failed", "finish_run", "writing_run",
+           "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
 
 ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
@@ -206,6 +207,27 @@ def write_checkpoint(part, arrays, meta):
     os.replace(tmp, d / "last.npz")
     (d / "last.tmp.json").write_text(text)
     os.replace(d / "last.tmp.json", d / "last.json")
+
+
+def adam_arrays(opt):
+    """Adam's moments and step counts of ``opt`` as arrays ``adam/<param index>/<name>`` for
+    :func:`write_checkpoint` (:func:`load_adam` puts them back)."""
+    import numpy as np
+    return {f"adam/{i}/{k}": v.detach().numpy() if hasattr(v, "detach") else np.asarray(v)
+            for i, st in opt.state_dict()["state"].items() for k, v in st.items()}
+
+
+def load_adam(opt, arrays):
+    """The ``adam/...`` entries of ``arrays`` (:func:`adam_arrays`'s) back into ``opt``'s state."""
+    import torch
+    state = {}
+    for k, v in arrays.items():
+        if k.startswith("adam/"):
+            _, i, name = k.split("/")
+            state.setdefault(int(i), {})[name] = torch.from_numpy(v)
+    sd = opt.state_dict()
+    sd["state"] = state
+    opt.load_state_dict(sd)
 
 
 def write_run_files(part, config, args, command, env_kwargs):

@@ -59,9 +59,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, apply_cli_overrides,
-                                  load_hyperparams, resumable, run_cli, run_paths, write_checkpoint,
-                                  write_run_files, writing_run)
+from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
+                                  apply_cli_overrides, load_adam, load_hyperparams, resumable, run_cli, run_paths,
+                                  write_checkpoint, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
@@ -593,9 +593,7 @@ def _save_checkpoint(part, meta, net, opt, sched, gen, mean, sd, best_weights):
     written then renamed (a kill leaves the previous checkpoint or the new one, never a mix); ``last.json`` beside it
     is ``meta`` again, for reading. No pickle: numbers and text only."""
     arrays = {f"net/{k}": v.detach().numpy() for k, v in net.state_dict().items()}
-    for i, st in opt.state_dict()["state"].items():
-        for k, v in st.items():
-            arrays[f"adam/{i}/{k}"] = v.detach().numpy() if hasattr(v, "detach") else np.asarray(v)
+    arrays.update(adam_arrays(opt))
     arrays["generator"] = gen.get_state().numpy()
     if mean is not None:
         arrays["mean"], arrays["sd"] = mean, sd
@@ -630,14 +628,7 @@ def _restore(saved, meta, net, opt, sched, gen):
     goes on with the numbers it would have had without the stop (tested to the bit)."""
     import torch
     net.load_state_dict({k[4:]: torch.from_numpy(v) for k, v in saved.items() if k.startswith("net/")})
-    state = {}
-    for k, v in saved.items():
-        if k.startswith("adam/"):
-            _, i, name = k.split("/")
-            state.setdefault(int(i), {})[name] = torch.from_numpy(v)
-    sd = opt.state_dict()
-    sd["state"] = state
-    opt.load_state_dict(sd)
+    load_adam(opt, saved)
     sched.load_state_dict(meta["scheduler"])
     for g, lr in zip(opt.param_groups, meta["lr"]):
         g["lr"] = lr
