@@ -144,7 +144,7 @@ res = {"base": BASE, "episodes": N_EP, "epochs": EPOCHS, "seed": SEED, "ref": re
        "control": fit(False), "treatment": fit(True)}
 for arm in ("control", "treatment"):
     last = res[arm][-1]
-    print(arm, {s: (round(last[s], 1), round(last[s] / ref[s]["rbpf_rdot"], 3), round(last[s] / ref[s]["imm_ct_bank_rdot"], 3))
-                for s in val})
+    print(arm, {s: (round(last[s], 1), round(last[s] / ref[s]["rbpf_rdot"], 3),
+                    round(last[s] / ref[s]["imm_ct_bank_rdot"], 3)) for s in val})
 if len(sys.argv) > 5:
     json.dump(res, open(sys.argv[5], "w"), indent=1)
