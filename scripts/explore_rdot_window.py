@@ -15,6 +15,7 @@ validation: 100 of each from the selection suites' seeds (900,000 + i), beside `
 ``rbpf_rdot`` on the same flights. Nothing held out is drawn.
 """
 import json, math, sys, time
+from pathlib import Path
 import numpy as np
 import torch
 
@@ -25,6 +26,9 @@ from agents.policies.window_correction import window_features
 from agents.training.selection import SELECTION_SEED_BASE
 from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _window_fit import fit_regression  # noqa: E402
 
 if len(sys.argv) not in (5, 6):
     sys.exit("usage: python scripts/explore_rdot_window.py BASE EPISODES EPOCHS SEED [OUT.json]")
@@ -104,40 +108,10 @@ for s, v in val.items():
 
 
 def fit(with_rdot):
-    torch.manual_seed(SEED)
-    X = np.concatenate([np.concatenate([train[s]["F"], train[s]["Fr"]], 1) if with_rdot else train[s]["F"]
-                        for s in train])
-    Y = np.concatenate([train[s]["Y"] for s in train])
-    W = np.concatenate([np.full(len(train[s]["Y"]), 1.0 / np.mean((train[s]["Y"] ** 2).sum(-1))) for s in train])
-    W /= W.mean()
-    mu, sd = X.mean(0), X.std(0)
-    sd[sd < 1e-9] = 1.0
-    Xt, Yt, Wt = torch.from_numpy((X - mu) / sd), torch.from_numpy(Y), torch.from_numpy(W)
-    net = torch.nn.Sequential(torch.nn.Linear(X.shape[1], 128), torch.nn.Tanh(), torch.nn.Linear(128, 128),
-                              torch.nn.Tanh(), torch.nn.Linear(128, 2))
-    with torch.no_grad():
-        net[-1].weight.zero_(); net[-1].bias.zero_()
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, EPOCHS)
-    g = torch.Generator().manual_seed(SEED)
-    hist = []
-    for ep in range(EPOCHS):
-        perm = torch.randperm(len(Yt), generator=g)
-        for i in range(0, len(perm), 4096):
-            idx = perm[i:i + 4096]
-            loss = (Wt[idx] * ((net(Xt[idx]) - Yt[idx]) ** 2).sum(-1)).mean()
-            opt.zero_grad(); loss.backward(); opt.step()
-        sched.step()
-        row = {"epoch": ep + 1}
-        with torch.no_grad():
-            for s, v in val.items():
-                Xv = np.concatenate([v["F"], v["Fr"]], 1) if with_rdot else v["F"]
-                o = net(torch.from_numpy((Xv - mu) / sd)).numpy()
-                e = ((v["Y"] - o) ** 2).sum(-1) * SCALE ** 2
-                row[s] = math.sqrt(e.mean())
-        hist.append(row)
-        print("rdot" if with_rdot else "ctrl", row, f"({time.time() - t0:.0f} s)", flush=True)
-    return hist
+    inputs = (lambda v: np.concatenate([v["F"], v["Fr"]], 1)) if with_rdot else (lambda v: v["F"])
+    return fit_regression([(inputs(train[s]), train[s]["Y"]) for s in train],
+                          {s: (inputs(v), v["Y"]) for s, v in val.items()}, EPOCHS, SEED, SCALE,
+                          "rdot" if with_rdot else "ctrl", t0)
 
 
 res = {"base": BASE, "episodes": N_EP, "epochs": EPOCHS, "seed": SEED, "ref": ref,

@@ -14,6 +14,7 @@ last 6-24), on ``EPISODES`` each of ``random`` and ``random_radars`` from traini
 generators with the broad laws at 940,000 + i, 100 flights each, beside ``imm_cv_ct``, ``imm_ct_bank`` and ``rbpf``.
 """
 import json, math, sys, time
+from pathlib import Path
 import numpy as np
 import torch
 
@@ -25,6 +26,9 @@ from agents.training.selection import SELECTION_SEED_BASE
 from agents.training.window import broad_config
 from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _window_fit import fit_regression  # noqa: E402
 
 args = sys.argv[1:]
 WITH_BROAD = "broad" in args
@@ -79,34 +83,8 @@ for arm, (base, q_looks) in ARMS.items():
     base_rmse = {k: math.sqrt(((v["Y"] ** 2).sum(-1) * SCALE ** 2).mean()) for k, v in val.items()}
     print(arm, "base", {k: round(v, 1) for k, v in base_rmse.items()}, "lost", {k: v["lost"] for k, v in val.items()},
           f"({time.time() - t0:.0f} s)", flush=True)
-    torch.manual_seed(SEED)
-    X = np.concatenate([t["F"] for t in train]); Y = np.concatenate([t["Y"] for t in train])
-    W = np.concatenate([np.full(len(t["Y"]), 1.0 / np.mean((t["Y"] ** 2).sum(-1))) for t in train]); W /= W.mean()
-    mu, sd = X.mean(0), X.std(0); sd[sd < 1e-9] = 1.0
-    Xt, Yt, Wt = torch.from_numpy((X - mu) / sd), torch.from_numpy(Y), torch.from_numpy(W)
-    net = torch.nn.Sequential(torch.nn.Linear(X.shape[1], 128), torch.nn.Tanh(), torch.nn.Linear(128, 128),
-                              torch.nn.Tanh(), torch.nn.Linear(128, 2))
-    with torch.no_grad():
-        net[-1].weight.zero_(); net[-1].bias.zero_()
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, EPOCHS)
-    g = torch.Generator().manual_seed(SEED)
-    hist = []
-    for ep in range(EPOCHS):
-        perm = torch.randperm(len(Yt), generator=g)
-        for i in range(0, len(perm), 4096):
-            idx = perm[i:i + 4096]
-            loss = (Wt[idx] * ((net(Xt[idx]) - Yt[idx]) ** 2).sum(-1)).mean()
-            opt.zero_grad(); loss.backward(); opt.step()
-        sched.step()
-        row = {"epoch": ep + 1}
-        with torch.no_grad():
-            for k, v in val.items():
-                o = net(torch.from_numpy((v["F"] - mu) / sd)).numpy()
-                row[k] = math.sqrt((((v["Y"] - o) ** 2).sum(-1) * SCALE ** 2).mean())
-        hist.append(row)
-        print(arm, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()},
-              f"({time.time() - t0:.0f} s)", flush=True)
+    hist = fit_regression([(t["F"], t["Y"]) for t in train], {k: (v["F"], v["Y"]) for k, v in val.items()},
+                          EPOCHS, SEED, SCALE, arm, t0)
     res["arms"][arm] = {"base": base_rmse, "history": hist}
 ref = {}
 for k, e in val_eps.items():
