@@ -52,3 +52,14 @@ def fit_regression(train, val, epochs, seed, scale_m, tag="", t0=None):
         print(tag, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()},
               f"({time.time() - t0:.0f} s)", flush=True)
     return hist
+
+
+class ClassicalBase:
+    """A classical tracker of the registry as a window's base: ``run(episodes)`` as a learned tracker's."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def run(self, episodes):
+        from baselines.registry import run_tracker
+        return run_tracker(self.name, episodes)

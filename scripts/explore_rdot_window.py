@@ -17,7 +17,6 @@ validation: 100 of each from the selection suites' seeds (900,000 + i), beside `
 import json, math, sys, time
 from pathlib import Path
 import numpy as np
-import torch
 
 from agents.evaluation.metrics import region_masks
 from agents.evaluation.suites import draw_suite
@@ -28,24 +27,16 @@ from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _window_fit import fit_regression  # noqa: E402
+from _window_fit import ClassicalBase, fit_regression  # noqa: E402
 
 if len(sys.argv) not in (5, 6):
     sys.exit("usage: python scripts/explore_rdot_window.py BASE EPISODES EPOCHS SEED [OUT.json]")
 BASE, N_EP, EPOCHS, SEED = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
 K, SCALE, FITS, SV = 24, 300.0, (6, 8, 12, 16, 24), 30.0
-torch.set_default_dtype(torch.float64)
 
 
-class Classical:
-    def __init__(self, name):
-        self.name = name
 
-    def run(self, eps):
-        return run_tracker(self.name, eps)
-
-
-base = load_learned(BASE) if BASE.startswith("policy") else Classical(BASE)
+base = load_learned(BASE) if BASE.startswith("policy") else ClassicalBase(BASE)
 
 
 def rdot_features(b, run, ca, sa):

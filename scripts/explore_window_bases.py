@@ -16,7 +16,6 @@ generators with the broad laws at 940,000 + i, 100 flights each, beside ``imm_cv
 import json, math, sys, time
 from pathlib import Path
 import numpy as np
-import torch
 
 from agents.evaluation.metrics import region_masks
 from agents.evaluation.suites import draw_suite
@@ -28,7 +27,7 @@ from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _window_fit import fit_regression  # noqa: E402
+from _window_fit import ClassicalBase, fit_regression  # noqa: E402
 
 args = sys.argv[1:]
 WITH_BROAD = "broad" in args
@@ -37,18 +36,11 @@ if len(args) not in (3, 4):
     sys.exit("usage: python scripts/explore_window_bases.py EPISODES EPOCHS SEED [broad] [OUT.json]")
 N_EP, EPOCHS, SEED = int(args[0]), int(args[1]), int(args[2])
 K, SCALE, FITS = 24, 300.0, (6, 8, 12, 16, 24)
-torch.set_default_dtype(torch.float64)
 
 
-class Classical:
-    def __init__(self, name):
-        self.name = name
 
-    def run(self, eps):
-        return run_tracker(self.name, eps)
-
-
-ARMS = {"bp_prior": (load_learned("policy_bp_prior"), 12), "imm_ct_bank": (Classical("imm_ct_bank"), 0)}
+ARMS = {"bp_prior": (load_learned("policy_bp_prior"), 12),
+        "imm_ct_bank": (ClassicalBase("imm_ct_bank"), 0)}
 
 
 def looks(base, q_looks, eps):
