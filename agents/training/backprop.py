@@ -60,7 +60,6 @@ import os
 import shlex
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -77,9 +76,9 @@ from agents.evaluation.metrics import jsonable
 from agents.policies.checks import env_kwargs_from_json
 from agents.policies.recurrent import RecurrentQPolicy, save_recurrent_policy, weight_shapes
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites
-from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
-                                  apply_cli_overrides, load_adam, load_hyperparams, resumable, run_cli, run_paths,
-                                  write_checkpoint, write_run_files, writing_run)
+from agents.training.runs import (CHECKPOINT_ERRORS, EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
+                                  apply_cli_overrides, checkpoint_refusal, load_adam, load_hyperparams, resumable,
+                                  run_cli, run_paths, write_checkpoint, write_run_files, writing_run)
 
 __all__ = ["ChainModel", "CVQModel", "MODELS", "HP_FILES", "HP_SPEC", "HP_OPTIONAL", "CHAINS", "LOSSES", "check_hp",
            "train_backprop", "chunk_looks", "observe",
@@ -672,20 +671,14 @@ def _load_resume(part, model, opt):
             raise ValueError(f"its history has no row of its best step {meta['best_step']}")
         model.load_state_dict(weights)
         load_adam(opt, adam)
-    except (OSError, EOFError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile) as e:
-        raise ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: "
-                         f"{_one_line(e)}); remove {part} to start the run again, or choose another --name") from None
+    except CHECKPOINT_ERRORS as e:
+        raise checkpoint_refusal(part, e) from None
     return meta, best
 
 
 RESUME_META_KEYS = ("step", "best_ratio", "best_step", "history", "episodes_done", "row_looks", "scored_looks",
                     "train_s", "wall_s", "resumed_at")
 """What a checkpoint's meta must hold for :func:`_run` to go on from it (the keys a new run starts with)."""
-
-
-def _one_line(e):
-    """An exception's message on one line (torch's ``load_state_dict`` errors span several)."""
-    return " ".join(str(e).split())
 
 
 def _save_policy(directory, model, cfg, env_kwargs, extra=None, weights=None):

@@ -16,13 +16,14 @@ import os
 import shutil
 import tomllib
 import traceback
+import zipfile
 from importlib import resources
 from pathlib import Path
 
 __all__ = ["ENV_ID", "TRAIN_SCENARIOS", "HP_DIR", "HP_NAMES", "load_hyperparams", "parse_hp", "apply_cli_overrides",
            "check_plain_name", "RunLock", "run_paths", "open_run_folder", "resumable", "write_checkpoint",
-           "adam_arrays", "load_adam", "write_run_files", "mark_failed", "finish_run", "writing_run",
-           "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
+           "CHECKPOINT_ERRORS", "checkpoint_refusal", "adam_arrays", "load_adam", "write_run_files", "mark_failed",
+           "finish_run", "writing_run", "EVAL_SCENARIOS_HP", "SELECT_ON_HP"]
 
 ENV_ID = "RadarTrack-v0"
 TRAIN_SCENARIOS = ("random", "random_radars")
@@ -207,6 +208,18 @@ def write_checkpoint(part, arrays, meta):
     os.replace(tmp, d / "last.npz")
     (d / "last.tmp.json").write_text(text)
     os.replace(d / "last.tmp.json", d / "last.json")
+
+
+CHECKPOINT_ERRORS = (OSError, EOFError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile)
+"""What reading a damaged or foreign checkpoint raises (numpy, zipfile, json, torch's ``load_state_dict``)."""
+
+
+def checkpoint_refusal(part, e):
+    """The one-line ``ValueError`` for a checkpoint in ``part`` that cannot be resumed, from the error ``e``
+    (its message folded onto one line: torch's ``load_state_dict`` errors span several)."""
+    d = Path(part) / "checkpoints"
+    return ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: "
+                      f"{' '.join(str(e).split())}); remove {part} to start the run again, or choose another --name")
 
 
 def adam_arrays(opt):

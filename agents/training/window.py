@@ -53,15 +53,14 @@ import os
 import shlex
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from agents.training.runs import (EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
-                                  apply_cli_overrides, load_adam, load_hyperparams, resumable, run_cli, run_paths,
-                                  write_checkpoint, write_run_files, writing_run)
+from agents.training.runs import (CHECKPOINT_ERRORS, EVAL_SCENARIOS_HP, SELECT_ON_HP, TRAIN_SCENARIOS, adam_arrays,
+                                  apply_cli_overrides, checkpoint_refusal, load_adam, load_hyperparams, resumable,
+                                  run_cli, run_paths, write_checkpoint, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
@@ -617,9 +616,8 @@ def _resume(part, hp, net, opt, sched, gen):
             if key not in meta:
                 raise ValueError(f"its meta_json has no {key!r}")
         _restore(saved, meta, net, opt, sched, gen)
-    except (OSError, ValueError, KeyError, TypeError, RuntimeError, zipfile.BadZipFile) as e:
-        raise ValueError(f"--name: the checkpoint {d / 'last.npz'} cannot be resumed ({type(e).__name__}: {e}); "
-                         f"remove {part} to start the run again, or choose another --name") from None
+    except CHECKPOINT_ERRORS as e:
+        raise checkpoint_refusal(part, e) from None
     return meta, saved
 
 
