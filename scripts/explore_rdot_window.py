@@ -22,7 +22,7 @@ from agents.evaluation.metrics import region_masks
 from agents.evaluation.suites import draw_suite
 from agents.policies.learned import load_learned
 from agents.policies.window_correction import window_features
-from agents.training.selection import SELECTION_SEED_BASE
+from agents.training.selection import SELECTION_SEED_BASE, pooled_rmse
 from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
 
@@ -84,17 +84,14 @@ for suite in ("random", "random_radars"):
     parts = [looks(draw_suite(suite, min(500, N_EP - c), seed=SEED + c)) for c in range(0, N_EP, 500)]
     train[suite] = {k: np.concatenate([p[k] for p in parts]) for k in ("F", "Fr", "Y")}
     print(suite, "training looks", len(train[suite]["Y"]), f"({time.time() - t0:.0f} s)", flush=True)
-val = {s: looks(draw_suite(s, 100, seed=SELECTION_SEED_BASE)) for s in ("random", "random_radars")}
+val_eps = {s: draw_suite(s, 100, seed=SELECTION_SEED_BASE) for s in ("random", "random_radars")}
+val = {s: looks(e) for s, e in val_eps.items()}
 ref = {}
 for s, v in val.items():
     e = (v["Y"] ** 2).sum(-1) * SCALE ** 2
     ref[s] = {"base": math.sqrt(e.mean())}
     for t in ("imm_ct_bank_rdot", "rbpf_rdot"):
-        r = run_tracker(t, draw_suite(s, 100, seed=SELECTION_SEED_BASE))
-        b = v["b"]
-        m = region_masks(b, r.start_index)["used"]
-        err = (b.truth[..., :2] - r.x[..., :2])
-        ref[s][t] = float(np.sqrt(np.mean((err[m] ** 2).sum(-1))))
+        ref[s][t] = pooled_rmse(v["b"], run_tracker(t, val_eps[s]))
     print(s, "validation", ref[s], f"({time.time() - t0:.0f} s)", flush=True)
 
 

@@ -21,7 +21,7 @@ from agents.evaluation.metrics import region_masks
 from agents.evaluation.suites import draw_suite
 from agents.policies.learned import load_learned
 from agents.policies.window_correction import window_features
-from agents.training.selection import SELECTION_SEED_BASE
+from agents.training.selection import SELECTION_SEED_BASE, pooled_rmse
 from agents.training.window import broad_config
 from baselines.registry import run_tracker
 from radar_env.sim.episode import stack_episodes
@@ -82,9 +82,7 @@ ref = {}
 for k, e in val_eps.items():
     b = stack_episodes(e)
     for t in ("imm_cv_ct", "imm_ct_bank", "rbpf"):
-        r = run_tracker(t, e)
-        m = region_masks(b, r.start_index)["used"]
-        ref.setdefault(k, {})[t] = float(np.sqrt(np.mean(((b.truth[..., :2] - r.x[..., :2])[m] ** 2).sum(-1))))
+        ref.setdefault(k, {})[t] = pooled_rmse(b, run_tracker(t, e))
     print(k, ref[k], flush=True)
 res["ref"] = ref
 for arm, a in res["arms"].items():
