@@ -78,3 +78,43 @@ def test_broad_generators_are_checked_and_keep_their_seeds_in_the_training_range
     # seed 600,000: the broad flights would reach 600,000 + 300,000 + the draws: past the selection suites' seeds
     with pytest.raises(ValueError, match=r"--seed: the training flights' seeds 600000\.\.9\d{5} must lie in"):
         window.train_window(hp, seed=600_000, out="/nonexistent")
+
+
+def test_episodes_table_draws_each_suites_own_count_and_the_draws_stay_apart(monkeypatch):
+    """episodes as a table {suite: flights}: each suite draws its count from the same seeds as with one number, draw
+    d starts at S + d * the largest count (so no seed serves two draws), and the table is checked against scenarios."""
+    import agents.evaluation.suites as suites
+    seen = []
+
+    def fake(name, runs, seed, random_config=None):
+        seen.append((name, runs, seed))
+        return []
+
+    monkeypatch.setattr(suites, "draw_suite", fake)
+    one = (window.np.zeros((1, 3)), window.np.ones((1, 2)), window.np.zeros((1, 2)))
+    monkeypatch.setattr(window, "training_looks", lambda *a, **k: one)
+    hp = {**load_hyperparams("window"), "scenarios": ["random", "random_broad"],
+          "episodes": {"random": 1200, "random_broad": 300}, "epochs": 20, "fresh_flights_every": 10}
+    hp = window.check_hp(hp)[0]
+    assert window.suite_episodes(hp) == {"random": 1200, "random_broad": 300}
+    assert window.flight_draws(hp, 100) == [100, 1300]
+    F = window.draw_training_looks(None, hp, 1300, with_mirror=False)[0]
+    assert len(F) == 4                          # one fake look per chunk of flights
+    off = window.BROAD_SEED_OFFSET
+    assert seen == [("random", 500, 1300), ("random", 500, 1800), ("random", 200, 2300),
+                    ("random", 300, 1300 + off)]
+    assert window.suite_episodes({**hp, "episodes": 7}) == {"random": 7, "random_broad": 7}
+
+
+@pytest.mark.parametrize("episodes, match", [
+    ({"random": 10}, r"episodes: a table's keys must be the scenarios \['random', 'random_broad'\], got \['random'\]"),
+    ({"random": 10, "random_broad": 0},
+     r"--hp episodes: random_broad's count must be an integer in \[1, 200000\], got 0"),
+    ({"random": 10, "random_broad": 2.5}, "random_broad's count must be an integer"),
+    (0, r"--hp episodes: must be an integer in \[1, 200000\], got 0"),
+])
+def test_episodes_table_is_checked_in_one_line(episodes, match):
+    hp = {**load_hyperparams("window"), "scenarios": ["random", "random_broad"], "episodes": episodes}
+    with pytest.raises(ValueError, match=match) as e:
+        window.check_hp(hp)
+    assert "\n" not in str(e.value)

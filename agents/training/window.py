@@ -9,18 +9,19 @@ the base's frame, in ``scale_m``), and fit the MLP by Adam on the squared offset
 layer when saved, :func:`_weights`); ``weight_suites`` weighs each suite's looks by 1 / the base's mean squared error
 there, so every suite counts alike.
 
-Flights: ``episodes`` of each suite in ``scenarios`` (the random generators), suite ``s``'s flight ``i`` drawn as
-the evaluation draws run ``i`` of a suite (:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the
-training seed): seeds ``S .. S + episodes - 1``, inside the training range below the selection suites' 900_000;
+Flights: ``episodes`` of each suite in ``scenarios`` (the random generators; or a table of each suite's count,
+:func:`suite_episodes`), suite ``s``'s flight ``i`` drawn as the evaluation draws run ``i`` of a suite
+(:func:`agents.evaluation.suites.draw_suite`) with base seed ``S`` (the training seed): seeds ``S .. S + n_s - 1``
+(``n_s`` the suite's count), inside the training range below the selection suites' 900_000;
 their generator's ``first_leg_min_s`` is the hyperparameter's (:func:`training_config`; 0: a flight can turn during
 its track start, so the network learns little of where flights begin: only that a first leg lasts 30 s or more).
 A suite may also be a broad version of a random generator (:data:`BROAD_SCENARIOS`, ``random_broad`` and
 ``random_radars_broad``: the backprop recipe's broad flights, :func:`broad_config`), its flights at seeds
 ``S + BROAD_SEED_OFFSET ..``.
 With ``fresh_flights_every`` = ``e`` > 0 the flights are drawn afresh every ``e`` epochs: draw ``d`` (epochs
-``d e + 1 ..``) takes seeds ``S + d episodes ..`` (:func:`flight_draws`), every draw inside the training range; the
-input standardisation is the first draw's, the suite weights each draw's own, and the covariance head is fitted on
-the last draw's looks.
+``d e + 1 ..``) takes seeds ``S + d M ..`` (:func:`flight_draws`; ``M`` the largest count), every draw inside the
+training range; the input standardisation is the first draw's, the suite weights each draw's own, and the covariance
+head is fitted on the last draw's looks.
 Looks scored are those the evaluation scores (after the common track start, the first look excluded). ``mirror``
 adds every look reflected across the base track (a right turn for each left turn; the inputs' and the target's
 across components change sign). Validation every ``eval_every`` epochs and at the end, as every trainer's
@@ -63,8 +64,8 @@ from agents.training.runs import (CHECKPOINT_ERRORS, EVAL_SCENARIOS_HP, SELECT_O
                                   run_cli, run_paths, write_checkpoint, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
-__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "mirror_signs",
-           "training_batch", "input_standardisation", "fit_covariance_head",
+__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "suite_episodes",
+           "mirror_signs", "training_batch", "input_standardisation", "fit_covariance_head",
            "add_covariance", "train_window", "main_from_args"]
 
 COV_SCALE_M_S = 30.0
@@ -123,7 +124,6 @@ def check_hp(hp):
     from agents.policies.window_correction import check_fit_looks, check_q_looks
     hp["fit_looks"] = list(check_fit_looks(hp["fit_looks"], hp["window_looks"], "--hp fit_looks"))
     hp["q_looks"] = check_q_looks(hp["q_looks"], hp["window_looks"], "--hp q_looks")
-    _int_in(hp, "episodes", 1, 200_000)
     _int_in(hp, "epochs", 1, 10_000)
     _int_in(hp, "batch_looks", 1, 1 << 20)
     _int_in(hp, "eval_every", 1, 10_000)
@@ -143,6 +143,16 @@ def check_hp(hp):
     if not isinstance(sc, list) or not sc or any(s not in WINDOW_SCENARIOS for s in sc) or len(set(sc)) != len(sc):
         raise ValueError(f"--hp scenarios: a list of distinct training generators from {list(WINDOW_SCENARIOS)}, "
                          f"got {sc!r}")
+    ep = hp["episodes"]
+    if isinstance(ep, dict):
+        if set(ep) != set(sc):
+            raise ValueError(f"--hp episodes: a table's keys must be the scenarios {sc!r}, got {sorted(ep)!r}")
+        for name in sc:
+            v = ep[name]
+            if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= 200_000:
+                raise ValueError(f"--hp episodes: {name}'s count must be an integer in [1, 200000], got {v!r}")
+    else:
+        _int_in(hp, "episodes", 1, 200_000)
     for key, (ok, what) in (("eval_scenarios", EVAL_SCENARIOS_HP), ("select_on", SELECT_ON_HP)):
         if not ok(hp[key]):
             raise ValueError(f"--hp {key}: {what}, got {hp[key]!r}")
@@ -430,12 +440,20 @@ def _with_covariance(folder, F, Y, V, epochs, seed, command, verbose, cache=None
     return stats
 
 
+def suite_episodes(hp):
+    """``{suite: training flights per draw}`` of ``hp["scenarios"]``: ``episodes`` for every suite, or its table's
+    count for each."""
+    ep = hp["episodes"]
+    return {name: int(ep[name] if isinstance(ep, dict) else ep) for name in hp["scenarios"]}
+
+
 def flight_draws(hp, seed):
     """The first seed of each draw of training flights (module docstring): ``[S]`` without ``fresh_flights_every``,
-    else ``S + d episodes`` for each draw ``d`` over the epochs."""
+    else ``S + d M`` for each draw ``d`` over the epochs, ``M`` the largest of the suites' ``episodes``."""
     every = hp["fresh_flights_every"]
     n = -(-hp["epochs"] // every) if every else 1
-    return [int(seed) + d * hp["episodes"] for d in range(n)]
+    ep = hp["episodes"]
+    return [int(seed) + d * (max(ep.values()) if isinstance(ep, dict) else ep) for d in range(n)]
 
 
 def training_config(hp):
@@ -462,12 +480,12 @@ def draw_training_looks(base, hp, seed, with_mirror=True):
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
     q_looks = hp.get("q_looks", 0)         # (nor the q inputs)
     cfg = training_config(hp)
-    for name in hp["scenarios"]:
+    for name, n_ep in suite_episodes(hp).items():
         chunks = []
         gen, laws, s0 = ((BROAD_SCENARIOS[name], broad_config(), seed + BROAD_SEED_OFFSET) if name in BROAD_SCENARIOS
                          else (name, cfg, seed))
-        for c0 in range(0, hp["episodes"], 500):       # chunks: the base's runs stay a few hundred MB
-            eps = draw_suite(gen, min(500, hp["episodes"] - c0), seed=s0 + c0, random_config=laws)
+        for c0 in range(0, n_ep, 500):       # chunks: the base's runs stay a few hundred MB
+            eps = draw_suite(gen, min(500, n_ep - c0), seed=s0 + c0, random_config=laws)
             chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks))
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
@@ -646,11 +664,12 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     hp, base = check_hp(dict(hp))
     seed = int(seed)
     draws = flight_draws(hp, seed)
-    last = draws[-1] + hp["episodes"] + (BROAD_SEED_OFFSET if set(hp["scenarios"]) & set(BROAD_SCENARIOS) else 0)
+    n_most = max(suite_episodes(hp).values())
+    last = draws[-1] + n_most + (BROAD_SEED_OFFSET if set(hp["scenarios"]) & set(BROAD_SCENARIOS) else 0)
     if not 0 <= seed or last > SELECTION_SEED_BASE:
         raise ValueError(f"--seed: the training flights' seeds {seed}..{last - 1} must lie in "
                          f"[0, {SELECTION_SEED_BASE}) (below the selection suites' seeds; "
-                         f"{len(draws)} draw(s) of {hp['episodes']} flights)")
+                         f"{len(draws)} draw(s) of up to {n_most} flights per suite)")
     try:
         selection = SelectionSuites(hp["eval_scenarios"], SELECTION_SEED_BASE, hp["select_on"])
     except ValueError as e:
