@@ -31,19 +31,23 @@ def _history(run):
     return s, [{k: v for k, v in r.items() if k != "wall_s"} for r in s["selection_history"]]
 
 
-def test_a_stopped_window_run_resumes_to_the_numbers_of_one_never_stopped(tmp_path, monkeypatch):
-    whole = window.train_window(HP, seed=700, out=tmp_path, verbose=0, run_name="whole")
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_a_stopped_window_run_resumes_to_the_numbers_of_one_never_stopped(tmp_path, monkeypatch, dtype):
+    """In either training precision (float32: the network's weights and Adam's moments in float32, saved as float64
+    as every correction's)."""
+    hp = {**HP, "dtype": dtype}
+    whole = window.train_window(hp, seed=700, out=tmp_path, verbose=0, run_name="whole")
     with monkeypatch.context() as m:
         _stop_at_second_draw(m)
         with pytest.raises(RunInterrupted) as e:
-            window.train_window(HP, seed=700, out=tmp_path, verbose=0, run_name="stopped")
+            window.train_window(hp, seed=700, out=tmp_path, verbose=0, run_name="stopped")
     assert e.value.resumable and "resume" in e.value.message("radar-track train --method window --seed 700")
     part = tmp_path / "stopped.partial"
     assert json.loads((part / "checkpoints" / "last.json").read_text())["epoch"] == 2
     # another configuration under this name is refused, naming what differs; the checkpoint is left as it was
     with pytest.raises(ValueError, match=r"--name: .*another configuration \(differs in \['learning_rate'\]\)"):
-        window.train_window({**HP, "learning_rate": 1e-3}, seed=700, out=tmp_path, verbose=0, run_name="stopped")
-    resumed = window.train_window(HP, seed=700, out=tmp_path, verbose=0, run_name="stopped")
+        window.train_window({**hp, "learning_rate": 1e-3}, seed=700, out=tmp_path, verbose=0, run_name="stopped")
+    resumed = window.train_window(hp, seed=700, out=tmp_path, verbose=0, run_name="stopped")
     for f in ("policy.npz", "best/policy.npz"):
         a, b = np.load(whole / f), np.load(resumed / f)
         assert sorted(a.files) == sorted(b.files)
@@ -53,6 +57,8 @@ def test_a_stopped_window_run_resumes_to_the_numbers_of_one_never_stopped(tmp_pa
     assert hw == hr and len(hw) == 4
     assert sr["resumed_at"] == [2] and sw["resumed_at"] == [] and sr["best_epoch"] == sw["best_epoch"]
     assert not (resumed / "FAILED").exists()
+    w = np.load(resumed / "policy.npz")
+    assert all(w[k].dtype == np.float64 for k in w.files)
 
 
 def test_a_run_stopped_after_its_last_epoch_resumes_to_its_end(tmp_path, monkeypatch):

@@ -39,6 +39,8 @@ def test_training_flights_are_drawn_with_that_config(monkeypatch):
     ("eval_scenarios", "{random=100}", r"eval_scenarios: a JSON object \{suite: runs >= 1\}"),
     ("eval_scenarios", {"random": 0}, "eval_scenarios"),
     ("select_on", "random", "select_on: a list of suite names"),
+    ("dtype", "float16", r"--hp dtype: the network's training precision, one of"
+     r" \['float64', 'float32'\], got 'float16'"),
 ])
 def test_bad_values_are_refused_in_one_line(key, value, match):
     hp = {**load_hyperparams("window"), key: value}
