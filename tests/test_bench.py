@@ -79,3 +79,16 @@ def test_learned_cost_bench_runs(capsys):
     text = capsys.readouterr().out
     rows = [line for line in text.splitlines() if line.startswith("| imm_cv_ct |") or line.startswith("| policy_bp |")]
     assert len(rows) == 2 and rows[0].endswith("| 1.00 |")
+
+
+def test_window_step_bench_runs(capsys):
+    """benchmarks/bench_window_step.py: one row per precision and their ratio (the numbers not asserted)."""
+    path = BENCH.with_name("bench_window_step.py")
+    spec = importlib.util.spec_from_file_location("bench_window_step", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main(["--rounds", "1", "--steps", "1", "--layers", "8", "--batch", "64"])
+    text = capsys.readouterr().out
+    assert [line.split("|")[1].strip() for line in text.splitlines() if line.startswith("| float")] == [
+        "float64", "float32"]
+    assert "float64 / float32: " in text
