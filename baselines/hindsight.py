@@ -499,7 +499,6 @@ def _optimise(prob, starts_lq, starts_w, lq_bounds, w_max, iterations):
     s_w = (np.arcsin(np.clip(np.stack(starts_w, 1).reshape(B * S, J) / w_max, -inner, inner)) if turn
            else np.zeros((B * S, J)))
     s0 = np.concatenate([s_q, s_w], axis=1) if turn else s_q
-    raw = {}
 
     def schedule(sv):
         lq = c + h * np.sin(sv[:, :J])

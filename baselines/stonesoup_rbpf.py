@@ -48,7 +48,7 @@ from baselines import stonesoup_components as _ss
 from baselines.rbpf import DEFAULT_RBPF, RBPFSpec, episode_key
 from radar_env.filters.imm_cv_ct import _moments
 from radar_env.filters.kernels import _logsumexp
-from radar_env.filters.rbpf import STRAIGHT, TURN, _init_row, _predict_look, _update_look, prior_vector
+from radar_env.filters.rbpf import _init_row, _predict_look, _update_look, prior_vector
 
 from stonesoup.base import Property
 from stonesoup.models.measurement.base import MeasurementModel

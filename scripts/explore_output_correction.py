@@ -9,7 +9,6 @@ tracker of the package (the correction is not saved with the policy):
 
 writes runs/NAME as ``radar-track train --method backprop`` does.
 """
-import math
 import sys
 
 import numpy as np
@@ -17,7 +16,6 @@ import torch
 
 from agents.training import backprop as bp
 from agents.training.backprop import CVQModel, observe, DTYPE
-from agents.training.selection import pooled_rmse
 from baselines.trackers import TrackRun
 from radar_env.envs.core import actions_to_q_m_s2
 from radar_env.sim.episode import stack_episodes
@@ -62,7 +60,7 @@ class CorrModel(CVQModel):
 
     def chunk_forward(self, tracker, layout, obs, looks):
         from radar_env.filters.compiled_chain import cv_run
-        B, J = looks.B, looks.J
+        J = looks.J
         active = looks.scored.numpy()
         h = self.h.detach()
         hs = []

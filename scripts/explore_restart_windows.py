@@ -76,9 +76,9 @@ def main():
 
     for name in runs:
         report(name, runs[name].x)
-    E = {j: report(f"window {j}", Xw[j]) for j in (3, 4, 6, 8, 12)}
+    for j in (3, 4, 6, 8, 12):
+        report(f"window {j}", Xw[j])
     main = runs["policy_bp"].x
-    em = np.hypot(*(main[..., :2] - b.truth[..., :2]).transpose(2, 0, 1))
     # oracle: per look best of main and windows 3..JMAX
     cands = [main] + [Xw[j] for j in range(3, JMAX + 1)]
     errs = np.stack([np.hypot(*(c[..., :2] - b.truth[..., :2]).transpose(2, 0, 1)) for c in cands])
@@ -90,7 +90,7 @@ def main():
     for p in (0.01, 0.001, 1e-4):
         for jmin in (3, 4, 5):
             X = main.copy()
-            ok = np.zeros((B, K), bool); L = np.zeros((B, K), int)
+            L = np.zeros((B, K), int)
             for j in range(jmin, JMAX + 1):
                 good = np.isfinite(C2[j]) & (C2[j] <= chi2.ppf(1 - p, 2 * j - 4))
                 L = np.where(good, j, L)

@@ -305,7 +305,7 @@ def _suite_header(suite, res, compact=False):
 
 def compact_legend(reference="imm2", few_runs=False):
     """The lines printed under the compact table, naming its columns (``few_runs``: and the ``(n<20)`` mark)."""
-    return [f"columns: RMSE = position RMSE (m) over the runs not failed [95% CI]; score: 0 = kf_tuned, 100 = rbpf;",
+    return ["columns: RMSE = position RMSE (m) over the runs not failed [95% CI]; score: 0 = kf_tuned, 100 = rbpf;",
             "man / aft / str = position RMSE (m) in maneuvers / up to 60 s after one / on straight legs;",
             "ANEES: 1 = a consistent covariance; lost: share of runs lost; fail: runs failed;",
             f"/{reference}: RMSE / {reference}'s RMSE, paired over the runs neither failed [95% CI]"

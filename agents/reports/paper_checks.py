@@ -511,7 +511,7 @@ def _bizup_md(d, fig_prefix):
         "",
         "### The CKF's fading-memory average on this scenario",
         "",
-        f"| quantity | value |",
+        "| quantity | value |",
         "|---|---|",
         f"| FMA over all looks after the start (km), min / max | {ck['fma_min_m'] / 1e3:.2f} / "
         f"{ck['fma_max_m'] / 1e3:.2f} |",

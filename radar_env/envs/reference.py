@@ -17,7 +17,6 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-import numpy as np
 
 __all__ = ["render", "main", "PAGE", "ARGUMENTS", "NUMERIC_RANGES"]
 
