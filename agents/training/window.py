@@ -465,8 +465,13 @@ def flight_draws(hp, seed):
     else ``S + d M`` for each draw ``d`` over the epochs, ``M`` the largest of the suites' ``episodes``."""
     every = hp["fresh_flights_every"]
     n = -(-hp["epochs"] // every) if every else 1
+    return [int(seed) + d * _most_episodes(hp) for d in range(n)]
+
+
+def _most_episodes(hp):
+    """The largest count of ``episodes`` (the number, or its table's largest): the seeds one draw spans."""
     ep = hp["episodes"]
-    return [int(seed) + d * (max(ep.values()) if isinstance(ep, dict) else ep) for d in range(n)]
+    return max(ep.values()) if isinstance(ep, dict) else ep
 
 
 def training_config(hp):
@@ -677,7 +682,7 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
     hp, base = check_hp(dict(hp))
     seed = int(seed)
     draws = flight_draws(hp, seed)
-    n_most = max(suite_episodes(hp).values())
+    n_most = _most_episodes(hp)
     last = draws[-1] + n_most + (BROAD_SEED_OFFSET if set(hp["scenarios"]) & set(BROAD_SCENARIOS) else 0)
     if not 0 <= seed or last > SELECTION_SEED_BASE:
         raise ValueError(f"--seed: the training flights' seeds {seed}..{last - 1} must lie in "
