@@ -95,9 +95,11 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
                             "tanh layer of 64, lr 5e-3, 3,000 steps, on the random and random_radars suites' flight "
                             "laws (agents/bundled/backprop_prior/CHOICE.md)",
            WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 24 plots in "
-                          "the base track's frame and least-squares quadratics through the last 6-24 of them and the base's q at its last 12 looks, moving its reported position, trained by regression on 4,000 "
-                          "flights of each random suite, their first leg drawn as every leg (inputs standardised, suites weighted alike, 80 epochs with "
-                          "the flights drawn afresh every 10, selected also on flights whose start is unknown; "
+                          "the base track's frame and least-squares quadratics through the last 6-24 of them and the "
+                          "base's q at its last 12 looks, moving its reported position, trained by regression on 4,000 "
+                          "flights of each random suite, their first leg drawn as every leg (inputs standardised, suites "
+                          "weighted alike, 160 epochs in float32 with the flights drawn afresh every 10, selected also "
+                          "on flights whose start is unknown; "
                           "agents/training/hyperparams/window.toml; radar-track "
                           "train --method window; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
