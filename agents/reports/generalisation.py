@@ -97,11 +97,10 @@ RECIPES = {"broad_fs4": "B: as broad, with frame_stack 4 (the last four observat
            WINDOW_RECIPE: "a window correction of policy_bp_prior: an MLP (tanh 128, 128) over the last 24 plots in "
                           "the base track's frame and least-squares quadratics through the last 6-24 of them and the "
                           "base's q at its last 12 looks, moving its reported position, trained by regression on 4,000 "
-                          "flights of each random suite, their first leg drawn as every leg (inputs standardised, suites "
-                          "weighted alike, 160 epochs in float32 with the flights drawn afresh every 10, selected also "
-                          "on flights whose start is unknown; "
-                          "agents/training/hyperparams/window.toml; radar-track "
-                          "train --method window; agents/bundled/window/CHOICE.md)",
+                          "flights of each random suite, their first leg drawn as every leg (inputs standardised, "
+                          "suites weighted alike, 160 epochs in float32 with the flights drawn afresh every 10, "
+                          "selected also on flights whose start is unknown; agents/training/hyperparams/window.toml; "
+                          "radar-track train --method window; agents/bundled/window/CHOICE.md)",
            IMM_PPO_RECIPE: "learned IMM by PPO: RadarTrack-v0 with tracker='imm_cv_ct' (the IMM's per-look "
                            "parameters as a continuous action), ppo.toml, 1.2 M steps"}
 """This round's recipes (issue 20), each trained with seeds 700000, 710000 and 720000; the bundle is the seed the
