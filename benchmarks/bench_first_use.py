@@ -1,7 +1,10 @@
 """First use of every registered id with an empty numba cache (issue 35: make + reset + step of each env, at most
 20 s): a fresh interpreter per run, ``NUMBA_CACHE_DIR`` pointed at an empty temporary folder; for each id in
 ``radar_env.ENV_VARIANTS`` order, ``gym.make(id)`` + reset + one step, then a 4-row native vector env of the same
-id + reset + one step. Prints the seconds per id, the total, and the machine's 1-minute load before and after.
+id + reset + one step. Prints the seconds per id, the total, and the machine's 1-minute load before and after, and
+CartPole-v1's steps/s measured for a second in the same interpreter afterwards: the same code's first use took 18 s
+on the machine of 2026-12-04 and 25 s on that of 2026-12-06 (docs/speed.md), so compare runs through the envs'
+time in CartPole steps (seconds x CartPole steps/s), as the main job's bench does.
 
     python benchmarks/bench_first_use.py [--runs N] [--warm] [--repo CHECKOUT]
 """
@@ -39,6 +42,16 @@ for env_id in radar_env.ENV_VARIANTS:
     venv.step(venv.action_space.sample())
     out["ids"][env_id] = time.perf_counter() - a
 out["envs_s"] = time.perf_counter() - t1
+cp = gym.make("CartPole-v1")            # the machine's speed in the same interpreter, after the compilation
+cp.reset(seed=0)
+acts = np.random.default_rng(0).integers(0, 2, 1_000_000)
+n, a = 0, time.perf_counter()
+while time.perf_counter() - a < 1.0:
+    for _ in range(1000):
+        if cp.step(acts[n])[2]:
+            cp.reset()
+        n += 1
+out["cartpole_steps_s"] = n / (time.perf_counter() - a)
 print(json.dumps(out))
 """
 
@@ -74,8 +87,11 @@ def main(argv=None):
             for kind in kinds:
                 r = run_once(cache, a.repo)
                 ids = ", ".join(f"{k} {v:.1f}" for k, v in r["ids"].items())
-                print(f"{kind}: envs {r['envs_s']:.1f} s (import {r['import_s']:.1f} s, interpreter {r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU;"
-                      f" load {r['load_before']:.2f} -> {r['load_after']:.2f}): {ids}", flush=True)
+                cp = r["cartpole_steps_s"]
+                print(f"{kind}: envs {r['envs_s']:.1f} s (import {r['import_s']:.1f} s, interpreter {r['wall_s']:.1f} s "
+                      f"wall, {r['cpu_s']:.1f} s CPU; load {r['load_before']:.2f} -> {r['load_after']:.2f}): {ids}; "
+                      f"CartPole-v1 {cp:,.0f} steps/s in the same interpreter afterwards, so the envs took the time of "
+                      f"{r['envs_s'] * cp / 1e6:.2f} M CartPole steps", flush=True)
 
 
 if __name__ == "__main__":
