@@ -88,8 +88,9 @@ def main(argv=None):
                 r = run_once(cache, a.repo)
                 ids = ", ".join(f"{k} {v:.1f}" for k, v in r["ids"].items())
                 cp = r["cartpole_steps_s"]
-                print(f"{kind}: envs {r['envs_s']:.1f} s (import {r['import_s']:.1f} s, interpreter {r['wall_s']:.1f} s "
-                      f"wall, {r['cpu_s']:.1f} s CPU; load {r['load_before']:.2f} -> {r['load_after']:.2f}): {ids}; "
+                print(f"{kind}: envs {r['envs_s']:.1f} s (import {r['import_s']:.1f} s, interpreter "
+                      f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU; load {r['load_before']:.2f} -> "
+                      f"{r['load_after']:.2f}): {ids}; "
                       f"CartPole-v1 {cp:,.0f} steps/s in the same interpreter afterwards, so the envs took the time of "
                       f"{r['envs_s'] * cp / 1e6:.2f} M CartPole steps", flush=True)
 
