@@ -14,7 +14,7 @@ import pytest
 
 from agents.evaluation import evaluate as ev
 from agents.evaluation.suites import draw_suite
-from agents.training.train import _tb_scalars, load_hyperparams
+from agents.training.train import _tb_scalars
 from agents.training.train import main as train_main
 from radar_env.sim.radar import atc_radar
 

@@ -13,7 +13,6 @@ import pytest
 import radar_env
 from radar_env.sim.draws import LookDrawer
 from radar_env.sim.looks import L_MAN, L_TACC, L_TRUTH, L_TTURN
-import radar_env.envs.env as renv
 from radar_env.sim.catalog import make_setup
 from radar_env.sim.radar import atc_radar
 from radar_env.envs.env import DEFAULT_Q_LEVELS_G, RadarTrackEnv, RadarTrackVectorEnv

@@ -12,7 +12,6 @@ import pytest
 from gymnasium.envs.registration import registry
 
 import radar_env
-from radar_env.common.units import G0_M_S2
 from radar_env.envs.variants import ENV_VARIANTS, PINNED_FEATURES
 from agents.policies.checks import env_kwargs_from_json
 from agents.policies.bundle import (BUNDLED_ENV_IDS, BUNDLED_POLICIES, bundled_env_kwargs,

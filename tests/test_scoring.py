@@ -219,7 +219,6 @@ def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(mo
     """One tracker's singular matrix (here: a LinAlgError raised by its runner) must not abort the evaluation."""
     import json
 
-    from agents.evaluation import evaluate as ev
     from agents.evaluation.suites import draw_suite
     from baselines import registry
 
@@ -239,7 +238,6 @@ def test_a_tracker_that_raises_is_reported_failed_and_the_others_still_scored(mo
 
 
 def test_tracker_failing_everywhere_does_not_empty_the_common_set_and_is_noted(monkeypatch):
-    from agents.evaluation import evaluate as ev
     from agents.evaluation.suites import draw_suite
     from baselines import registry
 

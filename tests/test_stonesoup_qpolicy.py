@@ -18,7 +18,6 @@ from stonesoup.types.hypothesis import SingleHypothesis  # noqa: E402
 from stonesoup.types.track import Track  # noqa: E402
 
 from agents.evaluation.runner import run_policy  # noqa: E402
-from agents.evaluation.suites import draw_suite  # noqa: E402
 from agents.policies import stonesoup_chain as C  # noqa: E402
 from agents.policies import stonesoup_learned as L  # noqa: E402
 from agents.policies import stonesoup_qpolicy as Q  # noqa: E402
