@@ -1,0 +1,73 @@
+"""How far apart the window recipe's seeds really are: S4 (the geometric mean over the four selection suites of the
+policy / imm2 pooled-RMSE ratio, as the trainer selects on) of each shipped seed on fresh TRAINING-range flights,
+with paired bootstrap intervals (over flights, 2,000 draws) of each pair's ratio, at 100 and at 200 flights per suite
+(issue 38; agents/bundled/window/CHOICE.md).
+
+    python scripts/window_seed_intervals.py [--seed 960000] [--folders agents/bundled/window/seeds/window_s*]
+
+The flights are drawn as the selection suites (:func:`agents.training.selection.draw_selection_suite`) from
+``--seed`` (default 960_000: used by no training draw, selection or broad check of the shipped recipes); the base
+runs once and each seed's correction is applied to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from agents.evaluation.metrics import errors, region_masks  # noqa: E402
+from agents.policies.loading import load_policy  # noqa: E402
+from agents.training.selection import START_UNKNOWN_SUITES, draw_selection_suite  # noqa: E402
+from baselines.registry import run_tracker  # noqa: E402
+from radar_env.sim.episode import stack_episodes, stack_fields  # noqa: E402
+
+SUITES = ("random", "random_radars", *START_UNKNOWN_SUITES)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seed", type=int, default=960_000)
+    ap.add_argument("--folders", nargs="+", default=sorted(glob.glob(str(REPO / "agents/bundled/window/seeds/*"))))
+    args = ap.parse_args(argv)
+    names = [Path(f).name for f in args.folders]
+    pols = [load_policy(Path(f) / "policy.npz")[0] for f in args.folders]
+    per_run = {}        # suite -> (squared-error sums (seeds, runs), looks (runs), imm2's sums, imm2's looks)
+    for suite in SUITES:
+        eps = draw_selection_suite(suite, 200, args.seed)
+        b = stack_episodes(eps)
+        base = pols[0].base_run(eps)
+        looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
+        used = region_masks(b, base.start_index)["used"]
+        sums = [np.where(used, errors(b, p.correct(looks, base, "w"))[0] ** 2, 0.0).sum(1) for p in pols]
+        imm = run_tracker("imm2", eps)
+        imm_used = region_masks(b, imm.start_index)["used"]
+        per_run[suite] = (np.array(sums), used.sum(1), np.where(imm_used, errors(b, imm)[0] ** 2, 0.0).sum(1),
+                          imm_used.sum(1))
+
+    def s4(idx, k):
+        return float(np.exp(np.mean([np.log(np.sqrt(s[k][i].sum() / n[i].sum()) / np.sqrt(si[i].sum() / ni[i].sum()))
+                                     for (s, n, si, ni), i in ((per_run[u], idx[u]) for u in SUITES)])))
+
+    rng = np.random.default_rng(0)
+    for runs in (100, 200):
+        full = {u: np.arange(runs) for u in SUITES}
+        print(f"\n{runs} flights per suite (seeds {args.seed}+): S4 " + ", ".join(
+            f"{n} {s4(full, k):.4f}" for k, n in enumerate(names)))
+        draws = [{u: rng.integers(0, runs, runs) for u in SUITES} for _ in range(2000)]
+        for a in range(len(pols)):
+            for c in range(a + 1, len(pols)):
+                d = [s4(idx, a) / s4(idx, c) for idx in draws]
+                lo, hi = np.percentile(d, [2.5, 97.5])
+                print(f"  {names[a]} / {names[c]}: {s4(full, a) / s4(full, c):.4f} [{lo:.4f}, {hi:.4f}]")
+
+
+if __name__ == "__main__":
+    main()
