@@ -1,9 +1,9 @@
 """How far apart the window recipe's seeds really are: S4 (the geometric mean over the four selection suites of the
 policy / imm2 pooled-RMSE ratio, as the trainer selects on) of each shipped seed on fresh TRAINING-range flights,
-with paired bootstrap intervals (over flights, 2,000 draws) of each pair's ratio, at 100 and at 200 flights per suite
-(issue 38; agents/bundled/window/CHOICE.md).
+with paired bootstrap intervals (over flights, 2,000 draws) of each pair's ratio, at half of ``--runs`` and at
+``--runs`` flights per suite (default 100 and 200; issue 38; agents/bundled/window/CHOICE.md).
 
-    python scripts/window_seed_intervals.py [--seed 960000] [--folders agents/bundled/window/seeds/window_s*]
+    python scripts/window_seed_intervals.py [--runs 200] [--seed 960000] [--folders FOLDER ...]
 
 The flights are drawn as the selection suites (:func:`agents.training.selection.draw_selection_suite`) from
 ``--seed`` (default 960_000: used by no training draw, selection or broad check of the shipped recipes); the base
@@ -34,14 +34,22 @@ SUITES = ("random", "random_radars", *START_UNKNOWN_SUITES)
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=200, help="flights per suite (even, at least 2)")
     ap.add_argument("--seed", type=int, default=960_000)
     ap.add_argument("--folders", nargs="+", default=sorted(glob.glob(str(REPO / "agents/bundled/window/seeds/*"))))
     args = ap.parse_args(argv)
+    if args.runs < 2 or args.runs % 2:
+        raise SystemExit(f"error: --runs must be an even number of at least 2, got {args.runs}")
+    if len(args.folders) < 2:
+        raise SystemExit(f"error: --folders: at least two window corrections to compare, got {len(args.folders)}")
     names = [Path(f).name for f in args.folders]
     pols = [load_policy(Path(f) / "policy.npz")[0] for f in args.folders]
+    bases = {str(p.config.get("base")) for p in pols}
+    if len(bases) > 1:      # the base runs once for all of them
+        raise SystemExit(f"error: --folders: the corrections must share their base, got {sorted(bases)}")
     per_run = {}        # suite -> (squared-error sums (seeds, runs), looks (runs), imm2's sums, imm2's looks)
     for suite in SUITES:
-        eps = draw_selection_suite(suite, 200, args.seed)
+        eps = draw_selection_suite(suite, args.runs, args.seed)
         b = stack_episodes(eps)
         base = pols[0].base_run(eps)
         looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
@@ -57,7 +65,7 @@ def main(argv=None):
                                      for (s, n, si, ni), i in ((per_run[u], idx[u]) for u in SUITES)])))
 
     rng = np.random.default_rng(0)
-    for runs in (100, 200):
+    for runs in (args.runs // 2, args.runs):
         full = {u: np.arange(runs) for u in SUITES}
         print(f"\n{runs} flights per suite (seeds {args.seed}+): S4 " + ", ".join(
             f"{n} {s4(full, k):.4f}" for k, n in enumerate(names)))
