@@ -26,11 +26,12 @@ OLD_OPTION_KINDS = {"policy": ("ppo_q_policy", "dqn_q_policy", "sac_q_policy", "
 of them, or a q-policy to an IMM option, is refused naming its kind)."""
 
 DEFAULT_TRACKERS = ("policy", "policy_bp", "policy_imm_bp", "policy_imm_ppo", "policy_bp_rdot", "policy_imm_bp_rdot",
-                    "imm2", "imm_cv_ct", "imm_ct_bank", "rbpf", "imm2_bizup", "kf_tuned", "cmin", "kf_tuned_rdot", "imm2_rdot",
-                    "imm_cv_ct_rdot", "imm_ct_bank_rdot", "clairvoyant")
+                    "policy_window", "imm2", "imm_cv_ct", "imm_ct_bank", "rbpf", "imm2_bizup", "kf_tuned", "cmin",
+                    "kf_tuned_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank_rdot", "clairvoyant")
 """The main job's trackers (the learned ones, ``policy``, PPO, ``policy_bp``, a q-policy trained by backpropagation,
-``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and by PPO, only when such a
-file is bundled or given)."""
+``policy_imm_bp`` and ``policy_imm_ppo``, the learned IMM trained by backpropagation and by PPO, their range-rate
+recipes, and ``policy_window``, the best learned tracker on the random flights, only when such a file is bundled or
+given)."""
 
 DEFAULT_SUITES = ("random", "random_radars", "bizup2002", "adrian_flower", "kim_lee_accel",
                   "seed002_course_changes", "seed002_two_radars")
