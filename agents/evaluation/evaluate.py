@@ -649,7 +649,7 @@ def main(argv=None, prog="radar-track evaluate"):
         trackers = [t for t in DEFAULT_TRACKERS if t not in POLICY_TRACKERS or t in sources]
         n = sum(t in POLICY_TRACKERS for t in trackers)
         # then every other learned tracker --learned asks for (bundled ones not in the default list, such as
-        # policy_window, and the user's folders), in the order given
+        # policy_bp_prior, and the user's folders), in the order given
         trackers[n:n] = [t for t in asked if t not in trackers]
     learned = {}
     for t in trackers:      # load once, now: a file that is not a usable tracker of its kind is a user error

@@ -136,7 +136,7 @@ def first_line(args):
     trackers = (len(named) if args.trackers is not None
                 else len(DEFAULT_TRACKERS) - sum(not (getattr(args, t, None) or BUNDLED_POLICIES[t].is_file())
                                                  for t in BUNDLED_POLICIES))
-    # user folders add one each, and so does a bundled name not already listed (policy_window, ...)
+    # user folders add one each, and so does a bundled name not already listed (policy_bp_prior, ...)
     trackers += len([x for x in args.learned or [] if x not in BUNDLED_LEARNED or x not in named])
     shown = ", ".join(suites[:4]) + (f" and {len(suites) - 4} more" if len(suites) > 4 else "")
     return (f"radar-track evaluate: {trackers} tracker(s) on {len(suites)} suite(s) ({shown}); loading the trackers"
