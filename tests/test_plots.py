@@ -190,6 +190,19 @@ def test_q_plot_keeps_every_series_on_its_axis_with_a_labelled_floor(suites):
     plt.close(fig)
 
 
+def test_q_plot_labels_a_corrections_q_as_its_bases(suites):
+    """A window correction reports its base's q (it chooses none): the legend says whose q it is."""
+    import dataclasses
+    batch, runs = suites["bizup2002"]
+    base = runs["clairvoyant"]
+    extra = {**base.extra, "correction_m": np.zeros(base.q_m_s2.shape)}
+    corrected = dataclasses.replace(base, name="corr", extra=extra)
+    fig = plots.q_figure("bizup2002", batch, {"clairvoyant": base, "corr": corrected})
+    labels = _legend_texts(fig)
+    assert "q of corr (its base's)" in labels and "q of clairvoyant" in labels, labels
+    plt.close(fig)
+
+
 def test_truth_maneuvers_drawn_as_steps_at_the_scenarios_segment_times(suites):
     """bizup2002 turns over 290-330 s and 610-640 s (its segments): the shading of every figure set and the
     truth's |a| and turn-rate steps start and end there, not at the looks around them."""

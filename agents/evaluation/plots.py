@@ -626,7 +626,8 @@ def _speed_view(ax, batch, runs, sc, sel, window, intervals, colors):
 
 def q_figure(suite, batch, runs, scenario=None):
     """The q each q-choosing tracker used in run 0 against the truth's |a|, in g, log scale. Values below the floor
-    (the truth's 0 on straight legs, a q of 0) are drawn on the labelled floor line. None if no tracker has a q."""
+    (the truth's 0 on straight legs, a q of 0) are drawn on the labelled floor line; a correction's (a run with the
+    ``correction_m`` series, such as ``policy_window``) is its base's q and says so. None if no tracker has a q."""
     q_runs = {k: r for k, r in runs.items() if np.any(np.isfinite(r.q_m_s2[0]))}
     if not q_runs:
         return None
@@ -650,7 +651,8 @@ def q_figure(suite, batch, runs, scenario=None):
     _truth_steps(ax, sc, batch, "accel", float(tt[0]), float(tt[-1]), floor=floor, label="true |a|")
     for name, q in qs.items():
         ax.step(tt, np.where(np.isfinite(q), np.maximum(q, floor), np.nan), where="pre", color=colors[name],
-                ls=_BOUND_STYLE.get(name, "-"), lw=1.6 if name in _BOUND_STYLE else 1.1, label=f"q of {name}")
+                ls=_BOUND_STYLE.get(name, "-"), lw=1.6 if name in _BOUND_STYLE else 1.1,
+                label=f"q of {name}" + (" (its base's)" if "correction_m" in q_runs[name].extra else ""))
     ax.axhline(floor, color="0.3", ls=":", lw=1, label=f"0 g, and anything below {floor:g} g, is drawn on this line")
     ax.set_yscale("log")
     ax.set_ylim(floor / 2, top * 2)
