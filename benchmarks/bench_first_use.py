@@ -4,7 +4,8 @@
 id + reset + one step. Prints the seconds per id, the total, and the machine's 1-minute load before and after, and
 CartPole-v1's steps/s measured for a second in the same interpreter afterwards: the same code's first use took 18 s
 on the machine of 2026-12-04 and 25 s on that of 2026-12-06 (docs/speed.md), so compare runs through the envs'
-time in CartPole steps (seconds x CartPole steps/s), as the main job's bench does.
+time in CartPole steps (seconds x CartPole steps/s), as the main job's bench does (its
+:func:`bench_main_job.cartpole_steps_per_s`; the interpreter's wall and CPU time include that second).
 
     python benchmarks/bench_first_use.py [--runs N] [--warm] [--repo CHECKOUT]
 """
@@ -42,16 +43,8 @@ for env_id in radar_env.ENV_VARIANTS:
     venv.step(venv.action_space.sample())
     out["ids"][env_id] = time.perf_counter() - a
 out["envs_s"] = time.perf_counter() - t1
-cp = gym.make("CartPole-v1")            # the machine's speed in the same interpreter, after the compilation
-cp.reset(seed=0)
-acts = np.random.default_rng(0).integers(0, 2, 1_000_000)
-n, a = 0, time.perf_counter()
-while time.perf_counter() - a < 1.0:
-    for _ in range(1000):
-        if cp.step(acts[n])[2]:
-            cp.reset()
-        n += 1
-out["cartpole_steps_s"] = n / (time.perf_counter() - a)
+from bench_main_job import cartpole_steps_per_s     # this benchmarks folder's (run_once puts it on the path)
+out["cartpole_steps_s"] = cartpole_steps_per_s(1.0)  # the machine's speed in the same interpreter, afterwards
 print(json.dumps(out))
 """
 
@@ -65,7 +58,8 @@ def run_once(cache_dir, repo=REPO):
     l0 = load1()
     w0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    p = subprocess.run([sys.executable, "-c", _CODE], cwd=repo, env=env, capture_output=True, text=True)
+    code = f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})\n" + _CODE
+    p = subprocess.run([sys.executable, "-c", code], cwd=repo, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - w0
     c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)

@@ -15,18 +15,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.evaluation.metrics import errors, region_masks  # noqa: E402
-from agents.evaluation.runner import run_policy  # noqa: E402
+from agents.evaluation.metrics import errors, failed_runs, region_masks  # noqa: E402
 from agents.evaluation.suites import TRAIN_SEEDS, draw_suite  # noqa: E402
 from agents.policies.bundle import BUNDLED_WINDOW  # noqa: E402
 from agents.policies.loading import load_policy  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
-from radar_env.sim.episode import stack_episodes  # noqa: E402
+from radar_env.sim.episode import stack_episodes, stack_fields  # noqa: E402
 
 REGIONS = ("used", "maneuver", "after", "straight")
 
@@ -42,12 +42,17 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if not (TRAIN_SEEDS.start <= args.seed and args.seed + args.runs <= TRAIN_SEEDS.stop):
         raise SystemExit(f"error: --seed/--runs must stay in the training range {TRAIN_SEEDS}")
-    window, cfg = load_policy(BUNDLED_WINDOW)
+    window = load_policy(BUNDLED_WINDOW)[0]
     for suite in ("random", "random_radars"):
         eps = draw_suite(suite, args.runs, seed=args.seed)
         b = stack_episodes(eps)
-        runs = {"policy_window": run_policy("policy_window", eps, window, cfg), "policy_bp_prior": window.base_run(eps),
+        base = window.base_run(eps)             # once: the correction moves this run's positions (as its run())
+        looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
+        runs = {"policy_window": window.correct(looks, base, "policy_window"), "policy_bp_prior": base,
                 "rbpf": run_tracker("rbpf", eps), "imm_cv_ct": run_tracker("imm_cv_ct", eps)}
+        bad = [n for n, r in runs.items() if failed_runs(b, r).any()]
+        if bad:             # a non-finite estimate is a failure, not an error to pool
+            raise SystemExit(f"error: {suite}: {bad} failed on some runs (non-finite estimate or covariance)")
         m = region_masks(b, runs["rbpf"].start_index)
         e = {n: errors(b, r)[0] for n, r in runs.items()}
         gap = e["policy_window"] ** 2 - e["rbpf"] ** 2

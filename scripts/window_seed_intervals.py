@@ -23,7 +23,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from agents.evaluation.metrics import errors, region_masks  # noqa: E402
+from agents.evaluation.metrics import errors, failed_runs, region_masks  # noqa: E402
 from agents.policies.loading import load_policy  # noqa: E402
 from agents.training.selection import START_UNKNOWN_SUITES, draw_selection_suite  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
@@ -54,8 +54,12 @@ def main(argv=None):
         base = pols[0].base_run(eps)
         looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
         used = region_masks(b, base.start_index)["used"]
-        sums = [np.where(used, errors(b, p.correct(looks, base, "w"))[0] ** 2, 0.0).sum(1) for p in pols]
+        corrected = [p.correct(looks, base, n) for p, n in zip(pols, names)]
         imm = run_tracker("imm2", eps)
+        bad = [r.name for r in (*corrected, imm) if failed_runs(b, r).any()]
+        if bad:             # a non-finite estimate is a failure, not an error to pool
+            raise SystemExit(f"error: {suite}: {bad} failed on some runs (non-finite estimate or covariance)")
+        sums = [np.where(used, errors(b, r)[0] ** 2, 0.0).sum(1) for r in corrected]
         imm_used = region_masks(b, imm.start_index)["used"]
         per_run[suite] = (np.array(sums), used.sum(1), np.where(imm_used, errors(b, imm)[0] ** 2, 0.0).sum(1),
                           imm_used.sum(1))
