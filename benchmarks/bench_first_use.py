@@ -3,9 +3,9 @@
 ``radar_env.ENV_VARIANTS`` order, ``gym.make(id)`` + reset + one step, then a 4-row native vector env of the same
 id + reset + one step. Prints the seconds per id, the total, and the machine's 1-minute load before and after, and
 CartPole-v1's steps/s measured for a second in the same interpreter afterwards: the same code's first use took 18 s
-on the machine of 2026-12-04 and 25 s on that of 2026-12-06 (docs/speed.md), so compare runs through the envs'
-time in CartPole steps (seconds x CartPole steps/s), as the main job's bench does (its
-:func:`bench_main_job.cartpole_steps_per_s`; the interpreter's wall and CPU time include that second).
+on the machine of 2026-12-04 and 25-31 s on that of 2026-12-06 (docs/speed.md), so the envs' time is also given in
+CartPole steps (seconds x CartPole steps/s), a rough reference for the machine's state, as the main job's bench
+does (its :func:`bench_main_job.cartpole_steps_per_s`; the interpreter's wall and CPU time include that second).
 
     python benchmarks/bench_first_use.py [--runs N] [--warm] [--repo CHECKOUT]
 """
