@@ -77,7 +77,7 @@ COV_BATCH_LOOKS = 4096
 HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", "episodes", "scenarios",
            "first_leg_min_s", "mirror", "standardise_inputs", "weight_suites", "epochs", "learning_rate",
            "batch_looks", "eval_every", "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every",
-           "dtype")
+           "dtype", "init")
 """Every key of ``agents/training/hyperparams/window.toml``; all required."""
 
 
@@ -122,6 +122,7 @@ def check_hp(hp):
     ``(hp, base)`` with ``base`` a :class:`agents.policies.learned.LearnedTracker`."""
     from agents.policies.layout import IMM_KINDS, Q_POLICY_KINDS
     from agents.policies.learned import load_learned
+    hp.setdefault("init", "")       # optional (every run before it started from random weights)
     missing = [k for k in HP_KEYS if k not in hp]
     unknown = sorted(set(hp) - set(HP_KEYS))
     if missing or unknown:
@@ -169,6 +170,9 @@ def check_hp(hp):
     for key in ("mirror", "standardise_inputs", "weight_suites"):
         if not isinstance(hp[key], bool):
             raise ValueError(f"--hp {key}: must be true or false, got {hp[key]!r}")
+    if not isinstance(hp["init"], str):
+        raise ValueError(f"--hp init: a window-correction folder to start from, or \"\" for random weights, got "
+                         f"{hp['init']!r}")
     if not isinstance(hp["base"], str) or not hp["base"]:
         raise ValueError(f"--hp base: a bundled learned tracker's name or a learned-tracker folder, got {hp['base']!r}")
     try:
@@ -283,6 +287,50 @@ def _weights(net, layers, mean=None, sd=None):
         w["layer.0.bias"] = w["layer.0.bias"] - W @ (mean / sd)
         w["layer.0.weight"] = W / sd
     return w
+
+
+def init_weights(folder, hp, n_in):
+    """The tanh layers' and output's weights of the window correction in ``folder`` (``--hp init``), checked to be a
+    network of the run's inputs and layers: ``{name: array}`` as saved (reading raw inputs). ``ValueError``, one
+    line, otherwise. Its covariance head, if any, is not read (a run fits its own)."""
+    from agents.policies.checks import read_npz
+    from agents.policies.window_correction import network_shapes
+    folder = Path(folder)
+    if folder.name == "policy.npz":
+        folder = folder.parent
+    meta_file = folder / "policy.json"
+    if not meta_file.is_file():
+        raise ValueError(f"--hp init: {folder} holds no policy.json (a window correction's folder)")
+    meta = json.loads(meta_file.read_text())
+    want = (hp["window_looks"], list(hp["fit_looks"]), hp["q_looks"], list(hp["layers"]))
+    got = (meta.get("window_looks"), meta.get("fit_looks", []), meta.get("q_looks", 0),
+           meta.get("architecture", {}).get("layers"))
+    if meta.get("kind") != "window_correction" or got != want:
+        raise ValueError(f"--hp init: {folder} must be a window correction with the run's window_looks, fit_looks, "
+                         f"q_looks and layers {want}, got kind {meta.get('kind')!r} and {got}")
+    w = read_npz(folder / "policy.npz")
+    shapes = network_shapes({"input_size": n_in, "layers": hp["layers"]})
+    for k, shape in shapes.items():
+        if k not in w or w[k].shape != shape or not np.isfinite(w[k]).all():
+            raise ValueError(f"--hp init: {folder / 'policy.npz'}: {k} must be finite of shape {shape}")
+    return {k: np.asarray(w[k], dtype=np.float64) for k in shapes}
+
+
+def _load_init(net, w, layers, mean=None, sd=None):
+    """``w`` (:func:`init_weights`, raw inputs) into ``net``; with a standardisation, unfolded from the first layer
+    (the inverse of :func:`_weights`' folding: ``W sd``, ``b + W mean``), so the net computes the same function."""
+    import torch
+    w = dict(w)
+    if mean is not None:
+        W = w["layer.0.weight"]
+        w["layer.0.bias"] = w["layer.0.bias"] + W @ mean
+        w["layer.0.weight"] = W * sd
+    lin = [m for m in net if hasattr(m, "weight")]
+    names = [f"layer.{i}" for i in range(len(layers))] + ["out"]
+    with torch.no_grad():
+        for m, n in zip(lin, names):
+            m.weight.copy_(torch.from_numpy(w[f"{n}.weight"]))
+            m.bias.copy_(torch.from_numpy(w[f"{n}.bias"]))
 
 
 def input_standardisation(F, signs=None):
@@ -738,6 +786,8 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
             mean, sd = (saved["mean"], saved["sd"]) if "mean" in saved else (None, None)
         else:
             mean, sd = input_standardisation(F, signs) if hp["standardise_inputs"] else (None, None)
+            if hp["init"]:      # fine-tuning: start from a saved correction's network
+                _load_init(net, init_weights(hp["init"], hp, n_in), hp["layers"], mean, sd)
         # the validation flights: the base runs once (and is scored once), the correction is applied to its runs at
         # every validation
         val = {}
