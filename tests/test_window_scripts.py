@@ -40,3 +40,21 @@ def test_window_gap_by_region_prints_the_regions_and_their_shares():
     shares = [float(m) for m in re.findall(r"^\| used \|.* \| ([-0-9.]+) \|$", out, re.M)]
     assert shares == [1.0, 1.0]                                 # the whole gap is the sum of its regions' shares
     assert "scan period" in out
+
+
+def test_window_fresh_check_prints_s4_and_the_broad_score_against_the_reference():
+    out = _run("scripts/window_fresh_check.py", "agents/bundled/window", "agents/bundled/window/seeds/window_s200000",
+               "--runs", "3")
+    rows = re.findall(r"^\| (\S+) \| ([0-9.]+) \| ([0-9.]+) \[([0-9.]+), ([0-9.]+)\] \| ([0-9.]+) \| ([0-9.]+) \| "
+                      r"([0-9.]+) \[([0-9.]+), ([0-9.]+)\] \|$", out, re.M)
+    assert [r[0] for r in rows] == ["window", "window_s200000"]
+    assert rows[0][2] == rows[0][7] == "1.0000"                 # the reference against itself
+    for r in rows:
+        assert float(r[3]) <= float(r[2]) <= float(r[4]) and float(r[8]) <= float(r[7]) <= float(r[9])
+
+
+def test_window_fresh_check_refuses_in_one_line():
+    p = subprocess.run([sys.executable, "scripts/window_fresh_check.py", "agents/bundled/window"], cwd=REPO,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode != 0 and "a reference and at least one candidate" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1

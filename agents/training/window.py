@@ -182,6 +182,9 @@ def check_hp(hp):
     if hp["q_looks"] and base.kind not in Q_POLICY_KINDS:
         raise ValueError(f"--hp q_looks: {hp['q_looks']} needs a q-policy base (the base's q as inputs); "
                          f"{hp['base']!r} is a {base.kind}")
+    if hp["init"]:              # checked now, before a run folder is made or a flight drawn
+        from agents.policies.window_correction import feature_count
+        init_weights(hp["init"], hp, feature_count(hp["window_looks"], hp["fit_looks"], hp["q_looks"]))
     return hp, base
 
 
