@@ -1,6 +1,8 @@
 """``--hp init``: a window run that starts from a saved correction's network computes that network's function at its
 first step (the standardisation unfolded into the first layer and folded back on saving), and a folder of another
 shape is refused in one line before anything is drawn."""
+import json
+
 import numpy as np
 import pytest
 
@@ -22,6 +24,9 @@ def test_a_run_started_from_a_correction_keeps_its_network_at_a_vanishing_learni
     assert sorted(a.files) == sorted(b.files)
     for k in a.files:
         np.testing.assert_allclose(b[k], a[k], rtol=1e-9, atol=1e-9)
+    # a run without init records none (its config is what it was before init existed: older runs still resume)
+    assert "init" not in json.loads((first / "config.json").read_text())
+    assert json.loads((again / "config.json").read_text())["init"] == str(first)
     fresh = window.train_window({**HP, "dtype": "float64", "learning_rate": 1e-12}, seed=900, out=tmp_path, verbose=0,
                                 run_name="fresh")
     assert not np.allclose(np.load(fresh / "policy.npz")["out.weight"], a["out.weight"])   # not by chance
@@ -36,6 +41,14 @@ def test_an_init_folder_that_does_not_fit_is_refused_in_one_line(tmp_path, chang
         window.train_window(hp, seed=701, out=tmp_path, verbose=0, run_name="bad")
     assert "\n" not in str(e.value) and "--hp init" in str(e.value)
     assert not list(tmp_path.glob("bad*"))                      # refused before a run folder was made
+
+
+def test_an_init_folder_with_a_damaged_policy_json_is_refused_in_one_line(tmp_path):
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "policy.json").write_text("{not json")
+    with pytest.raises(ValueError, match="--hp init: ") as e:
+        window.check_hp({**HP, "init": str(tmp_path / "bad")})
+    assert "\n" not in str(e.value) and "policy.json" in str(e.value)
 
 
 def test_init_must_be_a_string():

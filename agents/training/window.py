@@ -78,7 +78,8 @@ HP_KEYS = ("base", "window_looks", "fit_looks", "q_looks", "layers", "scale_m", 
            "first_leg_min_s", "mirror", "standardise_inputs", "weight_suites", "epochs", "learning_rate",
            "batch_looks", "eval_every", "eval_scenarios", "select_on", "covariance_epochs", "fresh_flights_every",
            "dtype", "init")
-"""Every key of ``agents/training/hyperparams/window.toml``; all required."""
+"""Every key of ``agents/training/hyperparams/window.toml``; all required but ``init`` (default ``""``: random
+weights)."""
 
 
 def _int_in(hp, key, lo, hi):
@@ -296,7 +297,7 @@ def init_weights(folder, hp, n_in):
     """The tanh layers' and output's weights of the window correction in ``folder`` (``--hp init``), checked to be a
     network of the run's inputs and layers: ``{name: array}`` as saved (reading raw inputs). ``ValueError``, one
     line, otherwise. Its covariance head, if any, is not read (a run fits its own)."""
-    from agents.policies.checks import read_npz
+    from agents.policies import checks
     from agents.policies.window_correction import network_shapes
     folder = Path(folder)
     if folder.name == "policy.npz":
@@ -304,14 +305,21 @@ def init_weights(folder, hp, n_in):
     meta_file = folder / "policy.json"
     if not meta_file.is_file():
         raise ValueError(f"--hp init: {folder} holds no policy.json (a window correction's folder)")
-    meta = json.loads(meta_file.read_text())
+    try:
+        meta = checks.read_json_object(meta_file, "a window correction's policy.json")
+    except ValueError as e:
+        raise ValueError(f"--hp init: {e}") from None
     want = (hp["window_looks"], list(hp["fit_looks"]), hp["q_looks"], list(hp["layers"]))
+    arch = meta.get("architecture")
     got = (meta.get("window_looks"), meta.get("fit_looks", []), meta.get("q_looks", 0),
-           meta.get("architecture", {}).get("layers"))
+           arch.get("layers") if isinstance(arch, dict) else None)
     if meta.get("kind") != "window_correction" or got != want:
         raise ValueError(f"--hp init: {folder} must be a window correction with the run's window_looks, fit_looks, "
                          f"q_looks and layers {want}, got kind {meta.get('kind')!r} and {got}")
-    w = read_npz(folder / "policy.npz")
+    try:
+        w = checks.read_npz(folder / "policy.npz")
+    except ValueError as e:
+        raise ValueError(f"--hp init: {e}") from None
     shapes = network_shapes({"input_size": n_in, "layers": hp["layers"]})
     for k, shape in shapes.items():
         if k not in w or w[k].shape != shape or not np.isfinite(w[k]).all():
@@ -745,7 +753,9 @@ def train_window(hp, seed=0, out="runs", verbose=1, command=None, args=None, run
         raise ValueError(f"--hp eval_scenarios / select_on: {e}") from None
     env_kwargs = json.loads((base.folder / "env_config.json").read_text())
     run, part = run_paths(out, run_name, f"window_s{seed}_{time.strftime('%Y%m%d-%H%M%S')}")
-    config = {"method": "window", "env_id": "RadarTrack-v0", "seed": seed, **hp}
+    # without init the config is what it was before init existed, so an older unfinished run still resumes
+    config = {"method": "window", "env_id": "RadarTrack-v0", "seed": seed,
+              **{k: v for k, v in hp.items() if k != "init" or v}}
     resume = part.exists() and resumable(part, config)
     every = hp["fresh_flights_every"] if len(draws) > 1 else 0
 
