@@ -8,9 +8,11 @@ draws; issue 38; agents/bundled/window/CHOICE.md, the eleventh recipe's rule).
         [--broad-seed 975000]
 
 The selection suites are drawn as the trainer draws them (:func:`agents.training.selection.draw_selection_suite`)
-from ``--seed``, the broad pair from ``--broad-seed`` (defaults used by no training draw, selection or earlier check
-of the shipped recipes); every correction must share its base, which runs once per suite. A non-finite estimate stops
-the script with a one-line error naming the tracker (a failure is never pooled).
+from ``--seed``, the broad pair from ``--broad-seed`` (the defaults are the eleventh window recipe's rule's, 966,000
+and 976,000 the twelfth's: a new rule should take seeds no earlier rule or check used, as
+agents/bundled/window/CHOICE.md records them, below the held-out 10,000,000); every correction must share its base,
+which runs once per suite. A non-finite estimate stops the script with a one-line error naming the tracker (a failure
+is never pooled).
 """
 
 from __future__ import annotations
