@@ -39,8 +39,11 @@ SELECTION = ("random", "random_radars", *START_UNKNOWN_SUITES)
 BROAD = ("random", "random_radars")
 
 
-def _sums(eps, pols, names, partner):
-    """Per-flight squared-error sums (corrections, runs), the looks they pool (runs), and the partner's two."""
+def suite_sums(eps, pols, names, partner):
+    """Per-flight squared position-error sums of the corrections ``pols`` (sharing their base, which runs once) and of
+    the classical tracker ``partner`` on the episodes ``eps``, over the looks each scores: ``(sums (corrections,
+    runs), looks (runs), partner's sums (runs), partner's looks (runs))``. A non-finite estimate stops the script with
+    a one-line error naming the tracker (a failure is never pooled)."""
     b = stack_episodes(eps)
     base = pols[0].base_run(eps)
     looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
@@ -59,6 +62,13 @@ def _rmse(s, n, i):
     return np.sqrt(s[..., i].sum(-1) / n[i].sum())
 
 
+def s4(sel, idx):
+    """S4 of each correction, ``(corrections,)``: the geometric mean over the suites of ``sel`` (``{suite:
+    suite_sums(...)}``, imm2 as the partner) of its pooled RMSE over imm2's on the flights ``idx[suite]``."""
+    return np.exp(np.mean([np.log(_rmse(s, n, idx[u]) / np.sqrt(so[idx[u]].sum() / no[idx[u]].sum()))
+                           for u, (s, n, so, no) in sel.items()], 0))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folders", nargs="+", help="the reference correction's folder, then the candidates'")
@@ -75,13 +85,9 @@ def main(argv=None):
     if len({str(p.config.get("base")) for p in pols}) > 1:
         raise SystemExit(f"error: the corrections must share their base, got "
                          f"{sorted({str(p.config.get('base')) for p in pols})}")
-    sel = {u: _sums(draw_selection_suite(u, args.runs, args.seed), pols, names, "imm2") for u in SELECTION}
-    broad = {u: _sums(draw_suite(u, args.runs, seed=args.broad_seed, random_config=broad_config()), pols, names,
+    sel = {u: suite_sums(draw_selection_suite(u, args.runs, args.seed), pols, names, "imm2") for u in SELECTION}
+    broad = {u: suite_sums(draw_suite(u, args.runs, seed=args.broad_seed, random_config=broad_config()), pols, names,
                       "imm_ct_bank") for u in BROAD}
-
-    def s4(idx):        # (corrections,) S4 of each on the flights idx[u]
-        return np.exp(np.mean([np.log(_rmse(s, n, idx[u]) / np.sqrt(so[idx[u]].sum() / no[idx[u]].sum()))
-                               for u, (s, n, so, no) in sel.items()], 0))
 
     def broad_rmse(idx):   # (suites, corrections)
         return np.array([_rmse(s, n, idx[u]) for u, (s, n, _, _) in broad.items()])
@@ -89,9 +95,9 @@ def main(argv=None):
     full = {u: np.arange(args.runs) for u in (*SELECTION, *BROAD)}
     rng = np.random.default_rng(0)
     draws = [{u: rng.integers(0, args.runs, args.runs) for u in full} for _ in range(2000)]
-    S = s4(full)
+    S = s4(sel, full)
     Br = broad_rmse(full)
-    s4_d = np.array([s4(i) for i in draws])
+    s4_d = np.array([s4(sel, i) for i in draws])
     br_d = np.array([broad_rmse(i) for i in draws])
     print(f"{args.runs} flights per suite: selection suites from seed {args.seed}, broad pair from "
           f"{args.broad_seed}; reference {names[0]}")

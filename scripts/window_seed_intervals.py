@@ -7,7 +7,8 @@ with paired bootstrap intervals (over flights, 2,000 draws) of each pair's ratio
 
 The flights are drawn as the selection suites (:func:`agents.training.selection.draw_selection_suite`) from
 ``--seed`` (default 960_000: used by no training draw, selection or broad check of the shipped recipes); the base
-runs once and each seed's correction is applied to it.
+runs once and each seed's correction is applied to it (`scripts/window_fresh_check.py`'s
+:func:`suite_sums` and :func:`s4`).
 """
 
 from __future__ import annotations
@@ -16,18 +17,16 @@ import argparse
 import glob
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from agents.evaluation.metrics import errors, failed_runs, region_masks  # noqa: E402
 from agents.policies.loading import load_policy  # noqa: E402
 from agents.training.selection import START_UNKNOWN_SUITES, draw_selection_suite  # noqa: E402
-from baselines.registry import run_tracker  # noqa: E402
-from radar_env.sim.episode import stack_episodes, stack_fields  # noqa: E402
+from window_fresh_check import s4, suite_sums  # noqa: E402  (the per-flight sums and S4, one copy)
 
 SUITES = ("random", "random_radars", *START_UNKNOWN_SUITES)
 
@@ -47,38 +46,20 @@ def main(argv=None):
     bases = {str(p.config.get("base")) for p in pols}
     if len(bases) > 1:      # the base runs once for all of them
         raise SystemExit(f"error: --folders: the corrections must share their base, got {sorted(bases)}")
-    per_run = {}        # suite -> (squared-error sums (seeds, runs), looks (runs), imm2's sums, imm2's looks)
-    for suite in SUITES:
-        eps = draw_selection_suite(suite, args.runs, args.seed)
-        b = stack_episodes(eps)
-        base = pols[0].base_run(eps)
-        looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
-        used = region_masks(b, base.start_index)["used"]
-        corrected = [p.correct(looks, base, n) for p, n in zip(pols, names)]
-        imm = run_tracker("imm2", eps)
-        bad = [r.name for r in (*corrected, imm) if failed_runs(b, r).any()]
-        if bad:             # a non-finite estimate is a failure, not an error to pool
-            raise SystemExit(f"error: {suite}: {bad} failed on some runs (non-finite estimate or covariance)")
-        sums = [np.where(used, errors(b, r)[0] ** 2, 0.0).sum(1) for r in corrected]
-        imm_used = region_masks(b, imm.start_index)["used"]
-        per_run[suite] = (np.array(sums), used.sum(1), np.where(imm_used, errors(b, imm)[0] ** 2, 0.0).sum(1),
-                          imm_used.sum(1))
-
-    def s4(idx, k):
-        return float(np.exp(np.mean([np.log(np.sqrt(s[k][i].sum() / n[i].sum()) / np.sqrt(si[i].sum() / ni[i].sum()))
-                                     for (s, n, si, ni), i in ((per_run[u], idx[u]) for u in SUITES)])))
+    per_run = {u: suite_sums(draw_selection_suite(u, args.runs, args.seed), pols, names, "imm2") for u in SUITES}
 
     rng = np.random.default_rng(0)
     for runs in (args.runs // 2, args.runs):
         full = {u: np.arange(runs) for u in SUITES}
+        S = s4(per_run, full)
         print(f"\n{runs} flights per suite (seeds {args.seed}+): S4 " + ", ".join(
-            f"{n} {s4(full, k):.4f}" for k, n in enumerate(names)))
+            f"{n} {S[k]:.4f}" for k, n in enumerate(names)))
         draws = [{u: rng.integers(0, runs, runs) for u in SUITES} for _ in range(2000)]
+        Sd = np.array([s4(per_run, idx) for idx in draws])     # (draws, corrections)
         for a in range(len(pols)):
             for c in range(a + 1, len(pols)):
-                d = [s4(idx, a) / s4(idx, c) for idx in draws]
-                lo, hi = np.percentile(d, [2.5, 97.5])
-                print(f"  {names[a]} / {names[c]}: {s4(full, a) / s4(full, c):.4f} [{lo:.4f}, {hi:.4f}]")
+                lo, hi = np.percentile(Sd[:, a] / Sd[:, c], [2.5, 97.5])
+                print(f"  {names[a]} / {names[c]}: {S[a] / S[c]:.4f} [{lo:.4f}, {hi:.4f}]")
 
 
 if __name__ == "__main__":
