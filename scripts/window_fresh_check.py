@@ -40,14 +40,19 @@ BROAD = ("random", "random_radars")
 
 
 def suite_sums(eps, pols, names, partner):
-    """Per-flight squared position-error sums of the corrections ``pols`` (sharing their base, which runs once) and of
-    the classical tracker ``partner`` on the episodes ``eps``, over the looks each scores: ``(sums (corrections,
-    runs), looks (runs), partner's sums (runs), partner's looks (runs))``. A non-finite estimate stops the script with
-    a one-line error naming the tracker (a failure is never pooled)."""
+    """Per-flight squared position-error sums of the corrections ``pols`` (sharing their base, which runs once per
+    precision of its GRU) and of the classical tracker ``partner`` on the episodes ``eps``, over the looks each
+    scores: ``(sums (corrections, runs), looks (runs), partner's sums (runs), partner's looks (runs))``. A non-finite
+    estimate stops the script with a one-line error naming the tracker (a failure is never pooled)."""
     b = stack_episodes(eps)
-    base = pols[0].base_run(eps)
+    bases = {}          # one run of the base per precision of its GRU (an ensemble's may be float32)
+    for p in pols:
+        bp = getattr(p, "base_precision", "float64")
+        if bp not in bases:
+            bases[bp] = p.base_run(eps)
+    base = next(iter(bases.values()))
     looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
-    runs = [p.correct(looks, base, n) for p, n in zip(pols, names)]
+    runs = [p.correct(looks, bases[getattr(p, "base_precision", "float64")], n) for p, n in zip(pols, names)]
     other = run_tracker(partner, eps)
     bad = [r.name for r in (*runs, other) if failed_runs(b, r).any()]
     if bad:

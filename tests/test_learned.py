@@ -47,9 +47,15 @@ def test_bundled_folders_share_one_layout_and_load_by_kind(name):
     mine, evals = lt.run(eps), run_policy(name, eps, lt.policy, lt.env_config)
     assert mine.name == name and np.isfinite(mine.x[:, -1]).all()          # NaN before a track starts only
     assert np.array_equal(mine.x, evals.x, equal_nan=True)
-    # the chosen seed's weights are the bundled ones (the choice record says which)
+    # the chosen seed's weights are the bundled ones (the choice record says which); an ensemble's chosen seeds are
+    # its members (ensemble.json's digests; tests/test_window_ensemble.py checks the networks)
     choice = json.loads((folder / "choice.json").read_text())
-    if (folder / "seeds").is_dir():
+    if choice.get("ensemble"):
+        import hashlib
+        made = json.loads((folder / "ensemble.json").read_text())
+        assert [m["policy_npz_sha256"] for m in made["members"]] == [
+            hashlib.sha256((folder / "seeds" / c / "policy.npz").read_bytes()).hexdigest() for c in choice["chosen"]]
+    elif (folder / "seeds").is_dir():
         assert (folder / "seeds" / choice["chosen"] / "policy.npz").read_bytes() == (folder / "policy.npz").read_bytes()
 
 

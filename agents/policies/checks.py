@@ -150,7 +150,8 @@ def manifest_format(path):
 def open_weights_folder(path, what, fmt, version):
     """The first checks of a ``policy.npz`` kind's loader (a learned IMM, a window correction): ``path`` is the
     folder or its ``policy.npz`` (:func:`check_policy_file`), the folder holds ``policy.npz``, ``policy.json`` and
-    ``env_config.json``, and ``policy.json`` is an object of format ``fmt``, version ``version``. ``what`` names the
+    ``env_config.json``, and ``policy.json`` is an object of format ``fmt``, version ``version`` (an int, or a tuple
+    of the versions the loader reads). ``what`` names the
     kind in the refusals (e.g. ``"a learned IMM checkpoint"``).
 
     Returns:
@@ -163,7 +164,9 @@ def open_weights_folder(path, what, fmt, version):
         if not f.is_file():
             raise ValueError(f"{d}: not {what} (no {f.name}; it needs {POLICY_FILE}, policy.json and env_config.json)")
     config = read_json_object(meta_file, f"the config of {what} (a JSON object)")
-    if config.get("format") != fmt or config.get("version") != version:
-        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {config.get('version')!r}, "
-                         f"need {fmt!r} version {version}")
+    versions = version if isinstance(version, tuple) else (version,)
+    v = config.get("version")
+    if config.get("format") != fmt or isinstance(v, bool) or v not in versions:
+        need = " or ".join(map(str, versions))
+        raise ValueError(f"{meta_file}: format {config.get('format')!r} version {v!r}, need {fmt!r} version {need}")
     return d, config, env_file, npz

@@ -56,6 +56,8 @@ __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "RecurrentQPolicy", "gru_cell", "
 
 FORMAT = "radar-track-recurrent-policy"
 VERSION = 1
+PRECISIONS = ("float64", "float32")
+"""A network's forward precision (:class:`RecurrentQPolicy`'s ``precision``)."""
 POLICY_FILE = "policy.npz"
 """File name of the weights; ``policy.json`` and ``env_config.json`` sit beside it."""
 
@@ -68,7 +70,7 @@ def _sigmoid(v):
 def _linear(x, wT):
     n, F = x.shape
     H = wT.shape[1]
-    out = np.zeros((n, H))
+    out = np.zeros((n, H), dtype=x.dtype)      # float64, or float32 for a float32 forward (x and wT float32)
     F4 = F - F % 4
     i = 0
     while i < n:
@@ -127,37 +129,40 @@ def _linear(x, wT):
     return out
 
 
-def linear(x, w):
+def linear(x, w, dtype=np.float64):
     """``x (n, F) @ w.T``, each output summed over ``f = 0 .. F-1`` in that order, whatever ``n`` and the machine:
     a row's result does not depend on the rows that share its batch (BLAS kernels for one row and for several
     round differently, which the evaluation's batch-independence test refuses) nor on the CPU's vector width
     (numpy's einsum, used before 2026-12-04, accumulates in SIMD lanes). Compiled (:func:`_linear`). ``w``
     column-major (:func:`layer_weights`) is read without a copy; a narrow output (9 to 63 columns, not a multiple of
     16) is computed with zero weights up to the next multiple of 16 and cut: the compiled loop over the outputs
-    seems to run vectorised in blocks of 16 only (measured: a 128 -> 12 layer took 1.8x the time of a 128 -> 16 one)."""
-    wT = np.ascontiguousarray(np.asarray(w, dtype=np.float64).T)
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    seems to run vectorised in blocks of 16 only (measured: a 128 -> 12 layer took 1.8x the time of a 128 -> 16 one).
+    ``dtype`` float32: inputs, weights, products and sums in float32 (twice the lanes: about 2x faster), the same
+    order; the result float32."""
+    wT = np.ascontiguousarray(np.asarray(w, dtype=dtype).T)
+    x = np.ascontiguousarray(x, dtype=dtype)
     H = wT.shape[1]
     if 8 < H < 64 and H % 16:
-        wT = np.concatenate([wT, np.zeros((wT.shape[0], 16 - H % 16))], 1)
+        wT = np.concatenate([wT, np.zeros((wT.shape[0], 16 - H % 16), dtype=dtype)], 1)
         return _linear(x, wT)[:, :H]
     return _linear(x, wT)
 
 
-def layer_weights(weights):
-    """A network's weight arrays as float64, each matrix stored column-major: :func:`linear` reads ``w.T`` of such an
-    array in place (a C-ordered ``(F, H)`` view) instead of copying every matrix at every look."""
+def layer_weights(weights, dtype=np.float64):
+    """A network's weight arrays as float64 (or ``dtype``), each matrix stored column-major: :func:`linear` reads
+    ``w.T`` of such an array in place (a C-ordered ``(F, H)`` view) instead of copying every matrix at every look."""
     out = {}
     for k, v in weights.items():
-        a = np.asarray(v, dtype=np.float64)
+        a = np.asarray(v, dtype=dtype)
         out[k] = np.asfortranarray(a) if a.ndim == 2 else np.ascontiguousarray(a)
     return out
 
 
-def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh):
-    """One GRU step (torch's ``GRUCell`` equations, module docstring): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``."""
-    gi = linear(x, w_ih) + b_ih
-    gh = linear(h, w_hh) + b_hh
+def gru_cell(x, h, w_ih, w_hh, b_ih, b_hh, dtype=np.float64):
+    """One GRU step (torch's ``GRUCell`` equations, module docstring): ``x (n, F)``, ``h (n, H)`` -> ``h' (n, H)``;
+    ``dtype`` float32: in float32 (``h`` and the weights given in float32 too)."""
+    gi = linear(x, w_ih, dtype) + b_ih
+    gh = linear(h, w_hh, dtype) + b_hh
     H = h.shape[1]
     r = _sigmoid(gi[:, :H] + gh[:, :H])
     z = _sigmoid(gi[:, H:2 * H] + gh[:, H:2 * H])
@@ -190,25 +195,38 @@ class RecurrentQPolicy:
         turn_rate_max_rad_s: a turn-aware policy's (``model`` ``cv_turn``, ``n_out`` 2) turn-rate bound: its second
             output ``a_1`` gives ``omega = turn_rate_max_rad_s * a_1`` (rad/s, positive = clockwise), the rate of
             the coordinated-turn prediction ``F_ct(dt, omega)``; 0 (default) for a q-policy.
+        precision: ``"float64"`` (default: the trained network's numbers, equal to torch's to 1e-12) or
+            ``"float32"`` (weights, state and arithmetic in float32, the same summation order: about 1.4x faster on
+            the CPU; the actions differ from float64's by float32 rounding, about 1e-6). :meth:`with_precision`.
 
     A turn-aware policy (:attr:`turn_aware`) returns ``(q, omega)`` from :meth:`__call__`, which
     :func:`baselines.trackers.run_q_policy` passes to the chain; it has no ``RadarTrack-v0`` action (the env's action
     is q), so :meth:`predict` refuses it.
     """
 
-    def __init__(self, weights, arch, q_levels_g, turn_rate_max_rad_s=0.0):
+    def __init__(self, weights, arch, q_levels_g, turn_rate_max_rad_s=0.0, precision="float64"):
+        if precision not in PRECISIONS:
+            raise ValueError(f"RecurrentQPolicy: precision must be one of {list(PRECISIONS)}, got {precision!r}")
+        self.precision = precision
+        self.dtype = np.dtype(precision).type
+        self._weights = weights
         self.arch = dict(arch)
-        self.w = layer_weights(weights)
+        self.w = layer_weights(weights, self.dtype)
         self.n_head = len(self.arch.get("head", []))
         self.input_size, self.hidden_size = int(arch["input_size"]), int(arch["hidden_size"])
         self.levels_m_s2 = np.asarray(q_levels_g, dtype=np.float64) * G0_M_S2
-        self._h = np.zeros((0, self.hidden_size))
+        self._h = np.zeros((0, self.hidden_size), dtype=self.dtype)
         self.n_out = int(self.arch.get("n_out", 1))
         self.turn_rate_max_rad_s = float(turn_rate_max_rad_s)
         if (self.n_out == 2) != (self.turn_rate_max_rad_s > 0) or self.n_out not in (1, 2):
             raise ValueError(f"RecurrentQPolicy: n_out {self.n_out} with turn_rate_max_rad_s "
                              f"{self.turn_rate_max_rad_s!r}: a q-policy has one output and no turn rate, a turn-aware "
                              "one two outputs and a positive turn-rate bound")
+
+    def with_precision(self, precision):
+        """The same policy run in ``precision`` (``"float64"`` or ``"float32"``), a new object (no state shared)."""
+        return RecurrentQPolicy(self._weights, self.arch, self.levels_m_s2 / G0_M_S2, self.turn_rate_max_rad_s,
+                                precision)
 
     @property
     def turn_aware(self):
@@ -228,14 +246,14 @@ class RecurrentQPolicy:
 
     def act_all(self, obs, h):
         """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n, n_out) in [-1, 1], new state (n, H))``."""
-        w = self.w
-        x = np.asarray(obs, dtype=np.float64).reshape(-1, self.input_size)
-        h = gru_cell(x, np.asarray(h, dtype=np.float64).reshape(x.shape[0], self.hidden_size), w["gru.weight_ih"],
-                     w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"])
+        w, dt = self.w, self.dtype
+        x = np.asarray(obs, dtype=dt).reshape(-1, self.input_size)
+        h = gru_cell(x, np.asarray(h, dtype=dt).reshape(x.shape[0], self.hidden_size), w["gru.weight_ih"],
+                     w["gru.weight_hh"], w["gru.bias_ih"], w["gru.bias_hh"], dt)
         y = h
         for i in range(self.n_head):
-            y = np.tanh(linear(y, w[f"head.{i}.weight"]) + w[f"head.{i}.bias"])
-        return np.tanh(linear(y, w["out.weight"]) + w["out.bias"]), h
+            y = np.tanh(linear(y, w[f"head.{i}.weight"], dt) + w[f"head.{i}.bias"])
+        return np.tanh(linear(y, w["out.weight"], dt) + w["out.bias"]), h
 
     def q_of_actions(self, actions):
         """The env's action map: actions in [-1, 1] -> q (m/s^2)."""
@@ -248,7 +266,7 @@ class RecurrentQPolicy:
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
         need = int(rows.max()) + 1 if rows.size else 0
         if need > self._h.shape[0]:
-            self._h = np.concatenate([self._h, np.zeros((need - self._h.shape[0], self.hidden_size))])
+            self._h = np.concatenate([self._h, np.zeros((need - self._h.shape[0], self.hidden_size), self.dtype)])
         self._h[rows] = 0.0
 
     def __call__(self, obs, rows):
@@ -257,7 +275,7 @@ class RecurrentQPolicy:
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
         a, self._h[rows] = self.act_all(obs, self._h[rows])
         q = self.q_of_actions(a[:, 0])
-        return (q, self.turn_rate_max_rad_s * a[:, 1]) if self.turn_aware else q
+        return (q, self.turn_rate_max_rad_s * a[:, 1].astype(np.float64)) if self.turn_aware else q
 
     # ---- acting in the env (as sb3-contrib's RecurrentPPO.predict)
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
@@ -284,6 +302,7 @@ class RecurrentQPolicy:
         if episode_start is not None:
             h[np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (n,))] = 0.0
         a, h = self.act(obs, h)
+        a = a.astype(np.float64, copy=False)
         return (a.reshape(1) if single else a.reshape(n, 1)), h
 
 

@@ -39,11 +39,20 @@ from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
            "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward",
-           "WindowCorrection",
+           "WindowCorrection", "ENSEMBLE_VERSION", "save_window_ensemble", "ensemble_members",
            "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
 VERSION = 1
+"""A single correction's folder (the trainer writes it): ``policy.npz`` holds one network, its input
+standardisation folded into the first layer."""
+ENSEMBLE_VERSION = 2
+"""An ensemble's folder (:func:`save_window_ensemble`): ``policy.npz`` holds ``members`` networks over one base, each
+as trained (``member{j}.`` + :func:`network_shapes`' names, on standardised inputs) with its standardisation
+(``member{j}.input_mean``, ``member{j}.input_sd``); ``policy.json`` adds ``members``, ``precision`` (the networks'
+forward) and ``base_precision`` (a q-policy base's GRU)."""
+MAX_MEMBERS = 16
+PRECISIONS = ("float64", "float32")
 POLICY_FILE = "policy.npz"
 RESIDUAL_CLIP = 30.0
 """Residuals are clipped to +-30 ``scale_m`` (9 km at the default 300 m): a plot that far off the track says only
@@ -364,10 +373,13 @@ FORWARD_CHUNK = 1024
 took 1.8x the time); a row's output does not depend on the chunk it is in."""
 
 
-def network_forward(w, n_layers, F, covariance=False):
+def network_forward(w, n_layers, F, covariance=False, dtype=np.float64, mean=None, sd=None):
     """The network on inputs ``F (n, input_size)`` (weights from :func:`layer_weights`): ``(n, 2)``; with
     ``covariance``, ``((n, 2), (n, 10))``, the covariance head's outputs too. In chunks of :data:`FORWARD_CHUNK`
-    rows."""
+    rows. ``mean``, ``sd``: a network trained on standardised inputs (an ensemble's member) reads ``(F - mean) / sd``
+    (computed in float64). ``dtype`` float32: the layers in float32 (``w`` given in float32; about 2x faster), on
+    standardised inputs only: a first layer with the standardisation folded in sums terms of thousands that cancel,
+    which float32 would round to centimetres. The outputs are float64 either way."""
     F = np.ascontiguousarray(F, dtype=np.float64)
     if covariance:      # both outputs in one pass (each output's sum is the same, in the same order)
         wo, bo = np.vstack([w["out.weight"], w["cov.weight"]]), np.concatenate([w["out.bias"], w["cov.bias"]])
@@ -376,11 +388,13 @@ def network_forward(w, n_layers, F, covariance=False):
     z = np.empty((F.shape[0], bo.size))
     for i in range(0, F.shape[0], FORWARD_CHUNK):
         y = F[i:i + FORWARD_CHUNK]
+        if mean is not None:
+            y = (y - mean) / sd
         for k in range(n_layers):
-            y = linear(y, w[f"layer.{k}.weight"])
+            y = linear(y, w[f"layer.{k}.weight"], dtype)
             y += w[f"layer.{k}.bias"]
             np.tanh(y, out=y)               # in place: the same numbers without two temporaries a layer
-        z[i:i + FORWARD_CHUNK] = linear(y, wo) + bo
+        z[i:i + FORWARD_CHUNK] = linear(y, wo, dtype) + bo
     return (z[:, :2], z[:, 2:]) if covariance else z
 
 
@@ -388,9 +402,14 @@ class WindowCorrection:
     """A loaded window correction over its base tracker, ready to run.
 
     Args:
-        weights: ``{name: array}`` (:func:`network_shapes`). config: the ``policy.json`` dict. base: the loaded base
-            tracker, as :func:`agents.policies.loading.load_policy` returns it (a q-policy ``choose_q`` or a tracker
-            with ``run``). base_cfg: its env config.
+        weights: ``{name: array}`` (:func:`network_shapes`; an ensemble's, version 2, ``member{j}.`` before each name
+            and the members' standardisations, :data:`ENSEMBLE_VERSION`). config: the ``policy.json`` dict. base: the
+            loaded base tracker, as :func:`agents.policies.loading.load_policy` returns it (a q-policy ``choose_q``
+            or a tracker with ``run``). base_cfg: its env config.
+
+    An ensemble (``config["members"]`` networks) moves the base estimate by the mean of its members' moves; its
+    covariance (with covariance heads) is the mixture's: the mean of the heads' covariances plus the spread of the
+    members' moves about their mean (position block). With one member the numbers are that member's.
     """
 
     is_tracker = True
@@ -410,9 +429,27 @@ class WindowCorrection:
         if self.arch.get("input_size") != n:        # the loader says which file; one built by hand hears it here
             raise ValueError(f"architecture.input_size must be {n} (window_looks {self.window_looks}, fit_looks "
                              f"{list(self.fit_looks)}, q_looks {self.q_looks}), got {self.arch.get('input_size')!r}")
-        self.w = layer_weights(weights)
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
+        self.precision = config.get("precision", "float64")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {self.precision!r}")
+        self.dtype = np.dtype(self.precision).type
+        self.members = [SimpleNamespace(w=layer_weights(m["weights"], self.dtype), mean=m["mean"], sd=m["sd"])
+                        for m in ensemble_members(weights, config)]
+        if self.dtype is np.float32 and any(m.mean is None for m in self.members):
+            raise ValueError("precision 'float32' needs networks on standardised inputs (an ensemble folder's members "
+                             "with their input_mean and input_sd): a folded first layer loses centimetres in float32")
+        self.w = self.members[0].w
+        """The (first) network's weights (a single correction's network)."""
+        self.base_precision = config.get("base_precision", "float64")
+        if self.base_precision not in PRECISIONS:
+            raise ValueError(f"base_precision must be one of {list(PRECISIONS)}, got {self.base_precision!r}")
+        if self.base_precision != "float64":
+            if not callable(getattr(base, "with_precision", None)):
+                raise ValueError(f"base_precision {self.base_precision!r} needs a recurrent q-policy base (its GRU "
+                                 f"runs in that precision), got a {type(base).__name__}")
+            self.base = base.with_precision(self.base_precision)
 
     def base_run(self, episodes, name="base"):
         """The base tracker on ``episodes`` (a :class:`baselines.trackers.TrackRun`), as the evaluation runs it."""
@@ -428,12 +465,23 @@ class WindowCorrection:
         with ``q_looks``."""
         F, frame = look_features(batch.t_s, batch.z_m, batch.R_m2, batch.detected, x, P, rows, looks,
                                  self.window_looks, self.scale_m, self.fit_looks, q, self.q_looks)
-        out = network_forward(self.w, self.n_layers, F, self.has_covariance)
-        o, raw = (out[0], out[1]) if self.has_covariance else (out, None)
-        o = o * self.scale_m
         ca, sa = frame[:, 0], frame[:, 1]
-        d = np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1)
-        return d, (None if raw is None else head_covariance(raw, frame, self.scale_m, self.scale_m_s))
+        ds, Cs = [], []
+        for m in self.members:
+            out = network_forward(m.w, self.n_layers, F, self.has_covariance, self.dtype, m.mean, m.sd)
+            o, raw = (out[0], out[1]) if self.has_covariance else (out, None)
+            o = o * self.scale_m
+            ds.append(np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1))
+            Cs.append(None if raw is None else head_covariance(raw, frame, self.scale_m, self.scale_m_s))
+        if len(ds) == 1:
+            return ds[0], Cs[0]
+        d = np.mean(ds, 0)
+        if Cs[0] is None:
+            return d, None
+        C = np.mean(Cs, 0)
+        e = np.stack(ds) - d                       # the members' moves about their mean: the mixture's spread
+        C[:, :2, :2] += np.einsum("mni,mnj->nij", e, e) / len(ds)
+        return d, C
 
     def correct(self, batch, run, name):
         """``run`` (the base tracker's :class:`baselines.trackers.TrackRun` on ``batch``) with its positions moved
@@ -464,6 +512,35 @@ class WindowCorrection:
         return self.correct(looks, self.base_run(episodes), name)
 
 
+def ensemble_members(weights, config):
+    """The networks of a correction's weights: ``[{"weights", "mean", "sd"}]``, one per member (``config``'s
+    ``members``, version 2: ``member{j}.`` names and standardisations) or the one network of a version-1 correction
+    (its standardisation folded in: ``mean`` and ``sd`` None)."""
+    if config.get("version", VERSION) != ENSEMBLE_VERSION:
+        return [{"weights": weights, "mean": None, "sd": None}]
+    out = []
+    for j in range(int(config["members"])):
+        p = f"member{j}."
+        out.append({"weights": {k[len(p):]: v for k, v in weights.items() if k.startswith(p) and "input_" not in k},
+                    "mean": np.asarray(weights[p + "input_mean"], np.float64),
+                    "sd": np.asarray(weights[p + "input_sd"], np.float64)})
+    return out
+
+
+def save_window_ensemble(directory, members, config, env_kwargs):
+    """Write an ensemble's folder (version :data:`ENSEMBLE_VERSION`): ``members`` a list of ``(weights, mean, sd)``,
+    each network as trained on inputs standardised by ``mean`` and ``sd`` (:func:`network_shapes` names), all of
+    ``config``'s architecture; ``config`` as a single correction's plus ``precision`` and ``base_precision``
+    (``members`` is set here). Returns the ``.npz`` path."""
+    from agents.policies.layout import write_weights_folder
+    w = {}
+    for j, (weights, mean, sd) in enumerate(members):
+        w.update({f"member{j}.{k}": v for k, v in weights.items()})
+        w[f"member{j}.input_mean"], w[f"member{j}.input_sd"] = mean, sd
+    return write_weights_folder(directory, "window_correction", FORMAT, ENSEMBLE_VERSION, w,
+                                {**config, "members": len(members)}, env_kwargs)
+
+
 def save_window_correction(directory, weights, config, env_kwargs):
     """Write a correction folder (``policy.npz``, ``policy.json``, ``env_config.json``); returns the ``.npz`` path."""
     from agents.policies.layout import write_weights_folder
@@ -490,8 +567,10 @@ def load_window_correction(path, load_base):
     ``ValueError`` (one line, naming the file and the field) for a missing or malformed file or base."""
     from agents.policies import checks
     from agents.policies.layout import BUNDLED_LEARNED, IMM_KINDS, Q_POLICY_KINDS, weights_file
-    d, config, env_file, npz = checks.open_weights_folder(path, "a window correction", FORMAT, VERSION)
+    d, config, env_file, npz = checks.open_weights_folder(path, "a window correction", FORMAT,
+                                                          (VERSION, ENSEMBLE_VERSION))
     meta_file = d / "policy.json"
+    ensemble = config["version"] == ENSEMBLE_VERSION
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
     checks.check_finite_numbers(meta_file, config.get("scale_m"), "scale_m")
     if not config["scale_m"] > 0:
@@ -520,8 +599,22 @@ def load_window_correction(path, load_base):
     if not isinstance(base, str) or not base:
         raise ValueError(f"{meta_file}: field 'base' must name the base tracker (a bundled name such as "
                          f"'policy_bp_prior', or a folder relative to {d}), got {base!r}")
+    shapes = network_shapes(arch)
+    if ensemble:
+        members = _positive_int(meta_file, config.get("members"), "members", MAX_MEMBERS)
+        for field in ("precision", "base_precision"):
+            if config.get(field) not in PRECISIONS:
+                raise ValueError(f"{meta_file}: field {field!r} must be one of {list(PRECISIONS)}, got "
+                                 f"{config.get(field)!r}"[:300])
+        n_in = arch["input_size"]
+        shapes = {f"member{j}.{k}": v for j in range(members)
+                  for k, v in {**shapes, "input_mean": (n_in,), "input_sd": (n_in,)}.items()}
     weights = checks.read_npz(npz)
-    checks.check_weights(npz, weights, network_shapes(arch))
+    checks.check_weights(npz, weights, shapes)
+    if ensemble:
+        for j in range(members):
+            if not (weights[f"member{j}.input_sd"] > 0).all():
+                raise ValueError(f"{npz}: member{j}.input_sd must be positive (a standard deviation)")
     checks.check_env_config(env_file)
     folder = BUNDLED_LEARNED[base] if base in BUNDLED_LEARNED else d / base
     try:
@@ -537,6 +630,9 @@ def load_window_correction(path, load_base):
     if q_looks and kind not in Q_POLICY_KINDS:      # whole (the base's own errors are cut)
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {folder}: kind {kind!r} has no q; q_looks {q_looks} "
                          f"needs a q-policy base ({', '.join(Q_POLICY_KINDS)})")
+    if ensemble and config["base_precision"] != "float64" and kind != "gru_q_policy":
+        raise ValueError(f"{meta_file}: field 'base_precision' {config['base_precision']!r} needs a recurrent "
+                         f"q-policy base (kind 'gru_q_policy'), got kind {kind!r}")
     try:
         policy, cfg = load_base(weights_file(folder, kind))
     except ValueError as e:

@@ -1,0 +1,109 @@
+"""Build a window-correction ensemble folder (kind ``window_correction``, version 2) from window training runs that
+share their base: each member is a run's ``best/`` network with its input standardisation unfolded from the first
+layer (the run's ``checkpoints/last.npz`` keeps the standardisation the run trained with), so that the network reads
+``(F - mean) / sd`` as in training and can run in float32 (agents/policies/window_correction.py).
+
+    python scripts/make_window_ensemble.py OUT RUN [RUN ...] [--precision float32] [--base-precision float32]
+
+Unfolding is exact algebra for any standardisation; the run's own matters for float32, whose first layer then sums
+terms of order one instead of thousands that cancel. Every member is checked before anything is written: its
+unfolded network on standardised inputs gives the folded network's outputs to 1e-9 (relative, float64) and, in
+``--precision``, to 1e-4 of the output's unit (3 cm at ``scale_m`` 300; the eleventh recipe's networks: 2.4e-5) on
+4,096 inputs drawn around its training mean; and every run has the first run's configuration (base, window, fits,
+q looks, architecture, scales). ``OUT/ensemble.json`` records the members' sources (path and sha256 of each
+``policy.npz``); ``covariance.json``, ``training.json`` and the rest stay in the runs (the bundle keeps them under
+``seeds/`` and writes its own by hand).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from agents.policies.recurrent import layer_weights  # noqa: E402
+from agents.policies.window_correction import (PRECISIONS, network_forward, network_shapes,  # noqa: E402
+                                               save_window_ensemble)
+
+SAME = ("base", "window_looks", "scale_m", "architecture", "fit_looks", "q_looks", "scale_m_s")
+
+
+def unfold(weights, mean, sd):
+    """The first layer of a network whose standardisation is folded in (``W / sd``, ``b - (W / sd) mean``), as
+    trained on standardised inputs: ``W' = W sd``, ``b' = b + W mean`` (the trainer's ``_load_init``)."""
+    w = dict(weights)
+    W = np.asarray(w["layer.0.weight"], np.float64)
+    w["layer.0.bias"] = np.asarray(w["layer.0.bias"], np.float64) + W @ mean
+    w["layer.0.weight"] = W * sd
+    return w
+
+
+def member(run, precision="float64"):
+    """``(weights, mean, sd, config, source)`` of a run folder's ``best/`` network, unfolded and checked (in float64
+    and in ``precision``)."""
+    run = Path(run)
+    npz, ckpt = run / "best" / "policy.npz", run / "checkpoints" / "last.npz"
+    for f in (npz, ckpt):
+        if not f.is_file():
+            raise SystemExit(f"error: {run}: no {f.relative_to(run)} (a window training run's folder is needed)")
+    config = json.loads((npz.parent / "policy.json").read_text())
+    if config.get("version") != 1:
+        raise SystemExit(f"error: {npz.parent / 'policy.json'}: version {config.get('version')!r}, need a single "
+                         "correction (version 1)")
+    with np.load(npz, allow_pickle=False) as z:
+        w = {k: z[k] for k in network_shapes(config["architecture"])}
+    with np.load(ckpt, allow_pickle=False) as z:
+        if "mean" not in z.files:
+            raise SystemExit(f"error: {ckpt}: no standardisation (the run trained without standardise_inputs)")
+        mean, sd = np.asarray(z["mean"], np.float64), np.asarray(z["sd"], np.float64)
+    u = unfold(w, mean, sd)
+    F = mean + sd * np.random.default_rng(0).standard_normal((4096, mean.size))
+    n = len(config["architecture"]["layers"])
+    cov = bool(config["architecture"].get("covariance"))
+    a = network_forward(layer_weights(w), n, F, cov)
+    b = network_forward(layer_weights(u), n, F, cov, mean=mean, sd=sd)
+    dt = np.dtype(precision).type
+    c = network_forward(layer_weights(u, dt), n, F, cov, dt, mean, sd)
+    for x, y, z in zip(*((v if cov else (v,)) for v in (a, b, c))):
+        err = np.abs(x - y).max() / max(np.abs(x).max(), 1e-300)
+        if not err <= 1e-9:
+            raise SystemExit(f"error: {run}: the unfolded network differs from best/'s by {err:.2e} (relative)")
+        err = np.abs(x - z).max()
+        if not err <= 1e-4:
+            raise SystemExit(f"error: {run}: in {precision} the network differs from best/'s by {err:.2e} "
+                             "(output units; at most 1e-4)")
+    return u, mean, sd, config, {"run": str(run), "policy_npz_sha256": hashlib.sha256(npz.read_bytes()).hexdigest()}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("out", help="the ensemble's folder (created)")
+    ap.add_argument("runs", nargs="+", help="window training runs' folders (best/ and checkpoints/last.npz)")
+    ap.add_argument("--precision", default="float32", choices=PRECISIONS, help="the networks' forward")
+    ap.add_argument("--base-precision", default="float32", choices=PRECISIONS,
+                    help="a recurrent q-policy base's GRU")
+    args = ap.parse_args(argv)
+    members = [member(r, args.precision) for r in args.runs]
+    first = members[0][3]
+    for m in members[1:]:
+        diff = [k for k in SAME if m[3].get(k) != first.get(k)]
+        if diff:
+            raise SystemExit(f"error: {m[4]['run']}: {diff} differ from {members[0][4]['run']}'s")
+    config = {k: first[k] for k in SAME if k in first}
+    config.update(precision=args.precision, base_precision=args.base_precision)
+    env = json.loads((Path(args.runs[0]) / "best" / "env_config.json").read_text())
+    out = save_window_ensemble(args.out, [m[:3] for m in members], config, env)
+    (out.parent / "ensemble.json").write_text(json.dumps({"members": [m[4] for m in members],
+                                                         "command": " ".join(sys.argv)}, indent=1))
+    print(f"wrote {out} ({len(members)} members, precision {args.precision}, base {args.base_precision})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,224 @@
+"""Window-correction ensembles (version 2 folders: several networks on standardised inputs over one base) and the
+float32 forwards they may run in (agents.policies.window_correction, agents.policies.recurrent,
+scripts/make_window_ensemble.py)."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents.policies import recurrent
+from agents.policies import window_correction as wcm
+from agents.policies.learned import BUNDLED_LEARNED, load_learned
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+import make_window_ensemble as mwe  # noqa: E402
+
+ARCH = {"input_size": wcm.feature_count(4), "layers": [8, 6], "covariance": True}
+CFG = {"base": "policy_bp", "window_looks": 4, "scale_m": 300.0, "scale_m_s": 30.0, "architecture": ARCH}
+
+
+def _member(seed):
+    """Random weights for standardised inputs, and a standardisation with large means (as the features' are)."""
+    rng = np.random.default_rng(seed)
+    w = {k: rng.normal(scale=0.3, size=s) for k, s in wcm.network_shapes(ARCH).items()}
+    n = ARCH["input_size"]
+    return w, rng.normal(scale=50.0, size=n), rng.uniform(0.01, 3.0, size=n)
+
+
+def _folded(w, mean, sd):
+    """The single correction (version 1) of the same network: the standardisation folded into the first layer."""
+    f = dict(w)
+    f["layer.0.weight"] = w["layer.0.weight"] / sd
+    f["layer.0.bias"] = w["layer.0.bias"] - f["layer.0.weight"] @ mean
+    return f
+
+
+def _env():
+    return json.loads((BUNDLED_LEARNED["policy_bp"] / "env_config.json").read_text())
+
+
+def _ensemble(tmp_path, seeds, name="ens", **cfg):
+    members = [_member(s) for s in seeds]
+    wcm.save_window_ensemble(tmp_path / name, members,
+                             {**CFG, "precision": "float64", "base_precision": "float64", **cfg}, _env())
+    return tmp_path / name, members
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    from agents.evaluation.suites import draw_suite
+    return draw_suite("random_radars", 5, seed=900_000)
+
+
+def _moves(lt, eps):
+    """The corrected runs' moves and covariances at every corrected look, with the base run."""
+    run = lt.run(eps)
+    base = lt.policy.base_run(eps)
+    ok = np.isfinite(run.extra["correction_m"])
+    return run.x[ok][:, :2] - base.x[ok][:, :2], run.P[ok], run, base
+
+
+def test_linear_in_float32_sums_in_order_and_is_batch_independent():
+    rng = np.random.default_rng(0)
+    x, w = rng.normal(size=(7, 13)), rng.normal(size=(12, 13))
+    y32 = recurrent.linear(x, w, np.float32)
+    assert y32.dtype == np.float32
+    x32, w32 = x.astype(np.float32), w.astype(np.float32)
+    ref = np.zeros((7, 12), np.float32)
+    for f in range(13):                    # one product at a time, in order, in float32
+        ref += x32[:, f:f + 1] * w32[:, f][None]
+    np.testing.assert_array_equal(y32, ref)
+    for i in range(7):
+        np.testing.assert_array_equal(recurrent.linear(x[i:i + 1], w, np.float32)[0], y32[i])
+    np.testing.assert_allclose(y32, recurrent.linear(x, w), rtol=1e-5, atol=1e-5)
+
+
+def test_a_float32_q_policy_acts_as_the_float64_one_to_float32_rounding():
+    lt = load_learned("policy_bp")
+    p64 = lt.policy
+    p32 = p64.with_precision("float32")
+    assert p32 is not p64 and p32.precision == "float32" and p64.precision == "float64"
+    obs = np.random.default_rng(1).normal(size=(5, p64.input_size))
+    a64, h64 = p64.act(obs, p64.initial_state(5))
+    a32, h32 = p32.act(obs, p32.initial_state(5))
+    assert a32.dtype == np.float32
+    np.testing.assert_allclose(a32, a64, atol=1e-5)
+    act, _ = p32.predict(obs[0])
+    assert act.dtype == np.float64 and act.shape == (1,)
+    with pytest.raises(ValueError, match="precision must be one of"):
+        p64.with_precision("float16")
+
+
+def test_one_member_in_float64_is_the_single_correction(tmp_path, episodes):
+    d, [(w, mean, sd)] = _ensemble(tmp_path, [3])
+    wcm.save_window_correction(tmp_path / "single", _folded(w, mean, sd), CFG, _env())
+    dm, Pm, run, _ = _moves(load_learned(d), episodes)
+    ds, Ps, single, _ = _moves(load_learned(tmp_path / "single"), episodes)
+    np.testing.assert_allclose(dm, ds, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(Pm, Ps, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(np.isfinite(run.x), np.isfinite(single.x))
+
+
+def test_an_ensemble_moves_by_the_mean_and_reports_the_mixtures_covariance(tmp_path, episodes):
+    d, members = _ensemble(tmp_path, [3, 4, 5])
+    dm, Pm, run, base = _moves(load_learned(d), episodes)
+    singles = []
+    for j, (w, mean, sd) in enumerate(members):
+        wcm.save_window_correction(tmp_path / f"s{j}", _folded(w, mean, sd), CFG, _env())
+        singles.append(_moves(load_learned(tmp_path / f"s{j}"), episodes)[:2])
+    moves = np.stack([s[0] for s in singles])
+    np.testing.assert_allclose(dm, moves.mean(0), rtol=1e-9, atol=1e-9)
+    e = moves - moves.mean(0)
+    C = np.mean([s[1] for s in singles], 0)
+    C[:, :2, :2] += np.einsum("mni,mnj->nij", e, e) / 3
+    np.testing.assert_allclose(Pm, C, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(Pm, np.swapaxes(Pm, 1, 2)) and (np.linalg.eigvalsh(Pm) > 0).all()
+    np.testing.assert_array_equal(run.x[..., 2:], base.x[..., 2:])          # velocities: the base's
+
+
+def test_float32_forwards_give_the_float64_numbers_to_a_millimetre(tmp_path, episodes):
+    d64, _ = _ensemble(tmp_path, [3, 4], "e64")
+    d32, _ = _ensemble(tmp_path, [3, 4], "e32", precision="float32", base_precision="float32")
+    lt32 = load_learned(d32)
+    assert lt32.policy.base.precision == "float32" and lt32.policy.members[0].w["layer.0.weight"].dtype == np.float32
+    r64, r32 = load_learned(d64).run(episodes), lt32.run(episodes)
+    assert np.array_equal(np.isfinite(r64.x), np.isfinite(r32.x))
+    ok = np.isfinite(r64.x)
+    assert np.abs(r32.x[ok] - r64.x[ok]).max() < 1e-3 and not np.array_equal(r32.x[ok], r64.x[ok])
+
+
+def test_float32_needs_standardised_inputs(tmp_path):
+    w, mean, sd = _member(3)
+    with pytest.raises(ValueError, match="precision 'float32' needs networks on standardised inputs"):
+        wcm.WindowCorrection(_folded(w, mean, sd), {**CFG, "precision": "float32"}, None, None)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda c, w: c.update(members=0), r"field 'members' must be an integer in \[1, 16\]"),
+    (lambda c, w: c.update(members=3), r"member2\.layer\.0\.weight"),
+    (lambda c, w: c.update(precision="half"), r"field 'precision' must be one of \['float64', 'float32'\]"),
+    (lambda c, w: c.pop("base_precision"), r"field 'base_precision' must be one of"),
+    (lambda c, w: c.update(version=3), r"version 3, need 'radar-track-window-correction' version 1 or 2"),
+    (lambda c, w: w.update({"member1.input_sd": np.zeros(ARCH["input_size"])}), r"member1\.input_sd must be positive"),
+    (lambda c, w: w.update({"member0.input_mean": np.full(ARCH["input_size"], np.nan)}), r"member0\.input_mean"),
+])
+def test_the_loader_refuses_a_bad_ensemble_in_one_line(tmp_path, edit, match):
+    d, _ = _ensemble(tmp_path, [3, 4])
+    cfg = json.loads((d / "policy.json").read_text())
+    with np.load(d / "policy.npz") as z:
+        w = {k: z[k] for k in z.files}
+    edit(cfg, w)
+    (d / "policy.json").write_text(json.dumps(cfg))
+    np.savez(d / "policy.npz", **w)
+    with pytest.raises(ValueError, match=match) as e:
+        load_learned(d)
+    assert "\n" not in str(e.value)
+
+
+def test_base_precision_float32_needs_a_recurrent_q_policy_base(tmp_path):
+    d, _ = _ensemble(tmp_path, [3], base="policy_imm_bp", base_precision="float32")
+    with pytest.raises(ValueError, match="field 'base_precision' 'float32' needs a recurrent q-policy base"):
+        load_learned(d)
+
+
+def _run_folder(tmp_path, name, seed):
+    """A window run's folder as make_window_ensemble reads it: best/ (folded) and checkpoints/last.npz."""
+    w, mean, sd = _member(seed)
+    wcm.save_window_correction(tmp_path / name / "best", _folded(w, mean, sd), CFG, _env())
+    (tmp_path / name / "checkpoints").mkdir()
+    np.savez(tmp_path / name / "checkpoints" / "last.npz", mean=mean, sd=sd)
+    return tmp_path / name, (w, mean, sd)
+
+
+def test_make_window_ensemble_unfolds_each_runs_network(tmp_path, episodes):
+    runs = [_run_folder(tmp_path, f"run{j}", 10 + j) for j in range(2)]
+    mwe.main([str(tmp_path / "out"), *(str(r) for r, _ in runs), "--precision", "float64",
+              "--base-precision", "float64"])
+    with np.load(tmp_path / "out" / "policy.npz") as z:
+        for j, (_, (w, mean, sd)) in enumerate(runs):
+            np.testing.assert_allclose(z[f"member{j}.input_mean"], mean, rtol=0)
+            np.testing.assert_allclose(z[f"member{j}.layer.0.weight"], w["layer.0.weight"], rtol=1e-12)
+            np.testing.assert_allclose(z[f"member{j}.layer.0.bias"], w["layer.0.bias"], rtol=1e-9, atol=1e-9)
+    made = json.loads((tmp_path / "out" / "ensemble.json").read_text())
+    assert [Path(m["run"]).name for m in made["members"]] == ["run0", "run1"]
+    d, _ = _ensemble(tmp_path, [10, 11], "direct")
+    np.testing.assert_allclose(_moves(load_learned(tmp_path / "out"), episodes)[0],
+                               _moves(load_learned(d), episodes)[0], rtol=1e-9, atol=1e-9)
+
+
+def test_make_window_ensemble_refuses_a_run_without_its_standardisation(tmp_path):
+    run, _ = _run_folder(tmp_path, "run0", 10)
+    np.savez(run / "checkpoints" / "last.npz", generator=np.zeros(3))
+    with pytest.raises(SystemExit, match="no standardisation"):
+        mwe.main([str(tmp_path / "out"), str(run)])
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_bundled_ensemble_is_its_shipped_seeds_networks():
+    """policy_window is the ensemble of the networks under seeds/ (ensemble.json's sha256), each unfolded: in float64
+    every member gives its seed's outputs to 1e-9, and in float32 (the bundle's precision) to 1e-4 output units."""
+    import hashlib
+    from agents.policies.recurrent import layer_weights
+    folder = BUNDLED_LEARNED["policy_window"]
+    lt = load_learned("policy_window")
+    made = json.loads((folder / "ensemble.json").read_text())
+    seeds = sorted((folder / "seeds").iterdir())
+    assert lt.policy.precision == lt.policy.base.precision == "float32" and len(lt.policy.members) == len(seeds) == 3
+    assert [m["policy_npz_sha256"] for m in made["members"]] == [
+        hashlib.sha256((s / "policy.npz").read_bytes()).hexdigest() for s in seeds]
+    with np.load(folder / "policy.npz") as z:
+        raw = {k: z[k] for k in z.files}
+    for j, s in enumerate(seeds):
+        single = load_learned(str(s)).policy
+        m = wcm.ensemble_members(raw, lt.policy.config)[j]
+        F = m["mean"] + m["sd"] * np.random.default_rng(j).standard_normal((512, m["mean"].size))
+        a = wcm.network_forward(single.w, 2, F, True)
+        b = wcm.network_forward(layer_weights(m["weights"]), 2, F, True, mean=m["mean"], sd=m["sd"])
+        c = wcm.network_forward(lt.policy.members[j].w, 2, F, True, np.float32, m["mean"], m["sd"])
+        for x, y, w in zip(a, b, c):
+            np.testing.assert_allclose(y, x, rtol=1e-9, atol=1e-9 * np.abs(x).max())
+            assert np.abs(w - x).max() < 1e-4
