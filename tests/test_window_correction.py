@@ -419,6 +419,7 @@ def test_loader_refuses_each_bad_field_in_one_line(tmp_path):
              ({"base": 3}, r"field 'base' must name the base tracker"),
              ({"version": 3}, r"format 'radar-track-window-correction' version 3, need .* version 1 or 2"),
              ({"version": 2}, r"field 'members' must be an integer in \[1, 16\], got None"),
+             ({"precision": "float32"}, r"field 'precision' belongs to an ensemble's folder \(version 2\)"),
              ({"fit_looks": [3]}, r"field 'fit_looks' must be a list of at most 8 increasing integers in \[4, "
                                   r"window_looks = 4\], got \[3\]"),
              ({"fit_looks": [4, 4]}, r"field 'fit_looks' must be a list of at most 8 increasing integers"),

@@ -222,3 +222,29 @@ def test_the_bundled_ensemble_is_its_shipped_seeds_networks():
         for x, y, w in zip(a, b, c):
             np.testing.assert_allclose(y, x, rtol=1e-9, atol=1e-9 * np.abs(x).max())
             assert np.abs(w - x).max() < 1e-4
+
+
+def test_the_env_wrapper_gives_the_bundled_ensembles_evaluation_numbers():
+    """CorrectedEstimate with policy_window (three float32 networks, the float32 base acting, as the README's
+    quickstart does) gives what its run gives on the same episode, every look."""
+    import gymnasium as gym
+    from agents.policies.checks import env_kwargs_from_json
+    from radar_env.envs.core import draw_setup_and_episode
+    lt = load_learned("policy_window")
+    cfg = lt.env_config
+    ep = draw_setup_and_episode(cfg.scenario, cfg.radar, cfg.random_scenario_config, np.random.default_rng(41),
+                                cfg.warmup_scans)
+    run = lt.run([ep])
+    kw = env_kwargs_from_json(json.loads((lt.folder / "env_config.json").read_text()))
+    env = wcm.CorrectedEstimate(gym.make("RadarTrack-v0", **kw), lt.policy)
+    obs, info = env.reset(seed=41)
+    k, state, start, n = int(run.start_index[0]) - 1, None, True, 0
+    while True:
+        action, state = lt.policy.base.predict(obs, state, episode_start=start)
+        obs, _, term, trunc, info = env.step(action)
+        start, k, n = False, k + 1, n + 1
+        np.testing.assert_allclose(info["corrected_estimate"], run.x[0, k], rtol=1e-9, atol=1e-6)
+        np.testing.assert_allclose(info["corrected_covariance"], run.P[0, k], rtol=1e-9, atol=1e-9)
+        if term or trunc:
+            break
+    assert n > 50

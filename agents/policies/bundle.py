@@ -62,9 +62,10 @@ BUNDLED_BP_PRIOR = BUNDLED_POLICIES["policy_bp_prior"]
 """``policy_bp``'s recipe with a wider network (GRU 128, a tanh layer of 64) trained on the ``random`` suites' own
 flights: the tracker ``policy_bp_prior`` (agents/bundled/backprop_prior/CHOICE.md)."""
 BUNDLED_WINDOW = BUNDLED_POLICIES["policy_window"]
-"""A window correction of ``policy_bp_prior`` (an MLP over the last 24 plots, quadratic fits through them and the base's
+"""A window correction of ``policy_bp_prior`` (MLPs over the last 24 plots, quadratic fits through them and the base's
 last 12 process-noise levels moving its reported position, trained by regression on the random suites' flights
-with their first leg drawn as every leg): the tracker ``policy_window`` (agents/bundled/window/CHOICE.md)."""
+with their first leg drawn as every leg; an ensemble of three training seeds, in float32): the tracker
+``policy_window`` (agents/bundled/window/CHOICE.md)."""
 
 BUNDLED_ENV_IDS = {"policy_bp": "RadarTrackContinuous-v0", "policy_bp_rdot": "RadarTrackContinuousDoppler-v0",
                    "policy_imm_bp": "RadarTrackIMM-v0", "policy_imm_bp_rdot": "RadarTrackIMMDoppler-v0"}

@@ -20,6 +20,14 @@ the base tracker as a bundled name or a folder relative to this one, and the ``a
 ``env_config.json`` (the base's, for the evaluation's bookkeeping); ``training.json`` and ``choice.json`` as every
 learned tracker. Loading checks every file (:mod:`agents.policies.checks`); no pickle.
 
+An *ensemble* folder (``policy.json`` version 2, :data:`ENSEMBLE_VERSION`; built by
+``scripts/make_window_ensemble.py`` from training runs) holds ``members`` networks of one architecture over one base,
+each as trained, on its standardised inputs: the estimate moves by the mean of their moves, and the covariance is the
+mixture's. Its ``precision`` may be ``"float32"`` (the networks were trained in float32; the forward then costs about
+half) and its ``base_precision`` ``"float32"`` for a recurrent q-policy base (its GRU; about 0.7x the time): the bundled
+``policy_window`` runs both, the three networks and the base together costing less than one float64 network over a
+float64 base (issue 38's cap of 5x imm_cv_ct per look), and equal to its float64 numbers to 1e-8 in the pooled RMSE.
+
 The network: ``layers`` tanh layers of the given widths and a linear output of two numbers, the truth's offset from
 the base estimate along and across its velocity in units of ``scale_m`` (and, with a covariance head, a second linear
 output of :data:`COV_OUTPUTS` numbers from the same last layer). It runs through the compiled
@@ -609,6 +617,11 @@ def load_window_correction(path, load_base):
         n_in = arch["input_size"]
         shapes = {f"member{j}.{k}": v for j in range(members)
                   for k, v in {**shapes, "input_mean": (n_in,), "input_sd": (n_in,)}.items()}
+    else:
+        for field in ("precision", "base_precision", "members"):
+            if field in config:
+                raise ValueError(f"{meta_file}: field {field!r} belongs to an ensemble's folder (version "
+                                 f"{ENSEMBLE_VERSION}); a single correction (version {VERSION}) runs in float64")
     weights = checks.read_npz(npz)
     checks.check_weights(npz, weights, shapes)
     if ensemble:

@@ -362,7 +362,17 @@ def causal_targets(data):
             ("stretch: within 2 % of rbpf on random", r <= 1.02 * rbpf, f"{best} / rbpf {r / rbpf:.3f}"),
             ("on at least 2 of 3 training seeds of its recipe", len(good) >= 2,
              f"{len(good)} of {len(seeds)}: " + ", ".join(f"{n} {sp['policies'][n]['ratio_vs_imm_cv_ct'][0]:.3f}"
-                                                          for n in seeds))] + _causal_suite_targets(spread, best)
+                                                          for n in seeds) + _ensemble_note(best))
+            ] + _causal_suite_targets(spread, best)
+
+
+def _ensemble_note(name):
+    """For a bundle that averages its recipe's seeds (``choice.json``'s ``ensemble``): what the seeds row counts."""
+    f = BUNDLED_POLICIES[name].parent / "choice.json" if name in BUNDLED_POLICIES else None
+    if f is None or not f.is_file() or not json.loads(f.read_text()).get("ensemble"):
+        return ""
+    return (f" (each seed alone; the bundle is the ensemble of these {len(json.loads(f.read_text())['chosen'])}: "
+            "its own spread over training seeds is in its CHOICE.md)")
 
 
 def _causal_suite_targets(spread, best):

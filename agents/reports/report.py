@@ -88,8 +88,8 @@ LEARNED_WHAT = {"policy_bp": "trained by backpropagation", "policy_imm_bp": "the
                 "policy_imm_bp_rdot": "policy_imm_bp's recipe on the range-rate filter",
                 "policy_imm_bp_prior": "policy_imm_bp's recipe trained on the random suites' own flights",
                 "policy_bp_prior": "policy_bp's recipe, GRU 128 + tanh 64, trained on the random suites' own flights",
-                "policy_window": "policy_bp_prior with a learned window correction (an MLP over its last 24 plots, "
-                                 "quadratic fits through them and its base's last 12 q)"}
+                "policy_window": "policy_bp_prior with a learned window correction (three MLPs averaged, over its "
+                                 "last 24 plots, quadratic fits through them and its base's last 12 q)"}
 """What each bundled learned tracker is, for the results page's header."""
 ROOT = Path(__file__).resolve().parents[2]
 
