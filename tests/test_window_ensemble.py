@@ -89,6 +89,9 @@ def test_a_float32_q_policy_acts_as_the_float64_one_to_float32_rounding():
     np.testing.assert_allclose(a32, a64, atol=1e-5)
     act, _ = p32.predict(obs[0])
     assert act.dtype == np.float64 and act.shape == (1,)
+    same = p32.with_precision("float64")          # back to float64: the original policy's numbers, to the bit
+    np.testing.assert_array_equal(same.levels_m_s2, p64.levels_m_s2)
+    np.testing.assert_array_equal(same.act(obs, same.initial_state(5))[0], a64)
     with pytest.raises(ValueError, match="precision must be one of"):
         p64.with_precision("float16")
 

@@ -209,7 +209,7 @@ class RecurrentQPolicy:
             raise ValueError(f"RecurrentQPolicy: precision must be one of {list(PRECISIONS)}, got {precision!r}")
         self.precision = precision
         self.dtype = np.dtype(precision).type
-        self._weights = weights
+        self._weights, self._q_levels_g = weights, q_levels_g
         self.arch = dict(arch)
         self.w = layer_weights(weights, self.dtype)
         self.n_head = len(self.arch.get("head", []))
@@ -225,8 +225,7 @@ class RecurrentQPolicy:
 
     def with_precision(self, precision):
         """The same policy run in ``precision`` (``"float64"`` or ``"float32"``), a new object (no state shared)."""
-        return RecurrentQPolicy(self._weights, self.arch, self.levels_m_s2 / G0_M_S2, self.turn_rate_max_rad_s,
-                                precision)
+        return RecurrentQPolicy(self._weights, self.arch, self._q_levels_g, self.turn_rate_max_rad_s, precision)
 
     @property
     def turn_aware(self):
