@@ -151,8 +151,7 @@ def open_weights_folder(path, what, fmt, version):
     """The first checks of a ``policy.npz`` kind's loader (a learned IMM, a window correction): ``path`` is the
     folder or its ``policy.npz`` (:func:`check_policy_file`), the folder holds ``policy.npz``, ``policy.json`` and
     ``env_config.json``, and ``policy.json`` is an object of format ``fmt``, version ``version`` (an int, or a tuple
-    of the versions the loader reads). ``what`` names the
-    kind in the refusals (e.g. ``"a learned IMM checkpoint"``).
+    of the versions the loader reads). ``what`` names the kind in the refusals (e.g. ``"a learned IMM checkpoint"``).
 
     Returns:
         ``(folder, config, env_file, npz)``: ``config`` the ``policy.json`` dict, the other two paths.
