@@ -99,7 +99,17 @@ def main(argv=None):
     config = {k: first[k] for k in SAME if k in first}
     config.update(precision=args.precision, base_precision=args.base_precision)
     env = json.loads((Path(args.runs[0]) / "best" / "env_config.json").read_text())
+    existed = Path(args.out).exists()
     out = save_window_ensemble(args.out, [m[:3] for m in members], config, env)
+    try:        # what was written loads (e.g. base_precision float32 needs a recurrent q-policy base)
+        from agents.policies.learned import load_learned
+        load_learned(str(out.parent))
+    except ValueError as e:
+        for f in ("policy.npz", "policy.json", "env_config.json"):
+            (out.parent / f).unlink(missing_ok=True)
+        if not existed:
+            out.parent.rmdir()
+        raise SystemExit(f"error: {e}") from None
     (out.parent / "ensemble.json").write_text(json.dumps({"members": [m[4] for m in members],
                                                          "command": " ".join(sys.argv)}, indent=1))
     print(f"wrote {out} ({len(members)} members, precision {args.precision}, base {args.base_precision})")

@@ -251,3 +251,14 @@ def test_the_env_wrapper_gives_the_bundled_ensembles_evaluation_numbers():
         if term or trunc:
             break
     assert n > 50
+
+
+def test_make_window_ensemble_refuses_what_would_not_load(tmp_path):
+    run, _ = _run_folder(tmp_path, "run0", 10)
+    cfg = json.loads((run / "best" / "policy.json").read_text())
+    (run / "best" / "policy.json").write_text(json.dumps({**cfg, "base": "policy_imm_bp"}))
+    with pytest.raises(SystemExit, match="field 'base_precision' 'float32' needs a recurrent q-policy base"):
+        mwe.main([str(tmp_path / "out"), str(run)])          # the default base precision, float32
+    assert not (tmp_path / "out").exists()
+    mwe.main([str(tmp_path / "out"), str(run), "--base-precision", "float64"])
+    assert load_learned(tmp_path / "out").policy.base_precision == "float64"
