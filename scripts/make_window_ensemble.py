@@ -20,7 +20,10 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -90,30 +93,48 @@ def main(argv=None):
     ap.add_argument("--base-precision", default="float32", choices=PRECISIONS,
                     help="a recurrent q-policy base's GRU")
     args = ap.parse_args(argv)
-    members = [member(r, args.precision) for r in args.runs]
+    runs = [Path(r).resolve() for r in args.runs]
+    if len(set(runs)) < len(runs):
+        raise SystemExit(f"error: a run is given twice: {args.runs}")
+    members = [member(r, args.precision) for r in runs]
+    out_dir = Path(args.out).resolve()
+    bases = [_base(m[3]["base"], r, out_dir) for m, r in zip(members, runs)]
     first = members[0][3]
-    for m in members[1:]:
-        diff = [k for k in SAME if m[3].get(k) != first.get(k)]
+    for m, b in zip(members[1:], bases[1:]):
+        diff = [k for k in SAME if k != "base" and m[3].get(k) != first.get(k)] + (["base"] if b != bases[0] else [])
         if diff:
             raise SystemExit(f"error: {m[4]['run']}: {diff} differ from {members[0][4]['run']}'s")
     config = {k: first[k] for k in SAME if k in first}
-    config.update(precision=args.precision, base_precision=args.base_precision)
-    env = json.loads((Path(args.runs[0]) / "best" / "env_config.json").read_text())
-    existed = Path(args.out).exists()
-    out = save_window_ensemble(args.out, [m[:3] for m in members], config, env)
-    try:        # what was written loads (e.g. base_precision float32 needs a recurrent q-policy base)
-        from agents.policies.learned import load_learned
-        load_learned(str(out.parent))
-    except ValueError as e:
+    config.update(base=bases[0], precision=args.precision, base_precision=args.base_precision)
+    env = json.loads((runs[0] / "best" / "env_config.json").read_text())
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    # built beside OUT (the same depth: a base folder's relative path holds there too) and loaded before anything in
+    # OUT changes, so that a refusal leaves OUT as it was
+    with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=f".{out_dir.name}.") as tmp:
+        built = save_window_ensemble(tmp, [m[:3] for m in members], config, env)
+        try:
+            from agents.policies.learned import load_learned
+            load_learned(str(built.parent))
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
+        out_dir.mkdir(exist_ok=True)
         for f in ("policy.npz", "policy.json", "env_config.json"):
-            (out.parent / f).unlink(missing_ok=True)
-        if not existed:
-            out.parent.rmdir()
-        raise SystemExit(f"error: {e}") from None
-    (out.parent / "ensemble.json").write_text(json.dumps({"members": [m[4] for m in members],
-                                                         "command": " ".join(sys.argv)}, indent=1))
-    print(f"wrote {out} ({len(members)} members, precision {args.precision}, base {args.base_precision})")
+            shutil.copyfile(built.parent / f, out_dir / f)
+    (out_dir / "ensemble.json").write_text(json.dumps(
+        {"members": [m[4] for m in members],
+         "command": " ".join(["scripts/make_window_ensemble.py", *(argv if argv is not None else sys.argv[1:])])},
+        indent=1))
+    print(f"wrote {out_dir / 'policy.npz'} ({len(members)} members, precision {args.precision}, base "
+          f"{args.base_precision})")
 
+
+def _base(base, run, out_dir):
+    """A run's ``base`` field as OUT's: a bundled name as it is, a folder (relative to the run's ``best/``, as the
+    trainer writes it) relative to OUT."""
+    from agents.policies.layout import BUNDLED_LEARNED
+    if base in BUNDLED_LEARNED:
+        return base
+    return os.path.relpath((Path(run) / "best" / base).resolve(), out_dir)
 
 if __name__ == "__main__":
     main()

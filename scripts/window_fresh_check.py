@@ -50,7 +50,7 @@ def suite_sums(eps, pols, names, partner):
         bp = getattr(p, "base_precision", "float64")
         if bp not in bases:
             bases[bp] = p.base_run(eps)
-    base = next(iter(bases.values()))
+    base = next(iter(bases.values()))      # its track start (start_index) is every base's: the GRU acts after it
     looks = SimpleNamespace(**stack_fields(eps, ("t_s", "z_m", "R_m2", "detected")))
     runs = [p.correct(looks, bases[getattr(p, "base_precision", "float64")], n) for p, n in zip(pols, names)]
     other = run_tracker(partner, eps)

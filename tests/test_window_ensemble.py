@@ -134,9 +134,11 @@ def test_float32_forwards_give_the_float64_numbers_to_a_millimetre(tmp_path, epi
     assert np.abs(r32.x[ok] - r64.x[ok]).max() < 1e-3 and not np.array_equal(r32.x[ok], r64.x[ok])
 
 
-def test_float32_needs_standardised_inputs(tmp_path):
+def test_float32_only_for_an_ensemble_on_standardised_inputs(tmp_path):
+    """A single correction (its standardisation folded into the first layer: terms of thousands that cancel) has no
+    precision to choose: it runs in float64."""
     w, mean, sd = _member(3)
-    with pytest.raises(ValueError, match="precision 'float32' needs networks on standardised inputs"):
+    with pytest.raises(ValueError, match="belong to an ensemble"):
         wcm.WindowCorrection(_folded(w, mean, sd), {**CFG, "precision": "float32"}, None, None)
 
 
@@ -262,3 +264,49 @@ def test_make_window_ensemble_refuses_what_would_not_load(tmp_path):
     assert not (tmp_path / "out").exists()
     mwe.main([str(tmp_path / "out"), str(run), "--base-precision", "float64"])
     assert load_learned(tmp_path / "out").policy.base_precision == "float64"
+
+
+def test_a_failed_build_leaves_an_existing_folder_as_it_was(tmp_path):
+    """OUT may hold other files (the bundle's folder does): a build that would not load changes none of them."""
+    run, _ = _run_folder(tmp_path, "run0", 10)
+    out = tmp_path / "out"
+    mwe.main([str(out), str(run), "--base-precision", "float64"])
+    before = {f.name: f.read_bytes() for f in out.iterdir()}
+    cfg = json.loads((run / "best" / "policy.json").read_text())
+    (run / "best" / "policy.json").write_text(json.dumps({**cfg, "base": "policy_imm_bp"}))
+    with pytest.raises(SystemExit, match="needs a recurrent q-policy base"):
+        mwe.main([str(out), str(run)])
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "run0"]          # no temporary folder left
+
+
+def test_make_window_ensemble_refuses_runs_that_differ_or_repeat(tmp_path):
+    a, _ = _run_folder(tmp_path, "run0", 10)
+    b, _ = _run_folder(tmp_path, "run1", 11)
+    cfg = json.loads((b / "best" / "policy.json").read_text())
+    (b / "best" / "policy.json").write_text(json.dumps({**cfg, "scale_m": 200.0}))
+    with pytest.raises(SystemExit, match=r"\['scale_m'\] differ from"):
+        mwe.main([str(tmp_path / "out"), str(a), str(b)])
+    with pytest.raises(SystemExit, match="a run is given twice"):
+        mwe.main([str(tmp_path / "out"), str(a), str(tmp_path / "." / "run0")])
+
+
+def test_an_ensemble_built_by_hand_is_checked_as_the_loader_checks(tmp_path):
+    d, members = _ensemble(tmp_path, [3, 4])
+    with np.load(d / "policy.npz") as z:
+        w = {k: z[k] for k in z.files}
+    cfg = json.loads((d / "policy.json").read_text())
+    assert wcm.WindowCorrection(w, cfg, None, None).w is None          # an ensemble has no single network
+    with pytest.raises(ValueError, match=r"an ensemble's members must be an integer in \[1, 16\], got None"):
+        wcm.WindowCorrection(w, {k: v for k, v in cfg.items() if k != "members"}, None, None)
+    single, _, _ = members[0]
+    with pytest.raises(ValueError, match="belong to an ensemble"):
+        wcm.WindowCorrection(single, {**CFG, "base_precision": "float64"}, None, None)
+
+
+def test_an_ensemble_cannot_start_a_training_run():
+    from agents.training import window
+    from agents.training.runs import load_hyperparams
+    hp = load_hyperparams("window")
+    with pytest.raises(ValueError, match="is an ensemble of window corrections"):
+        window.init_weights(BUNDLED_LEARNED["policy_window"], hp, wcm.feature_count(24, (6, 8, 12, 16, 24), 12))

@@ -234,12 +234,14 @@ class RecurrentQPolicy:
 
     # ---- the network
     def initial_state(self, n):
-        """The recurrent state of ``n`` rows at an episode start (zeros, ``(n, hidden_size)``)."""
-        return np.zeros((int(n), self.hidden_size))
+        """The recurrent state of ``n`` rows at an episode start (zeros, ``(n, hidden_size)``, in the policy's
+        precision)."""
+        return np.zeros((int(n), self.hidden_size), dtype=self.dtype)
 
     def act(self, obs, h):
         """One look: ``obs (n, F)``, state ``h (n, H)`` -> ``(actions (n,) in [-1, 1], new state (n, H))`` (the
-        q action; a turn-aware policy's turn-rate action is :meth:`act_all`'s second column)."""
+        q action; a turn-aware policy's turn-rate action is :meth:`act_all`'s second column), both in the policy's
+        precision (:meth:`predict` and the evaluation's call return float64 actions and q)."""
         a, h = self.act_all(obs, h)
         return a[:, 0], h
 
@@ -297,7 +299,7 @@ class RecurrentQPolicy:
         single = obs.ndim == 1
         obs = obs.reshape(-1, self.input_size)
         n = obs.shape[0]
-        h = self.initial_state(n) if state is None else np.array(state, dtype=np.float64).reshape(n, self.hidden_size)
+        h = self.initial_state(n) if state is None else np.array(state, dtype=self.dtype).reshape(n, self.hidden_size)
         if episode_start is not None:
             h[np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (n,))] = 0.0
         a, h = self.act(obs, h)

@@ -439,17 +439,24 @@ class WindowCorrection:
                              f"{list(self.fit_looks)}, q_looks {self.q_looks}), got {self.arch.get('input_size')!r}")
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
+        version = config.get("version", VERSION)
+        if version not in (VERSION, ENSEMBLE_VERSION) or isinstance(version, bool):
+            raise ValueError(f"version must be {VERSION} or {ENSEMBLE_VERSION} (an ensemble), got {version!r}")
+        if version == ENSEMBLE_VERSION:
+            m = config.get("members")
+            if not isinstance(m, int) or isinstance(m, bool) or not 1 <= m <= MAX_MEMBERS:
+                raise ValueError(f"an ensemble's members must be an integer in [1, {MAX_MEMBERS}], got {m!r}")
+        elif any(k in config for k in ("members", "precision", "base_precision")):
+            raise ValueError(f"members, precision and base_precision belong to an ensemble (version "
+                             f"{ENSEMBLE_VERSION}); a single correction (version {VERSION}) runs in float64")
         self.precision = config.get("precision", "float64")
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {self.precision!r}")
         self.dtype = np.dtype(self.precision).type
         self.members = [SimpleNamespace(w=layer_weights(m["weights"], self.dtype), mean=m["mean"], sd=m["sd"])
                         for m in ensemble_members(weights, config)]
-        if self.dtype is np.float32 and any(m.mean is None for m in self.members):
-            raise ValueError("precision 'float32' needs networks on standardised inputs (an ensemble folder's members "
-                             "with their input_mean and input_sd): a folded first layer loses centimetres in float32")
-        self.w = self.members[0].w
-        """The (first) network's weights (a single correction's network)."""
+        self.w = self.members[0].w if version == VERSION else None
+        """A single correction's network (raw inputs, float64; None for an ensemble: see :attr:`members`)."""
         self.base_precision = config.get("base_precision", "float64")
         if self.base_precision not in PRECISIONS:
             raise ValueError(f"base_precision must be one of {list(PRECISIONS)}, got {self.base_precision!r}")

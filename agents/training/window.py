@@ -316,6 +316,9 @@ def init_weights(folder, hp, n_in):
     if meta.get("kind") != "window_correction" or got != want:
         raise ValueError(f"--hp init: {folder} must be a window correction with the run's window_looks, fit_looks, "
                          f"q_looks and layers {want}, got kind {meta.get('kind')!r} and {got}")
+    if meta.get("version", 1) != 1:
+        raise ValueError(f"--hp init: {folder} is an ensemble of window corrections (policy.json version "
+                         f"{meta.get('version')!r}); give one of its members' folders (a training run's best/)")
     try:
         w = checks.read_npz(folder / "policy.npz")
     except ValueError as e:
