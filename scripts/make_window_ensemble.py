@@ -32,20 +32,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from agents.policies.recurrent import layer_weights  # noqa: E402
+from agents.training.window import unfold_standardisation  # noqa: E402
 from agents.policies.window_correction import (PRECISIONS, network_forward, network_shapes,  # noqa: E402
                                                save_window_ensemble)
 
 SAME = ("base", "window_looks", "scale_m", "architecture", "fit_looks", "q_looks", "scale_m_s")
-
-
-def unfold(weights, mean, sd):
-    """The first layer of a network whose standardisation is folded in (``W / sd``, ``b - (W / sd) mean``), as
-    trained on standardised inputs: ``W' = W sd``, ``b' = b + W mean`` (the trainer's ``_load_init``)."""
-    w = dict(weights)
-    W = np.asarray(w["layer.0.weight"], np.float64)
-    w["layer.0.bias"] = np.asarray(w["layer.0.bias"], np.float64) + W @ mean
-    w["layer.0.weight"] = W * sd
-    return w
 
 
 def member(run, precision="float64"):
@@ -66,7 +57,7 @@ def member(run, precision="float64"):
         if "mean" not in z.files:
             raise SystemExit(f"error: {ckpt}: no standardisation (the run trained without standardise_inputs)")
         mean, sd = np.asarray(z["mean"], np.float64), np.asarray(z["sd"], np.float64)
-    u = unfold(w, mean, sd)
+    u = unfold_standardisation(w, mean, sd)
     F = mean + sd * np.random.default_rng(0).standard_normal((4096, mean.size))
     n = len(config["architecture"]["layers"])
     cov = bool(config["architecture"].get("covariance"))

@@ -138,7 +138,7 @@ def test_float32_only_for_an_ensemble_on_standardised_inputs(tmp_path):
     """A single correction (its standardisation folded into the first layer: terms of thousands that cancel) has no
     precision to choose: it runs in float64."""
     w, mean, sd = _member(3)
-    with pytest.raises(ValueError, match="belong to an ensemble"):
+    with pytest.raises(ValueError, match="belongs to an ensemble"):
         wcm.WindowCorrection(_folded(w, mean, sd), {**CFG, "precision": "float32"}, None, None)
 
 
@@ -297,10 +297,10 @@ def test_an_ensemble_built_by_hand_is_checked_as_the_loader_checks(tmp_path):
         w = {k: z[k] for k in z.files}
     cfg = json.loads((d / "policy.json").read_text())
     assert wcm.WindowCorrection(w, cfg, None, None).w is None          # an ensemble has no single network
-    with pytest.raises(ValueError, match=r"an ensemble's members must be an integer in \[1, 16\], got None"):
+    with pytest.raises(ValueError, match=r"field 'members' must be an integer in \[1, 16\], got None"):
         wcm.WindowCorrection(w, {k: v for k, v in cfg.items() if k != "members"}, None, None)
     single, _, _ = members[0]
-    with pytest.raises(ValueError, match="belong to an ensemble"):
+    with pytest.raises(ValueError, match="belongs to an ensemble"):
         wcm.WindowCorrection(single, {**CFG, "base_precision": "float64"}, None, None)
 
 

@@ -47,7 +47,7 @@ from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
            "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward",
-           "WindowCorrection", "ENSEMBLE_VERSION", "save_window_ensemble", "ensemble_members",
+           "WindowCorrection", "ENSEMBLE_VERSION", "save_window_ensemble", "ensemble_members", "ensemble_fields",
            "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
@@ -439,27 +439,12 @@ class WindowCorrection:
                              f"{list(self.fit_looks)}, q_looks {self.q_looks}), got {self.arch.get('input_size')!r}")
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
-        version = config.get("version", VERSION)
-        if version not in (VERSION, ENSEMBLE_VERSION) or isinstance(version, bool):
-            raise ValueError(f"version must be {VERSION} or {ENSEMBLE_VERSION} (an ensemble), got {version!r}")
-        if version == ENSEMBLE_VERSION:
-            m = config.get("members")
-            if not isinstance(m, int) or isinstance(m, bool) or not 1 <= m <= MAX_MEMBERS:
-                raise ValueError(f"an ensemble's members must be an integer in [1, {MAX_MEMBERS}], got {m!r}")
-        elif any(k in config for k in ("members", "precision", "base_precision")):
-            raise ValueError(f"members, precision and base_precision belong to an ensemble (version "
-                             f"{ENSEMBLE_VERSION}); a single correction (version {VERSION}) runs in float64")
-        self.precision = config.get("precision", "float64")
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {self.precision!r}")
+        ensemble, _, self.precision, self.base_precision = ensemble_fields(config)
         self.dtype = np.dtype(self.precision).type
         self.members = [SimpleNamespace(w=layer_weights(m["weights"], self.dtype), mean=m["mean"], sd=m["sd"])
                         for m in ensemble_members(weights, config)]
-        self.w = self.members[0].w if version == VERSION else None
+        self.w = None if ensemble else self.members[0].w
         """A single correction's network (raw inputs, float64; None for an ensemble: see :attr:`members`)."""
-        self.base_precision = config.get("base_precision", "float64")
-        if self.base_precision not in PRECISIONS:
-            raise ValueError(f"base_precision must be one of {list(PRECISIONS)}, got {self.base_precision!r}")
         if self.base_precision != "float64":
             if not callable(getattr(base, "with_precision", None)):
                 raise ValueError(f"base_precision {self.base_precision!r} needs a recurrent q-policy base (its GRU "
@@ -527,6 +512,28 @@ class WindowCorrection:
         return self.correct(looks, self.base_run(episodes), name)
 
 
+def ensemble_fields(config):
+    """The ensemble fields of a correction's ``policy.json`` dict, checked: ``(ensemble, members, precision,
+    base_precision)``; a single correction (version 1) is ``(False, 1, "float64", "float64")`` and may not carry
+    them. ``ValueError`` naming the field otherwise (the loader adds the file)."""
+    version = config.get("version", VERSION)
+    if version not in (VERSION, ENSEMBLE_VERSION) or isinstance(version, bool):
+        raise ValueError(f"field 'version' must be {VERSION} or {ENSEMBLE_VERSION} (an ensemble), got {version!r}")
+    if version == VERSION:
+        for field in ("precision", "base_precision", "members"):
+            if field in config:
+                raise ValueError(f"field {field!r} belongs to an ensemble's folder (version {ENSEMBLE_VERSION}); a "
+                                 f"single correction (version {VERSION}) runs in float64")
+        return False, 1, "float64", "float64"
+    m = config.get("members")
+    if not isinstance(m, int) or isinstance(m, bool) or not 1 <= m <= MAX_MEMBERS:
+        raise ValueError(f"field 'members' must be an integer in [1, {MAX_MEMBERS}], got {m!r}")
+    for field in ("precision", "base_precision"):
+        if config.get(field) not in PRECISIONS:
+            raise ValueError(f"field {field!r} must be one of {list(PRECISIONS)}, got {config.get(field)!r}"[:300])
+    return True, m, config["precision"], config["base_precision"]
+
+
 def ensemble_members(weights, config):
     """The networks of a correction's weights: ``[{"weights", "mean", "sd"}]``, one per member (``config``'s
     ``members``, version 2: ``member{j}.`` names and standardisations) or the one network of a version-1 correction
@@ -536,7 +543,8 @@ def ensemble_members(weights, config):
     out = []
     for j in range(int(config["members"])):
         p = f"member{j}."
-        out.append({"weights": {k[len(p):]: v for k, v in weights.items() if k.startswith(p) and "input_" not in k},
+        out.append({"weights": {k[len(p):]: v for k, v in weights.items()
+                                if k.startswith(p) and k[len(p):] not in ("input_mean", "input_sd")},
                     "mean": np.asarray(weights[p + "input_mean"], np.float64),
                     "sd": np.asarray(weights[p + "input_sd"], np.float64)})
     return out
@@ -585,7 +593,10 @@ def load_window_correction(path, load_base):
     d, config, env_file, npz = checks.open_weights_folder(path, "a window correction", FORMAT,
                                                           (VERSION, ENSEMBLE_VERSION))
     meta_file = d / "policy.json"
-    ensemble = config["version"] == ENSEMBLE_VERSION
+    try:
+        ensemble, members, _, base_precision = ensemble_fields(config)
+    except ValueError as e:
+        raise ValueError(f"{meta_file}: {e}") from None
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
     checks.check_finite_numbers(meta_file, config.get("scale_m"), "scale_m")
     if not config["scale_m"] > 0:
@@ -616,19 +627,9 @@ def load_window_correction(path, load_base):
                          f"'policy_bp_prior', or a folder relative to {d}), got {base!r}")
     shapes = network_shapes(arch)
     if ensemble:
-        members = _positive_int(meta_file, config.get("members"), "members", MAX_MEMBERS)
-        for field in ("precision", "base_precision"):
-            if config.get(field) not in PRECISIONS:
-                raise ValueError(f"{meta_file}: field {field!r} must be one of {list(PRECISIONS)}, got "
-                                 f"{config.get(field)!r}"[:300])
         n_in = arch["input_size"]
         shapes = {f"member{j}.{k}": v for j in range(members)
                   for k, v in {**shapes, "input_mean": (n_in,), "input_sd": (n_in,)}.items()}
-    else:
-        for field in ("precision", "base_precision", "members"):
-            if field in config:
-                raise ValueError(f"{meta_file}: field {field!r} belongs to an ensemble's folder (version "
-                                 f"{ENSEMBLE_VERSION}); a single correction (version {VERSION}) runs in float64")
     weights = checks.read_npz(npz)
     checks.check_weights(npz, weights, shapes)
     if ensemble:
@@ -650,8 +651,8 @@ def load_window_correction(path, load_base):
     if q_looks and kind not in Q_POLICY_KINDS:      # whole (the base's own errors are cut)
         raise ValueError(f"{meta_file}: field 'base' ({base!r}): {folder}: kind {kind!r} has no q; q_looks {q_looks} "
                          f"needs a q-policy base ({', '.join(Q_POLICY_KINDS)})")
-    if ensemble and config["base_precision"] != "float64" and kind != "gru_q_policy":
-        raise ValueError(f"{meta_file}: field 'base_precision' {config['base_precision']!r} needs a recurrent "
+    if base_precision != "float64" and kind != "gru_q_policy":
+        raise ValueError(f"{meta_file}: field 'base_precision' {base_precision!r} needs a recurrent "
                          f"q-policy base (kind 'gru_q_policy'), got kind {kind!r}")
     try:
         policy, cfg = load_base(weights_file(folder, kind))

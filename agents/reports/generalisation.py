@@ -369,10 +369,11 @@ def causal_targets(data):
 def _ensemble_note(name):
     """For a bundle that averages its recipe's seeds (``choice.json``'s ``ensemble``): what the seeds row counts."""
     f = BUNDLED_POLICIES[name].parent / "choice.json" if name in BUNDLED_POLICIES else None
-    if f is None or not f.is_file() or not json.loads(f.read_text()).get("ensemble"):
+    choice = json.loads(f.read_text()) if f is not None and f.is_file() else {}
+    if not choice.get("ensemble"):
         return ""
-    return (f" (each seed alone; the bundle is the ensemble of these {len(json.loads(f.read_text())['chosen'])}: "
-            "its own spread over training seeds is in its CHOICE.md)")
+    return (f" (each seed alone; the bundle is the ensemble of these {len(choice['chosen'])}: its own spread over "
+            "training seeds is in its CHOICE.md)")
 
 
 def _causal_suite_targets(spread, best):

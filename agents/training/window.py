@@ -66,7 +66,7 @@ from agents.training.runs import (CHECKPOINT_ERRORS, EVAL_SCENARIOS_HP, SELECT_O
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
 __all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "suite_episodes",
-           "mirror_signs", "training_batch", "input_standardisation", "fit_covariance_head",
+           "mirror_signs", "training_batch", "input_standardisation", "unfold_standardisation", "fit_covariance_head",
            "add_covariance", "train_window", "main_from_args"]
 
 COV_SCALE_M_S = 30.0
@@ -330,15 +330,23 @@ def init_weights(folder, hp, n_in):
     return {k: np.asarray(w[k], dtype=np.float64) for k in shapes}
 
 
+def unfold_standardisation(w, mean, sd):
+    """A saved network ``w`` (its standardisation ``mean``, ``sd`` folded into the first layer: it reads raw inputs)
+    as the network on standardised inputs ``(F - mean) / sd``: the inverse of :func:`_weights`' folding, ``W sd`` and
+    ``b + W mean``; the same function. A new dict; the other layers are ``w``'s."""
+    w = dict(w)
+    W = np.asarray(w["layer.0.weight"], dtype=np.float64)
+    w["layer.0.bias"] = np.asarray(w["layer.0.bias"], dtype=np.float64) + W @ mean
+    w["layer.0.weight"] = W * sd
+    return w
+
+
 def _load_init(net, w, layers, mean=None, sd=None):
     """``w`` (:func:`init_weights`, raw inputs) into ``net``; with a standardisation, unfolded from the first layer
-    (the inverse of :func:`_weights`' folding: ``W sd``, ``b + W mean``), so the net computes the same function."""
+    (:func:`unfold_standardisation`), so the net computes the same function."""
     import torch
-    w = dict(w)
     if mean is not None:
-        W = w["layer.0.weight"]
-        w["layer.0.bias"] = w["layer.0.bias"] + W @ mean
-        w["layer.0.weight"] = W * sd
+        w = unfold_standardisation(w, mean, sd)
     lin = [m for m in net if hasattr(m, "weight")]
     names = [f"layer.{i}" for i in range(len(layers))] + ["out"]
     with torch.no_grad():
