@@ -310,3 +310,117 @@ def test_an_ensemble_cannot_start_a_training_run():
     hp = load_hyperparams("window")
     with pytest.raises(ValueError, match="is an ensemble of window corrections"):
         window.init_weights(BUNDLED_LEARNED["policy_window"], hp, wcm.feature_count(24, (6, 8, 12, 16, 24), 12))
+
+
+# --- covariance_scale: the ensemble's reported covariance times one fitted factor -----------------------------------
+
+import calibrate_window_covariance as cwc  # noqa: E402
+
+SMALL = {"scenarios": ["random", "random_broad"], "episodes": {"random": 4, "random_broad": 2},
+         "first_leg_min_s": 0.0}
+
+
+def test_covariance_scale_multiplies_the_reported_covariance_only(tmp_path, episodes):
+    d, _ = _ensemble(tmp_path, [3, 4], "plain")
+    ds, _ = _ensemble(tmp_path, [3, 4], "scaled", covariance_scale=0.5)
+    dm, Pm, run, _ = _moves(load_learned(d), episodes)
+    dm2, Pm2, run2, _ = _moves(load_learned(ds), episodes)
+    np.testing.assert_array_equal(run2.x, run.x)
+    np.testing.assert_allclose(Pm2, 0.5 * Pm, rtol=1e-15, atol=0)
+    unmoved = ~np.isfinite(run.extra["correction_m"])
+    np.testing.assert_array_equal(run2.P[unmoved], run.P[unmoved])        # the base's, where nothing is corrected
+
+
+@pytest.mark.parametrize("value, match", [
+    (0.05, r"field 'covariance_scale' must be a number in \[0.1, 10\]"),
+    (11, r"field 'covariance_scale' must be a number in \[0.1, 10\]"),
+    (True, r"field 'covariance_scale' must be a number"),
+    ("0.8", r"field 'covariance_scale' must be a number"),
+])
+def test_the_loader_refuses_a_bad_covariance_scale_in_one_line(tmp_path, value, match):
+    d, _ = _ensemble(tmp_path, [3], covariance_scale=value)
+    with pytest.raises(ValueError, match=match) as e:
+        load_learned(d)
+    assert "\n" not in str(e.value) and "policy.json" in str(e.value)
+
+
+def test_covariance_scale_needs_an_ensemble_folder_and_a_covariance_head(tmp_path):
+    w, mean, sd = _member(3)
+    wcm.save_window_correction(tmp_path / "single", _folded(w, mean, sd), {**CFG, "covariance_scale": 0.8}, _env())
+    with pytest.raises(ValueError, match="field 'covariance_scale' belongs to an ensemble"):
+        load_learned(tmp_path / "single")
+    arch = {**ARCH, "covariance": False}
+    members = [({k: v for k, v in m[0].items() if k in wcm.network_shapes(arch)}, m[1], m[2]) for m in [_member(3)]]
+    wcm.save_window_ensemble(tmp_path / "nohead", members, {**CFG, "architecture": arch, "precision": "float64",
+                                                            "base_precision": "float64", "covariance_scale": 0.8},
+                             _env())
+    with pytest.raises(ValueError, match="field 'covariance_scale' needs a covariance head"):
+        load_learned(tmp_path / "nohead")
+
+
+def test_the_fitted_scale_gives_anees_one_on_its_flights_whatever_the_folders_scale(tmp_path):
+    """c = mean NEES / 4 with scale 1; with c written, the NEES over the same looks, taken from the run by the
+    metrics' own function, averages 4 (ANEES 1). A folder already scaled fits the same c."""
+    from agents.evaluation.metrics import nees_values
+    from agents.training.window import covariance_scale_fit, training_flights
+    from radar_env.sim.episode import stack_episodes
+    d, _ = _ensemble(tmp_path, [3, 4], "plain")
+    fit = covariance_scale_fit(load_learned(d).policy, SMALL, 123)
+    assert fit["looks"] > 500 and fit["invalid_looks"] == 0 and set(fit["suites"]) == {"random", "random_broad"}
+    c = fit["covariance_scale"]
+    assert c != 1.0
+    ds, _ = _ensemble(tmp_path, [3, 4], "scaled", covariance_scale=c)
+    again = covariance_scale_fit(load_learned(ds).policy, SMALL, 123)
+    assert again["covariance_scale"] == c
+    lt, nees = load_learned(ds), []
+    for _, chunks in training_flights(SMALL, 123):
+        for eps in chunks:
+            run = lt.run(eps)
+            moved = np.isfinite(run.extra["correction_m"])
+            nees.append(nees_values((run.x - stack_episodes(eps).truth)[moved], run.P[moved]))
+    nees = np.concatenate(nees)
+    assert nees.size == fit["looks"]
+    assert abs(nees.mean() / 4 - 1.0) < 1e-9
+
+
+def test_calibrate_script_writes_the_scale_and_its_record(tmp_path, capsys):
+    import shutil
+    folder = tmp_path / "window"
+    shutil.copytree(BUNDLED_LEARNED["policy_window"], folder, ignore=shutil.ignore_patterns("seeds"))
+    argv = [str(folder), "--seed", "123", "--episodes", json.dumps(SMALL["episodes"]), "--write"]
+    fit = cwc.main(argv)
+    meta = json.loads((folder / "policy.json").read_text())
+    rec = json.loads((folder / "calibration.json").read_text())
+    assert meta["covariance_scale"] == rec["covariance_scale"] == fit["covariance_scale"]
+    assert rec["seed"] == 123 and rec["episodes"] == SMALL["episodes"] and rec["looks"] == fit["looks"]
+    assert load_learned(folder).policy.covariance_scale == fit["covariance_scale"]
+    assert "covariance_scale" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--seed", "9999990"], r"--seed: the flights' seeds 9999990\.\.10300789 must lie in \[0, 10,000,000\)"),
+    (["--seed", "-1"], "must lie in"),
+    (["--seed", "1", "--episodes", '{"random": 0}'], r"random's flights must be an integer in \[1, 20000\]"),
+    (["--seed", "1", "--episodes", '{"kim_lee_accel": 5}'], "suite 'kim_lee_accel' is not one of"),
+    (["--seed", "1", "--episodes", "[1]"], "must be a non-empty JSON object"),
+    (["--seed", "1", "--first-leg-min-s", "-5"], r"--first-leg-min-s must be in \[0, 600\] s"),
+])
+def test_calibrate_script_refuses_bad_arguments_in_one_line(tmp_path, args, match):
+    d, _ = _ensemble(tmp_path, [3])
+    with pytest.raises(SystemExit, match=match) as e:
+        cwc.main([str(d), *args])
+    assert "\n" not in str(e.value)
+
+
+def test_calibrate_script_refuses_a_single_correction_and_writes_nothing_out_of_range(tmp_path, monkeypatch):
+    w, mean, sd = _member(3)
+    wcm.save_window_correction(tmp_path / "single", _folded(w, mean, sd), CFG, _env())
+    with pytest.raises(SystemExit, match="not a window-correction ensemble .*scripts/make_window_ensemble.py"):
+        cwc.main([str(tmp_path / "single"), "--seed", "1"])
+    d, _ = _ensemble(tmp_path, [3])
+    before = (d / "policy.json").read_text()
+    monkeypatch.setattr(cwc, "covariance_scale_fit",
+                        lambda *a: {"covariance_scale": 50.0, "looks": 1, "invalid_looks": 0, "suites": {}})
+    with pytest.raises(SystemExit, match=r"covariance_scale' must be a number in \[0.1, 10\].*nothing written"):
+        cwc.main([str(d), "--seed", "1", "--write"])
+    assert (d / "policy.json").read_text() == before and not (d / "calibration.json").exists()

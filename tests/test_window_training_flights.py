@@ -17,17 +17,22 @@ def test_training_config_is_the_suites_own_unless_first_leg_min_s_differs():
     assert window.training_config({k: v for k, v in hp.items() if k != "first_leg_min_s"}) is None   # older runs
 
 
+class Drawn(Exception):
+    """Raised by a fake draw: the draw's arguments are what a test checks (not StopIteration: the draws are a
+    generator's, which turns it into a RuntimeError)."""
+
+
 def test_training_flights_are_drawn_with_that_config(monkeypatch):
     import agents.evaluation.suites as suites
     seen = []
 
     def fake(name, runs, seed, random_config=None):
         seen.append((name, runs, seed, random_config))
-        raise StopIteration                      # enough: the draw's arguments are what is checked
+        raise Drawn                              # enough: the draw's arguments are what is checked
 
     monkeypatch.setattr(suites, "draw_suite", fake)
     hp = {**load_hyperparams("window"), "first_leg_min_s": 0.0, "episodes": 7}
-    with pytest.raises(StopIteration):
+    with pytest.raises(Drawn):
         window.draw_training_looks(None, hp, 123)
     assert seen == [("random", 7, 123, RandomScenarioConfig(first_leg_min_s=0.0))]
 
@@ -57,7 +62,7 @@ def test_broad_generators_draw_the_backprop_recipes_flights_at_offset_seeds(monk
 
     def fake(name, runs, seed, random_config=None):
         seen.append((name, runs, seed, random_config))
-        raise StopIteration
+        raise Drawn
 
     monkeypatch.setattr(suites, "draw_suite", fake)
     rc = dict(load_hyperparams("backprop")["env_kwargs"]["random_config"])
@@ -67,7 +72,7 @@ def test_broad_generators_draw_the_backprop_recipes_flights_at_offset_seeds(monk
     for name, gen in window.BROAD_SCENARIOS.items():
         seen.clear()
         hp = window.check_hp({**load_hyperparams("window"), "scenarios": [name], "episodes": 7})[0]
-        with pytest.raises(StopIteration):
+        with pytest.raises(Drawn):
             window.draw_training_looks(None, hp, 123)
         assert seen == [(gen, 7, 123 + window.BROAD_SEED_OFFSET, laws)]
 

@@ -23,10 +23,12 @@ learned tracker. Loading checks every file (:mod:`agents.policies.checks`); no p
 An *ensemble* folder (``policy.json`` version 2, :data:`ENSEMBLE_VERSION`; built by
 ``scripts/make_window_ensemble.py`` from training runs) holds ``members`` networks of one architecture over one base,
 each as trained, on its standardised inputs: the estimate moves by the mean of their moves, and the covariance is the
-mixture's. Its ``precision`` may be ``"float32"`` (the networks were trained in float32; the forward then costs about
-half) and its ``base_precision`` ``"float32"`` for a recurrent q-policy base (its GRU; about 0.7x the time): the bundled
-``policy_window`` runs both, the three networks and the base together costing less than one float64 network over a
-float64 base (issue 38's cap of 5x imm_cv_ct per look), and equal to its float64 numbers to 1e-8 in the pooled RMSE.
+mixture's, times ``covariance_scale`` (1 unless ``scripts/calibrate_window_covariance.py`` fitted one: the mean of
+heads fitted each to its own looks is more cautious than each head). Its ``precision`` may be ``"float32"`` (the
+networks were trained in float32; the forward then costs about half) and its ``base_precision`` ``"float32"`` for a
+recurrent q-policy base (its GRU; about 0.7x the time): the bundled ``policy_window`` runs both, the three networks
+and the base together costing less than one float64 network over a float64 base (issue 38's cap of 5x imm_cv_ct per
+look), and equal to its float64 numbers to 1e-8 in the pooled RMSE.
 
 The network: ``layers`` tanh layers of the given widths and a linear output of two numbers, the truth's offset from
 the base estimate along and across its velocity in units of ``scale_m`` (and, with a covariance head, a second linear
@@ -47,7 +49,8 @@ from agents.policies.recurrent import layer_weights, linear
 
 __all__ = ["FORMAT", "VERSION", "POLICY_FILE", "COV_OUTPUTS", "head_covariance", "window_features", "look_features",
            "feature_count", "FIT_FEATURES", "Q_FLOOR_M_S2", "check_q_looks", "network_shapes", "network_forward",
-           "WindowCorrection", "ENSEMBLE_VERSION", "save_window_ensemble", "ensemble_members", "ensemble_fields",
+           "WindowCorrection", "ENSEMBLE_VERSION", "COVARIANCE_SCALE_RANGE", "save_window_ensemble", "ensemble_members",
+           "ensemble_fields",
            "is_window_correction", "load_window_correction", "save_window_correction", "CorrectedEstimate"]
 
 FORMAT = "radar-track-window-correction"
@@ -58,8 +61,11 @@ ENSEMBLE_VERSION = 2
 """An ensemble's folder (:func:`save_window_ensemble`): ``policy.npz`` holds ``members`` networks over one base, each
 as trained (``member{j}.`` + :func:`network_shapes`' names, on standardised inputs) with its standardisation
 (``member{j}.input_mean``, ``member{j}.input_sd``); ``policy.json`` adds ``members``, ``precision`` (the networks'
-forward) and ``base_precision`` (a q-policy base's GRU)."""
+forward), ``base_precision`` (a q-policy base's GRU) and, optionally, ``covariance_scale`` (the reported covariance's
+factor, :data:`COVARIANCE_SCALE_RANGE`; 1 when absent; ``scripts/calibrate_window_covariance.py`` fits it)."""
 MAX_MEMBERS = 16
+COVARIANCE_SCALE_RANGE = (0.1, 10.0)
+"""Bounds of an ensemble's ``covariance_scale``: a calibration outside them says the heads are wrong, not shy."""
 PRECISIONS = ("float64", "float32")
 POLICY_FILE = "policy.npz"
 RESIDUAL_CLIP = 30.0
@@ -417,7 +423,8 @@ class WindowCorrection:
 
     An ensemble (``config["members"]`` networks) moves the base estimate by the mean of its members' moves; its
     covariance (with covariance heads) is the mixture's: the mean of the heads' covariances plus the spread of the
-    members' moves about their mean (position block). With one member the numbers are that member's.
+    members' moves about their mean (position block), times ``config["covariance_scale"]`` (1 when absent). With one
+    member and no scale the numbers are that member's.
     """
 
     is_tracker = True
@@ -439,7 +446,9 @@ class WindowCorrection:
                              f"{list(self.fit_looks)}, q_looks {self.q_looks}), got {self.arch.get('input_size')!r}")
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
-        ensemble, _, self.precision, self.base_precision = ensemble_fields(config)
+        ensemble, _, self.precision, self.base_precision, self.covariance_scale = ensemble_fields(config)
+        if self.covariance_scale != 1.0 and not self.has_covariance:
+            raise ValueError("field 'covariance_scale' needs a covariance head (architecture.covariance true)")
         self.dtype = np.dtype(self.precision).type
         self.members = [SimpleNamespace(w=layer_weights(m["weights"], self.dtype), mean=m["mean"], sd=m["sd"])
                         for m in ensemble_members(weights, config)]
@@ -474,13 +483,15 @@ class WindowCorrection:
             ds.append(np.stack([o[:, 0] * ca - o[:, 1] * sa, o[:, 0] * sa + o[:, 1] * ca], -1))
             Cs.append(None if raw is None else head_covariance(raw, frame, self.scale_m, self.scale_m_s))
         if len(ds) == 1:
-            return ds[0], Cs[0]
-        d = np.mean(ds, 0)
-        if Cs[0] is None:
-            return d, None
-        C = np.mean(Cs, 0)
-        e = np.stack(ds) - d                       # the members' moves about their mean: the mixture's spread
-        C[:, :2, :2] += np.einsum("mni,mnj->nij", e, e) / len(ds)
+            d, C = ds[0], Cs[0]
+        else:
+            d = np.mean(ds, 0)
+            C = None if Cs[0] is None else np.mean(Cs, 0)
+            if C is not None:
+                e = np.stack(ds) - d                       # the members' moves about their mean: the mixture's spread
+                C[:, :2, :2] += np.einsum("mni,mnj->nij", e, e) / len(ds)
+        if C is not None and self.covariance_scale != 1.0:
+            C *= self.covariance_scale
         return d, C
 
     def correct(self, batch, run, name):
@@ -514,24 +525,29 @@ class WindowCorrection:
 
 def ensemble_fields(config):
     """The ensemble fields of a correction's ``policy.json`` dict, checked: ``(ensemble, members, precision,
-    base_precision)``; a single correction (version 1) is ``(False, 1, "float64", "float64")`` and may not carry
-    them. ``ValueError`` naming the field otherwise (the loader adds the file)."""
+    base_precision, covariance_scale)``; a single correction (version 1) is ``(False, 1, "float64", "float64", 1.0)``
+    and may not carry them. ``ValueError`` naming the field otherwise (the loader adds the file)."""
     version = config.get("version", VERSION)
     if version not in (VERSION, ENSEMBLE_VERSION) or isinstance(version, bool):
         raise ValueError(f"field 'version' must be {VERSION} or {ENSEMBLE_VERSION} (an ensemble), got {version!r}")
     if version == VERSION:
-        for field in ("precision", "base_precision", "members"):
+        for field in ("precision", "base_precision", "members", "covariance_scale"):
             if field in config:
                 raise ValueError(f"field {field!r} belongs to an ensemble's folder (version {ENSEMBLE_VERSION}); a "
                                  f"single correction (version {VERSION}) runs in float64")
-        return False, 1, "float64", "float64"
+        return False, 1, "float64", "float64", 1.0
     m = config.get("members")
     if not isinstance(m, int) or isinstance(m, bool) or not 1 <= m <= MAX_MEMBERS:
         raise ValueError(f"field 'members' must be an integer in [1, {MAX_MEMBERS}], got {m!r}")
     for field in ("precision", "base_precision"):
         if config.get(field) not in PRECISIONS:
             raise ValueError(f"field {field!r} must be one of {list(PRECISIONS)}, got {config.get(field)!r}"[:300])
-    return True, m, config["precision"], config["base_precision"]
+    c = config.get("covariance_scale", 1.0)
+    lo, hi = COVARIANCE_SCALE_RANGE
+    if not isinstance(c, (int, float)) or isinstance(c, bool) or not lo <= c <= hi:
+        raise ValueError(f"field 'covariance_scale' must be a number in [{lo:g}, {hi:g}] (the reported covariance's "
+                         f"factor), got {c!r}"[:300])
+    return True, m, config["precision"], config["base_precision"], float(c)
 
 
 def ensemble_members(weights, config):
@@ -594,7 +610,7 @@ def load_window_correction(path, load_base):
                                                           (VERSION, ENSEMBLE_VERSION))
     meta_file = d / "policy.json"
     try:
-        ensemble, members, _, base_precision = ensemble_fields(config)
+        ensemble, members, _, base_precision, cov_scale = ensemble_fields(config)
     except ValueError as e:
         raise ValueError(f"{meta_file}: {e}") from None
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
@@ -616,6 +632,9 @@ def load_window_correction(path, load_base):
     cov = arch.get("covariance", False)
     if not isinstance(cov, bool):
         raise ValueError(f"{meta_file}: field 'architecture.covariance' must be true or false, got {cov!r}")
+    if cov_scale != 1.0 and not cov:
+        raise ValueError(f"{meta_file}: field 'covariance_scale' needs a covariance head (architecture.covariance "
+                         "true)")
     if cov:
         checks.check_finite_numbers(meta_file, config.get("scale_m_s"), "scale_m_s")
         if not config["scale_m_s"] > 0:

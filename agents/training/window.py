@@ -65,9 +65,9 @@ from agents.training.runs import (CHECKPOINT_ERRORS, EVAL_SCENARIOS_HP, SELECT_O
                                   run_cli, run_paths, write_checkpoint, write_run_files, writing_run)
 from agents.training.selection import SELECTION_SEED_BASE, SelectionSuites, pooled_rmse
 
-__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "draw_training_looks", "suite_episodes",
-           "mirror_signs", "training_batch", "input_standardisation", "unfold_standardisation", "fit_covariance_head",
-           "add_covariance", "train_window", "main_from_args"]
+__all__ = ["HP_KEYS", "COV_SCALE_M_S", "check_hp", "training_looks", "training_flights", "draw_training_looks",
+           "suite_episodes", "mirror_signs", "training_batch", "input_standardisation", "unfold_standardisation",
+           "fit_covariance_head", "covariance_scale_fit", "add_covariance", "train_window", "main_from_args"]
 
 COV_SCALE_M_S = 30.0
 """The velocity unit of the covariance head (m/s), written to ``policy.json`` as ``scale_m_s``."""
@@ -553,6 +553,19 @@ def training_config(hp):
     return None if v == default.first_leg_min_s else RandomScenarioConfig(first_leg_min_s=float(v))
 
 
+def training_flights(hp, seed, chunk=500):
+    """The training flights of one draw from seed ``seed`` (module docstring), suite by suite: yields ``(suite,
+    chunks)``, ``chunks`` an iterator of lists of at most ``chunk`` episodes, drawn when reached (a chunk's base runs
+    stay a few hundred MB)."""
+    from agents.evaluation.suites import draw_suite
+    cfg = training_config(hp)
+    for name, n_ep in suite_episodes(hp).items():
+        gen, laws, s0 = ((BROAD_SCENARIOS[name], broad_config(), seed + BROAD_SEED_OFFSET) if name in BROAD_SCENARIOS
+                         else (name, cfg, seed))
+        yield name, (draw_suite(gen, min(chunk, n_ep - c0), seed=s0 + c0, random_config=laws)
+                     for c0 in range(0, n_ep, chunk))
+
+
 def draw_training_looks(base, hp, seed, with_mirror=True):
     """Every training look of a run (module docstring): ``(F, Y, V, W)``, the inputs, the position and velocity
     targets (:func:`training_looks`) and each look's weight in the loss (``1 / `` the base's mean squared error on
@@ -563,18 +576,12 @@ def draw_training_looks(base, hp, seed, with_mirror=True):
     and a half times the result's (the drawn looks, half of it with the mirror, beside it), not three times (4.4 M
     looks of 24-look windows, their mirror included: 5.6 GB; without the mirror the drawn chunks beside an array of
     their own size)."""
-    from agents.evaluation.suites import draw_suite
     parts, sizes = [], []       # per suite: its chunks' (F, Y, V)
     fits = hp.get("fit_looks", ())         # (a run saved before the fits existed has none)
     q_looks = hp.get("q_looks", 0)         # (nor the q inputs)
-    cfg = training_config(hp)
-    for name, n_ep in suite_episodes(hp).items():
-        chunks = []
-        gen, laws, s0 = ((BROAD_SCENARIOS[name], broad_config(), seed + BROAD_SEED_OFFSET) if name in BROAD_SCENARIOS
-                         else (name, cfg, seed))
-        for c0 in range(0, n_ep, 500):       # chunks: the base's runs stay a few hundred MB
-            eps = draw_suite(gen, min(500, n_ep - c0), seed=s0 + c0, random_config=laws)
-            chunks.append(training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks))
+    for name, chunk_list in training_flights(hp, seed):
+        chunks = [training_looks(base, eps, hp["window_looks"], float(hp["scale_m"]), fits, q_looks)
+                  for eps in chunk_list]
         parts.append(chunks)
         sizes.append(sum(len(c[0]) for c in chunks))
     n = sum(sizes)
@@ -596,6 +603,46 @@ def draw_training_looks(base, hp, seed, with_mirror=True):
         F[n:], Y[n:], V[n:], W[n:] = F[:n], Y[:n], V[:n], W[:n]
         _reflect(F[n:], Y[n:], hp["window_looks"], V[n:], fits)
     return F, Y, V, W
+
+
+def covariance_scale_fit(correction, hp, seed):
+    """The maximum-likelihood factor of a correction's reported covariance on training flights: ``c = mean NEES / 4``
+    of its covariance with ``covariance_scale`` 1 (``c C`` then has NEES 4 on average, ANEES 1: the scale a Gaussian
+    likelihood fit gives a fixed matrix, the criterion each covariance head was fitted by), over every look the
+    correction moves on the flights of :func:`training_flights` (``hp``'s ``scenarios``, ``episodes`` and
+    ``first_leg_min_s``; one draw from ``seed``). An ensemble's mean of heads, each fitted to its own looks, is
+    more cautious than each head; this restores the heads' calibration for the ensemble.
+
+    Returns ``{"covariance_scale", "looks", "invalid_looks", "suites": {suite: {"flights", "looks", "anees"}}}``,
+    ``anees`` the suite's with scale 1. A look whose covariance is not positive definite has no NEES
+    (:func:`agents.evaluation.metrics.nees_values`): counted in ``invalid_looks``; ``ValueError`` if no look has one.
+    """
+    import copy
+    from agents.evaluation.metrics import nees_values
+    from radar_env.sim.episode import stack_episodes
+    if not correction.has_covariance:
+        raise ValueError("covariance_scale_fit: the correction has no covariance head (nothing to scale)")
+    unscaled = copy.copy(correction)
+    unscaled.covariance_scale = 1.0
+    suites, total, looks, invalid = {}, 0.0, 0, 0
+    for name, chunks in training_flights(hp, seed):
+        s = {"flights": 0, "looks": 0, "nees_sum": 0.0}
+        for eps in chunks:
+            run = unscaled.run(eps)
+            moved = np.isfinite(run.extra["correction_m"])
+            nees = nees_values((run.x - stack_episodes(eps).truth)[moved], run.P[moved])
+            ok = np.isfinite(nees)
+            invalid += int((~ok).sum())
+            s["flights"] += len(eps)
+            s["looks"] += int(ok.sum())
+            s["nees_sum"] += float(nees[ok].sum())
+        total += s["nees_sum"]
+        looks += s["looks"]
+        suites[name] = {"flights": s["flights"], "looks": s["looks"],
+                        "anees": s["nees_sum"] / (4 * s["looks"]) if s["looks"] else float("nan")}
+    if not looks:
+        raise ValueError("covariance_scale_fit: no look with a positive-definite covariance")
+    return {"covariance_scale": total / (4 * looks), "looks": looks, "invalid_looks": invalid, "suites": suites}
 
 
 def add_covariance(run, epochs, verbose=1, command=None):
