@@ -39,7 +39,7 @@ def human_display_problem():
     import sys
     try:
         matplotlib, _, _ = _import_matplotlib()
-        import matplotlib.pyplot  # noqa: F401 - resolves the default backend (it falls back to Agg if headless)
+        import matplotlib.pyplot as _pyplot  # noqa: F401 - resolves the default backend (Agg if headless)
     except ImportError as e:
         return str(e)
     backend = str(matplotlib.get_backend()).lower()
