@@ -8,10 +8,14 @@ moves; each head was fitted by Gaussian likelihood to its own run's looks, and t
 ``c = mean NEES / 4`` over every look the correction moves on the given training flights is the maximum-likelihood
 factor of that fixed covariance (:func:`agents.training.window.covariance_scale_fit`); ``c`` times it has ANEES 1
 there. The estimates do not change (the covariance has no feedback). Choose ``--seed`` so that no training run, rule
-or check used the flights; the default mix is the bundled ensemble's fine-tuning mix (2,000 / 2,000 / 500 / 500 flights)
+or check used the flights (the script refuses only the held-out evaluation's seeds, 10,000,000 and above; the
+selection suites draw 900,000 + i and 920,000 + i, the broad suites' flights come from ``--seed`` + 300,000); the
+default mix is the bundled ensemble's fine-tuning mix (2,000 / 2,000 / 500 / 500 flights)
 at 0.4. ``--write`` sets ``policy.json``'s ``covariance_scale`` and writes ``calibration.json`` beside it (the seed,
-the flights, each suite's ANEES before, the command); without it the fit is printed only. A version-1 correction has
-no scale field: make it an ensemble of one (``scripts/make_window_ensemble.py``).
+the flights, each suite's ANEES before, the command; the new ``policy.json`` is loaded from a copy first, so a
+refusal leaves the folder as it was); without it the fit is printed only. Rebuilding the folder with
+``scripts/make_window_ensemble.py`` drops the scale (and the stale ``calibration.json``): fit it again. A version-1
+correction has no scale field: make it an ensemble of one (``scripts/make_window_ensemble.py``).
 """
 
 from __future__ import annotations
@@ -19,7 +23,10 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,7 +69,8 @@ def main(argv=None):
     ap.add_argument("--write", action="store_true", help="write covariance_scale and calibration.json")
     args = ap.parse_args(argv)
     episodes = check_episodes(args.episodes)
-    last = args.seed + max(episodes.values()) - 1 + (BROAD_SEED_OFFSET if set(episodes) & set(BROAD_SCENARIOS) else 0)
+    last = max(args.seed + (BROAD_SEED_OFFSET if name in BROAD_SCENARIOS else 0) + n - 1
+               for name, n in episodes.items())
     if args.seed < 0 or last >= EVAL_SEED_BASE:
         raise SystemExit(f"error: --seed: the flights' seeds {args.seed}..{last} must lie in [0, {EVAL_SEED_BASE:,}) "
                          "(the held-out evaluation's seeds start there)")
@@ -104,12 +112,22 @@ def main(argv=None):
               "policy_npz_sha256": hashlib.sha256(npz.read_bytes()).hexdigest(),
               "command": " ".join(["scripts/calibrate_window_covariance.py",
                                    *(argv if argv is not None else sys.argv[1:])])}
-    meta_file.write_text(json.dumps(meta, indent=1, allow_nan=False))
-    try:
-        load_learned(str(folder))       # what was written loads
-    except ValueError as e:
-        raise SystemExit(f"error: the written {meta_file} does not load: {e}"[:500]) from None
-    (folder / "calibration.json").write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
+    texts = {"calibration.json": json.dumps(record, indent=1, allow_nan=False) + "\n",
+             "policy.json": json.dumps(meta, indent=1, allow_nan=False)}
+    # the new policy.json loaded from a copy beside the folder (the same depth: a relative base resolves there too)
+    # before anything in the folder changes; then each file replaced whole (a rename), the record first
+    with tempfile.TemporaryDirectory(dir=folder.resolve().parent, prefix=f".{folder.resolve().name}.") as tmp:
+        for f in ("policy.npz", "env_config.json"):
+            shutil.copyfile(folder / f, Path(tmp) / f)
+        (Path(tmp) / "policy.json").write_text(texts["policy.json"])
+        try:
+            load_learned(tmp)
+        except ValueError as e:
+            raise SystemExit(f"error: the new {meta_file} would not load: {e}; nothing written"[:500]) from None
+        for name, text in texts.items():
+            (Path(tmp) / f"{name}.new").write_text(text)
+        for name in texts:
+            os.replace(Path(tmp) / f"{name}.new", folder / name)
     print(f"wrote {meta_file} (covariance_scale) and {folder / 'calibration.json'}")
     return fit
 

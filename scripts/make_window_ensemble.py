@@ -12,7 +12,8 @@ unfolded network on standardised inputs gives the folded network's outputs to 1e
 4,096 inputs drawn around its training mean; and every run has the first run's configuration (base, window, fits,
 q looks, architecture, scales). ``OUT/ensemble.json`` records the members' sources (path and sha256 of each
 ``policy.npz``); ``covariance.json``, ``training.json`` and the rest stay in the runs (the bundle keeps them under
-``seeds/`` and writes its own by hand).
+``seeds/`` and writes its own by hand). The new ``policy.json`` has no ``covariance_scale``: an existing
+``OUT/calibration.json`` is removed, and ``scripts/calibrate_window_covariance.py`` fits the scale again.
 """
 
 from __future__ import annotations
@@ -111,6 +112,11 @@ def main(argv=None):
         out_dir.mkdir(exist_ok=True)
         for f in ("policy.npz", "policy.json", "env_config.json"):
             shutil.copyfile(built.parent / f, out_dir / f)
+    stale = out_dir / "calibration.json"        # a covariance scale fitted for the networks OUT held before
+    if stale.is_file():
+        stale.unlink()
+        print(f"removed {stale}: the new policy.json has no covariance_scale; fit it again with "
+              "scripts/calibrate_window_covariance.py")
     (out_dir / "ensemble.json").write_text(json.dumps(
         {"members": [m[4] for m in members],
          "command": " ".join(["scripts/make_window_ensemble.py", *(argv if argv is not None else sys.argv[1:])])},

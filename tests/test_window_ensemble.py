@@ -320,9 +320,10 @@ SMALL = {"scenarios": ["random", "random_broad"], "episodes": {"random": 4, "ran
          "first_leg_min_s": 0.0}
 
 
-def test_covariance_scale_multiplies_the_reported_covariance_only(tmp_path, episodes):
-    d, _ = _ensemble(tmp_path, [3, 4], "plain")
-    ds, _ = _ensemble(tmp_path, [3, 4], "scaled", covariance_scale=0.5)
+@pytest.mark.parametrize("seeds", [[3], [3, 4]])
+def test_covariance_scale_multiplies_the_reported_covariance_only(tmp_path, episodes, seeds):
+    d, _ = _ensemble(tmp_path, seeds, "plain")
+    ds, _ = _ensemble(tmp_path, seeds, "scaled", covariance_scale=0.5)
     dm, Pm, run, _ = _moves(load_learned(d), episodes)
     dm2, Pm2, run2, _ = _moves(load_learned(ds), episodes)
     np.testing.assert_array_equal(run2.x, run.x)
@@ -356,6 +357,11 @@ def test_covariance_scale_needs_an_ensemble_folder_and_a_covariance_head(tmp_pat
                              _env())
     with pytest.raises(ValueError, match="field 'covariance_scale' needs a covariance head"):
         load_learned(tmp_path / "nohead")
+    with np.load(tmp_path / "nohead" / "policy.npz") as z:          # built by hand: the same refusal
+        w = {k: z[k] for k in z.files}
+    cfg = json.loads((tmp_path / "nohead" / "policy.json").read_text())
+    with pytest.raises(ValueError, match="field 'covariance_scale' needs a covariance head"):
+        wcm.WindowCorrection(w, cfg, None, None)
 
 
 def test_the_fitted_scale_gives_anees_one_on_its_flights_whatever_the_folders_scale(tmp_path):
@@ -388,17 +394,21 @@ def test_calibrate_script_writes_the_scale_and_its_record(tmp_path, capsys):
     folder = tmp_path / "window"
     shutil.copytree(BUNDLED_LEARNED["policy_window"], folder, ignore=shutil.ignore_patterns("seeds"))
     argv = [str(folder), "--seed", "123", "--episodes", json.dumps(SMALL["episodes"]), "--write"]
+    before = json.loads((folder / "policy.json").read_text())
     fit = cwc.main(argv)
     meta = json.loads((folder / "policy.json").read_text())
     rec = json.loads((folder / "calibration.json").read_text())
     assert meta["covariance_scale"] == rec["covariance_scale"] == fit["covariance_scale"]
+    assert {k: v for k, v in meta.items() if k != "covariance_scale"} == {
+        k: v for k, v in before.items() if k != "covariance_scale"}                 # every other field kept
     assert rec["seed"] == 123 and rec["episodes"] == SMALL["episodes"] and rec["looks"] == fit["looks"]
     assert load_learned(folder).policy.covariance_scale == fit["covariance_scale"]
     assert "covariance_scale" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("args, match", [
-    (["--seed", "9999990"], r"--seed: the flights' seeds 9999990\.\.10300789 must lie in \[0, 10,000,000\)"),
+    (["--seed", "9999990"], r"--seed: the flights' seeds 9999990\.\.10300189 must lie in \[0, 10,000,000\)"),
+    (["--seed", "9699900"], r"the flights' seeds 9699900\.\.10000099 must lie in"),   # the broad ones' end
     (["--seed", "-1"], "must lie in"),
     (["--seed", "1", "--episodes", '{"random": 0}'], r"random's flights must be an integer in \[1, 20000\]"),
     (["--seed", "1", "--episodes", '{"kim_lee_accel": 5}'], "suite 'kim_lee_accel' is not one of"),
@@ -424,3 +434,39 @@ def test_calibrate_script_refuses_a_single_correction_and_writes_nothing_out_of_
     with pytest.raises(SystemExit, match=r"covariance_scale' must be a number in \[0.1, 10\].*nothing written"):
         cwc.main([str(d), "--seed", "1", "--write"])
     assert (d / "policy.json").read_text() == before and not (d / "calibration.json").exists()
+
+
+def test_the_bundled_scale_is_its_calibrations():
+    """policy_window's covariance_scale is calibration.json's, fitted for the networks it holds (sha256)."""
+    import hashlib
+    folder = BUNDLED_LEARNED["policy_window"]
+    rec = json.loads((folder / "calibration.json").read_text())
+    assert load_learned("policy_window").policy.covariance_scale == rec["covariance_scale"]
+    assert rec["policy_npz_sha256"] == hashlib.sha256((folder / "policy.npz").read_bytes()).hexdigest()
+    assert rec["looks"] == sum(s["looks"] for s in rec["suites"].values())
+
+
+def test_make_window_ensemble_removes_a_stale_calibration(tmp_path):
+    runs = [_run_folder(tmp_path, f"run{i}", 10 + i)[0] for i in range(2)]
+    out = tmp_path / "ens"
+    out.mkdir()
+    (out / "calibration.json").write_text("{}")
+    mwe.main([str(out), *map(str, runs), "--precision", "float64", "--base-precision", "float64"])
+    assert not (out / "calibration.json").exists()
+    assert "covariance_scale" not in json.loads((out / "policy.json").read_text())
+
+
+def test_training_flights_chunks_are_drawn_as_before(monkeypatch):
+    """Suites in order, chunks of 500 from the suite's first seed (broad ones 300,000 above), a suite's chunks its
+    own even when drawn after the next suite was reached."""
+    import agents.evaluation.suites as suites
+    from agents.training import window
+    calls = []
+    monkeypatch.setattr(suites, "draw_suite", lambda gen, n, seed, random_config=None: calls.append((gen, n, seed)))
+    hp = {"scenarios": ["random", "random_radars_broad"], "episodes": {"random": 1201, "random_radars_broad": 501},
+          "first_leg_min_s": 0.0}
+    suites_chunks = list(window.training_flights(hp, 1000))         # every suite reached before any chunk is drawn
+    for _, chunks in suites_chunks:
+        list(chunks)
+    assert calls == [("random", 500, 1000), ("random", 500, 1500), ("random", 201, 2000),
+                     ("random_radars", 500, 301000), ("random_radars", 1, 301500)]

@@ -557,13 +557,19 @@ def training_flights(hp, seed, chunk=500):
     """The training flights of one draw from seed ``seed`` (module docstring), suite by suite: yields ``(suite,
     chunks)``, ``chunks`` an iterator of lists of at most ``chunk`` episodes, drawn when reached (a chunk's base runs
     stay a few hundred MB)."""
-    from agents.evaluation.suites import draw_suite
     cfg = training_config(hp)
     for name, n_ep in suite_episodes(hp).items():
         gen, laws, s0 = ((BROAD_SCENARIOS[name], broad_config(), seed + BROAD_SEED_OFFSET) if name in BROAD_SCENARIOS
                          else (name, cfg, seed))
-        yield name, (draw_suite(gen, min(chunk, n_ep - c0), seed=s0 + c0, random_config=laws)
-                     for c0 in range(0, n_ep, chunk))
+        yield name, _chunks(gen, laws, s0, n_ep, chunk)
+
+
+def _chunks(gen, laws, s0, n_ep, chunk):
+    """:func:`training_flights`' chunks of one suite (its values bound here, so a suite's chunks drawn after the
+    next suite was reached are still its own)."""
+    from agents.evaluation.suites import draw_suite
+    for c0 in range(0, n_ep, chunk):
+        yield draw_suite(gen, min(chunk, n_ep - c0), seed=s0 + c0, random_config=laws)
 
 
 def draw_training_looks(base, hp, seed, with_mirror=True):
