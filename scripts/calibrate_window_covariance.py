@@ -23,10 +23,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,7 +76,7 @@ def main(argv=None):
         raise SystemExit(f"error: --first-leg-min-s must be in [0, 600] s, got {args.first_leg_min_s}")
     folder = Path(args.folder)
     meta_file = folder / "policy.json"
-    from agents.policies.learned import load_learned
+    from agents.policies.learned import install_checked, load_learned, staging_beside
     from agents.policies.window_correction import ENSEMBLE_VERSION, FORMAT, ensemble_fields
     try:
         meta = json.loads(meta_file.read_text())
@@ -114,20 +112,17 @@ def main(argv=None):
                                    *(argv if argv is not None else sys.argv[1:])])}
     texts = {"calibration.json": json.dumps(record, indent=1, allow_nan=False) + "\n",
              "policy.json": json.dumps(meta, indent=1, allow_nan=False)}
-    # the new policy.json loaded from a copy beside the folder (the same depth: a relative base resolves there too)
-    # before anything in the folder changes; then each file replaced whole (a rename), the record first
-    with tempfile.TemporaryDirectory(dir=folder.resolve().parent, prefix=f".{folder.resolve().name}.") as tmp:
+    # the new policy.json loaded from a copy beside the folder before anything in the folder changes; then each file
+    # replaced whole, the record first
+    with staging_beside(folder) as tmp:
         for f in ("policy.npz", "env_config.json"):
             shutil.copyfile(folder / f, Path(tmp) / f)
-        (Path(tmp) / "policy.json").write_text(texts["policy.json"])
-        try:
-            load_learned(tmp)
-        except ValueError as e:
-            raise SystemExit(f"error: the new {meta_file} would not load: {e}; nothing written"[:500]) from None
         for name, text in texts.items():
-            (Path(tmp) / f"{name}.new").write_text(text)
-        for name in texts:
-            os.replace(Path(tmp) / f"{name}.new", folder / name)
+            (Path(tmp) / name).write_text(text)
+        try:
+            install_checked(tmp, folder, tuple(texts))
+        except ValueError as e:
+            raise SystemExit(f"error: {e}; nothing written"[:500]) from None
     print(f"wrote {meta_file} (covariance_scale) and {folder / 'calibration.json'}")
     return fit
 

@@ -22,9 +22,7 @@ import argparse
 import hashlib
 import json
 import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +30,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from agents.policies.learned import install_checked, staging_beside  # noqa: E402
 from agents.policies.recurrent import layer_weights  # noqa: E402
 from agents.training.window import unfold_standardisation  # noqa: E402
 from agents.policies.window_correction import (PRECISIONS, network_forward, network_shapes,  # noqa: E402
@@ -99,19 +98,13 @@ def main(argv=None):
     config = {k: first[k] for k in SAME if k in first}
     config.update(base=bases[0], precision=args.precision, base_precision=args.base_precision)
     env = json.loads((runs[0] / "best" / "env_config.json").read_text())
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    # built beside OUT (the same depth: a base folder's relative path holds there too) and loaded before anything in
-    # OUT changes, so that a refusal leaves OUT as it was
-    with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=f".{out_dir.name}.") as tmp:
-        built = save_window_ensemble(tmp, [m[:3] for m in members], config, env)
+    # built beside OUT and loaded before anything in OUT changes, so that a refusal leaves OUT as it was
+    with staging_beside(out_dir) as tmp:
+        save_window_ensemble(tmp, [m[:3] for m in members], config, env)
         try:
-            from agents.policies.learned import load_learned
-            load_learned(str(built.parent))
+            install_checked(tmp, out_dir, ("policy.npz", "policy.json", "env_config.json"))
         except ValueError as e:
             raise SystemExit(f"error: {e}") from None
-        out_dir.mkdir(exist_ok=True)
-        for f in ("policy.npz", "policy.json", "env_config.json"):
-            shutil.copyfile(built.parent / f, out_dir / f)
     stale = out_dir / "calibration.json"        # a covariance scale fitted for the networks OUT held before
     if stale.is_file():
         stale.unlink()

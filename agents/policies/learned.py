@@ -36,7 +36,7 @@ from agents.policies.layout import (BUNDLED_DIR, BUNDLED_LEARNED, CORRECTION_KIN
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
            "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest",
-           "write_records", "learned_label", "write_run_layout"]
+           "write_records", "learned_label", "write_run_layout", "staging_beside", "install_checked"]
 
 
 def read_kind(folder, file=None):
@@ -188,6 +188,29 @@ def load_learned(path_or_name, name=None, kinds=None, allow_pickle=False) -> Lea
         held = "window correction" if is_correction else "learned IMM" if is_tracker else "q-policy"
         raise ValueError(f"{source}: kind {kind!r}, but {file.name} holds a {held}")
     return LearnedTracker(kind, name or learned_label(folder, bundled), folder, file, cfg, policy)
+
+
+def staging_beside(folder):
+    """A temporary folder beside ``folder`` (the same depth, so a base given as a relative folder resolves there as
+    from ``folder``), removed on exit: where a folder's new files are written and loaded before they replace its
+    own (:func:`install_checked`)."""
+    import tempfile
+    folder = Path(folder).resolve()
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    return tempfile.TemporaryDirectory(dir=folder.parent, prefix=f".{folder.name}.")
+
+
+def install_checked(staged, folder, names):
+    """Move the files ``names`` of a staged learned-tracker folder (:func:`staging_beside`) into ``folder`` once the
+    staged folder loads (:func:`load_learned`), each replaced whole, in ``names``' order
+    (:func:`radar_env.common.files.move_replacing`). ``ValueError`` from the load, ``folder`` untouched,
+    otherwise."""
+    from radar_env.common.files import move_replacing
+    load_learned(str(staged))
+    folder = Path(folder)
+    folder.mkdir(exist_ok=True)
+    for n in names:
+        move_replacing(Path(staged) / n, folder / n)
 
 
 def write_run_layout(run, kind, summary):

@@ -447,8 +447,6 @@ class WindowCorrection:
         self.has_covariance = bool(self.arch.get("covariance", False))
         self.scale_m_s = float(config.get("scale_m_s", 0.0))
         ensemble, _, self.precision, self.base_precision, self.covariance_scale = ensemble_fields(config)
-        if self.covariance_scale != 1.0 and not self.has_covariance:
-            raise ValueError("field 'covariance_scale' needs a covariance head (architecture.covariance true)")
         self.dtype = np.dtype(self.precision).type
         self.members = [SimpleNamespace(w=layer_weights(m["weights"], self.dtype), mean=m["mean"], sd=m["sd"])
                         for m in ensemble_members(weights, config)]
@@ -547,6 +545,9 @@ def ensemble_fields(config):
     if not isinstance(c, (int, float)) or isinstance(c, bool) or not lo <= c <= hi:
         raise ValueError(f"field 'covariance_scale' must be a number in [{lo:g}, {hi:g}] (the reported covariance's "
                          f"factor), got {c!r}"[:300])
+    arch = config.get("architecture")
+    if c != 1.0 and not (isinstance(arch, dict) and arch.get("covariance") is True):
+        raise ValueError("field 'covariance_scale' needs a covariance head (architecture.covariance true)")
     return True, m, config["precision"], config["base_precision"], float(c)
 
 
@@ -610,7 +611,7 @@ def load_window_correction(path, load_base):
                                                           (VERSION, ENSEMBLE_VERSION))
     meta_file = d / "policy.json"
     try:
-        ensemble, members, _, base_precision, cov_scale = ensemble_fields(config)
+        ensemble, members, _, base_precision, _ = ensemble_fields(config)
     except ValueError as e:
         raise ValueError(f"{meta_file}: {e}") from None
     window = _positive_int(meta_file, config.get("window_looks"), "window_looks", 64)
@@ -632,9 +633,6 @@ def load_window_correction(path, load_base):
     cov = arch.get("covariance", False)
     if not isinstance(cov, bool):
         raise ValueError(f"{meta_file}: field 'architecture.covariance' must be true or false, got {cov!r}")
-    if cov_scale != 1.0 and not cov:
-        raise ValueError(f"{meta_file}: field 'covariance_scale' needs a covariance head (architecture.covariance "
-                         "true)")
     if cov:
         checks.check_finite_numbers(meta_file, config.get("scale_m_s"), "scale_m_s")
         if not config["scale_m_s"] > 0:
