@@ -10,12 +10,14 @@ factor of that fixed covariance (:func:`agents.training.window.covariance_scale_
 there. The estimates do not change (the covariance has no feedback). Choose ``--seed`` so that no training run, rule
 or check used the flights (the script refuses only the held-out evaluation's seeds, 10,000,000 and above; the
 selection suites draw 900,000 + i and 920,000 + i, the broad suites' flights come from ``--seed`` + 300,000); the
-default mix is the bundled ensemble's fine-tuning mix (2,000 / 2,000 / 500 / 500 flights)
-at 0.4. ``--write`` sets ``policy.json``'s ``covariance_scale`` and writes ``calibration.json`` beside it (the seed,
-the flights, each suite's ANEES before, the command; the new ``policy.json`` is loaded from a copy first, so a
-refusal leaves the folder as it was); without it the fit is printed only. Rebuilding the folder with
-``scripts/make_window_ensemble.py`` drops the scale (and the stale ``calibration.json``): fit it again. A version-1
-correction has no scale field: make it an ensemble of one (``scripts/make_window_ensemble.py``).
+default mix is the bundled ensemble's fine-tuning mix (2,000 / 2,000 / 500 / 500 flights) at 0.4 of its size: for an
+ensemble of runs trained on another mix (e.g. ``window.toml``'s defaults, no broad flights) pass ``--episodes`` with
+that mix's suites (the scale is fitted where the networks were trained). ``--write`` sets ``policy.json``'s
+``covariance_scale`` and writes ``calibration.json`` beside it (the seed, the flights, each suite's ANEES before,
+the command; the new ``policy.json`` is loaded from a copy first, so a refusal leaves the folder as it was); without
+it the fit is printed only. Rebuilding the folder with ``scripts/make_window_ensemble.py`` drops the scale (and the
+stale ``calibration.json``): fit it again. A version-1 correction has no scale field: make it an ensemble of one
+(``scripts/make_window_ensemble.py``).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, required=True,
                     help="first seed of the flights (training range; broad suites at seed + 300,000)")
     ap.add_argument("--episodes", default=json.dumps(DEFAULT_EPISODES),
-                    help="JSON {suite: flights} (default: %(default)s)")
+                    help="JSON {suite: flights}: the members' own training mix (default, the bundled ensemble's: "
+                         "%(default)s)")
     ap.add_argument("--first-leg-min-s", type=float, default=0.0,
                     help="the random suites' shortest first leg (s; default 0, the window recipe's)")
     ap.add_argument("--write", action="store_true", help="write covariance_scale and calibration.json")

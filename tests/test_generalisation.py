@@ -144,6 +144,50 @@ def test_recipe_policies_take_a_zip_not_its_numpy_export(tmp_path):
     assert {n: p.name for n, p in recipe_policies(tmp_path).items()} == {"bp_s1": "policy.npz", "ppo_s1": "policy.zip"}
 
 
+# ------------------------------------------------------------------------------------------------ issue 38's seeds row
+def _seeds_row(bundle, realisations=None, nets=(0.8804, 0.8776, 0.8803)):
+    """Issue 38's "2 of 3 training seeds" row for policy_window scoring ``bundle`` / imm_cv_ct on random, its
+    recipe's networks ``nets`` and the other realisations of its recipe ``realisations``."""
+    names = [f"window_s{i}" for i in range(len(nets))]
+    ratios = {"policy_window": bundle, **dict(zip(names, nets))}
+    reals = [f"policy_window_e{i}" for i in range(len(realisations or ()))]
+    ratios.update(zip(reals, realisations or ()))
+    data = {"spread": {"random": {"policies": {n: {"ratio_vs_imm_cv_ct": [r, [r - 0.01, r + 0.01]]}
+                                               for n, r in ratios.items()}}},
+            "recipes": {g.WINDOW_RECIPE: {"seeds": names}}}
+    if realisations is not None:
+        data["realisations"] = {"policy_window": reals}
+    return g._training_seeds_target(data, "policy_window")
+
+
+@pytest.mark.parametrize("bundle, realisations, reached", [
+    (0.873, None, False),                     # no realisations: the recipe's networks, 1 of 3
+    (0.873, [0.873], True),                   # 2 of 2 realisations
+    (0.873, [0.881], False),                  # 1 of 2
+    (0.881, [0.873, 0.873], True),            # 2 of 3
+    (0.873, [0.873, 0.881, 0.881], False),    # 2 of 4: fewer than two thirds
+    (0.873, [0.873, 0.873, 0.881], True),     # 3 of 4
+])
+def test_an_ensemble_bundle_counts_the_realisations_of_its_recipe(bundle, realisations, reached):
+    name, ok, numbers = _seeds_row(bundle, realisations)
+    assert ok is reached
+    assert "window_s1 0.878" in numbers                                     # the networks alone stay listed
+    if realisations:
+        assert f"of {len(realisations) + 1} realisations" in numbers and "policy_window_e0" in numbers
+
+
+def test_the_shipped_realisations_are_ensembles_of_the_bundles_kind():
+    from agents.policies.loading import load_policy
+    real = g.shipped_realisations()["policy_window"]
+    assert real and all(n.startswith("policy_window_") for n in real)
+    for p in real.values():
+        choose, cfg = load_policy(p)
+        bundle, bundle_cfg = load_policy(g.BUNDLED_WINDOW)
+        assert len(choose.members) > 1 and cfg == bundle_cfg
+        mine, its = ({k: v for k, v in c.config.items() if k != "covariance_scale"} for c in (choose, bundle))
+        assert mine == its and choose.has_covariance      # the same base, window, architecture, precision, members
+
+
 # ------------------------------------------------------------------------------------------------ the learned IMM
 def _imm_suite(r_cvct, r_strong, hi=None, loss=0.0, loss_cvct=0.0, anees=1.5, fail=()):
     """A suite where policy_imm_bp and its seeds score ``r_cvct`` / imm_cv_ct and ``r_strong`` [.., hi] / strongest

@@ -389,6 +389,30 @@ def test_the_fitted_scale_gives_anees_one_on_its_flights_whatever_the_folders_sc
     assert abs(nees.mean() / 4 - 1.0) < 1e-9
 
 
+def test_covariance_scale_fit_refuses_a_suite_without_a_nees(tmp_path, monkeypatch):
+    """A suite whose every moved look has a covariance that is not positive definite (e.g. every run failed) stops
+    the fit in one line naming the suite, rather than fitting the scale on the other suites alone."""
+    from agents.training import window
+    d, _ = _ensemble(tmp_path, [3, 4], "plain")
+    correction = load_learned(d).policy
+    run, flights, suite = type(correction).run, window.training_flights, {}
+
+    def marked(hp, seed):                   # the suite being fitted, for the run below
+        for name, chunks in flights(hp, seed):
+            suite["now"] = name
+            yield name, chunks
+
+    def broken_on_broad(self, eps, *a, **k):
+        r = run(self, eps, *a, **k)
+        if suite["now"] == "random_broad":
+            r.P[...] = np.nan
+        return r
+    monkeypatch.setattr(window, "training_flights", marked)
+    monkeypatch.setattr(type(correction), "run", broken_on_broad)
+    with pytest.raises(ValueError, match="suite 'random_broad': no look the correction moves has a positive-defin"):
+        window.covariance_scale_fit(correction, SMALL, 123)
+
+
 def test_calibrate_script_writes_the_scale_and_its_record(tmp_path, capsys):
     import shutil
     folder = tmp_path / "window"
@@ -436,12 +460,15 @@ def test_calibrate_script_refuses_a_single_correction_and_writes_nothing_out_of_
     assert (d / "policy.json").read_text() == before and not (d / "calibration.json").exists()
 
 
-def test_the_bundled_scale_is_its_calibrations():
-    """policy_window's covariance_scale is calibration.json's, fitted for the networks it holds (sha256)."""
+@pytest.mark.parametrize("folder", [BUNDLED_LEARNED["policy_window"],
+                                    *sorted((BUNDLED_LEARNED["policy_window"] / "realisations").glob("*/"))],
+                         ids=lambda f: f.name)
+def test_the_bundled_scale_is_its_calibrations(folder):
+    """policy_window's covariance_scale (and each other realisation's of its recipe) is calibration.json's, fitted for
+    the networks it holds (sha256)."""
     import hashlib
-    folder = BUNDLED_LEARNED["policy_window"]
     rec = json.loads((folder / "calibration.json").read_text())
-    assert load_learned("policy_window").policy.covariance_scale == rec["covariance_scale"]
+    assert load_learned(folder).policy.covariance_scale == rec["covariance_scale"]
     assert rec["policy_npz_sha256"] == hashlib.sha256((folder / "policy.npz").read_bytes()).hexdigest()
     assert rec["looks"] == sum(s["looks"] for s in rec["suites"].values())
 

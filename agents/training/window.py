@@ -621,7 +621,8 @@ def covariance_scale_fit(correction, hp, seed):
 
     Returns ``{"covariance_scale", "looks", "invalid_looks", "suites": {suite: {"flights", "looks", "anees"}}}``,
     ``anees`` the suite's with scale 1. A look whose covariance is not positive definite has no NEES
-    (:func:`agents.evaluation.metrics.nees_values`): counted in ``invalid_looks``; ``ValueError`` if no look has one.
+    (:func:`agents.evaluation.metrics.nees_values`): counted in ``invalid_looks``; ``ValueError`` if a suite has no
+    look with one (every look of it failed: the fit would not be of the mix asked for).
     """
     import copy
     from agents.evaluation.metrics import nees_values
@@ -642,12 +643,12 @@ def covariance_scale_fit(correction, hp, seed):
             s["flights"] += len(eps)
             s["looks"] += int(ok.sum())
             s["nees_sum"] += float(nees[ok].sum())
+        if not s["looks"]:
+            raise ValueError(f"covariance_scale_fit: suite {name!r}: no look the correction moves has a "
+                             f"positive-definite covariance ({s['flights']} flights; every look failed)")
         total += s["nees_sum"]
         looks += s["looks"]
-        suites[name] = {"flights": s["flights"], "looks": s["looks"],
-                        "anees": s["nees_sum"] / (4 * s["looks"]) if s["looks"] else float("nan")}
-    if not looks:
-        raise ValueError("covariance_scale_fit: no look with a positive-definite covariance")
+        suites[name] = {"flights": s["flights"], "looks": s["looks"], "anees": s["nees_sum"] / (4 * s["looks"])}
     return {"covariance_scale": total / (4 * looks), "looks": looks, "invalid_looks": invalid, "suites": suites}
 
 
