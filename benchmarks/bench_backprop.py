@@ -1,7 +1,7 @@
 """Training throughput of ``radar-track train --method backprop`` (agents/training/backprop.py), single thread.
 
 Run by hand from the repository root: ``python benchmarks/bench_backprop.py [--tracker cv|imm_cv_ct] [--batch 1000]
-[--chunk 40] [--steps 10] [--hidden 64] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
+[--chunk 40] [--steps 10] [--hidden 32] [--flights training,random] [--chain compiled|torch] [--json PATH]``, or
 ``--compare N``: the optimiser step as main ran it before the compiled chain, with ``chain = "torch"`` (the reference
 lockstep over the torch chain) and with ``chain = "compiled"`` (the compiled CV chain,
 :mod:`radar_env.filters.compiled_chain`) in one process, N interleaved rounds on the same rows' episodes, printing the
@@ -11,8 +11,8 @@ only the ratios mean something). With ``--tracker imm_cv_ct`` (the learned IMM's
 the first rounds of warm-up include the compilation). With ``torch.set_num_threads(1)`` it builds the trainer of
 ``agents/training/hyperparams/backprop.toml`` (``--tracker``: its recipe; ``--hidden``, ``--batch``, ``--chunk``
 override it) and times ``--steps`` optimiser steps after two warm-up steps (the lockstep numba Tracker and
-observation, the GRU and the torch chain forward, the backward pass, the Adam step; validation excluded), for each
-flight distribution of ``--flights``: ``training`` (the recipe's: 70 % random radars, the broad flights, about 370
+observation, the GRU and the chain (the compiled CV chain by default; ``--chain torch``: the torch lockstep), the
+backward pass, the Adam step; validation excluded), for each flight distribution of ``--flights``: ``training`` (the recipe's: 70 % random radars, the broad flights, about 370
 looks per episode) and ``random`` (the evaluation's random suite generator: ATC radar, about 165 looks).
 
 Reported per distribution: training episodes/s (episodes completed per second of training, in the steady state of

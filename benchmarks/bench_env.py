@@ -509,7 +509,7 @@ def main(argv=None):
     ap.add_argument("--only-main-job", action="store_true", help="time the main job only (no env rates)")
     ap.add_argument("--skip-import", action="store_true", help="do not time the first import (fresh interpreters)")
     ap.add_argument("--profile", action="store_true", help="also print a cProfile of the single and vector env")
-    ap.add_argument("--markdown", action="store_true", help="print the results as the README's table")
+    ap.add_argument("--markdown", action="store_true", help="print the results as docs/speed.md's table")
     ap.add_argument("--json", metavar="FILE", help="also write the results to FILE as JSON")
     args = ap.parse_args(argv)
     T, mr = args.seconds, args.min_resets_per_env

@@ -23,7 +23,7 @@ from radar_env.envs.observation import DEFAULT_FEATURES, DETECTOR_FEATURES  # no
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=3.0)
     ap.add_argument("--num-envs", type=int, nargs="+", default=[1, 64, 256])
     ap.add_argument("--action-type", default="continuous", choices=["continuous", "discrete"])

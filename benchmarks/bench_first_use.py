@@ -70,7 +70,7 @@ def run_once(cache_dir, repo=REPO):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--warm", action="store_true", help="also a run with the cache the cold run filled")
     ap.add_argument("--repo", default=str(REPO), help="the checkout whose radar_env is measured (default: this one)")

@@ -77,7 +77,7 @@ def time_main_job(eval_args):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=2.0, help="CartPole-v1 window (s) (default 2)")
     args, eval_args = ap.parse_known_args(argv)
     load0 = os.getloadavg()[0]

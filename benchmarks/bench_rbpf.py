@@ -33,7 +33,7 @@ def _pooled(batch, score):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--suite", default="random")
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--seed", type=int, default=1_000_000)

@@ -1,7 +1,7 @@
 """Whether a bank of restart windows helps in the minute after a maneuver (issue 38; docs/training.md, "Closing the
 gap to rbpf"). An experiment, not a tracker: numpy with Python loops (about 30 s on 100 episodes).
 
-    python scripts/explore_restart_windows.py [runs]
+    python scripts/explore_restart_windows.py [runs] [--rbpf]      # runs first; --rbpf adds the particle filter
 
 On ``random`` episodes of TRAINING-range seeds (900_000 + i; never the held-out seeds), from the common track start,
 on the same converted plots and R as every tracker: at every look, constant-velocity least-squares line fits over

@@ -1,5 +1,5 @@
 """Held-out numbers of the backprop recipe's seeds for issue 25's targets: ``python scripts/heldout_backprop.py
-[--seeds-dir agents/bundled/backprop/seeds] [--chosen NAME] [--out FILE.json]``.
+[--seeds-dir agents/bundled/backprop/seeds] --chosen NAME [--suites A,B,...] [--out FILE.json]``.
 
 Every seed (``<dir>/<name>/policy.npz``) and the bundled PPO policy (``policy``) on every suite of the
 generalisation report's seed-spread table (``agents.reports.generalisation``: the default suites and the held-out

@@ -179,7 +179,7 @@ def soak(seconds_per_corner=0.2, num_envs=8, seed=0, imm_runs=4, action_types=("
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=2.0, help="seconds of env steps per corner (default 2)")
     ap.add_argument("--num-envs", type=int, default=16, help="rows of the vector env (default 16)")
     ap.add_argument("--imm-runs", type=int, default=16, help="episodes per corner for the IMMs (default 16)")
