@@ -88,6 +88,12 @@ def test_frame_stack_is_checked():
     for bad in (0, 65, 2.5, "2", None, True):
         with pytest.raises(ValueError, match="frame_stack"):
             gym.make("RadarTrack-v0", frame_stack=bad)
+    # an integral float is taken as its integer (it used to pass the check and fail at reset)
+    cfg = EnvConfig.from_kwargs(frame_stack=2.0, warmup_scans=12.0, n_adrian=4.0, window_kim_lee=12.0)
+    assert all(type(getattr(cfg, n)) is int for n in ("frame_stack", "warmup_scans", "n_adrian", "window_kim_lee"))
+    env = gym.make("RadarTrack-v0", frame_stack=2.0)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == env.observation_space.shape and env.observation_space.contains(obs)
 
 
 def test_frame_stack_push_returns_copies():

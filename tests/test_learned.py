@@ -86,6 +86,54 @@ def test_kind_is_read_from_policy_json_and_refused_where_not_accepted(tmp_path, 
     assert set(Q_POLICY_KINDS) | set(IMM_KINDS) | set(CORRECTION_KINDS) == set(KINDS)
 
 
+@needs_bundle
+@pytest.mark.parametrize("name, change, match", [
+    ("policy_imm_bp", {"kind": ["learned_imm_gru"]}, r"field 'kind' is \['learned_imm_gru'\], not one of"),
+    ("policy", {"version": True}, r"must have format 'radar-track-learned-tracker' and version 1, got .* and True"),
+    ("policy", {"version": 99}, r"version 1, got .* and 99"),
+    ("policy_imm_ppo", {"format": "zzz"}, r"must have format 'radar-track-learned-tracker'"),
+    ("policy_bp", {"version": True}, r"version True; this package reads version 1"),
+    ("policy_imm_bp", {"model": "zzz"}, r"field 'model' is 'zzz'; a learned IMM runs the 'imm_cv_ct' model"),
+])
+def test_a_policy_json_field_of_the_wrong_type_or_value_is_refused_in_one_line(tmp_path, name, change, match):
+    d = tmp_path / "t"
+    shutil.copytree(BUNDLED_LEARNED[name], d, ignore=shutil.ignore_patterns("seeds", "recipe", "realisations"))
+    meta = json.loads((d / "policy.json").read_text())
+    (d / "policy.json").write_text(json.dumps({**meta, **change}))
+    with pytest.raises(ValueError, match=match) as e:
+        load_learned(d)
+    assert "\n" not in str(e.value)
+
+
+@needs_bundle
+def test_a_policy_json_that_is_deep_or_not_a_file_is_refused_in_one_line(tmp_path):
+    d = tmp_path / "t"
+    shutil.copytree(BUNDLED_LEARNED["policy"], d, ignore=shutil.ignore_patterns("recipe"))
+    (d / "policy.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ValueError, match=r"policy.json: not readable as JSON of finite numbers"):
+        load_learned(d)
+    (d / "policy.json").unlink()
+    (d / "policy.json").mkdir()        # not silently guessed from policy.zip
+    with pytest.raises(ValueError, match=r"policy.json: is not a regular file"):
+        load_learned(d)
+    (d / "policy.json").rmdir()
+    (d / "policy.json").symlink_to(d / "policy.json")
+    with pytest.raises(ValueError, match=r"policy.json: is not a regular file"):
+        load_learned(d)
+
+
+@needs_bundle
+def test_an_sb3_export_with_a_foreign_array_or_half_precision_weights_is_refused():
+    from agents.policies.checks import read_npz
+    from agents.policies.numpy_policy import NumpyPolicy
+    arrays = read_npz(BUNDLED_LEARNED["policy"] / "policy.npz")
+    NumpyPolicy(arrays)                                                   # as shipped: loads
+    with pytest.raises(ValueError, match=r"arrays \['W9'\] are not part of the format"):
+        NumpyPolicy({**arrays, "W9": arrays["W0"]})
+    with pytest.raises(ValueError, match=r"W1 is float16, not float32 or float64"):
+        NumpyPolicy({**arrays, "W1": arrays["W1"].astype(np.float16)})
+
+
 def test_folders_before_the_layout_get_their_kind_from_their_files(tmp_path):
     """A training run written before policy.json named the kind: an SB3 zip (algo from config.json, the IMM from
     env_config.json), a recurrent checkpoint (its policy.json's format)."""

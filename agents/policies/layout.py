@@ -87,8 +87,9 @@ def read_json(path):
     """The JSON in ``path``; ``ValueError`` (one line, naming the file) if unreadable."""
     try:
         return json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: not readable as JSON ({e})") from None
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(f"{path}: not readable as JSON ({msg})") from None
 
 
 def sb3_architecture(npz_path):

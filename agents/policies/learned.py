@@ -28,11 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 from agents.policies.layout import (BUNDLED_DIR, BUNDLED_LEARNED, CORRECTION_KINDS, IMM_KINDS, KINDS, MANIFEST,
-                                    Q_POLICY_KINDS, SB3_KINDS, TRACKER_KINDS, read_json, sb3_kind, weights_file,
-                                    write_manifest, write_records)
+                                    MANIFEST_FORMAT, MANIFEST_VERSION, Q_POLICY_KINDS, SB3_KINDS, TRACKER_KINDS,
+                                    read_json, sb3_kind, weights_file, write_manifest, write_records)
 
 __all__ = ["KINDS", "Q_POLICY_KINDS", "IMM_KINDS", "CORRECTION_KINDS", "BUNDLED_DIR", "BUNDLED_LEARNED", "MANIFEST",
            "LearnedTracker", "load_learned", "resolve_learned", "read_kind", "sb3_kind", "write_manifest",
@@ -50,16 +51,23 @@ def read_kind(folder, file=None):
             ``policy.json`` that is not a JSON object, or whose ``kind`` is not one of :data:`KINDS`.
     """
     from agents.policies import learned_imm, recurrent
+    from agents.policies.checks import read_json_object
     folder = Path(folder)
     man = folder / MANIFEST
+    if os.path.lexists(man) and not man.is_file():
+        raise ValueError(f"{man}: is not a regular file (a folder, or a link to nothing)")
     if man.is_file():
-        meta = read_json(man)
-        if not isinstance(meta, dict):
-            raise ValueError(f"{man}: must hold a JSON object with a 'kind' field, got {type(meta).__name__}")
+        meta = read_json_object(man, "a JSON object with a 'kind' field")
         if "kind" in meta:
-            if meta["kind"] not in KINDS:
-                raise ValueError(f"{man}: field 'kind' is {meta['kind']!r}, not one of {list(KINDS)}")
-            return meta["kind"], str(man)
+            kind = meta["kind"]
+            if not isinstance(kind, str) or kind not in KINDS:
+                raise ValueError(f"{man}: field 'kind' is {kind!r}, not one of {list(KINDS)}")
+            v = meta.get("version")
+            if kind in SB3_KINDS and (meta.get("format") != MANIFEST_FORMAT or isinstance(v, bool)
+                                      or v != MANIFEST_VERSION):
+                raise ValueError(f"{man}: a {kind} folder's policy.json must have format {MANIFEST_FORMAT!r} and "
+                                 f"version {MANIFEST_VERSION}, got {meta.get('format')!r} and {meta.get('version')!r}")
+            return kind, str(man)
         # before this layout: the recurrent checkpoints' policy.json had a format and no kind
         legacy = {recurrent.FORMAT: "gru_q_policy", learned_imm.FORMAT: "learned_imm_gru"}
         if meta.get("format") in legacy:

@@ -189,6 +189,9 @@ def load_learned_imm(path) -> LearnedIMM:
     from agents.policies import checks
     from agents.policies.recurrent import _checked_shapes
     d, config, env_file, npz = checks.open_weights_folder(path, "a learned IMM checkpoint", FORMAT, VERSION)
+    if config.get("model", "imm_cv_ct") != "imm_cv_ct":
+        raise ValueError(f"{d / 'policy.json'}: field 'model' is {config.get('model')!r}; a learned IMM runs the "
+                         "'imm_cv_ct' model")
     meta_file = d / "policy.json"
     arch = config.get("architecture")
     n_par = arch.get("n_par") if isinstance(arch, dict) else None

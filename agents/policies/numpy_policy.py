@@ -101,6 +101,14 @@ class NumpyPolicy:
             obs_low, obs_high = (np.asarray(a[k], dtype=np.float32) for k in ("obs_low", "obs_high"))
         except KeyError as e:
             raise ValueError(f"policy export: missing array {e.args[0]!r}") from None
+        known = {"version", "algo", "head", "activation", "activation_param", "obs_low", "obs_high", "action_n",
+                 "action_low", "action_high", "source_sha256", *(f"{w}{i}" for i in range(n_layers) for w in "Wb")}
+        extra = sorted(set(a) - known)
+        if extra:
+            raise ValueError(f"policy export: arrays {extra} are not part of the format (a damaged or foreign file)")
+        low = [k for k in a if k[0] in "Wb" and k[1:].isdigit() and a[k].dtype not in (np.float32, np.float64)]
+        if low:
+            raise ValueError(f"policy export: {low[0]} is {a[low[0]].dtype}, not float32 or float64 (as exported)")
         if version != EXPORT_VERSION:
             raise ValueError(f"policy export: version {version}, this code reads version {EXPORT_VERSION}")
         if self.head not in HEADS:

@@ -357,7 +357,7 @@ def load_recurrent_policy(path):
     if meta.get("format") != FORMAT:
         raise ValueError(f"{meta_file}: not a recurrent-policy config (format {meta.get('format')!r}, "
                          f"expected {FORMAT!r})")
-    if meta.get("version") != VERSION:
+    if isinstance(meta.get("version"), bool) or meta.get("version") != VERSION:
         raise ValueError(f"{meta_file}: version {meta.get('version')!r}; this package reads version {VERSION}")
     if meta.get("model") not in ("cv", "cv_turn"):
         raise ValueError(f"{meta_file}: model {meta.get('model')!r}; this loader runs the 'cv' model (a GRU choosing "

@@ -90,6 +90,8 @@ class EnvConfig:
             raise ValueError(f"{p}features: {e}") from None
         check_number(p + "frame_stack", self.frame_stack, 1, 64, integer=True)
         self.track_start.checked(p)   # warmup_scans, warmup_q_g, n_adrian, window_kim_lee, fma_weight, radial_velocity
+        for name in ("frame_stack", "warmup_scans", "n_adrian", "window_kim_lee"):   # 2.0 -> 2 (checked integral)
+            object.__setattr__(self, name, int(getattr(self, name)))
         check_choice(p + "reward_type", self.reward_type, REWARD_TYPES)
         check_number(p + "reward_clip", self.reward_clip, 1e-3, 1e9)
         check_number(p + "reward_nees_weight", self.reward_nees_weight, 0.0, 1e3)
