@@ -81,8 +81,9 @@ def main(argv=None):
     meta_file = folder / "policy.json"
     from agents.policies.learned import install_checked, load_learned, staging_beside
     from agents.policies.window_correction import ENSEMBLE_VERSION, FORMAT, ensemble_fields
+    from agents.policies.checks import read_json_object
     try:
-        meta = json.loads(meta_file.read_text())
+        meta = read_json_object(meta_file, "a window-correction ensemble's config (a JSON object)")
         if meta.get("format") != FORMAT or meta.get("version") != ENSEMBLE_VERSION:
             raise ValueError(f"{meta_file}: not a window-correction ensemble (format {FORMAT!r}, version "
                              f"{ENSEMBLE_VERSION}); a single correction becomes one with "

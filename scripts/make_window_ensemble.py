@@ -41,22 +41,41 @@ SAME = ("base", "window_looks", "scale_m", "architecture", "fit_looks", "q_looks
 
 def member(run, precision="float64"):
     """``(weights, mean, sd, config, source)`` of a run folder's ``best/`` network, unfolded and checked (in float64
-    and in ``precision``)."""
+    and in ``precision``). Its folder passes the checked loader first and its checkpoint's standardisation is
+    checked: a damaged or foreign file stops in one line."""
     run = Path(run)
+    try:
+        return _member(run, precision)
+    except ValueError as e:
+        msg = str(e).splitlines()[0]
+        raise SystemExit(f"error: {msg if str(run) in msg else f'{run}: {msg}'}"[:500]) from None
+
+
+def _member(run, precision):
+    from agents.policies import checks
+    from agents.policies.layout import CORRECTION_KINDS
+    from agents.policies.learned import load_learned
     npz, ckpt = run / "best" / "policy.npz", run / "checkpoints" / "last.npz"
     for f in (npz, ckpt):
         if not f.is_file():
-            raise SystemExit(f"error: {run}: no {f.relative_to(run)} (a window training run's folder is needed)")
-    config = json.loads((npz.parent / "policy.json").read_text())
-    if config.get("version") != 1:
-        raise SystemExit(f"error: {npz.parent / 'policy.json'}: version {config.get('version')!r}, need a single "
+            raise ValueError(f"no {f.relative_to(run)} (a window training run's folder is needed)")
+    load_learned(npz.parent, kinds=CORRECTION_KINDS)          # every file and field of best/, its base included
+    config = checks.read_json_object(npz.parent / "policy.json")
+    if config.get("version") != 1 or isinstance(config.get("version"), bool):
+        raise ValueError(f"{npz.parent / 'policy.json'}: version {config.get('version')!r}, need a single "
                          "correction (version 1)")
-    with np.load(npz, allow_pickle=False) as z:
-        w = {k: z[k] for k in network_shapes(config["architecture"])}
-    with np.load(ckpt, allow_pickle=False) as z:
-        if "mean" not in z.files:
-            raise SystemExit(f"error: {ckpt}: no standardisation (the run trained without standardise_inputs)")
-        mean, sd = np.asarray(z["mean"], np.float64), np.asarray(z["sd"], np.float64)
+    weights = checks.read_npz(npz)
+    w = {k: weights[k] for k in network_shapes(config["architecture"])}
+    last = checks.read_npz(ckpt)
+    if "mean" not in last or "sd" not in last:
+        raise ValueError(f"{ckpt}: no standardisation (the run trained without standardise_inputs)")
+    mean, sd = np.asarray(last["mean"], np.float64), np.asarray(last["sd"], np.float64)
+    n_in = int(config["architecture"]["input_size"])
+    if mean.shape != (n_in,) or sd.shape != (n_in,):
+        raise ValueError(f"{ckpt}: mean and sd must have the network's {n_in} inputs, got shapes {mean.shape} and "
+                         f"{sd.shape}")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(sd)) and np.all(sd > 0)):
+        raise ValueError(f"{ckpt}: mean and sd must be finite and sd > 0 (a damaged checkpoint)")
     u = unfold_standardisation(w, mean, sd)
     F = mean + sd * np.random.default_rng(0).standard_normal((4096, mean.size))
     n = len(config["architecture"]["layers"])
@@ -68,11 +87,11 @@ def member(run, precision="float64"):
     for x, y, z in zip(*((v if cov else (v,)) for v in (a, b, c))):
         err = np.abs(x - y).max() / max(np.abs(x).max(), 1e-300)
         if not err <= 1e-9:
-            raise SystemExit(f"error: {run}: the unfolded network differs from best/'s by {err:.2e} (relative)")
+            raise ValueError(f"the unfolded network differs from best/'s by {err:.2e} (relative)")
         err = np.abs(x - z).max()
         if not err <= 1e-4:
-            raise SystemExit(f"error: {run}: in {precision} the network differs from best/'s by {err:.2e} "
-                             "(output units; at most 1e-4)")
+            raise ValueError(f"in {precision} the network differs from best/'s by {err:.2e} (output units; at most "
+                             "1e-4)")
     return u, mean, sd, config, {"run": str(run), "policy_npz_sha256": hashlib.sha256(npz.read_bytes()).hexdigest()}
 
 
@@ -87,6 +106,8 @@ def main(argv=None):
     runs = [Path(r).resolve() for r in args.runs]
     if len(set(runs)) < len(runs):
         raise SystemExit(f"error: a run is given twice: {args.runs}")
+    if not args.out.strip() or (Path(args.out).exists() and not Path(args.out).is_dir()):
+        raise SystemExit(f"error: OUT: {args.out!r} must name a folder (created if missing), not a file or nothing")
     members = [member(r, args.precision) for r in runs]
     out_dir = Path(args.out).resolve()
     bases = [_base(m[3]["base"], r, out_dir) for m, r in zip(members, runs)]
@@ -97,7 +118,7 @@ def main(argv=None):
             raise SystemExit(f"error: {m[4]['run']}: {diff} differ from {members[0][4]['run']}'s")
     config = {k: first[k] for k in SAME if k in first}
     config.update(base=bases[0], precision=args.precision, base_precision=args.base_precision)
-    env = json.loads((runs[0] / "best" / "env_config.json").read_text())
+    env = json.loads((runs[0] / "best" / "env_config.json").read_text())      # checked by the loader (member)
     # built beside OUT and loaded before anything in OUT changes, so that a refusal leaves OUT as it was
     with staging_beside(out_dir) as tmp:
         save_window_ensemble(tmp, [m[:3] for m in members], config, env)

@@ -29,7 +29,6 @@ sys.path.insert(0, str(REPO))
 
 from agents.evaluation.metrics import errors, failed_runs, region_masks  # noqa: E402
 from agents.evaluation.suites import draw_suite  # noqa: E402
-from agents.policies.loading import load_policy  # noqa: E402
 from agents.training.selection import START_UNKNOWN_SUITES, draw_selection_suite  # noqa: E402
 from agents.training.window import broad_config  # noqa: E402
 from baselines.registry import run_tracker  # noqa: E402
@@ -85,8 +84,20 @@ def main(argv=None):
         raise SystemExit(f"error: --runs must be at least 2, got {args.runs}")
     if len(args.folders) < 2:
         raise SystemExit(f"error: a reference and at least one candidate, got {len(args.folders)} folder(s)")
+    from agents.evaluation.suites import EVAL_SEED_BASE
+    from agents.training.selection import START_UNKNOWN_SEED_OFFSET
+    for option, first, last in (("--seed", args.seed, args.seed + START_UNKNOWN_SEED_OFFSET + args.runs - 1),
+                                ("--broad-seed", args.broad_seed, args.broad_seed + args.runs - 1)):
+        if first < 0 or last >= EVAL_SEED_BASE:
+            raise SystemExit(f"error: {option}: the flights' seeds {first}..{last} must lie in [0, "
+                             f"{EVAL_SEED_BASE:,}) (the held-out evaluation's seeds start there)")
     names = [Path(f).name for f in args.folders]
-    pols = [load_policy(Path(f) / "policy.npz")[0] for f in args.folders]
+    from agents.policies.layout import CORRECTION_KINDS
+    from agents.policies.learned import load_learned
+    try:
+        pols = [load_learned(f, kinds=CORRECTION_KINDS).policy for f in args.folders]
+    except ValueError as e:
+        raise SystemExit(f"error: {str(e).splitlines()[0]}"[:500]) from None
     if len({str(p.config.get("base")) for p in pols}) > 1:
         raise SystemExit(f"error: the corrections must share their base, got "
                          f"{sorted({str(p.config.get('base')) for p in pols})}")

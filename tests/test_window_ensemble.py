@@ -195,6 +195,40 @@ def test_make_window_ensemble_unfolds_each_runs_network(tmp_path, episodes):
                                _moves(load_learned(d), episodes)[0], rtol=1e-9, atol=1e-9)
 
 
+def _break_json_list(run):
+    (run / "best" / "policy.json").write_text("[1]")
+
+
+def _break_sd(run):
+    with np.load(run / "checkpoints" / "last.npz") as z:
+        np.savez(run / "checkpoints" / "last.npz", mean=z["mean"], sd=0 * z["sd"])
+
+
+def _break_sd_shape(run):
+    np.savez(run / "checkpoints" / "last.npz", mean=np.zeros(3), sd=np.ones(3))
+
+
+def _break_weights(run):
+    (run / "best" / "policy.npz").write_bytes(b"PK\x03\x04 truncated")
+
+
+@pytest.mark.parametrize("damage, match", [
+    (_break_json_list, r"best/policy.json: must hold a JSON object"),
+    (_break_sd, r"last.npz: mean and sd must be finite and sd > 0"),
+    (_break_sd_shape, r"last.npz: mean and sd must have the network's \d+ inputs, got shapes \(3,\)"),
+    (_break_weights, r"best/policy.npz: not a numpy .npz of plain arrays, or damaged"),
+])
+def test_make_window_ensemble_refuses_a_damaged_run_in_one_line(tmp_path, damage, match):
+    run, _ = _run_folder(tmp_path, "run0", 10)
+    damage(run)
+    with pytest.raises(SystemExit, match=match) as e:
+        mwe.main([str(tmp_path / "out"), str(run)])
+    assert "\n" not in str(e.value) and not (tmp_path / "out").exists()
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(SystemExit, match=r"OUT: .* must name a folder"):
+        mwe.main([str(tmp_path / "afile"), str(_run_folder(tmp_path, "run1", 11)[0])])
+
+
 def test_make_window_ensemble_refuses_a_run_without_its_standardisation(tmp_path):
     run, _ = _run_folder(tmp_path, "run0", 10)
     np.savez(run / "checkpoints" / "last.npz", generator=np.zeros(3))
