@@ -350,6 +350,9 @@ def test_check_hp_refusals():
         bp.check_hp(_hp(nope=1))
     with pytest.raises(ValueError, match="--hp chunk_looks"):
         bp.check_hp(_hp(chunk_looks=0))
+    for head in ([2 ** 62], [0], [8] * 9, [8.0]):        # an overflowing width was a RuntimeError from torch
+        with pytest.raises(ValueError, match=r"--hp head: must be a list of at most 8 layer widths in \[1, 4096\]"):
+            bp.check_hp(_hp(head=head))
     with pytest.raises(ValueError, match="--hp tracker"):
         bp.check_hp(_hp(tracker="nope"))
     with pytest.raises(ValueError, match="select_on"):

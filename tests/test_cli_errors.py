@@ -201,6 +201,10 @@ TINY_PPO = ["--algo", "ppo", *TINY_TRAIN, "--hp", "n_steps=128", "--hp", "batch_
     (["--hp", "init_from=/nonexistent/policy.zip"], "--hp init_from", "does not exist"),
     (["--hyperparams", "/nonexistent/ppo.toml"], "--hyperparams", "does not exist"),
     (["--timesteps", "0"], "--timesteps", ">= 1"),
+    (["--hp", 'policy_kwargs={"net_arch": [-5]}'], "--hp policy_kwargs", "layer widths in [1, 4096]"),
+    (["--hp", 'target_kl="x"'], "--hp target_kl", "a number (or null)"),
+    (["--hp", "stats_window_size=-1"], "--hp stats_window_size", "[1, inf]"),
+    (["--hp", "ent_coef=-1"], "--hp ent_coef", "[0.0, inf]"),
 ])
 def test_train_option_errors_leave_no_run_folder(tmp_path, args, option, text):
     with pytest.raises(SystemExit) as e:

@@ -446,8 +446,9 @@ HP_SPEC = {
     "loss": ((lambda v: v in LOSSES), f"one of {list(LOSSES)}"),
     "loss_scale_m": _num(0.0, None, open_lo=True),
     "hidden_size": _int(1, 4096),
-    "head": ((lambda v: isinstance(v, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1
-                                                     for n in v)), "a list of layer widths >= 1"),
+    "head": ((lambda v: isinstance(v, list) and len(v) <= 8 and all(
+        isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 4096 for n in v)),
+        "a list of at most 8 layer widths in [1, 4096]"),
     "eval_every": _int(1),
     "eval_scenarios": EVAL_SCENARIOS_HP,
     "select_on": SELECT_ON_HP,

@@ -94,7 +94,9 @@ _SPECIAL_TYPES = {
     "policy": (lambda v: isinstance(v, str), "a policy name such as 'MlpPolicy'"),
     "normalize_reward": (lambda v: isinstance(v, bool), "true or false"),
     "env_kwargs": (lambda v: isinstance(v, dict), "a JSON object of RadarTrack-v0 arguments"),
-    "policy_kwargs": (lambda v: isinstance(v, dict), "a JSON object"),
+    "policy_kwargs": (lambda v: isinstance(v, dict) and _net_arch_ok(v.get("net_arch", [])),
+                      "a JSON object; its net_arch a list of at most 8 layer widths in [1, 4096], or an object of "
+                      "such lists (pi, vf, qf)"),
     "eval_scenarios": ((lambda v: v == {} or EVAL_SCENARIOS_HP[0](v)),      # {}: eval_runs of random
                        EVAL_SCENARIOS_HP[1]),
     "select_on": SELECT_ON_HP,
@@ -105,9 +107,21 @@ _RANGES = {"gamma": (0.0, 1.0), "gae_lambda": (0.0, 1.0), "learning_rate": (0.0,
            "n_steps": (1, None), "n_epochs": (1, None), "buffer_size": (1, None), "learning_starts": (0, None),
            "clip_range": (0.0, None), "max_grad_norm": (0.0, None), "vf_coef": (0.0, None), "tau": (0.0, 1.0),
            "exploration_fraction": (0.0, 1.0), "exploration_initial_eps": (0.0, 1.0),
-           "exploration_final_eps": (0.0, 1.0), "target_update_interval": (1, None), "gradient_steps": (-1, None)}
+           "exploration_final_eps": (0.0, 1.0), "target_update_interval": (1, None), "gradient_steps": (-1, None),
+           "ent_coef": (0.0, None), "stats_window_size": (1, None), "target_kl": (0.0, None)}
+_OPTIONAL_NUMBERS = ("target_kl",)
+"""Constructor arguments whose default is None and which take a number when given (checked as numbers, in _RANGES)."""
 _NOT_HP = ("self", "policy", "env", "seed", "device", "verbose", "tensorboard_log", "policy_kwargs",
            "_init_setup_model")
+
+
+def _net_arch_ok(arch):
+    """SB3's ``net_arch``: a list of layer widths, or an object of such lists (``pi``, ``vf``, ``qf``)."""
+    def widths(v):
+        return isinstance(v, list) and len(v) <= 8 and all(_is_int(n) and 1 <= n <= 4096 for n in v)
+    if isinstance(arch, dict):
+        return set(arch) <= {"pi", "vf", "qf"} and all(widths(v) for v in arch.values())
+    return widths(arch)
 
 
 def _is_int(v):
@@ -147,6 +161,8 @@ def _check_hp(algo, cls, hp):
             raise ValueError(f"--hp {k}: must be a number, got {v!r}")
         if isinstance(default, bool) and not isinstance(v, bool):
             raise ValueError(f"--hp {k}: must be true or false, got {v!r}")
+        if k in _OPTIONAL_NUMBERS and v is not None and not _is_num(v):
+            raise ValueError(f"--hp {k}: must be a number (or null), got {v!r}")
         if k in _RANGES and _is_num(v):
             lo, hi = _RANGES[k]
             if not math.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
@@ -284,7 +300,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
         model = cls(hp.get("policy", "MlpPolicy"), env, seed=seed, device="cpu", verbose=0,
                     tensorboard_log=str(part / "tb"), policy_kwargs=_policy_kwargs(hp.get("policy_kwargs")),
                     **kwargs)
-    except (TypeError, ValueError, AssertionError, KeyError) as e:
+    except (TypeError, ValueError, AssertionError, KeyError, RuntimeError) as e:
         raise ValueError(f"--hp: {cls.__name__} rejects the hyperparameters ({type(e).__name__}: {e})") from None
     if src is not None:    # fine-tuning: start from a saved model's weights (same network and spaces)
         k = _stack_factor(src.observation_space, model.observation_space)
