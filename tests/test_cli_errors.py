@@ -63,11 +63,19 @@ def _tiny_model(tmp_path, algo="PPO", **env_kwargs):
     (["--scenario", "kim_lee_accel", "--radar-range-km", "5,50"], "--radar-range-km"),
     (["--scenario", "kim_lee_accel", "--scenario", "kim_lee_accel"], "--scenario"),
     (["--trajectory", "/nonexistent/flight.csv"], "--trajectory"),
+    (["--trajectory", str(Path(__file__).parent)], "--trajectory"),          # a folder, not a file
+    (["--scenario", "random", "--json", ""], "--json"),                       # an empty path wrote nothing
 ])
 def test_evaluate_option_errors(args, option):
     with pytest.raises(SystemExit) as e:
         ev.main(args + ["--trackers", "kf_low"] * ("--trackers" not in args) + QUICK)
     _one_line_exit(e, option)
+
+
+def test_evaluate_refuses_an_empty_plots_folder():
+    with pytest.raises(SystemExit) as e:           # "" wrote the figures into the working folder
+        ev.main(["--scenario", "random", "--trackers", "kf_low", "--quiet", "--out", ""])
+    assert "an empty path" in _one_line_exit(e, "--out")
 
 
 def test_evaluate_policy_that_is_not_a_policy(tmp_path):

@@ -455,6 +455,10 @@ def _km_pair(option, text):
 def _check_outputs(args, inputs=()):
     """Fail before the evaluation runs if an output cannot be written (``--out`` for plots, ``--json``), or if
     ``--json`` is a symbolic link or one of the run's ``inputs`` (it would be overwritten)."""
+    for option, value in (("--out", None if args.no_plots else args.out), ("--json", args.json)):
+        if value is not None and not str(value).strip():
+            raise SystemExit(f"error: {option}: an empty path; give a {'folder' if option == '--out' else 'file'} "
+                             "name")
     if not args.no_plots:
         out = Path(args.out)
         try:
@@ -687,6 +691,9 @@ def main(argv=None, prog="radar-track evaluate"):
         raise SystemExit(f"error: --scenario: {dup} given more than once")
     suites = []
     files = list(args.trajectory or [])
+    for f in files:
+        if Path(f).exists() and not Path(f).is_file():
+            raise SystemExit(f"error: --trajectory: {f!r} is a {file_type(Path(f))}, not a trajectory file (.csv)")
     try:
         file_names = trajectory_suite_names(files, taken=names)
     except ValueError as e:
