@@ -268,7 +268,7 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     check_rows_fit("--n-envs", n_envs)          # before the seed range and any allocation
     seed = int(seed)
     if seed < TRAIN_SEEDS.start or seed + n_envs > TRAIN_SEEDS.stop:
-        raise ValueError(f"training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
+        raise ValueError(f"--seed: training seeds must lie in {TRAIN_SEEDS}; got rows {seed}..{seed + n_envs - 1}")
     src = _load_init_from(cls, algo, hp["init_from"], allow_pickle) if hp.get("init_from") else None
     steps, per_rollout = trained_timesteps(cls, n_timesteps, n_envs, kwargs)
     if verbose and steps != n_timesteps:      # said once, before the run: SB3 finishes the rollout it is in
