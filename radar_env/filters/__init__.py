@@ -1,6 +1,5 @@
 """Filters: the compiled chain kernels (Kalman, IMM, feature bank, preview), tracker, IMM CV/CT, particle filter, torch.
-May import radar_env.common and radar_env.sim; never envs or gymnasium; torch only in torch_chain, torch_imm
-and compiled_chain."""
+May import radar_env.common and .sim; never envs or gymnasium; torch only in torch_chain, torch_imm, compiled_chain."""
 
 from .._moved import forward_attributes
 
