@@ -80,7 +80,8 @@ from radar_env.sim.radar import cartesian_from_polar, converted_covariance  # no
 
 __all__ = ["IMMCVCTState", "IMMCVCTStatePrediction", "IMMCVCTStateUpdate", "IMMCVCTPredictor", "IMMCVCTUpdater",
            "plot_from_detection", "range_rate_from_detection", "polar_detection", "detections_from_episode",
-           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "prediction_dt", "EPOCH", "SS_FROM_OURS"]
+           "look_from_detection", "gaussian_state", "ours_from_state", "stamp", "seconds", "prediction_dt", "EPOCH",
+           "SS_FROM_OURS", "check_measurement_model"]
 
 EPOCH = _dt.datetime(2000, 1, 1)
 """The datetime of our ``t_s = 0`` (:func:`stamp`)."""
@@ -311,18 +312,31 @@ def polar_detection(range_m, bearing_rad, site_xy_m, range_noise_std_m, bearing_
     """One of our polar plots (bearing ours: clockwise from north) as a Stone Soup ``Detection`` with a
     ``CartesianToBearingRange`` model (Stone Soup's bearing ``pi/2 - ours``, the site as ``translation_offset``);
     with ``radial_velocity_m_s`` (and its noise std) a ``[bearing, range, range rate]`` detection with a
-    ``CartesianToBearingRangeRate2D`` model (same sign: positive receding)."""
-    site = StateVector(np.asarray(site_xy_m, dtype=np.float64).reshape(2))
-    y = [Bearing(0.5 * math.pi - float(bearing_rad)), float(range_m)]
-    var = [float(bearing_noise_std_rad) ** 2, float(range_noise_std_m) ** 2]
+    ``CartesianToBearingRangeRate2D`` model (same sign: positive receding). ``ValueError`` naming the argument for
+    a range < 0, a noise std <= 0, or a value that is not a finite number."""
+    from radar_env.common.validate import check_number
+    try:
+        site = np.asarray(site_xy_m, dtype=np.float64).reshape(2)
+    except (TypeError, ValueError):
+        site = None
+    if site is None or not np.all(np.isfinite(site)):
+        raise ValueError(f"polar_detection: site_xy_m must be two finite numbers (m), got {site_xy_m!r}")
+    site = StateVector(site)
+    range_m = check_number("polar_detection: range_m", range_m, 0.0)
+    bearing_rad = check_number("polar_detection: bearing_rad", bearing_rad)
+    t_s = check_number("polar_detection: t_s", t_s)
+    y = [Bearing(0.5 * math.pi - bearing_rad), range_m]
+    var = [check_number("polar_detection: bearing_noise_std_rad", bearing_noise_std_rad, 0.0, lo_open=True) ** 2,
+           check_number("polar_detection: range_noise_std_m", range_noise_std_m, 0.0, lo_open=True) ** 2]
     if radial_velocity_m_s is None:
         model = CartesianToBearingRange(ndim_state=ndim_state, mapping=(0, 2),
                                         noise_covar=CovarianceMatrix(np.diag(var)), translation_offset=site)
     else:
         if radial_velocity_noise_std_m_s is None:
             raise ValueError("radial_velocity_noise_std_m_s must be given with radial_velocity_m_s")
-        y.append(float(radial_velocity_m_s))
-        var.append(float(radial_velocity_noise_std_m_s) ** 2)
+        y.append(check_number("polar_detection: radial_velocity_m_s", radial_velocity_m_s))
+        var.append(check_number("polar_detection: radial_velocity_noise_std_m_s", radial_velocity_noise_std_m_s, 0.0,
+                                lo_open=True) ** 2)
         model = CartesianToBearingRangeRate2D(ndim_state=ndim_state, mapping=(0, 2), velocity_mapping=(1, 3),
                                               noise_covar=CovarianceMatrix(np.diag(var)), translation_offset=site)
     return Detection(StateVector(y), timestamp=stamp(t_s), measurement_model=model)
@@ -397,6 +411,14 @@ class IMMCVCTPredictor(Predictor):
             target_type=IMMCVCTStatePrediction)
 
 
+def check_measurement_model(owner, model):
+    """``ValueError`` naming ``owner``'s ``measurement_model`` unless it is None or a Stone Soup measurement model
+    (checked when an updater is built: a wrong value would fail only at its first detection)."""
+    if model is not None and not isinstance(model, MeasurementModel):
+        raise ValueError(f"{owner}.measurement_model must be a Stone Soup MeasurementModel (e.g. "
+                         f"CartesianToBearingRangeRate2D) or None, got {type(model).__name__}")
+
+
 class IMMCVCTUpdater(ExtendedKalmanUpdater):
     """Stone Soup updater of ``imm_cv_ct``: the mode-matched updates with the converted plot (and its range rate,
     for a ``CartesianToBearingRangeRate2D`` detection), the mode probabilities and the combination (the kernel's
@@ -411,6 +433,12 @@ class IMMCVCTUpdater(ExtendedKalmanUpdater):
     use_range_rate: bool = Property(
         default=True, doc="update on a detection's range rate when it has one (False: its position only, the "
                           "position-only imm_cv_ct on range-rate detections)")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        check_measurement_model("IMMCVCTUpdater", self.measurement_model)
+        if not isinstance(self.use_range_rate, (bool, np.bool_)):     # "no" would be truthy: a range-rate update
+            raise ValueError(f"IMMCVCTUpdater.use_range_rate must be True or False, got {self.use_range_rate!r}")
 
     def update(self, hypothesis, **kwargs) -> IMMCVCTStateUpdate:
         """Update ``hypothesis.prediction`` with ``hypothesis.measurement`` (a ``MissedDetection``: the kernel's

@@ -251,6 +251,10 @@ class RBPFUpdater(ExtendedKalmanUpdater):
         default=None, doc="used for detections that carry no measurement model: a CartesianToBearingRange[Rate2D] "
                           "or LinearGaussian (plot_from_detection)")
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        _ss.check_measurement_model("RBPFUpdater", self.measurement_model)
+
     def update(self, hypothesis, **kwargs) -> RBPFStateUpdate:
         pred = hypothesis.prediction
         if not isinstance(pred, RBPFStatePrediction):

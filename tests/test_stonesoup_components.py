@@ -423,3 +423,20 @@ def test_multitarget_example_small(tmp_path):
     assert X.figure(result, tmp_path / "f.png").stat().st_size > 0
     with pytest.raises(ValueError, match="filter_name must be"):
         X.run_tracker(scans, "kf")
+
+
+@pytest.mark.parametrize("kw, name", [({"range_m": -1000.0}, "range_m"), ({"bearing_rad": math.inf}, "bearing_rad"),
+                                      ({"range_noise_std_m": -50.0}, "range_noise_std_m"),
+                                      ({"bearing_noise_std_rad": 0.0}, "bearing_noise_std_rad"),
+                                      ({"site_xy_m": (0.0, math.nan)}, "site_xy_m"),
+                                      ({"radial_velocity_m_s": math.nan, "radial_velocity_noise_std_m_s": 1.0},
+                                       "radial_velocity_m_s"),
+                                      ({"radial_velocity_m_s": 10.0, "radial_velocity_noise_std_m_s": -1.0},
+                                       "radial_velocity_noise_std_m_s"),
+                                      ({"range_m": "far"}, "range_m")])
+def test_polar_detection_refuses_a_bad_plot_naming_the_argument(kw, name):
+    """A negative range or std was squared or turned into a garbage track; NaN failed later in the updater."""
+    args = {"range_m": 40e3, "bearing_rad": 0.3, "site_xy_m": (0.0, 0.0), "range_noise_std_m": 50.0,
+            "bearing_noise_std_rad": 0.002, "t_s": 5.0, **kw}
+    with pytest.raises(ValueError, match=f"polar_detection: {name}"):
+        S.polar_detection(**args)

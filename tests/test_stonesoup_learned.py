@@ -285,3 +285,26 @@ def test_tuned_coast_keeps_a_turning_target_the_network_coast_loses(model):
     n = {mp: len(X.run_tracker(own, mp, (*L.learned_pair(model, mp), L.PlotAwareHypothesiser)))
          for mp in ("network", "tuned")}
     assert n == {"network": 2, "tuned": 1}
+
+
+def test_components_refuse_a_wrong_argument_when_built():
+    """A wrong argument stops when the component is built, naming it (a truthy "no" for use_range_rate used to
+    switch the range-rate update on; the others failed only at the first detection or track start)."""
+    from agents.policies import stonesoup_qpolicy as Q
+    from agents.policies.stonesoup_chain import PlotAwareHypothesiser
+    from baselines.stonesoup_rbpf import RBPFUpdater
+    cases = [(lambda: S.IMMCVCTUpdater(use_range_rate="no"), r"IMMCVCTUpdater.use_range_rate must be True or False"),
+             (lambda: S.IMMCVCTUpdater(measurement_model=5), r"IMMCVCTUpdater.measurement_model must be a Stone Soup"),
+             (lambda: RBPFUpdater(measurement_model="x"), r"RBPFUpdater.measurement_model"),
+             (lambda: L.LearnedIMMUpdater(measurement_model=5), r"LearnedIMMUpdater.measurement_model"),
+             (lambda: Q.QPolicyUpdater(measurement_model=5), r"QPolicyUpdater.measurement_model"),
+             (lambda: L.LearnedIMMPredictor(model="policy_imm_bp"), r"LearnedIMMPredictor.model must be a learned IMM"),
+             (lambda: Q.QPolicyPredictor(policy="policy_bp"), r"QPolicyPredictor.policy must be a QPolicy"),
+             (lambda: PlotAwareHypothesiser(L.LearnedIMMPredictor(), L.LearnedIMMUpdater(), Mahalanobis(),
+                                            missed_distance=float("nan")), r"missed_distance must be a number >= 0"),
+             (lambda: PlotAwareHypothesiser(5, L.LearnedIMMUpdater(), Mahalanobis()), r"predictor must be a Stone")]
+    for build, match in cases:
+        with pytest.raises(ValueError, match=match):
+            build()
+    assert S.IMMCVCTUpdater(use_range_rate=False).use_range_rate is False
+    PlotAwareHypothesiser(L.LearnedIMMPredictor(), L.LearnedIMMUpdater(), Mahalanobis(), missed_distance=math.inf)

@@ -158,6 +158,16 @@ class PlotAwareHypothesiser(DistanceHypothesiser):
         default=True, doc="Pass each detection to the predictor (the plot-aware gate); False: the missed-look gate "
                           "of DistanceHypothesiser")
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        d = self.missed_distance
+        if isinstance(d, bool) or not isinstance(d, (int, float, np.number)) or math.isnan(d) or d < 0:
+            raise ValueError(f"PlotAwareHypothesiser.missed_distance must be a number >= 0 (inf allowed), got {d!r}")
+        for name, method in (("predictor", "predict"), ("updater", "update")):
+            if not callable(getattr(getattr(self, name), method, None)):
+                raise ValueError(f"PlotAwareHypothesiser.{name} must be a Stone Soup {name} (e.g. "
+                                 f"LearnedIMM{name.capitalize()}), got {type(getattr(self, name)).__name__}")
+
 
 def context_after(hypothesis, measurement_model, run, range_rate_needed=None):
     """The context after the look of ``hypothesis`` (its prediction carries the context before it): with a

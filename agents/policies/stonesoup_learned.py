@@ -287,6 +287,9 @@ class LearnedIMMPredictor(Predictor):
         super().__init__(*args, **kwargs)
         if self.missed_parameters not in ("network", "tuned"):
             raise ValueError(f"missed_parameters must be 'network' or 'tuned', got {self.missed_parameters!r}")
+        if self.model is not None and not isinstance(self.model, (LearnedIMM, SB3IMMModel)):
+            raise ValueError(f"LearnedIMMPredictor.model must be a learned IMM (load_imm_model(name or folder)) or "
+                             f"None (the bundled policy_imm_bp), got {type(self.model).__name__}")
 
     def _start(self, update):
         if self.model is None:          # loaded once, when the first track starts from a Gaussian
@@ -324,6 +327,10 @@ class LearnedIMMUpdater(ExtendedKalmanUpdater):
     """Stone Soup updater of the learned IMM: the whole look with the associated detection (a polar detection with
     range rate); a ``MissedDetection``: the missed look (with its measurement model's site and stds if it has
     one). ``predict_measurement``: the extended Kalman updater's on the prediction's combined Gaussian."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        _ss.check_measurement_model("LearnedIMMUpdater", self.measurement_model)
 
     def update(self, hypothesis, **kwargs) -> LearnedIMMStateUpdate:
         pred = hypothesis.prediction

@@ -282,6 +282,12 @@ class QPolicyPredictor(Predictor):
     policy: QPolicy = Property(default=None, doc="the q-policy for tracks it starts (None: the bundled policy_bp); "
                                                  "a QPolicyState carries its own")
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if self.policy is not None and not isinstance(self.policy, QPolicy):
+            raise ValueError(f"QPolicyPredictor.policy must be a QPolicy (load_q_policy(name or folder)) or None (the "
+                             f"bundled policy_bp), got {self.policy!r}"[:300])
+
     def _start(self, update):
         if self.policy is None:         # loaded once, when the first track starts from a Gaussian
             self.policy = load_q_policy("policy_bp")
@@ -319,6 +325,10 @@ class QPolicyUpdater(ExtendedKalmanUpdater):
     the policy reads it, :data:`RANGE_RATE_FEATURES`); a ``MissedDetection``: the missed look (with its measurement
     model's site and stds if it has one). ``predict_measurement``: the extended Kalman updater's on the
     prediction's Gaussian."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        _ss.check_measurement_model("QPolicyUpdater", self.measurement_model)
 
     def update(self, hypothesis, **kwargs) -> QPolicyStateUpdate:
         pred = hypothesis.prediction
