@@ -202,6 +202,18 @@ def test_workers_option_is_checked():
     ("[sweep]\nworkers = 2\n[space]\nseed = [0]\n", r"unknown \[sweep\] key\(s\) \['workers'\]"),
     ("[sweep]\n", r"\[space\] is empty"),
     ("[space]\nseed = [0.5]\n", r"seed must list integers"),
+    # each trial's hyperparameters checked as radar-track train checks them, before Ray starts
+    ("[base]\nn_timesteps = -5\n[space]\nseed = [0]\n", r"\[base\]: --hp n_timesteps: must be an integer >= 1"),
+    ("[space]\nlerning_rate = [0.1]\n", r"\[space\] lerning_rate = 0.1: --hp lerning_rate: unknown hyperparameter"),
+    ("[space]\nlearning_rate = [3e-4, -1.0]\n", r"\[space\] learning_rate = -1.0: --hp learning_rate: must lie in"),
+    ("[sweep]\nsearch = 'random'\n[space]\ngamma = {uniform = [0.5, 3.0]}\n", r"gamma = 3.0: --hp gamma: must lie"),
+    ("[space]\n'env_kwargs.reward_type' = ['bogus']\n", r"--hp env_kwargs: RadarTrack-v0: reward_type must be one of"),
+    ("[space]\nseed = [-1, 2]\n", r"\[space\] seed = -1: a training seed must be an integer in range"),
+    ("[sweep]\nsearch = 'random'\n[space]\nbatch_size = {randint = [1.5, 64.2]}\n", r"randint needs integer bounds"),
+    ("[sweep]\nsearch_seed = -3\n[space]\nseed = [0]\n", r"search_seed must be an integer >= 0"),
+    ("[sweep]\nhyperparams = 5\n[space]\nseed = [0]\n", r"hyperparams must name a TOML file, got 5"),
+    ("base = 5\n[space]\nseed = [0]\n", r"base must be a table"),
+    ("[sweep]\nmethod = 'backprop'\n[base]\nn_steps = -1\n[space]\nseed = [0]\n", r"\[base\]: --hp n_steps"),
 ])
 def test_sweep_config_errors_name_the_key(tmp_path, body, match):
     cfg = tmp_path / "bad.toml"
@@ -294,6 +306,11 @@ def test_sweep_of_two_trials_writes_its_table_and_resumes(local_ray, tmp_path):
     rows2, _ = run_sweep(cfg, tmp_path / "out", verbose=0)
     assert rows2 == rows
     assert mtimes == {r["trial"]: (exp / "runs" / r["trial"] / "summary.json").stat().st_mtime_ns for r in rows}
+    # another config under the same name is refused (Tune would run the stored space with the new base)
+    changed = tmp_path / "changed.toml"
+    changed.write_text(TINY_SWEEP.replace("seed = [0, 1]", "seed = [5, 6]"))
+    with pytest.raises(ValueError, match=r"started with another config \(it differs in \['space'\]\)"):
+        run_sweep(changed, tmp_path / "out", verbose=0)
 
 
 TINY_BACKPROP_SWEEP = """

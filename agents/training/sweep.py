@@ -112,6 +112,9 @@ def load_sweep_config(path):
     unknown = set(raw) - {"sweep", "base", "space"}
     if unknown:
         raise ValueError(f"{path}: unknown table(s) {sorted(unknown)}; valid: [sweep], [base], [space]")
+    for table in ("sweep", "base", "space"):
+        if not isinstance(raw.get(table, {}), dict):
+            raise ValueError(f"{path}: {table} must be a table ([{table}]), got {raw[table]!r}")
     sw = dict(raw.get("sweep", {}))
     bad = set(sw) - _SWEEP_KEYS
     if bad:
@@ -125,6 +128,8 @@ def load_sweep_config(path):
     if algo not in ALGOS + ("backprop",):
         raise ValueError(f"{path}: [sweep] algo must be one of {ALGOS}, got {algo!r}")
     hp_file = sw.get("hyperparams")
+    if hp_file is not None and not (isinstance(hp_file, str) and hp_file):
+        raise ValueError(f"{path}: [sweep] hyperparams must name a TOML file, got {hp_file!r}")
     if hp_file is not None:
         cand = [path.parent / hp_file, HP_DIR / hp_file, Path(hp_file)]
         hp_file = next((c for c in cand if c.is_file()), None)
@@ -137,7 +142,8 @@ def load_sweep_config(path):
     scheduler = sw.get("scheduler", "fifo")
     if scheduler not in SCHEDULERS:
         raise ValueError(f"{path}: [sweep] scheduler must be one of {SCHEDULERS}, got {scheduler!r}")
-    for key, lo in (("num_samples", 1), ("cpus_per_trial", 1), ("grace_evals", 1), ("max_concurrent_trials", 1)):
+    for key, lo in (("num_samples", 1), ("cpus_per_trial", 1), ("grace_evals", 1), ("max_concurrent_trials", 1),
+                    ("search_seed", 0)):
         v = sw.get(key)
         if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < lo):
             raise ValueError(f"{path}: [sweep] {key} must be an integer >= {lo}, got {v!r}")
@@ -163,7 +169,11 @@ def load_sweep_config(path):
     seeds = space.get("seed")
     if isinstance(seeds, list) and not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise ValueError(f"{path}: [space] seed must list integers (training seeds), got {seeds!r}")
-    hp = _merge(load_hyperparams(algo, hp_file), _nest(raw.get("base", {})))
+    try:
+        hp = _merge(load_hyperparams(algo, hp_file), _nest(raw.get("base", {})))
+    except (AttributeError, TypeError):     # a dotted key into a value that is not a table
+        raise ValueError(f"{path}: [base]: a dotted key reaches into a value that is not a table "
+                         f"({sorted(raw.get('base', {}))})") from None
     scored = hp.get("eval_scenarios") or {"random": 0}
     missing = [n for n in hp.get("select_on") or () if n not in scored]
     if missing:
@@ -175,10 +185,36 @@ def load_sweep_config(path):
         check_plain_name("[sweep] name", sw.get("name", path.stem))
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
+    _check_trials(path, algo, hp, space)
     return {"name": sw.get("name", path.stem), "algo": algo, "hp": hp, "space": space, "search": search,
             "num_samples": sw.get("num_samples", 1), "search_seed": sw.get("search_seed", 0),
             "cpus_per_trial": sw.get("cpus_per_trial", 1), "max_concurrent_trials": sw.get("max_concurrent_trials"),
             "scheduler": scheduler, "grace_evals": sw.get("grace_evals", 2), "config_path": str(path.resolve())}
+
+
+def _check_trials(path, algo, hp, space):
+    """Every trial's hyperparameters checked as ``radar-track train`` checks them, before Ray starts: ``[base]``
+    with each value of each ``[space]`` list and each distribution's bounds (a ``randint``'s as integers), and the
+    training seeds; ``ValueError`` naming the config and the key."""
+    from agents.training.train import TRAIN_SEEDS, check_train_hp
+    cand = [("[base]", {})]
+    for key, v in space.items():
+        values = v if isinstance(v, list) else [
+            int(b) if next(iter(v)) == "randint" else b for b in next(iter(v.values()))]
+        if isinstance(v, dict) and next(iter(v)) == "randint" and not all(
+                isinstance(b, int) and not isinstance(b, bool) for b in next(iter(v.values()))):
+            raise ValueError(f"{path}: [space] {key}: randint needs integer bounds, got {next(iter(v.values()))!r}")
+        cand += [(f"[space] {key} = {x!r}", {key: x}) for x in values]
+    for where, over in cand:
+        if "seed" in over:
+            s = over["seed"]
+            if isinstance(s, bool) or not isinstance(s, (int, float)) or s != int(s) or int(s) not in TRAIN_SEEDS:
+                raise ValueError(f"{path}: {where}: a training seed must be an integer in {TRAIN_SEEDS}")
+            continue
+        try:
+            check_train_hp(algo, _merge(hp, _nest(over)))
+        except (ValueError, TypeError, AttributeError) as e:
+            raise ValueError(f"{path}: {where}: {str(e).splitlines()[0]}") from None
 
 
 def _param_space(cfg):
@@ -371,6 +407,19 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
         tune.with_parameters(_trial, algo=cfg["algo"], hp=cfg["hp"], runs_dir=str(runs_dir),
                              allow_pickle=allow_pickle),
         {"cpu": cfg["cpus_per_trial"]})
+    trials = {k: cfg[k] for k in ("algo", "hp", "space", "search", "num_samples", "search_seed", "scheduler",
+                                  "grace_evals")}
+    trials = json.loads(json.dumps(trials))             # as the file holds it (tuples as lists)
+    record = exp_dir / "sweep_config.json"
+    if tune.Tuner.can_restore(str(exp_dir)) and record.is_file():
+        # Tune restores the experiment's own search space: a changed config under the same name would run the old
+        # trials with the new base hyperparameters
+        old = json.loads(record.read_text())
+        diff = sorted(k for k in set(old) | set(trials) if old.get(k) != trials.get(k))
+        if diff:
+            raise ValueError(f"{exp_dir} holds the sweep [sweep] name = {cfg['name']!r} started with another "
+                             f"config (it differs in {diff}); resume it with its own config, or give a new [sweep] "
+                             "name or --out")
     with ray_session(address, num_cpus, "radar-track sweep"):
         if tune.Tuner.can_restore(str(exp_dir)):
             if verbose:
@@ -384,6 +433,8 @@ def run_sweep(config_path, out="sweeps", address=None, num_cpus=None, verbose=1,
                                             max_concurrent_trials=cfg["max_concurrent_trials"],
                                             trial_name_creator=_trial_name, trial_dirname_creator=_trial_name),
                 run_config=tune.RunConfig(name=cfg["name"], storage_path=str(exp_dir.parent), verbose=verbose))
+            exp_dir.mkdir(parents=True, exist_ok=True)
+            record.write_text(json.dumps(trials, indent=1))
         with _Interrupts() as sigint:
             try:
                 grid = tuner.fit()

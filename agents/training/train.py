@@ -170,6 +170,29 @@ def _check_hp(algo, cls, hp):
     return {k: v for k, v in hp.items() if k not in _SPECIAL}
 
 
+def check_train_hp(algo, hp):
+    """``hp`` checked as :func:`train` (or, for ``algo = "backprop"``, :func:`agents.training.backprop.check_hp`)
+    checks it before a run folder is made: the special keys, the SB3 algorithm's constructor arguments and the env
+    arguments; ``ValueError`` naming ``--hp KEY`` (for ``radar-track sweep``, before Ray starts)."""
+    if algo == "backprop":
+        from agents.training.backprop import check_hp
+        check_hp(hp)
+        return
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    import stable_baselines3 as sb3
+    from radar_env.envs.config import EnvConfig
+    _check_hp(algo, {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo], hp)
+    env_kwargs = dict(hp.get("env_kwargs") or {})
+    if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
+        raise ValueError(f"--hp env_kwargs: scenario must be one of {list(TRAIN_SCENARIOS)} (the random generators), "
+                         f"got {env_kwargs['scenario']!r}")
+    try:
+        EnvConfig.from_kwargs(**env_kwargs)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"--hp env_kwargs: {str(e).splitlines()[0]}") from None
+
+
 def _stack_factor(src_space, new_space):
     """k if ``new_space`` is ``src_space`` stacked k times (``frame_stack``: newest frame first), else None."""
     import numpy as np
