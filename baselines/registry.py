@@ -136,6 +136,9 @@ def register_tracker(name, fn, overwrite=False, batch=False):
     if name in TRACKER_NAMES:
         raise ValueError(f"register_tracker: {name!r} is a built-in tracker's name; choose another "
                          f"(built-ins: {list(TRACKER_NAMES)})")
+    for flag, v in (("overwrite", overwrite), ("batch", batch)):
+        if not isinstance(v, (bool, np.bool_)):       # "no" is truthy: it would replace, or run as a batch tracker
+            raise ValueError(f"register_tracker: {flag} must be True or False, got {v!r}")
     if name in _USER and not overwrite:
         raise ValueError(f"register_tracker: a user tracker named {name!r} is already registered; pass "
                          "overwrite=True to replace it")
@@ -174,6 +177,16 @@ def run_tracker(name, episodes, cfg=None):
     """Run comparison tracker ``name`` on ``episodes`` (list of :class:`radar_env.sim.episode.Episode`). ``cfg``: the
     track start and observation (an env config or a :class:`radar_env.filters.tracking.TrackStart`; default the env's
     defaults), see :mod:`baselines.trackers`."""
-    if name not in _RUNNERS:
+    if not isinstance(name, str) or name not in _RUNNERS:
         raise ValueError(f"unknown tracker {name!r}; valid: {list(tracker_names())}")
-    return _RUNNERS[name](list(episodes), cfg)
+    from radar_env.sim.episode import Episode
+    given = episodes
+    try:
+        episodes = list(episodes)
+    except TypeError:
+        episodes = None
+    if not episodes or not all(isinstance(e, Episode) for e in episodes):
+        raise ValueError(f"run_tracker: episodes must be a non-empty list of radar_env.sim.episode.Episode (e.g. "
+                         f"agents.evaluation.suites.draw_suite(...)), got {type(given).__name__}"
+                         + ("" if not episodes else f" of {sorted({type(e).__name__ for e in episodes})}"))
+    return _RUNNERS[name](episodes, cfg)

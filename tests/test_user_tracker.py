@@ -83,6 +83,17 @@ def test_register_clash_and_overwrite():
     register_tracker("mine", hold_last_plot, overwrite=True)
     with pytest.raises(ValueError, match="must be callable"):
         register_tracker("other", 42)
+    for flag in ("overwrite", "batch"):         # "no" is truthy: it replaced the tracker silently
+        with pytest.raises(ValueError, match=f"register_tracker: {flag} must be True or False, got 'no'"):
+            register_tracker("mine", hold_last_plot, **{flag: "no"})
+
+
+@pytest.mark.parametrize("episodes, match", [(5, "got int"), ([], "got list"), ([5], r"got list of \['int'\]")])
+def test_run_tracker_names_what_episodes_must_be(episodes, match):
+    with pytest.raises(ValueError, match=f"run_tracker: episodes must be a non-empty list of .*Episode.*{match}"):
+        run_tracker("kf_tuned", episodes)
+    with pytest.raises(ValueError, match=r"unknown tracker \['kf'\]"):
+        run_tracker(["kf"], draw_suite("random", 1))
 
 
 def test_wrong_output_shapes_name_the_tracker(eps):
