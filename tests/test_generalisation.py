@@ -247,3 +247,18 @@ def _readme_verdicts(**over):
                                   {"random": _imm_suite(0.88, 0.88, anees=2.5)}])
 def test_the_readme_table_of_the_imm_targets_gives_the_full_tables_verdicts(over):
     assert _readme_verdicts(**over) == _imm_verdicts(**over)[:6]
+
+
+@pytest.mark.parametrize("module, argv, match", [
+    ("generalisation", ["--seed", "-1"], r"--seed: must be an integer >= 0"),
+    ("report", ["--docs", "/nonexistent/docs"], r"--docs: '/nonexistent/docs' is not an existing folder"),
+    ("range_rate", ["--suites", "nosuch"], r"--suites: \['nosuch'\] not among"),
+    ("range_rate", ["--family-runs", "0"], r"--family-runs: must be an integer >= 1"),
+    ("paper_checks", ["--docs", "/nonexistent/docs"], r"--docs: .* is not an existing folder"),
+])
+def test_report_options_are_refused_before_any_work(module, argv, match):
+    """(they used to end in a traceback, some after minutes of evaluation)"""
+    import importlib
+    with pytest.raises(SystemExit, match=match) as e:
+        importlib.import_module(f"agents.reports.{module}").main(argv)
+    assert str(e.value).startswith("error: ") and "\n" not in str(e.value)

@@ -58,3 +58,22 @@ def replace_block(name, text, path=None):
         raise ValueError(f"{path} has no {start} ... {end} block")
     a, b = s.index(start) + len(start), s.index(end)
     path.write_text(s[:a] + "\n" + text.strip() + "\n" + s[b:])
+
+
+def check_report_options(args, suites=None):
+    """A report's command-line options checked before any work, each refusal one ``SystemExit`` line naming the
+    option: ``--docs`` an existing folder, ``--seed`` >= 0, ``--family-runs`` >= 1, ``--suites`` among ``suites``
+    (the attributes a report has)."""
+    docs = getattr(args, "docs", None)
+    if docs is not None and not Path(docs).is_dir():
+        raise SystemExit(f"error: --docs: {str(docs)!r} is not an existing folder (the report writes its JSON, "
+                         "pages and figures there)")
+    if getattr(args, "seed", 0) < 0:
+        raise SystemExit(f"error: --seed: must be an integer >= 0, got {args.seed}")
+    if getattr(args, "family_runs", 1) < 1:
+        raise SystemExit(f"error: --family-runs: must be an integer >= 1, got {args.family_runs}")
+    if suites is not None and getattr(args, "suites", None) is not None:
+        names = [s.strip() for s in args.suites.split(",") if s.strip()]
+        bad = [s for s in names if s not in suites]
+        if bad or not names:
+            raise SystemExit(f"error: --suites: {bad or args.suites!r} not among {list(suites)}")

@@ -615,6 +615,8 @@ def main(argv=None):
                          "--seed; the classical field is recomputed on the same episodes, every other number is kept) "
                          "and rewrite the blocks (default: compute everything)")
     args = ap.parse_args(argv)
+    from agents.reports.blocks import check_report_options
+    check_report_options(args)
     t0 = time.time()
     docs = Path(args.docs)
     if args.add_recipe:

@@ -626,6 +626,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m agents.reports.paper_checks", description=__doc__.split("\n\n")[0])
     ap.add_argument("--docs", default=str(DOCS), help="where paper_checks.json/.md and figures/ go")
     args = ap.parse_args(argv)
+    from agents.reports.blocks import check_report_options
+    check_report_options(args)
     docs = Path(args.docs)
     data = compute(fig_dir=docs / "figures")
     (docs / "paper_checks.json").write_text(json.dumps(data, indent=1) + "\n")

@@ -204,6 +204,8 @@ def main(argv=None):
     ap.add_argument("--no-readme", dest="readme", action="store_false",
                     help="do not update the generated blocks of docs/*.md")
     args = ap.parse_args(argv)
+    from agents.reports.blocks import check_report_options
+    check_report_options(args, SUITES)
     t0 = time.time()
     learned = learned_rdot()
     seeds = learned_seeds(learned)

@@ -297,6 +297,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=EVAL_SEED_BASE)
     ap.add_argument("--no-readme", dest="readme", action="store_false", help="do not update the generated blocks of docs/*.md")
     args = ap.parse_args(argv)
+    from agents.reports.blocks import check_report_options
+    check_report_options(args)
     docs = Path(args.docs)
     t0 = time.time()
     policy = str(BUNDLED_POLICY) if BUNDLED_POLICY.is_file() else None
