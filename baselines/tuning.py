@@ -372,12 +372,17 @@ def tune(entry: TunedTracker, episodes, batch, cfg, x0=None, starts=3, seed=0, p
     return out
 
 
+MAX_TUNING_RUNS = 50_000
+"""``--runs`` at most: 50,000 random flights are about 5.5 GB (measured 0.11 MB per flight), inside the tuning seeds."""
+
+
 def main(argv=None, prog="radar-track tune"):
     """``radar-track tune`` (options: :mod:`baselines.tuning_options`)."""
     args = build_parser(prog).parse_args(argv)
     args.out = _output_path(args)
-    if args.runs < 1:
-        raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
+    if not 1 <= args.runs <= MAX_TUNING_RUNS:
+        raise SystemExit(f"error: --runs must be in [1, {MAX_TUNING_RUNS:,}] (the episodes, about 0.1 MB each, are "
+                         f"held in memory at once), got {args.runs}")
     if args.starts < 1:
         raise SystemExit(f"error: --starts must be >= 1, got {args.starts}")
     names = [t.strip() for t in args.trackers.split(",") if t.strip()]

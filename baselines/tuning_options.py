@@ -17,7 +17,7 @@ def build_parser(prog="radar-track tune"):
                                  "CV/CT IMM) on random-scenario episodes drawn with tuning seeds, never on "
                                  "evaluation seeds; writes their tuned parameters for every tracker that reads them.")
     ap.add_argument("--runs", type=int, default=200, metavar="N",
-                    help="random-scenario episodes to tune on, >= 1 (default 200; kf and imm2 took about 3 min on "
+                    help="random-scenario episodes to tune on, in [1, 50000] (default 200; kf and imm2 took about 3 min on "
                          "an idle 2-core machine, docs/trackers.md)")
     ap.add_argument("--trackers", default=",".join(TUNABLE), metavar="A,B,...",
                     help="comma-separated trackers to tune, from " + ", ".join(TUNABLE) + " (a _rdot name: the "

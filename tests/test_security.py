@@ -571,3 +571,12 @@ def test_a_full_disk_in_sweep_is_one_line_with_the_resume_command(tmp_path, monk
     with pytest.raises(SystemExit) as e:
         sweep.main([str(sweep.EXAMPLE_CONFIG), "--out", str(tmp_path / "out"), "--quiet"])
     _one_line(e, "results.csv", "No space left", "resume with: radar-track sweep")
+
+
+@pytest.mark.parametrize("runs", ["0", "50001", "20000000"])
+def test_tune_runs_are_bounded_before_any_episode_is_drawn(tmp_path, runs):
+    """20,000,000 used to start drawing (about 2 TB of episodes, past the tuning seeds)."""
+    from baselines.tuning import main as tune_main
+    with pytest.raises(SystemExit, match=r"--runs must be in \[1, 50,000\]") as e:
+        tune_main(["--runs", runs, "--trackers", "kf", "--starts", "1", "--out", str(tmp_path / "t.json")])
+    assert "\n" not in str(e.value) and not (tmp_path / "t.json").exists()
