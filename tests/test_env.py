@@ -258,6 +258,26 @@ def test_bad_reset_option():
         env.reset(seed=0, options={"sceanrio": "bizup2002"})
     with pytest.raises(ValueError, match="scenario"):
         env.reset(seed=0, options={"scenario": "nowhere"})
+    with pytest.raises(ValueError, match="reset: options must be a dict"):
+        env.reset(seed=0, options="bizup2002")
+    with pytest.raises(ValueError, match="reset: seed must be >= 0, got -1"):
+        env.reset(seed=-1)
+    a, _ = env.reset(seed=np.int64(7))          # a numpy integer seeds as the same Python integer
+    b, _ = env.reset(seed=7)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_vector_reset_seeds_and_options_are_checked():
+    venv = RadarTrackVectorEnv(num_envs=3)
+    a, _ = venv.reset(seed=np.array([1, 2, 3]))
+    b, _ = venv.reset(seed=[1, 2, 3])
+    np.testing.assert_array_equal(a, b)
+    for bad, match in ((dict(seed=-1), "seed must be >= 0"), (dict(seed=[1, -2, 3]), "seed must be >= 0"),
+                       (dict(options="x"), "reset: options must be a dict")):
+        with pytest.raises(ValueError, match=match):
+            venv.reset(**bad)
+    with pytest.raises(ValueError, match=r"num_envs=1,000,000,000: the rows' arrays do not fit"):
+        RadarTrackVectorEnv(num_envs=10**9)
 
 
 @pytest.mark.parametrize("action_type, bad", [

@@ -220,7 +220,11 @@ class RadarTrackEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         if seed is not None and not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
             raise ValueError(f"reset: seed must be None or an integer, got {seed!r}")   # True would be seed 1
-        super().reset(seed=seed)
+        if seed is not None and seed < 0:
+            raise ValueError(f"reset: seed must be >= 0, got {seed}")
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got {options!r}")
+        super().reset(seed=None if seed is None else int(seed))
         options = dict(options or {})
         scenario = options.pop("scenario", None)
         check_known_keys("reset", options, ["scenario"], noun="option")

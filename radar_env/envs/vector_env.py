@@ -67,7 +67,12 @@ class RadarTrackVectorEnv(VectorEnv):
         if self.config.render_mode is not None:
             raise ValueError("RadarTrackVectorEnv does not render; use the single env")
         self.num_envs = int(num_envs)
-        self._core = make_core(self.num_envs, self.config, autoreset=True, max_episode_steps=self.max_episode_steps)
+        try:
+            self._core = make_core(self.num_envs, self.config, autoreset=True,
+                                   max_episode_steps=self.max_episode_steps)
+        except MemoryError:
+            raise ValueError(f"num_envs={self.num_envs:,}: the rows' arrays do not fit in this machine's memory; "
+                             "give fewer rows") from None
         self._core.num_threads = self.num_threads
         self.single_action_space, self.single_observation_space = row_spaces(self._core)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -79,6 +84,8 @@ class RadarTrackVectorEnv(VectorEnv):
         return self._core.layout
 
     def reset(self, *, seed=None, options=None):
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got {options!r}")
         options = dict(options or {})
         scenario = options.pop("scenario", None)
         check_known_keys("reset", options, ["scenario"], noun="option")
@@ -93,6 +100,9 @@ class RadarTrackVectorEnv(VectorEnv):
                 raise ValueError(f"seed must be None, an integer or a list of num_envs integers / None, got {seed!r}")
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed list must have num_envs={self.num_envs} entries, got {len(seeds)}")
+            seeds = [None if s is None else int(s) for s in seeds]      # numpy integers as Python ones (gymnasium)
+        if any(s is not None and s < 0 for s in seeds):
+            raise ValueError(f"seed must be >= 0 (each row's), got {seed!r}"[:300])
         if seed is not None or not self._started:
             self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
         core = self._core
