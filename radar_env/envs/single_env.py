@@ -223,7 +223,8 @@ class RadarTrackEnv(gym.Env):
         if seed is not None and seed < 0:
             raise ValueError(f"reset: seed must be >= 0, got {seed}")
         if options is not None and not isinstance(options, dict):
-            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got {options!r}")
+            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got "
+                             f"{options!r}")
         super().reset(seed=None if seed is None else int(seed))
         options = dict(options or {})
         scenario = options.pop("scenario", None)

@@ -85,7 +85,8 @@ class RadarTrackVectorEnv(VectorEnv):
 
     def reset(self, *, seed=None, options=None):
         if options is not None and not isinstance(options, dict):
-            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got {options!r}")
+            raise ValueError(f"reset: options must be a dict (e.g. {{'scenario': 'bizup2002'}}) or None, got "
+                             f"{options!r}")
         options = dict(options or {})
         scenario = options.pop("scenario", None)
         check_known_keys("reset", options, ["scenario"], noun="option")
