@@ -199,3 +199,12 @@ def test_stonesoup_kf_through_the_cli(tmp_path):
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, text=True, timeout=300)
     m = json.loads(out.read_text())["suites"]["random"]["trackers"]
     assert m["stonesoup_kf"]["pos_rmse_m"] == pytest.approx(m["kf_tuned"]["pos_rmse_m"], rel=1e-6)
+
+
+@pytest.mark.parametrize("kw, match", [({"radar": 5}, r"radar must be a radar_env.sim.radar.Radar"),
+                                       ({"random_config": {"first_leg_min_s": 0}},
+                                        r"random_config must be a radar_env.sim.scenario.RandomScenarioConfig")])
+def test_draw_suite_names_a_wrong_radar_or_random_config(kw, match):
+    """(an AttributeError from inside the draw before)"""
+    with pytest.raises(ValueError, match=match):
+        draw_suite("random", 2, **kw)

@@ -99,6 +99,14 @@ def draw_suite(scenario, runs, seed=EVAL_SEED_BASE, radar=None, random_config=No
         raise ValueError(f"runs must be an integer >= 1, got {runs!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    from radar_env.sim.radar import Radar
+    from radar_env.sim.scenario import RandomScenarioConfig
+    if radar is not None and not isinstance(radar, Radar):
+        raise ValueError(f"radar must be a radar_env.sim.radar.Radar (e.g. atc_radar(...)) or None, got "
+                         f"{type(radar).__name__}")
+    if random_config is not None and not isinstance(random_config, RandomScenarioConfig):
+        raise ValueError(f"random_config must be a radar_env.sim.scenario.RandomScenarioConfig or None, got "
+                         f"{type(random_config).__name__}")
     key = suite_key(scenario)
     if scenario == "encounters":     # pairs of aircraft for the conflict-warning test (agents.evaluation.downstream)
         from agents.evaluation.downstream import draw_encounters
