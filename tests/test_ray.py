@@ -222,6 +222,13 @@ def test_sweep_config_errors_name_the_key(tmp_path, body, match):
         load_sweep_config(cfg)
 
 
+def test_sweep_out_that_is_a_file_is_refused_before_ray(tmp_path):
+    from agents.training.sweep import main as sweep_main
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(SystemExit, match=r"--out: .*afile' exists and is a file; give a directory path"):
+        sweep_main([str(tmp_path / "nope.toml"), "--out", str(tmp_path / "afile"), "--quiet"])
+
+
 def test_sweep_config_merges_base_over_the_file(tmp_path):
     cfg = tmp_path / "s.toml"
     cfg.write_text(TINY_SWEEP)

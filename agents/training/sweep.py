@@ -483,6 +483,13 @@ def main(argv=None, prog="radar-track sweep"):
     args = build_parser(prog).parse_args(argv)
     if args.num_cpus is not None and args.num_cpus < 1:
         raise SystemExit(f"error: --num-cpus must be >= 1, got {args.num_cpus}")
+    from radar_env.common.files import check_output_dir
+    try:
+        if not str(args.out).strip():
+            raise ValueError("--out: an empty path; give a folder name")
+        check_output_dir("--out", Path(args.out))      # before Ray starts: a file there fails only at the end
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
     resume = resume_command(args.config, args.out, args.address, args.num_cpus, args.allow_pickle)
     if not args.quiet:      # before Ray, torch and the env are imported
         print(f"radar-track sweep: {args.config}; starting Ray (the trials import torch and the env) ...",
