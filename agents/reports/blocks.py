@@ -77,3 +77,8 @@ def check_report_options(args, suites=None):
         bad = [s for s in names if s not in suites]
         if bad or not names:
             raise SystemExit(f"error: --suites: {bad or args.suites!r} not among {list(suites)}")
+
+
+if __name__ == "__main__":
+    raise SystemExit("error: agents.reports.blocks is the generated blocks' file I/O; run: python -m "
+                     "agents.reports.readme_blocks")

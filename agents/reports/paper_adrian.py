@@ -197,3 +197,8 @@ def adrian_worksheet(runs=10, seed=0, sigma_a_g=(0.10, 0.15, 0.20, 0.25), truth_
         sl = np.s_[j::S]
         out[float(g)] = adrian_quantities(truth, z, y2[sl], w2[sl], yl[sl])
     return out
+
+
+if __name__ == "__main__":
+    raise SystemExit("error: agents.reports.paper_adrian is a library module of the paper checks; run: python -m "
+                     "agents.reports.paper_checks")

@@ -229,3 +229,8 @@ def bizup_figures_check(runs=100, seed=EVAL_SEED_BASE, fig_dir=None):
                 "switched_runs_tuned_turns": int(np.sum(np.any(track["ckf_tuned"].declared & masks["maneuver"],
                                                               axis=1)))},
     }
+
+
+if __name__ == "__main__":
+    raise SystemExit("error: agents.reports.paper_bizup is a library module of the paper checks; run: python -m "
+                     "agents.reports.paper_checks")

@@ -89,3 +89,8 @@ def kim_lee_figure(path, t, curves, spans, title):
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+if __name__ == "__main__":
+    raise SystemExit("error: agents.reports.paper_figures is a library module of the paper checks; run: python -m "
+                     "agents.reports.paper_checks")

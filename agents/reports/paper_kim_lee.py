@@ -104,3 +104,8 @@ def kim_lee_1d_check(runs=500, seed=0, lead_in_s=LEAD_IN_S):
     return {"runs": int(runs), "lead_in_s": int(lead_in_s), "sigma_m": SIGMA_M, "low_q_m_s2": LOW_Q_M_S2,
             "tuned_q_m_s2": float(q_tuned),
             "trackers": summary, "t_s": t, "maneuvering": man, "curves": curves}
+
+
+if __name__ == "__main__":
+    raise SystemExit("error: agents.reports.paper_kim_lee is a library module of the paper checks; run: python -m "
+                     "agents.reports.paper_checks")
