@@ -262,3 +262,34 @@ def test_report_options_are_refused_before_any_work(module, argv, match):
     with pytest.raises(SystemExit, match=match) as e:
         importlib.import_module(f"agents.reports.{module}").main(argv)
     assert str(e.value).startswith("error: ") and "\n" not in str(e.value)
+
+
+def test_a_tracker_that_failed_runs_or_has_too_few_nees_passes_no_bound():
+    """A ratio over the runs a tracker did not fail, or an ANEES from too few valid looks, reaches no target."""
+    p = {"ratio_vs_imm2": [0.02, [0.019, 0.022]], "ratio_vs_strongest": [0.02, [0.019, 0.022]], "failed_runs": 0}
+    assert g._bound_ok(p) and g._imm_suite_ok(p) and g._bp_suite_ok(p)
+    p["failed_runs"] = 23
+    assert not (g._bound_ok(p) or g._imm_suite_ok(p) or g._bp_suite_ok(p))
+    assert g._anees({"anees": 0.9}) == 0.9
+    assert np.isnan(g._anees({"anees": 6.5e-5, "anees_few_valid_looks": True}))
+
+
+def test_the_strongest_classical_tracker_failed_no_run(monkeypatch):
+    """A classical tracker that is the truth on the one run it did not fail has the lowest pooled RMSE of all, over
+    that run: it is not chosen as the strongest (its RMSE pools other runs than the others')."""
+    from baselines import registry
+    from radar_env.sim.episode import stack_episodes
+    eps = draw_suite("bizup2002", 4)
+    truth = stack_episodes(eps).truth
+
+    def cherry(episodes, cfg):
+        run = registry._RUNNERS["kf_tuned"](episodes, cfg)
+        run.x[0] = truth[0] + 1.0
+        run.x[1:] = np.nan
+        return run
+    monkeypatch.setitem(registry._RUNNERS, "cmin", cherry)
+    res = g.evaluate_suite("bizup2002", eps, {})
+    t = res["trackers"]
+    assert t["cmin"]["failed_runs"] == 3 and t["cmin"]["pos_rmse_m"] < min(
+        m["pos_rmse_m"] for n, m in t.items() if n != "cmin")
+    assert res["strongest_classical"] != "cmin" and t[res["strongest_classical"]]["failed_runs"] == 0

@@ -109,9 +109,11 @@ first ``BOUNDS_RUNS`` runs of these suites only (the same episodes as runs 0..29
 def headroom_share(res, tracker="policy", low="imm2", ceiling="hindsight_q"):
     """Share of the headroom between ``low`` and the ``ceiling`` bound that ``tracker`` captures, on pooled RMSE:
     ``(rmse_low - rmse_tracker) / (rmse_low - rmse_ceiling)`` (1 = at the ceiling, 0 = no better than ``low``,
-    negative = worse). ``None`` where a tracker is missing, non-finite, or the headroom is not positive."""
+    negative = worse). ``None`` where a tracker is missing, non-finite, failed a run (its pooled RMSE would cover
+    other runs than the others'), or the headroom is not positive."""
     ms = [res["trackers"].get(t) for t in (tracker, low, ceiling)]
-    if any(m is None or m.get("pos_rmse_m") is None or not np.isfinite(m["pos_rmse_m"]) for m in ms):
+    if any(m is None or m.get("pos_rmse_m") is None or not np.isfinite(m["pos_rmse_m"]) or m.get("failed_runs")
+           for m in ms):
         return None
     a, b, c = (m["pos_rmse_m"] for m in ms)
     return None if b - c <= 0 else (b - a) / (b - c)
