@@ -172,6 +172,27 @@ def test_write_plots_has_its_own_bar(tmp_path, capsys):
     assert len(files) == 4 and "[1/5] bizup2002: errors ..." in err and "figures: 5 of 5 items in" in err
 
 
+def test_figures_drawn_by_two_processes_are_the_files_one_draws(tmp_path):
+    """write_plots' forked drawing (issue 35: the main job's figures in parallel) writes the same files, byte for
+    byte, in the same order, as one process."""
+    from agents.evaluation.evaluate import figure_processes, write_plots
+    from agents.evaluation.suites import draw_suite, run_scenario
+    from baselines.registry import run_tracker
+    from radar_env.sim.episode import stack_episodes
+    runs, scen = {}, {}
+    for suite in ("bizup2002", "kim_lee_accel"):
+        eps = draw_suite(suite, 2, seed=7)
+        runs[suite] = (stack_episodes(eps), {t: run_tracker(t, eps) for t in ("kf_low", "imm2")})
+        scen[suite] = run_scenario(suite, 7)
+    one = write_plots(runs, tmp_path / "one", scen, processes=1)
+    two = write_plots(runs, tmp_path / "two", scen, processes=2)
+    assert [f.name for f in one] == [f.name for f in two] and len(one) >= 8
+    for a, b in zip(one, two):
+        assert a.read_bytes() == b.read_bytes(), a.name
+    assert not list((tmp_path / "two").glob(".plots-*"))          # the temporary folder is gone
+    assert 1 <= figure_processes(35) <= 4 and figure_processes(1) == 1
+
+
 # ------------------------------------------------------------------------------------------------ training
 def test_trained_timesteps_are_whole_rollouts():
     import stable_baselines3 as sb3

@@ -15,6 +15,37 @@ def test_headroom_share_is_the_captured_fraction():
     assert headroom_share(_res(policy=90.0, imm2=100.0)) is None                  # no ceiling on this suite
     assert headroom_share(_res(policy=90.0, imm2=100.0, hindsight_q=100.0)) is None   # no headroom
     assert headroom_share(_res(policy=float("nan"), imm2=100.0, hindsight_q=60.0)) is None
+    failed = _res(policy=90.0, imm2=100.0, hindsight_q=60.0)
+    failed["trackers"]["policy"]["failed_runs"] = 3             # its RMSE pools other runs than imm2's
+    assert headroom_share(failed) is None
+
+
+def test_a_bound_is_compared_only_with_trackers_that_failed_no_run():
+    from agents.evaluation.evaluate import bounds_beaten
+    trackers = {"clairvoyant": {"pos_rmse_m": 50.0, "failed_runs": 0},
+                "cherry": {"pos_rmse_m": 40.0, "failed_runs": 23},     # scored on the two runs it did not fail
+                "imm2": {"pos_rmse_m": 80.0, "failed_runs": 0}}
+    assert bounds_beaten(trackers) == {}
+    trackers["cherry"]["failed_runs"] = 0
+    assert bounds_beaten(trackers)["clairvoyant"]["beaten_by"] == "cherry"
+
+
+def test_no_normalised_score_for_a_tracker_that_failed_runs(monkeypatch):
+    """The score's references pool every run: a tracker scored on fewer runs gets none (it is reported failed)."""
+    import numpy as np
+    from agents.evaluation.evaluate import evaluate
+    from agents.evaluation.suites import draw_suite
+    from baselines import registry
+    eps = draw_suite("random", 4, seed=10_000_000)
+
+    def odd_fail(episodes, cfg):
+        run = registry._RUNNERS["imm2"](episodes, cfg)
+        run.x[1::2] = np.nan
+        return run
+    monkeypatch.setitem(registry._RUNNERS, "odd_fail", odd_fail)
+    res, _ = evaluate([("random", eps)], ["imm2", "odd_fail"], progress=False)
+    t = res["random"]["trackers"]
+    assert t["odd_fail"]["failed_runs"] == 2 and "score" not in t["odd_fail"] and "score" in t["imm2"]
 
 
 def test_headline_lists_only_present_trackers_and_the_share():
