@@ -53,3 +53,13 @@ def test_headline_lists_only_present_trackers_and_the_share():
     head = text.splitlines()[0]
     assert "imm_cv_ct" not in head and "hindsight_q" in head and "headroom" in head
     assert text.splitlines()[2].rstrip().endswith("| 25% |")
+
+
+def test_the_scores_table_leaves_out_a_tracker_that_failed_runs():
+    """(a tracker that failed every run stopped the report: normalised_score of a NaN)"""
+    from agents.reports.report import scores_table
+    res = {"random": {"trackers": {"kf_tuned": {"pos_rmse_m": 100.0}, "rbpf": {"pos_rmse_m": 60.0},
+                                   "x": {"pos_rmse_m": float("nan"), "failed_runs": 4},
+                                   "y": {"pos_rmse_m": 50.0, "failed_runs": 3}}}}
+    row = scores_table(res).splitlines()[2]
+    assert row == "| random | 0 | 100 | - | - |"

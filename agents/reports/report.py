@@ -133,8 +133,10 @@ def scores_table(results, names=None):
             continue
         cells = []
         for t in names:
-            m = res["trackers"].get(t)
-            v = None if m is None or m.get("pos_rmse_m") is None else normalised_score(suite, m["pos_rmse_m"], refs)
+            m = res["trackers"].get(t)      # none for a tracker that failed runs (the references pool every run)
+            ok = m is not None and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"]) \
+                and not m.get("failed_runs")
+            v = normalised_score(suite, m["pos_rmse_m"], refs) if ok else None
             cells.append("-" if v is None else str(int(round(v))))
         lines.append(f"| {suite} | " + " | ".join(cells) + " |")
     unscored = [s for s in results if s not in refs]
@@ -315,7 +317,8 @@ def main(argv=None):
     for suite, res in results.items():      # agents.evaluation.scores.REFERENCE_RMSE_M is updated from them)
         for m in res["trackers"].values():
             m.pop("score", None)
-            if suite in refs and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"]):
+            if (suite in refs and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"])
+                    and not m.get("failed_runs")):
                 m["score"] = normalised_score(suite, float(m["pos_rmse_m"]), refs)
     fig_dir = docs / "figures"
     suite_figures(runs, fig_dir, args.seed)
