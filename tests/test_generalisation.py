@@ -293,3 +293,15 @@ def test_the_strongest_classical_tracker_failed_no_run(monkeypatch):
     assert t["cmin"]["failed_runs"] == 3 and t["cmin"]["pos_rmse_m"] < min(
         m["pos_rmse_m"] for n, m in t.items() if n != "cmin")
     assert res["strongest_classical"] != "cmin" and t[res["strongest_classical"]]["failed_runs"] == 0
+
+
+def test_tables_show_a_dash_for_an_undefined_number():
+    """A seed or tracker that failed every run has no ratio or RMSE (null in the JSON): "-", not "nan" or an error."""
+    assert g._m0(None) == g._m0(float("nan")) == "-" and g._m0(81.6) == "82"
+    assert g._mean_worst([0.9, None]) == "-" and g._mean_worst([0.9, float("nan")]) == "-"
+    assert g._mean_worst([0.9, 1.1]) == "1.000 / 1.100"
+    data = _data()
+    data["spread"]["random"]["policies"]["r_s2"] = {**data["spread"]["random"]["policies"]["r_s2"],
+                                                    "ratio_vs_imm2": [None, [None, None]]}
+    row = next(line for line in g.spread_table(data).splitlines() if line.startswith("| random"))
+    assert "| - |" in row and "nan" not in row

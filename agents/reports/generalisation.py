@@ -207,6 +207,18 @@ def _fmt_ratio(r, few=False):
     return f"{est:.2f} [{lo:.2f}, {hi:.2f}]" + (f" (n<{FEW_RUNS})" if few else "")
 
 
+def _m0(v):
+    """A pooled RMSE (m) for a table: "-" when undefined (None in the JSON, NaN live: the tracker failed every run)."""
+    return "-" if v is None or not np.isfinite(v) else f"{v:.0f}"
+
+
+def _mean_worst(v):
+    """``mean / worst`` of seed ratios, "-" if any seed's ratio is undefined (a failed seed is not averaged in)."""
+    if any(x is None or not np.isfinite(x) for x in v):
+        return "-"
+    return f"{np.mean(v):.3f} / {np.max(v):.3f}"
+
+
 def _pct(h):
     return "-" if h is None else f"{round(100 * h) + 0:d} %"   # + 0: no "-0 %"
 
@@ -226,13 +238,13 @@ def families_table(data):
         b = res["policies"].get("policy_bp") if bp else None
         h = res.get("headroom_share")
         lines.append(
-            f"| {suite} ({res['runs']}) | {p['pos_rmse_m']:.0f} ({_fmt_ratio(p['ratio_vs_imm2'], few)}) | "
-            + (f"{b['pos_rmse_m']:.0f} ({_fmt_ratio(b['ratio_vs_imm2'], few)}) | " if bp else "")
-            + f"{tr['imm2']['pos_rmse_m']:.0f} | {s} {tr[s]['pos_rmse_m']:.0f} "
+            f"| {suite} ({res['runs']}) | {_m0(p['pos_rmse_m'])} ({_fmt_ratio(p['ratio_vs_imm2'], few)}) | "
+            + (f"{_m0(b['pos_rmse_m'])} ({_fmt_ratio(b['ratio_vs_imm2'], few)}) | " if bp else "")
+            + f"{_m0(tr['imm2']['pos_rmse_m'])} | {s} {_m0(tr[s]['pos_rmse_m'])} "
             f"({_fmt_ratio(p['ratio_vs_strongest'], few)}" + (f", {_fmt_ratio(b['ratio_vs_strongest'], few)}" if bp
                                                                else "") + ")"
-            f" | {tr['hindsight_q']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['hindsight_q'], few)}) | "
-            f"{tr['clairvoyant']['pos_rmse_m']:.0f} ({_fmt_ratio(res['ratio_vs_imm2']['clairvoyant'], few)}) | "
+            f" | {_m0(tr['hindsight_q']['pos_rmse_m'])} ({_fmt_ratio(res['ratio_vs_imm2']['hindsight_q'], few)}) | "
+            f"{_m0(tr['clairvoyant']['pos_rmse_m'])} ({_fmt_ratio(res['ratio_vs_imm2']['clairvoyant'], few)}) | "
             f"{100 * p['track_loss_rate']:.1f} % / " + (f"{100 * b['track_loss_rate']:.1f} % / " if bp else "")
             + f"{100 * tr['imm2']['track_loss_rate']:.1f} % | {_pct(h)} |")
     return "\n".join(lines)
@@ -259,7 +271,7 @@ def spread_table(data):
         for r in recipes:
             for key in ("ratio_vs_imm2", "ratio_vs_strongest"):
                 v = [res["policies"][s][key][0] for s in _seeds(data, r)]
-                cells.append(f"{np.mean(v):.3f} / {np.max(v):.3f}")
+                cells.append(_mean_worst(v))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
