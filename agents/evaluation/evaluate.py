@@ -37,8 +37,8 @@ from agents.policies.loading import load_policy
 from agents.evaluation.downstream import intercept_metrics, warning_metrics
 from radar_env.common.files import (check_output_dir, check_output_file, file_type, move_replacing, same_file,
                                      write_text_replacing)
-from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, evaluate_run, failed_runs,
-                                       jsonable, ratio_ci, score_run)
+from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, comparable_rmse, evaluate_run,
+                                       failed_runs, jsonable, ratio_ci, score_run)
 from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser
 from agents.evaluation.scores import REFERENCE_RMSE_M, normalised_score
 from agents.evaluation.progress import Progress
@@ -157,8 +157,7 @@ def evaluate(suites, trackers, policy_path=None, reference="imm2", progress=True
             if r.error is not None:
                 m["error"] = r.error
             m.update(_downstream(suite, episodes, batch, r, scores[t].failed))
-            # 0 = kf_tuned, 100 = rbpf, whose constants pool every run: a tracker that failed runs has none
-            if suite in REFERENCE_RMSE_M and _finite(m["pos_rmse_m"]) and not m["failed_runs"]:
+            if suite in REFERENCE_RMSE_M and comparable_rmse(m):     # 0 = kf_tuned, 100 = rbpf (pooled, every run)
                 m["score"] = normalised_score(suite, float(m["pos_rmse_m"]))
             _note_undefined(m)
             res["trackers"][t] = m
@@ -186,15 +185,13 @@ def bounds_beaten(trackers, range_rate=RANGE_RATE_TRACKERS):
     bounds filter the position plots only, so the trackers in ``range_rate`` (which also update on the radial
     velocity: a measurement the bounds do not use) are not compared with them. Only trackers that failed no run
     are compared (a pooled RMSE over fewer runs is not comparable)."""
-    def whole(m):
-        return m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"]) and not m.get("failed_runs")
     real = {t: m["pos_rmse_m"] for t, m in trackers.items()
-            if t not in BOUND_TRACKERS and t not in range_rate and whole(m)}
+            if t not in BOUND_TRACKERS and t not in range_rate and comparable_rmse(m)}
     if not real:
         return {}
     best = min(real, key=real.get)
     return {t: {"pos_rmse_m": m["pos_rmse_m"], "beaten_by": best, "beaten_by_pos_rmse_m": real[best]}
-            for t, m in trackers.items() if t in BOUND_TRACKERS and whole(m) and m["pos_rmse_m"] > real[best]}
+            for t, m in trackers.items() if t in BOUND_TRACKERS and comparable_rmse(m) and m["pos_rmse_m"] > real[best]}
 
 
 def _downstream(suite, episodes, batch, run, failed=None):
@@ -404,8 +401,7 @@ def _draw_figure(item):
 def figure_processes(n_items):
     """How many processes draw the figures: one per usable core, at most 4 and at most one per figure; 1 where
     forking is not the way processes start (macOS, Windows) or with one core."""
-    import multiprocessing as mp
-    if "fork" not in mp.get_all_start_methods() or sys.platform != "linux":
+    if sys.platform != "linux":
         return 1
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(cores, 4, n_items))

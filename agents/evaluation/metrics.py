@@ -58,7 +58,15 @@ from radar_env.envs.observation import measurement_sigma_m
 
 __all__ = ["region_masks", "evaluate_run", "ratio_ci", "failed_runs", "lost_runs", "common_runs", "errors",
            "RunScore", "score_run", "positive_definite", "nees_values", "NEES_95_4DOF", "FEW_RUNS", "MAX_ERROR_M",
-           "MIN_VALID_NEES_SHARE"]
+           "MIN_VALID_NEES_SHARE", "comparable_rmse"]
+
+def comparable_rmse(m):
+    """Whether a tracker's metrics ``m`` (:func:`evaluate_run`'s dict, or a report's copy of it) have a pooled position
+    RMSE that compares with the other trackers' of its suite and with references pooled over every run: finite, and
+    no failed run (a pooled RMSE over the runs a tracker did not fail covers other runs than theirs)."""
+    v = m.get("pos_rmse_m")
+    return v is not None and bool(np.isfinite(v)) and not m.get("failed_runs")
+
 
 NEES_95_4DOF = float(chdtri(4, 1.0 - 0.95))   # chi2.ppf(0.95, 4), bit for bit, without importing scipy.stats
 FEW_RUNS = 20

@@ -36,7 +36,7 @@ from agents.policies.loading import load_policy
 from agents.policies.learned_imm import is_learned_imm_checkpoint
 from agents.policies.recurrent import is_recurrent_checkpoint
 from agents.policies.window_correction import is_window_correction
-from agents.evaluation.metrics import FEW_RUNS, evaluate_run, ratio_ci
+from agents.evaluation.metrics import FEW_RUNS, comparable_rmse, evaluate_run, ratio_ci
 from agents.reports.report import headroom_share
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, HELDOUT_FAMILY_SUITES, draw_suite
 
@@ -140,7 +140,7 @@ def evaluate_suite(suite, episodes, policies, bounds=()):
     runs = {t: run_tracker(t, episodes) for t in CLASSICAL + tuple(bounds)}
     metrics = {t: evaluate_run(batch, r) for t, r in runs.items()}
     ok = {t: m for t, m in metrics.items() if t in CLASSICAL and np.isfinite(m["pos_rmse_m"])}
-    whole = {t: m for t, m in ok.items() if not m["failed_runs"]}       # pooled over the same (all) runs
+    whole = {t: m for t, m in ok.items() if comparable_rmse(m)}        # pooled over the same (all) runs
     strongest = min(whole or ok, key=lambda t: (whole or ok)[t]["pos_rmse_m"])
     res = {"runs": len(episodes), "few_runs": len(episodes) < FEW_RUNS,
            "looks_per_run_mean": float(batch.n_looks.mean()), "strongest_classical": strongest,

@@ -17,7 +17,7 @@ import numpy as np
 from agents.evaluation.evaluate import default_runs, evaluate, table_notes
 from agents.evaluation.metrics import jsonable
 from agents.policies.bundle import BUNDLED_POLICIES, BUNDLED_POLICY
-from agents.evaluation.metrics import FEW_RUNS
+from agents.evaluation.metrics import FEW_RUNS, comparable_rmse
 from agents.evaluation.scores import MIN_REFERENCE_GAP, normalised_score, reference_constants
 from baselines.registry import BOUND_TRACKERS
 from agents.evaluation.suites import DEFAULT_SUITES, EVAL_SEED_BASE, draw_suite, run_scenario
@@ -112,8 +112,7 @@ def headroom_share(res, tracker="policy", low="imm2", ceiling="hindsight_q"):
     negative = worse). ``None`` where a tracker is missing, non-finite, failed a run (its pooled RMSE would cover
     other runs than the others'), or the headroom is not positive."""
     ms = [res["trackers"].get(t) for t in (tracker, low, ceiling)]
-    if any(m is None or m.get("pos_rmse_m") is None or not np.isfinite(m["pos_rmse_m"]) or m.get("failed_runs")
-           for m in ms):
+    if any(m is None or not comparable_rmse(m) for m in ms):
         return None
     a, b, c = (m["pos_rmse_m"] for m in ms)
     return None if b - c <= 0 else (b - a) / (b - c)
@@ -134,9 +133,7 @@ def scores_table(results, names=None):
         cells = []
         for t in names:
             m = res["trackers"].get(t)      # none for a tracker that failed runs (the references pool every run)
-            ok = m is not None and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"]) \
-                and not m.get("failed_runs")
-            v = normalised_score(suite, m["pos_rmse_m"], refs) if ok else None
+            v = normalised_score(suite, m["pos_rmse_m"], refs) if m is not None and comparable_rmse(m) else None
             cells.append("-" if v is None else str(int(round(v))))
         lines.append(f"| {suite} | " + " | ".join(cells) + " |")
     unscored = [s for s in results if s not in refs]
@@ -317,8 +314,7 @@ def main(argv=None):
     for suite, res in results.items():      # agents.evaluation.scores.REFERENCE_RMSE_M is updated from them)
         for m in res["trackers"].values():
             m.pop("score", None)
-            if (suite in refs and m.get("pos_rmse_m") is not None and np.isfinite(m["pos_rmse_m"])
-                    and not m.get("failed_runs")):
+            if suite in refs and comparable_rmse(m):
                 m["score"] = normalised_score(suite, float(m["pos_rmse_m"]), refs)
     fig_dir = docs / "figures"
     suite_figures(runs, fig_dir, args.seed)
