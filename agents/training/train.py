@@ -185,8 +185,8 @@ def check_train_hp(algo, hp):
     _check_hp(algo, {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo], hp)
     env_kwargs = dict(hp.get("env_kwargs") or {})
     if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
-        raise ValueError(f"--hp env_kwargs: scenario must be one of {list(TRAIN_SCENARIOS)} (the random generators), "
-                         f"got {env_kwargs['scenario']!r}")
+        raise ValueError(f"--hp env_kwargs: training uses the random scenario generators only (scenario must be one "
+                         f"of {list(TRAIN_SCENARIOS)}, got {env_kwargs['scenario']!r})")
     try:
         EnvConfig.from_kwargs(**env_kwargs)
     except (TypeError, ValueError) as e:
@@ -268,15 +268,11 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
     from agents.training.sb3_vec import make_sb3_vec_env
 
     torch.set_num_threads(1)
-    if algo not in ALGOS:
-        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     hp = dict(hp)
+    check_train_hp(algo, hp)            # the one check (radar-track sweep's too), before any folder is made
     cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
-    kwargs = _check_hp(algo, cls, hp)
+    kwargs = {k: v for k, v in hp.items() if k not in _SPECIAL}
     env_kwargs = dict(hp.get("env_kwargs") or {})
-    if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
-        raise ValueError(f"training uses the random scenario generators only (env_kwargs.scenario must be one of "
-                         f"{list(TRAIN_SCENARIOS)}, got {env_kwargs['scenario']!r})")
     if env_kwargs.get("scenario") == "random":
         env_kwargs.pop("scenario")
     act = env_kwargs.setdefault("action_type", "continuous" if algo == "sac" else "discrete")
