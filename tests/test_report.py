@@ -63,3 +63,19 @@ def test_the_scores_table_leaves_out_a_tracker_that_failed_runs():
                                    "y": {"pos_rmse_m": 50.0, "failed_runs": 3}}}}
     row = scores_table(res).splitlines()[2]
     assert row == "| random | 0 | 100 | - | - |"
+
+
+def test_per_flight_rmse_refuses_a_flight_without_scored_looks():
+    """A flight whose looks all precede the track start would get a NaN RMSE: refused, naming it."""
+    import pytest
+    from agents.evaluation.suites import draw_suite
+    from agents.reports.report import per_flight_rmse, per_flight_table
+    from baselines.registry import run_tracker
+    from radar_env.sim.episode import stack_episodes
+    eps = draw_suite("random", 2, seed=10_000_000)
+    batch, run = stack_episodes(eps), run_tracker("imm2", eps)
+    table = per_flight_table(per_flight_rmse(batch, {"imm2": run}, ["imm2"]))
+    assert table.count("\n") == 4 and "nan" not in table
+    run.start_index[1] = batch.n_looks[1]           # nothing of flight 1 is scored
+    with pytest.raises(ValueError, match=f"flight {batch.names[1]!r} has no scored look after imm2's"):
+        per_flight_rmse(batch, {"imm2": run}, ["imm2"])

@@ -210,12 +210,18 @@ def downstream_tables(results, trackers):
 def per_flight_rmse(batch, suite_runs, trackers):
     """Position RMSE (m) per ADS-B flight and tracker, JSON-able (stored as ``results["adsb_calibration"]
     ["per_flight"]`` so the README table renders from docs/results.json alone): ``{"trackers": [...], "flights":
-    [{"flight", "looks", "maneuvering_pct", "rmse_m": {tracker: m, or None where the tracker failed the flight}}]}``."""
+    [{"flight", "looks", "maneuvering_pct", "rmse_m": {tracker: m, or None where the tracker failed the flight}}]}``.
+    A flight without a scored look (after a tracker's track start) is refused, naming it: its RMSE would be NaN."""
     from agents.evaluation.metrics import errors, failed_runs, region_masks
     names = [t for t in trackers if t in suite_runs]
     used0 = region_masks(batch, suite_runs[names[0]].start_index)["used"]
     per = {t: (region_masks(batch, suite_runs[t].start_index)["used"], errors(batch, suite_runs[t])[0],
                failed_runs(batch, suite_runs[t])) for t in names}
+    for t, (used, _, _) in per.items():
+        empty = np.flatnonzero(~used.any(axis=1))
+        if empty.size:
+            raise ValueError(f"per_flight_rmse: flight {batch.names[empty[0]]!r} has no scored look after "
+                             f"{t}'s track start: no RMSE to report")
     flights = []
     for b, flight in enumerate(batch.names):
         rmse = {t: None if fail[b] else float(np.sqrt(np.mean(e[b][used[b]] ** 2))) for t, (used, e, fail) in
