@@ -41,8 +41,9 @@ def main(argv=None):
         return 0
     cmd, rest = argv[0], argv[1:]
     if cmd == "evaluate":
-        from agents.evaluation.options import build_parser, first_line
+        from agents.evaluation.options import build_parser, check_numbers, first_line
         args = build_parser().parse_args(rest)          # --help and option errors: here, before the trackers load
+        check_numbers(args)
         if not args.quiet:
             print(first_line(args), file=sys.stderr, flush=True)
         with _interrupt_in_one_line(cmd):
@@ -50,8 +51,10 @@ def main(argv=None):
             evaluate_main(rest)
         return 0
     if cmd == "tune":
-        from baselines.tuning_options import build_parser, first_line
-        print(first_line(build_parser().parse_args(rest)), file=sys.stderr, flush=True)
+        from baselines.tuning_options import build_parser, check_options, first_line
+        args = build_parser().parse_args(rest)
+        check_options(args)
+        print(first_line(args), file=sys.stderr, flush=True)
         with _interrupt_in_one_line(cmd):
             from baselines.tuning import main as tune_main
             tune_main(rest)

@@ -52,7 +52,7 @@ from . import trackers as T
 from .seeds import TUNING_SEEDS, draw_random_episodes
 from .trackers import imm2_spec_from_params
 from .tuned_params import TUNED_PATH, kf_q_m_s2_from_params
-from .tuning_options import TUNABLE, build_parser
+from .tuning_options import TUNABLE, build_parser, check_options
 
 __all__ = ["Param", "TunedTracker", "TUNED_TRACKERS", "IMM2_GRID_PARAMS", "minimize_with_restarts", "tune",
            "pooled_rmse", "main"]
@@ -372,24 +372,12 @@ def tune(entry: TunedTracker, episodes, batch, cfg, x0=None, starts=3, seed=0, p
     return out
 
 
-MAX_TUNING_RUNS = 50_000
-"""``--runs`` at most: 50,000 random flights are about 5.5 GB (measured 0.11 MB per flight), inside the tuning seeds."""
-
-
 def main(argv=None, prog="radar-track tune"):
     """``radar-track tune`` (options: :mod:`baselines.tuning_options`)."""
     args = build_parser(prog).parse_args(argv)
+    names = check_options(args)
     args.out = _output_path(args)
-    if not 1 <= args.runs <= MAX_TUNING_RUNS:
-        raise SystemExit(f"error: --runs must be in [1, {MAX_TUNING_RUNS:,}] (the episodes, about 0.1 MB each, are "
-                         f"held in memory at once), got {args.runs}")
-    if args.starts < 1:
-        raise SystemExit(f"error: --starts must be >= 1, got {args.starts}")
-    names = [t.strip() for t in args.trackers.split(",") if t.strip()]
     valid = list(TUNABLE)
-    bad = [t for t in names if t not in valid]
-    if bad or not names:
-        raise SystemExit(f"error: --trackers: expected names from {valid}, got {args.trackers!r}")
     old = {}         # previous values: the file replaced, else the shipped ones (the starts and the kept entries)
     for src in (args.out, TUNED_PATH):
         try:

@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["build_parser", "first_line", "TUNABLE"]
+__all__ = ["build_parser", "check_options", "first_line", "TUNABLE", "MAX_TUNING_RUNS"]
 
 TUNABLE = ("kf", "imm2", "imm_cv_ct", "kf_rdot", "imm2_rdot", "imm_cv_ct_rdot", "imm_ct_bank", "imm_ct_bank_rdot")
 """The tuned trackers' keys in ``tuned.json`` (:func:`baselines.tuning.tuned_tracker`)."""
+
+MAX_TUNING_RUNS = 50_000
+"""``--runs`` at most: 50,000 random flights are about 5.5 GB (measured 0.11 MB per flight), held in memory at once,
+inside the tuning seeds."""
 
 
 def build_parser(prog="radar-track tune"):
@@ -34,6 +38,21 @@ def build_parser(prog="radar-track tune"):
                     help="write baselines/tuned.json, the shipped parameters every later evaluation reads (the "
                          "command says what it replaced) (default: off)")
     return ap
+
+
+def check_options(args):
+    """``--runs``, ``--starts`` and ``--trackers`` checked (a ``SystemExit`` naming the option), before the first line
+    is printed and again by :func:`baselines.tuning.main`."""
+    if not 1 <= args.runs <= MAX_TUNING_RUNS:
+        raise SystemExit(f"error: --runs must be in [1, {MAX_TUNING_RUNS:,}] (the episodes, about 0.1 MB each, are "
+                         f"held in memory at once), got {args.runs}")
+    if args.starts < 1:
+        raise SystemExit(f"error: --starts must be >= 1, got {args.starts}")
+    names = [t.strip() for t in args.trackers.split(",") if t.strip()]
+    bad = [t for t in names if t not in TUNABLE]
+    if bad or not names:
+        raise SystemExit(f"error: --trackers: expected names from {list(TUNABLE)}, got {args.trackers!r}")
+    return names
 
 
 def first_line(args):

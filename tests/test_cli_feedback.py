@@ -112,6 +112,23 @@ def test_first_line_comes_before_the_slow_imports(args, words):
     assert t < base + 2.0, (t, base)
 
 
+@pytest.mark.parametrize("args, error", [
+    (["evaluate", "--seed", "-1"], "error: --seed must be an integer >= 0, got -1"),
+    (["evaluate", "--runs", "0"], "error: --runs must be >= 1, got 0"),
+    (["evaluate", "--workers", "0"], "error: --workers must be >= 1, got 0"),
+    (["tune", "--runs", "0"], "error: --runs must be in [1, 50,000]"),
+    (["tune", "--starts", "0"], "error: --starts must be >= 1, got 0"),
+    (["tune", "--trackers", "kf,nope"], "error: --trackers: expected names from"),
+])
+def test_a_bad_number_is_refused_before_the_first_line(args, error, capsys):
+    """The one-line error alone: no "radar-track ...: ... loading the trackers" line announcing work first."""
+    from agents.cli import main
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert str(e.value).startswith(error)
+    assert capsys.readouterr().err == ""
+
+
 def test_list_prints_every_suite_and_tracker(capsys):
     from agents.evaluation.evaluate import main
     from baselines.registry import TRACKER_NAMES

@@ -39,7 +39,7 @@ from radar_env.common.files import (check_output_dir, check_output_file, file_ty
                                      write_text_replacing)
 from agents.evaluation.metrics import (FEW_RUNS, MIN_VALID_NEES_SHARE, common_runs, comparable_rmse, evaluate_run,
                                        failed_runs, jsonable, ratio_ci, score_run)
-from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser
+from agents.evaluation.options import DEFAULT_TRACKERS, OLD_OPTION_KINDS, OLD_OPTIONS, build_parser, check_numbers
 from agents.evaluation.scores import REFERENCE_RMSE_M, normalised_score
 from agents.evaluation.progress import Progress
 from agents.evaluation.runner import run_one
@@ -648,12 +648,7 @@ def main(argv=None, prog="radar-track evaluate"):
     if csv_scenarios:
         args.scenario = [n for n in args.scenario if n not in csv_scenarios]
         args.trajectory = list(args.trajectory or []) + csv_scenarios
-    if args.seed < 0:
-        raise SystemExit(f"error: --seed must be an integer >= 0, got {args.seed}")
-    if args.runs is not None and args.runs < 1:
-        raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
-    if args.workers < 1:
-        raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
+    check_numbers(args)
     sources = _learned_sources(args)    # learned tracker name -> (option, name or path, kinds it may have)
     for spec in args.tracker_module or []:
         try:

@@ -14,7 +14,8 @@ from agents.policies.bundle import BUNDLED_POLICIES
 from agents.policies.learned import BUNDLED_LEARNED
 from baselines.seeds import EVAL_SEED_BASE
 
-__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "OLD_OPTIONS", "OLD_OPTION_KINDS", "build_parser", "first_line"]
+__all__ = ["DEFAULT_TRACKERS", "DEFAULT_SUITES", "OLD_OPTIONS", "OLD_OPTION_KINDS", "build_parser", "check_numbers",
+           "first_line"]
 
 OLD_OPTIONS = {"policy": "--policy", "policy_bp": "--policy-bp", "policy_imm_bp": "--policy-imm-bp",
                "policy_imm_ppo": "--policy-imm-ppo"}
@@ -122,6 +123,17 @@ def build_parser(prog="radar-track evaluate"):
     ap.add_argument("--list", action="store_true",
                     help="print every suite and built-in tracker name and exit (default: evaluate)")
     return ap
+
+
+def check_numbers(args):
+    """The numeric options' ranges (``--seed``, ``--runs``, ``--workers``), checked before the first line is printed
+    and again by :func:`agents.evaluation.evaluate.main` (a ``SystemExit`` naming the option)."""
+    if args.seed < 0:
+        raise SystemExit(f"error: --seed must be an integer >= 0, got {args.seed}")
+    if args.runs is not None and args.runs < 1:
+        raise SystemExit(f"error: --runs must be >= 1, got {args.runs}")
+    if args.workers < 1:
+        raise SystemExit(f"error: --workers must be >= 1, got {args.workers}")
 
 
 def first_line(args):
