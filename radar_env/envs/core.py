@@ -101,6 +101,7 @@ class _Core:
         self._ready = np.zeros(n, dtype=bool)          # rows whose next draw is prepared (autoreset)
         self._keys = np.zeros(n, dtype=np.uint64)      # ... as the drawer's key
         self._prepared = [None] * n                    # ... or, for a pool, as an episode
+        self._rng_state = [None] * n                   # ... and the row's generator state before it
 
     action_shape = ()
     """The shape of one row's action."""
@@ -246,7 +247,10 @@ class _Core:
             det.start(rows, self.tracker._st)  # the IMMs start where the chain's track starts
 
     def _prepare(self, rows):
-        """Take the next draw of ``rows`` from their generators now (the draw of their next reset)."""
+        """Take the next draw of ``rows`` from their generators now (the draw of their next reset), keeping each
+        generator's state before it (an explicit reset puts it back: :meth:`reset`)."""
+        for r in rows:
+            self._rng_state[r] = self.rngs[r].bit_generator.state
         if self.drawer is not None:
             self._keys[rows] = _keys([self.rngs[r] for r in rows])
         else:
@@ -254,9 +258,15 @@ class _Core:
                 self._prepared[r] = e
         self._ready[rows] = True
 
-    def reset(self, scenario=None):
-        """Every row draws a new episode from its generator (prepared draws are discarded) and starts it. Returns
-        the output blocks ``(obs, fo, fs, bo)`` and the reward's inconsistency term (None unless weighted)."""
+    def reset(self, scenario=None, keep=None):
+        """Every row draws a new episode from its generator and starts it. Returns the output blocks ``(obs, fo, fs,
+        bo)`` and the reward's inconsistency term (None unless weighted). A row whose next draw an autoreset already
+        took (:meth:`_prepare`) has its generator put back to the state before that draw where ``keep`` (bool (n,):
+        the rows whose generator the caller did not replace), so it draws what a single env with its generator
+        draws now, whatever the batch and whatever ``scenario``; elsewhere the prepared draw is dropped."""
+        if keep is not None:
+            for r in np.flatnonzero(self._ready & np.asarray(keep, dtype=bool)):
+                self.rngs[r].bit_generator.state = self._rng_state[r]
         self._ready[:] = False
         blocks = self._blocks()
         self._start(self._all, blocks, scenario)

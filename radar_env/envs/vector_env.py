@@ -30,8 +30,10 @@ class RadarTrackVectorEnv(VectorEnv):
     ``s + i``, as Gymnasium's ``SyncVectorEnv`` does, so row i equals ``RadarTrackEnv`` reset with ``s + i``.
     Finished rows start their next tracks inside the same step (drawn straight into the tracker and started by one
     kernel call; each row's next draw is prepared from its own generator, all rows without one at once when a
-    finishing row has none); an explicit ``reset()`` without a seed discards those prepared draws, so after it the
-    rows continue from their generators' advanced state.
+    finishing row has none). An explicit ``reset()`` resets each row as Gymnasium's ``SyncVectorEnv`` does: a row
+    given a seed (``seed=s``: every row, ``s + i``; a list: its entry) starts from it, a row given None continues
+    its generator from where the single env's would be (a draw prepared from it is put back), so row i's episodes
+    stay the single env's whatever the batch.
     ``num_threads`` (default 1): threads of the per-row step kernel and of the next episodes' draws (numba
     ``prange`` over blocks of rows; the parallel builds compile on the first use of ``num_threads > 1``, about as
     long as the serial ones). An integer in ``[1, numba.config.NUMBA_NUM_THREADS]``. Every output is
@@ -104,10 +106,12 @@ class RadarTrackVectorEnv(VectorEnv):
             seeds = [None if s is None else int(s) for s in seeds]      # numpy integers as Python ones (gymnasium)
         if any(s is not None and s < 0 for s in seeds):
             raise ValueError(f"seed must be >= 0 (each row's), got {seed!r}"[:300])
-        if seed is not None or not self._started:
-            self._core.rngs = [seeding.np_random(s)[0] for s in seeds]
         core = self._core
-        (obs, fo, fs, bo), inc = core.reset(scenario)
+        # as Gymnasium's sync env resets each row: a seeded row gets a new generator, an unseeded one (after the
+        # first reset) continues its own, from before the draw an autoreset may have prepared
+        keep = np.array([s is None and self._started for s in seeds])
+        core.rngs = [core.rngs[i] if keep[i] else seeding.np_random(s)[0] for i, s in enumerate(seeds)]
+        (obs, fo, fs, bo), inc = core.reset(scenario, keep)
         self._started = True
         return obs, _with_masks(core.info(fo, fs, bo, inc))
 
