@@ -13,7 +13,7 @@ import numpy as np
 
 from .common.units import G0_M_S2
 
-__all__ = ["render_frame", "FRAME_SHAPE", "human_display_problem"]
+__all__ = ["render_frame", "close_render", "FRAME_SHAPE", "human_display_problem"]
 
 FRAME_SHAPE = (640, 640, 3)
 _BG, _FG, _DIM = "#03140a", "#39ff88", "#1d6b3f"
@@ -130,6 +130,7 @@ def render_frame(env):
         import matplotlib.pyplot as plt
         if getattr(env, "_human_fig", None) is None:
             env._human_fig, env._human_ax = plt.subplots(figsize=(6.4, 6.4))
+            env._human_was_interactive = plt.isinteractive()
             plt.ion()
         env._human_ax.clear()
         env._human_ax.imshow(frame)
@@ -137,3 +138,16 @@ def render_frame(env):
         plt.pause(1.0 / env.metadata["render_fps"])
         return None
     return frame
+
+
+def close_render(env):
+    """Release what :func:`render_frame` made for ``env``: the ``human`` window (closed, and pyplot's interactive
+    mode put back as it was before the window opened) and the off-screen figure. A later ``render()`` makes them
+    again."""
+    fig = getattr(env, "_human_fig", None)
+    if fig is not None:
+        import matplotlib.pyplot as plt
+        plt.close(fig)
+        if not getattr(env, "_human_was_interactive", True):
+            plt.ioff()
+    env._human_fig = env._human_ax = env._fig = env._canvas = None

@@ -260,8 +260,9 @@ def test_refusals_name_the_argument(kw, match):
 def test_action_refusals():
     env = gym.make("RadarTrack-v0", action_type="continuous", **IMM)
     env.reset(seed=0)
-    for bad, match in ((np.zeros(6), "7 values"), (np.full(7, 1.5), r"finite values in \[-1, 1\]"),
-                       (np.full(7, np.nan), r"in \[-1, 1\]"), (np.array(["a"] * 7), "real number")):
+    for bad, match in ((np.zeros(6), r"shape \(7,\)"), (np.zeros((7, 1)), r"shape \(7,\).*got shape \(7, 1\)"),
+                       (np.full(7, 1.5), r"finite values in \[-1, 1\]"), (np.full(7, np.nan), r"in \[-1, 1\]"),
+                       (np.array(["a"] * 7), "real number")):
         with pytest.raises(ValueError, match=match):
             env.step(bad)
     denv = gym.make("RadarTrack-v0", action_type="discrete", **IMM)

@@ -119,6 +119,20 @@ def test_vector_env_refuses_wrong_action_shape(action_type, bad):
     venv.step(ok)   # the right shape still works after the refusal
 
 
+@pytest.mark.parametrize("action_type, good, bad", [("discrete", (4, np.int64(4), np.array(4)),
+                                                     (np.array([4]), np.array([[4]]))),
+                                                    ("continuous", (0.1, np.array([0.1])), (np.array([[0.1]]),))])
+def test_single_env_takes_its_spaces_shape_or_one_number(action_type, good, bad):
+    """Main took any array with the right number of elements ([[4]] as 4); now the space's shape or a scalar."""
+    env = RadarTrackEnv(action_type=action_type)
+    env.reset(seed=0)
+    for a in good:
+        env.step(a)
+    for a in bad:
+        with pytest.raises(ValueError, match=rf"got shape \({a.shape[0]},"):
+            env.step(a)
+
+
 BAD_KINDS = {"str": "3", "complex": 3 + 0j, "bool": True, "none": None}
 
 
@@ -274,6 +288,34 @@ def test_human_render_mode_without_a_window_is_refused_at_build():
         plt.switch_backend(before)
 
 
+def test_close_releases_the_human_window_and_pyplots_mode(monkeypatch):
+    """The human window is pyplot's (interactive mode switched on for it): close() closes it and puts the mode back.
+    Drawn with the Agg backend, the display check bypassed (no window on a test machine)."""
+    pytest.importorskip("matplotlib")
+    import warnings
+    import matplotlib.pyplot as plt
+    from radar_env import render
+    before = plt.get_backend()
+    plt.switch_backend("agg")
+    monkeypatch.setattr(render, "human_display_problem", lambda: None)
+    plt.ioff()
+    try:
+        env = gym.make(ENV_ID, render_mode="human")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # Agg: "cannot be shown"
+            env.reset(seed=0)
+            env.step(3)
+        fig = env.unwrapped._human_fig
+        assert plt.fignum_exists(fig.number) and plt.isinteractive()
+        env.close()
+        assert not plt.fignum_exists(fig.number) and not plt.isinteractive()
+        assert env.unwrapped._fig is None
+        env.close()                                # twice: nothing left to close
+    finally:
+        plt.ioff()
+        plt.switch_backend(before)
+
+
 # ------------------------------------------------------------------------------------------------ vector wrappers
 def _rollout(venv, n_steps=150):
     obs, _ = venv.reset(seed=5)
@@ -314,6 +356,32 @@ def test_readme_vector_env_combinations():
                      vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}, **kw)
     w.reset(seed=0)
     w.step(np.array([3, 3]))
+
+
+@pytest.mark.parametrize("second_seed, options", [(None, None), ([None, 7, None], None),
+                                                  (None, {"scenario": "kim_lee_accel"}),
+                                                  (None, {"scenario": "adsb_dev"})])    # a pool (AdsbPool)
+def test_unseeded_reset_after_autoresets_keeps_each_row_the_single_envs(second_seed, options):
+    """An explicit reset() without a seed (or with None for a row) after some rows ended: each such row continues its
+    generator from where a single env's would be (an autoreset's prepared draw is put back), so the native env
+    equals sync with same-step autoreset row for row, and row 0 does not depend on the batch."""
+    def run(mode, n=3):
+        kw = {} if mode == "vector_entry_point" else {"vector_kwargs": {"autoreset_mode": AutoresetMode.SAME_STEP}}
+        v = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode=mode, **kw)
+        v.reset(seed=5)
+        for _ in range(150):
+            v.step(np.full(n, 4))
+        if mode == "vector_entry_point" and n == 3:
+            core = v.unwrapped._core
+            assert core._ready.any() and not core._ready.all()      # rows ended at different steps
+        out = [v.reset(seed=second_seed if n == 3 else None, options=options)[0]]
+        for _ in range(30):
+            out.append(v.step(np.full(n, 4))[0])
+        return np.stack(out)
+    native = run("vector_entry_point")
+    assert native.tobytes() == run("sync").tobytes()
+    if second_seed is None:
+        assert native[:, :1].tobytes() == run("vector_entry_point", n=1).tobytes()
 
 
 # ------------------------------------------------------------------------------------------------ bundled policy

@@ -245,9 +245,10 @@ class RadarTrackEnv(gym.Env):
         a = np.asarray(action)
         core = self._core
         size = math.prod(core.action_shape)
-        if a.size != size:
-            what = "a single value" if size == 1 else f"{size} values"
-            raise ValueError(f"action must be {what} ({self.action_space}), got {action!r}")
+        if a.shape != self.action_space.shape and not (size == 1 and a.shape == ()):
+            what = "a single number or shape (1,)" if size == 1 and a.shape != () and self.action_space.shape else (
+                "a single number" if size == 1 else f"shape {self.action_space.shape}")
+            raise ValueError(f"action must be {what} ({self.action_space}), got shape {a.shape}")
         (obs, fo, fs, bo), rew, _, _, inc, _ = core.step(a.reshape((1,) + core.action_shape))
         info = core.info_row(fo, fs, bo, inc)
         term, trunc = info["track_lost"], bool(bo[BO_TRUNC, 0])
@@ -277,6 +278,13 @@ class RadarTrackEnv(gym.Env):
                 "sites": np.unique(tr.look_data("site_xy_m")[0, :k], axis=0),
                 "estimates": np.array([h[0] for h in self._history]), "P": P, "q_m_s2": q, "time_s": t,
                 "features": feats}
+
+    def close(self):
+        """Close the ``human`` window and release the render figures (if rendered); the env may be reset again."""
+        if getattr(self, "_fig", None) is not None or getattr(self, "_human_fig", None) is not None:
+            from ..render import close_render
+            close_render(self)
+        super().close()
 
     def render(self):
         """A radar-scope frame: RGB array ``radar_env.render.FRAME_SHAPE`` (``rgb_array``) or a window (``human``)."""

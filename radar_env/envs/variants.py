@@ -6,7 +6,7 @@ into), so ``gym.make(id)`` builds exactly the env a bundled learned tracker was 
 argument may still be overridden (``gym.make(id, scenario="bizup2002")``), an unknown one is a ``ValueError``
 naming it. tests/test_env_ids.py checks that each bundled policy's ``env_config.json`` equals its id's kwargs
 (:data:`agents.policies.bundle.BUNDLED_ENV_IDS`), so the two cannot drift, and that every id passes Gymnasium's
-``check_env``.
+``check_env`` (``skip_render_check=True`` without a display, where ``render_mode="human"`` is refused at build).
 
 ``max_episode_steps`` stays ``None`` for every id: an episode is a flight, which ends by itself (the env reports
 ``truncated=True`` at the scenario's last look, ``terminated=True`` when the track is lost); a flight's length is
