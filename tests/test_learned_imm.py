@@ -166,26 +166,29 @@ def test_checkpoint_round_trip_without_pickle(setup, episodes, tmp_path):
 
 
 def test_tiny_training_run(tmp_path, setup):
-    """``train --method backprop --tracker imm_cv_ct`` end to end: the shared trainer runs the learned IMM; at step 0
-    it is imm_cv_ct (the validation's ratio is imm_cv_ct's); the output layer moves; the checkpoints are the learned
-    IMM's format."""
+    """``train --method backprop --tracker imm_cv_ct`` end to end, with its default chain (the compiled look): the
+    shared trainer runs the learned IMM; at step 0 it is its classical IMM (the validation's ratio is that IMM's); the
+    output layer moves; the checkpoints are the learned IMM's format. Around the bank of CT modes with 6 rows and a GRU
+    of 16, the shapes of test_compiled_look_equals_the_eager_look[bank]: one cold compile of the look serves both
+    (inductor's cache), about a minute of the suite's time."""
     from agents.training.train import main
     run = main(["--method", "backprop", "--tracker", "imm_cv_ct", "--out", str(tmp_path), "--name", "t", "--seed", "5",
                 "--no-progress", "--quiet", "--hp", "n_steps=2", "--hp", "batch_episodes=6", "--hp", "chunk_looks=8",
                 "--hp", "eval_every=1", "--hp", "hidden_size=16", "--hp", 'eval_scenarios={"random": 3}',
-                "--hp", 'select_on=["random"]'])
+                "--hp", 'select_on=["random"]', "--hp", 'imm="imm_ct_bank"'])
     s = json.loads((run / "summary.json").read_text())
     assert s["tracker"] == "imm_cv_ct" and s["steps"] == 2 and len(s["selection_history"]) == 3
     first = s["selection_history"][0]
     from agents.training.selection import pooled_rmse
     from radar_env.sim.episode import stack_episodes
     eps = draw_suite("random", 3, seed=900_000)
-    ref = pooled_rmse(stack_episodes(eps), run_tracker("imm_cv_ct", eps))
+    ref = pooled_rmse(stack_episodes(eps), run_tracker("imm_ct_bank", eps))
     assert first["random_rmse_m"] == pytest.approx(ref, rel=1e-9)            # it starts as imm_cv_ct
     assert LI.is_learned_imm_checkpoint(run / "best" / "policy.npz") and LI.is_learned_imm_checkpoint(run)
     w = np.load(run / "policy.npz", allow_pickle=False)["out.weight"]
     assert np.any(w != 0.0)                                                   # the output layer moved
-    assert json.loads((run / "config.json").read_text())["tracker"] == "imm_cv_ct"
+    config = json.loads((run / "config.json").read_text())
+    assert config["tracker"] == "imm_cv_ct" and config["imm"] == "imm_ct_bank"
 
 
 def test_a_learned_imm_runs_wherever_a_policy_runs(setup, tmp_path):
