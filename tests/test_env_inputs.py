@@ -76,6 +76,32 @@ def test_impossible_random_config_is_refused_at_build():
         gym.make(ENV_ID, warmup_scans=1000, random_config={"leg_duration_s": (30, 60)})
 
 
+@pytest.mark.parametrize("random_config, words", [
+    ({"range_km": (1, 6)}, r"flights did not stay in range_km=\(1.0, 6.0\).*widen range_km"),
+    ({"range_km": (1000, 1000)}, r"256 of 256 flights did not stay in range_km"),
+    ({"min_duration_s": 1e5}, r"min_duration_s=100000 s"),
+    ({"max_turn_rate_deg_s": 1e-8}, r"longest flight can last 1.35e\+11 s.*raise max_turn_rate_deg_s"),
+])
+def test_random_config_the_placement_cannot_serve_is_refused_at_build(random_config, words):
+    """Main built these and failed at a reset: range (1, 6) km at 22 of 3,000 seeds (after hundreds of episodes in a
+    vector env), the others at the first; a 1e-8 deg/s turn rate asked the placement for a 216 GB grid."""
+    for env_cls in (RadarTrackEnv, lambda **kw: RadarTrackVectorEnv(num_envs=2, **kw)):
+        with pytest.raises(ValueError, match=words):
+            env_cls(random_config=random_config)
+
+
+def test_a_narrow_range_that_is_accepted_draws_every_episode():
+    """range_km (1, 10): about two flights in three cannot be placed, so a draw tries up to 200 (0.65^200: never all
+    fail); 64 rows run through their autoresets."""
+    venv = RadarTrackVectorEnv(num_envs=64, random_config={"range_km": (1, 10)})
+    venv.reset(seed=3)
+    ends = 0
+    for _ in range(300):
+        _, _, te, tr, _ = venv.step(np.full(64, 4))
+        ends += int(np.sum(te | tr))
+    assert ends > 64
+
+
 def _draw_once(scenario, radar, random_config, rng):
     """The first attempt of a draw (warmup_scans=0 accepts every attempt with two hits, and the warm-up does not
     change what an attempt draws)."""
@@ -539,7 +565,8 @@ def test_radar_placement_in_blocks_equals_the_whole_grid(segments):
 
 def test_radar_placement_memory_does_not_grow_with_the_flight():
     """A 200 000 s flight (slow turns and long legs are valid): main held the whole (64, 100 001) grid (tens of
-    MB; with max_turn_rate_deg_s=1e-6 a 270 deg turn lasts 2.7e8 s and main ran out of memory)."""
+    MB; with max_turn_rate_deg_s=1e-6 a 270 deg turn lasts 2.7e8 s and main ran out of memory). Slow turns run
+    (1e-4 deg/s); 1e-6 deg/s, whose flights' placement grid could need 10.8 GB, is refused when built."""
     import tracemalloc
 
     from radar_env.sim.scenario import Segment, SegmentScenario, place_radar_site
@@ -551,6 +578,8 @@ def test_radar_placement_memory_does_not_grow_with_the_flight():
     finally:
         tracemalloc.stop()
     assert peak < 64 * 100_001 * 8 / 4   # a quarter of one (64, K) float64 array
-    env = RadarTrackEnv(random_config={"max_turn_rate_deg_s": 1e-6})
+    env = RadarTrackEnv(random_config={"max_turn_rate_deg_s": 1e-4})
     env.reset(seed=0)
     env.step(4)
+    with pytest.raises(ValueError, match="raise max_turn_rate_deg_s"):    # its flights' grid: up to 10.8 GB
+        RadarTrackEnv(random_config={"max_turn_rate_deg_s": 1e-6})

@@ -63,8 +63,22 @@ __all__ = ["draw_episodes", "random_scenarios", "LookDrawer", "MAX_EPISODE_DRAWS
 MAX_EPISODE_DRAWS = 200
 """Attempts per episode for one long enough for the track start (see the module docstring)."""
 
-RANDOM_SCENARIO_TRIES = 50
-"""Flights tried per attempt for one that stays in range (``random_scenario``'s ``max_tries``)."""
+RANDOM_SCENARIO_TRIES = 200
+"""Flights tried per attempt for one that stays in range (the per-episode ``random_scenario`` tries 50). A
+configuration is refused when built if one flight in :data:`PLACEMENT_PROBE` fails more often than
+:data:`MAX_PLACEMENT_FAILURE` (at its 99 % upper bound): then all 200 fail with a probability below 1e-12."""
+
+PLACEMENT_PROBE = 256
+"""Flights drawn (from a stream of their own, no row's) when a random configuration is built, to estimate how often
+one cannot be placed in ``range_km`` for ``min_duration_s``."""
+
+MAX_PLACEMENT_FAILURE = 0.87
+"""The most often a flight of an accepted configuration may fail to be placed (0.87^200 < 1e-12)."""
+
+MAX_PLACEMENT_GRID = 50_000_000
+"""The most grid points (one every 2 s of the uncut flight, 16 bytes each: 800 MB) the radar placement may hold for a
+flight; a configuration whose longest flight needs more (turns at a ``max_turn_rate_deg_s`` of 1e-6, up to 8.6 years
+long) is refused when built."""
 
 _GRID_DT_S = 2.0            # place_radar_site's grid
 _BLOCK = 256                # grid points evaluated at a time in the placement
@@ -713,7 +727,8 @@ def _too_few_draws(name, warmup_scans, max_draws):
         "range_km) or the radar faster / more reliable (scan_period_s, detection_probability)")
 
 
-def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws, num_threads=1):
+def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws, num_threads=1,
+                       max_tries=RANDOM_SCENARIO_TRIES):
     if radar is not None:
         mode, user = 2, _site_table(radar)
     else:
@@ -721,7 +736,47 @@ def _random_kernel_out(name, keys, cfg, radar, warmup_scans, max_draws, num_thre
     p = cfg.random_radar_probability if name == "random_radars" else 0.0
     smax = 3 * int(cfg.n_legs[1])
     return _run_rows(num_threads, keys.size, _random_rows, keys, _config_vector(cfg, p), _radar_ranges(), mode, user,
-                     int(warmup_scans), int(max_draws), RANDOM_SCENARIO_TRIES, smax)
+                     int(warmup_scans), int(max_draws), int(max_tries), smax)
+
+
+def longest_uncut_flight_s(cfg):
+    """An upper bound on a random flight's length before ``max_duration_s`` cuts it (s; closed form): every leg,
+    speed change and turn at its longest, as :func:`max_random_looks` without the cut. The radar placement looks at
+    the whole uncut flight."""
+    cf = _config_vector(cfg, 0.0)
+    v_lo, v_hi = cf[0], cf[1]
+    w_min = min(cf[7] * G0_M_S2 / v_hi, cf[14])
+    per_maneuver = cf[5] + (v_hi - v_lo) / cf[12] + cf[10] / w_min
+    return max(cf[21], cf[6]) + (int(cf[3]) - 1) * per_maneuver
+
+
+def check_placeable(name, cfg, radar, warmup_scans):
+    """Refuse (``ValueError``, naming the settings) a random configuration whose flights the radar placement cannot
+    handle: one whose longest flight needs more than :data:`MAX_PLACEMENT_GRID` grid points (closed form), or whose
+    flights fail to stay in ``range_km`` for ``min_duration_s`` so often (estimated on :data:`PLACEMENT_PROBE`
+    flights of a stream of their own) that a draw's :data:`RANDOM_SCENARIO_TRIES` tries could all fail during a run:
+    the draw would otherwise raise at a reset, possibly deep into a training run."""
+    longest = longest_uncut_flight_s(cfg)
+    if not longest / _GRID_DT_S <= MAX_PLACEMENT_GRID:
+        raise ValueError(f"random_config: its longest flight can last {longest:.3g} s (turns at "
+                         f"{cfg.max_turn_rate_deg_s:g} deg/s at most, {cfg.turn_accel_g[0]:g} g at {cfg.speed_kt[1]:g} "
+                         f"kt, speed changes at {cfg.speed_change_accel_g[0]:g} g), more than the radar placement can "
+                         f"evaluate ({MAX_PLACEMENT_GRID * _GRID_DT_S:.3g} s); raise max_turn_rate_deg_s, turn_accel_g "
+                         "or speed_change_accel_g, or shorten turn_heading_change_deg, leg_duration_s or n_legs")
+    status = _random_kernel_out(name, _probe_keys(), cfg, radar, warmup_scans, 1, max_tries=1)[-1]
+    n, k = status.size, int(np.count_nonzero(status == 2))
+    p = k / n
+    upper = p + 2.576 * math.sqrt(p * (1.0 - p) / n) + 1.0 / n
+    if upper > MAX_PLACEMENT_FAILURE:
+        raise ValueError(f"random_config: {k} of {n} flights did not stay in range_km={cfg.range_km} of any radar "
+                         f"site for min_duration_s={cfg.min_duration_s:g} s (at up to {cfg.speed_kt[1]:g} kt): a "
+                         f"draw's {RANDOM_SCENARIO_TRIES} tries could all fail during a run; widen range_km, lower "
+                         "min_duration_s or slow the flights (speed_kt)")
+
+
+def _probe_keys():
+    """The probe's keys: a stream of their own (no row's key is drawn from it)."""
+    return (np.arange(1, PLACEMENT_PROBE + 1, dtype=np.uint64) * _GAMMA) ^ np.uint64(0xD1B54A32D192ED03)
 
 
 def _draw_random(name, keys, cfg, radar, warmup_scans, max_draws):
@@ -910,6 +965,7 @@ class LookDrawer:
             most = max_random_looks(scenario, cfg, radar)
             if most < self.warmup_scans + 3:
                 raise _too_few_draws(scenario, self.warmup_scans, self.max_draws)
+            check_placeable(scenario, cfg, radar, self.warmup_scans)
             from .radar import MAX_LOOKS
             if most > MAX_LOOKS:        # refused at construction, before any allocation
                 raise ValueError(f"RadarSite.scan_period_s: {scenario!r} episodes can have up to {most:,.0f} looks "
