@@ -80,7 +80,7 @@ import numpy as np
 
 from radar_env.filters.features import MIN_DT_S, kim_lee_variance
 
-__all__ = ["kalata_gains", "tracking_index", "steady_state_covariance", "noise_only_innovation_variance", "run_alpha_beta", "AlphaBetaResult"]
+__all__ = ["kalata_gains", "kalata_m", "tracking_index", "steady_state_covariance", "noise_only_innovation_variance", "run_alpha_beta", "AlphaBetaResult"]
 
 INIT_VEL_VAR = 1e8
 """Velocity variance (m^2/s^2) after a single plot (velocity unknown)."""
@@ -99,24 +99,34 @@ def kalata_gains(tracking_index):
     ``m = sqrt(1 - alpha) = (lambda + 4 - s)/4 = 4/(lambda + 4 + s)``, eq 6 is ``alpha = 1 - m^2`` and eq 7 is
     ``beta = 2 (1 - m)^2`` (equal to the printed forms, checked in the tests). ``lambda = 0`` gives (0, 0);
     ``lambda -> inf`` gives (1, 2)."""
-    lam = np.asarray(tracking_index, dtype=np.float64)
-    s = np.sqrt(lam * lam + 8.0 * lam)
-    # sqrt(1 - alpha) = (lam + 4 - s)/4 = 4/(lam + 4 + s) since (lam + 4)^2 - s^2 = 16; 1 at lam = 0, -> 0 at inf.
-    m = 4.0 / (lam + 4.0 + s)
+    m = kalata_m(tracking_index)
     alpha = 1.0 - m * m
     beta = 2.0 * (1.0 - m) ** 2
     return alpha, beta
 
 
-def steady_state_covariance(alpha, beta, sigma_m, T_s):
-    """Eq 12, posterior steady-state covariance per axis, ``(...,2,2)`` ordered [position, velocity]."""
+def kalata_m(tracking_index):
+    """``m = sqrt(1 - alpha)`` of :func:`kalata_gains`' alpha, computed without cancellation: ``(lambda + 4 - s)/4 =
+    4/(lambda + 4 + s)`` (``(lambda + 4)^2 - s^2 = 16``); 1 at ``lambda = 0``, -> 0 as ``lambda -> inf``, positive
+    where ``1 - alpha`` rounds to 0."""
+    lam = np.asarray(tracking_index, dtype=np.float64)
+    s = np.sqrt(lam * lam + 8.0 * lam)
+    return 4.0 / (lam + 4.0 + s)
+
+
+def steady_state_covariance(alpha, beta, sigma_m, T_s, m=None):
+    """Eq 12, posterior steady-state covariance per axis, ``(...,2,2)`` ordered [position, velocity]. Where ``alpha``
+    is 1 the velocity variance is infinite, unless ``m`` (:func:`kalata_m`, for Kalata's gains) is given: then it
+    is eq 12 in ``m``, ``4 (1 - m)^3 / (m T^2) sigma^2``, finite where ``1 - alpha`` only rounded to 0 (a tracking
+    index above about 1e16)."""
     alpha, beta, sigma, T = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (alpha, beta, sigma_m, T_s)))
     s2 = sigma * sigma
     P = np.empty(alpha.shape + (2, 2))
     P[..., 0, 0] = alpha * s2
     P[..., 0, 1] = P[..., 1, 0] = beta / T * s2
+    at_one = np.inf if m is None else 4.0 * (1.0 - np.asarray(m, dtype=np.float64)) ** 3 / (np.asarray(m) * T * T)
     with np.errstate(invalid="ignore", divide="ignore"):
-        P[..., 1, 1] = np.where(alpha < 1.0, beta * (2.0 * alpha - beta) / (2.0 * (1.0 - alpha) * T * T), np.inf) * s2
+        P[..., 1, 1] = np.where(alpha < 1.0, beta * (2.0 * alpha - beta) / (2.0 * (1.0 - alpha) * T * T), at_one) * s2
     return P
 
 
@@ -330,11 +340,13 @@ def run_alpha_beta(t_s, z_m, detected=None, sigma_m=None, R_m2=None, q_m_s2=None
                     q_cur = np.where(m2[:, None], q_new, q_cur)
                 q_used = q_cur
                 with np.errstate(invalid="ignore", divide="ignore"):
-                    a_k, b_k = kalata_gains(tracking_index(q_cur, sk, dtD))
+                    lam_k = tracking_index(q_cur, sk, dtD)
+                    a_k, b_k = kalata_gains(lam_k)
+                    m_k = kalata_m(lam_k)
             with np.errstate(invalid="ignore", divide="ignore"):
                 pos_ab = pos_pr + a_k * nu
                 vel_ab = vel_pr + b_k / dtD * nu
-                P_ab = steady_state_covariance(a_k, b_k, sk, dtD)
+                P_ab = steady_state_covariance(a_k, b_k, sk, dtD, None if fixed else m_k)
             pos_new[m2], vel_new[m2], P_new[m2] = pos_ab[m2], vel_ab[m2], P_ab[m2]
             A_out[m2, k], Bt_out[m2, k], Q_out[m2, k] = a_k[m2], b_k[m2], q_used[m2]
 

@@ -114,3 +114,19 @@ def test_batched_equals_per_track():
                              adaptive=True, window=5)
         np.testing.assert_allclose(one.x, full.x[b:b + 1], rtol=1e-12, equal_nan=True)
         np.testing.assert_allclose(one.P, full.P[b:b + 1], rtol=1e-12, equal_nan=True)
+
+
+def test_velocity_variance_stays_finite_where_one_minus_alpha_rounds_to_zero():
+    """A very large tracking index (a 1e-6 m radar on a maneuvering target): alpha rounds to 1 and eq 12 divided by
+    1 - alpha = 0 (main: P_vv = inf, the run counted failed). In m = sqrt(1 - alpha) it is 4 (1 - m)^3 / (m T^2)."""
+    from baselines.alpha_beta import kalata_m
+    T, sigma = 2.0, 3.0
+    for lam in (1e1, 1e2, 1e3):       # the two forms agree where 1 - alpha keeps its digits (eq 12 is used there)
+        a, b = kalata_gains(lam)
+        np.testing.assert_allclose(steady_state_covariance(a, b, sigma, T, kalata_m(lam))[1, 1],
+                                   4.0 * (1.0 - kalata_m(lam)) ** 3 / (kalata_m(lam) * T * T) * sigma ** 2, rtol=1e-9)
+    a, b = kalata_gains(1e20)
+    assert a == 1.0
+    assert steady_state_covariance(a, b, sigma, T)[1, 1] == np.inf          # without m: no finite value to give
+    P = steady_state_covariance(a, b, sigma, T, kalata_m(1e20))
+    assert np.isfinite(P).all() and P[1, 1] > 1e9 * sigma ** 2
