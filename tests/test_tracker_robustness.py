@@ -180,3 +180,17 @@ def test_konle_recovers_from_a_turn_between_scans():
           err[13.8].round(0))
     assert np.sum(err[np.inf] > 90.0) >= 5  # the failure the rule is for
     assert np.all(err[13.8] < 10.0)
+
+
+def test_tracker_refuses_a_turn_rate_that_is_not_finite():
+    """Main took a NaN or infinite turn rate and its row's x, P and features stayed NaN for the rest of the episode."""
+    from radar_env.filters.tracking import TrackStart
+    eps = draw_suite("random", 2, seed=10_000_000)
+    tr = TrackStart().tracker(2)
+    tr.load(np.arange(2), eps)
+    before = tr.x.copy()
+    for bad in (np.nan, np.inf):
+        with pytest.raises(ValueError, match="turn_rate_rad_s must be finite"):
+            tr.step(np.full(2, 1.0), turn_rate_rad_s=np.array([0.01, bad]))
+    assert np.array_equal(tr.x, before)
+    assert np.isfinite(tr.step(np.full(2, 1.0), turn_rate_rad_s=np.array([0.01, -0.01])).x).all()

@@ -286,7 +286,8 @@ class Tracker:
         Args:
             q_m_s2: (n,) or scalar, in [0, MAX_Q_M_S2]; a ``ValueError`` names the bad value otherwise.
             rows: index array of the rows to step (default all).
-            turn_rate_rad_s: (n,) or None. If given, predict with the coordinated-turn ``F_ct(dt, omega)``.
+            turn_rate_rad_s: (n,) or None, finite (a ``ValueError`` otherwise). If given, predict with the
+                coordinated-turn ``F_ct(dt, omega)``.
             known_input: if True, add the true motion not explained by ``F`` (``u = x_true[k] - F x_true[k-1]``):
                 the clairvoyant bound's known-input KF. Never used by a policy.
         """
@@ -304,6 +305,8 @@ class Tracker:
             w = _NO_TURN
         else:
             w = _k.c_array(np.broadcast_to(np.asarray(turn_rate_rad_s, dtype=np.float64), (n,)))
+            if not np.isfinite(w).all():      # a NaN turn rate would corrupt the row's state for good
+                raise ValueError(f"turn_rate_rad_s must be finite, got {w[~np.isfinite(w)][0]!r}")
         o, ob, oi = self._out_blocks(n)
         b = self.bank
         status, i = _k.k_tracker_step(sel, all_rows, q, w, turn_rate_rad_s is not None, bool(known_input), MAX_Q_M_S2,
