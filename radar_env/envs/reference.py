@@ -179,7 +179,8 @@ def render():
           f"The `RadarTrackContinuous` and `RadarTrackIMM` ids use the bundled policies' {len(TRAINING_Q_LEVELS_G)} "
           f"levels ({_num(TRAINING_Q_LEVELS_G[0])} .. {_num(TRAINING_Q_LEVELS_G[-1])} g).", "",
           "`action_type=\"continuous\"`: `Box(-1, 1, (1,))`, q = q_min (q_max / q_min)^((a + 1) / 2) with q_min, q_max "
-          "the first and last level (an action outside [-1, 1] is clipped to it).", "",
+          "the first and last level (an action beyond [-1, 1] by more than 1e-6, or not finite, is refused with a "
+          "`ValueError`; within that slack it is clipped).", "",
           "### IMM parameters (`tracker=\"imm_cv_ct\"`)", "",
           "`Box(-1, 1, (7,))` or `MultiDiscrete([imm_action_levels] * 7)` (level i is a = (2i - (L - 1)) / (L - 1)). "
           "Each entry is mapped piecewise linearly in log space (noises) or logit space (stay probabilities): "
