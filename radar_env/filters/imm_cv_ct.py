@@ -624,6 +624,9 @@ def _look_update(z, R, det, rr, is_ct, omega_max, accel_max, xm, Pm, log_mu, wor
         d = (xm[j, 4] - om) if is_ct[j] else -om
         om_var += w[j] * ((Pm[j, 4, 4] if is_ct[j] else 0.0) + d * d)
     _moments(w, xm, Pm, np.int64(4), xc, Pc)
+    # a mixture of positive definite modes, but a mode with a 1e17 condition number can round it below: the floor
+    # acts only then (the modes' own covariances are floored in the update)
+    _pd_floor(Pc, np.int64(4), Pc)
     _copy_vec(x_out, xc)
     _copy_mat(P_out, Pc)
     return nis, om, om_var

@@ -46,7 +46,7 @@ from ..sim.looks import padded_looks, range_rate_inputs
 from ..sim.scenario import RandomScenarioConfig
 from . import imm_cv_ct, kernels
 from .imm_cv_ct import _add_cv_noise
-from .kernels import _gain_update_in_frame_inlined, _logsumexp, _r_frame, _symmetrize
+from .kernels import _gain_update_in_frame_inlined, _logsumexp, _pd_floor, _r_frame, _symmetrize
 
 __all__ = ["RBPFSpec", "DEFAULT_RBPF", "RBPF_PARAMS", "rbpf_filter", "prior_vector"]
 
@@ -516,6 +516,7 @@ def _update_look(k, det, z0, z1, R00, R01, R11, rdot, sx, sy, rdot_var, key, pv,
         if kind[i] == TURN:
             om += w[i] * xs[i, 4]
     _moments(w, xs, Ps, 4, xc, Pc)
+    _pd_floor(Pc, np.int64(4), Pc)      # the mixture can round below positive definite (floored only then)
     resampled = 1.0 / s2 < pv[_P_ESS] * N
     if resampled:                 # systematic resampling
         u = _u01(key ^ _RESAMPLE_STREAM, k) / N
