@@ -750,6 +750,7 @@ def longest_uncut_flight_s(cfg):
     return max(cf[21], cf[6]) + (int(cf[3]) - 1) * per_maneuver
 
 
+@lru_cache(maxsize=64)     # a reset with a scenario option builds a drawer each time: probe each configuration once
 def check_placeable(name, cfg, radar, warmup_scans):
     """Refuse (``ValueError``, naming the settings) a random configuration whose flights the radar placement cannot
     handle: one whose longest flight needs more than :data:`MAX_PLACEMENT_GRID` grid points (closed form), or whose
