@@ -80,7 +80,8 @@ import numpy as np
 
 from radar_env.filters.features import MIN_DT_S, kim_lee_variance
 
-__all__ = ["kalata_gains", "kalata_m", "tracking_index", "steady_state_covariance", "noise_only_innovation_variance", "run_alpha_beta", "AlphaBetaResult"]
+__all__ = ["kalata_gains", "kalata_m", "tracking_index", "steady_state_covariance", "noise_only_innovation_variance",
+           "run_alpha_beta", "AlphaBetaResult"]
 
 INIT_VEL_VAR = 1e8
 """Velocity variance (m^2/s^2) after a single plot (velocity unknown)."""
