@@ -246,8 +246,8 @@ class RadarTrackEnv(gym.Env):
         core = self._core
         size = math.prod(core.action_shape)
         if a.shape != self.action_space.shape and not (size == 1 and a.shape == ()):
-            what = "a single number or shape (1,)" if size == 1 and a.shape != () and self.action_space.shape else (
-                "a single number" if size == 1 else f"shape {self.action_space.shape}")
+            what = (f"shape {self.action_space.shape}" if size != 1 else
+                    "a single number or shape (1,)" if self.action_space.shape else "a single number")
             raise ValueError(f"action must be {what} ({self.action_space}), got shape {a.shape}")
         (obs, fo, fs, bo), rew, _, _, inc, _ = core.step(a.reshape((1,) + core.action_shape))
         info = core.info_row(fo, fs, bo, inc)
