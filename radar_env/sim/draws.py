@@ -966,12 +966,12 @@ class LookDrawer:
             most = max_random_looks(scenario, cfg, radar)
             if most < self.warmup_scans + 3:
                 raise _too_few_draws(scenario, self.warmup_scans, self.max_draws)
-            check_placeable(scenario, cfg, radar, self.warmup_scans)
             from .radar import MAX_LOOKS
             if most > MAX_LOOKS:        # refused at construction, before any allocation
                 raise ValueError(f"RadarSite.scan_period_s: {scenario!r} episodes can have up to {most:,.0f} looks "
                                  f"with this radar, more than the {MAX_LOOKS:,} per episode memory allows; give a "
                                  "longer scan_period_s")
+            check_placeable(scenario, cfg, radar, self.warmup_scans)     # after the closed-form checks: it draws
         else:
             sc, rd, place = _fixed_args(scenario, radar)
             self.fixed = (sc, rd, place)
