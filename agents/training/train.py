@@ -173,16 +173,17 @@ def _check_hp(algo, cls, hp):
 def check_train_hp(algo, hp):
     """``hp`` checked as :func:`train` (or, for ``algo = "backprop"``, :func:`agents.training.backprop.check_hp`)
     checks it before a run folder is made: the special keys, the SB3 algorithm's constructor arguments and the env
-    arguments; ``ValueError`` naming ``--hp KEY`` (for ``radar-track sweep``, before Ray starts)."""
+    arguments; ``ValueError`` naming ``--hp KEY`` (for ``radar-track sweep``, before Ray starts). Returns the SB3
+    algorithm's constructor arguments (None for backprop)."""
     if algo == "backprop":
         from agents.training.backprop import check_hp
         check_hp(hp)
-        return
+        return None
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     import stable_baselines3 as sb3
     from radar_env.envs.config import EnvConfig
-    _check_hp(algo, {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo], hp)
+    kwargs = _check_hp(algo, {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo], hp)
     env_kwargs = dict(hp.get("env_kwargs") or {})
     if env_kwargs.get("scenario", "random") not in TRAIN_SCENARIOS:
         raise ValueError(f"--hp env_kwargs: training uses the random scenario generators only (scenario must be one "
@@ -191,6 +192,7 @@ def check_train_hp(algo, hp):
         EnvConfig.from_kwargs(**env_kwargs)
     except (TypeError, ValueError) as e:
         raise ValueError(f"--hp env_kwargs: {str(e).splitlines()[0]}") from None
+    return kwargs
 
 
 def _stack_factor(src_space, new_space):
@@ -269,9 +271,8 @@ def train(algo, hp, seed=0, out="runs", progress=True, verbose=1, command=None, 
 
     torch.set_num_threads(1)
     hp = dict(hp)
-    check_train_hp(algo, hp)            # the one check (radar-track sweep's too), before any folder is made
+    kwargs = check_train_hp(algo, hp)   # the one check (radar-track sweep's too), before any folder is made
     cls = {"ppo": sb3.PPO, "dqn": sb3.DQN, "sac": sb3.SAC}[algo]
-    kwargs = {k: v for k, v in hp.items() if k not in _SPECIAL}
     env_kwargs = dict(hp.get("env_kwargs") or {})
     if env_kwargs.get("scenario") == "random":
         env_kwargs.pop("scenario")
