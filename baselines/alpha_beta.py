@@ -100,10 +100,12 @@ def kalata_gains(tracking_index):
     ``m = sqrt(1 - alpha) = (lambda + 4 - s)/4 = 4/(lambda + 4 + s)``, eq 6 is ``alpha = 1 - m^2`` and eq 7 is
     ``beta = 2 (1 - m)^2`` (equal to the printed forms, checked in the tests). ``lambda = 0`` gives (0, 0);
     ``lambda -> inf`` gives (1, 2)."""
-    m = kalata_m(tracking_index)
-    alpha = 1.0 - m * m
-    beta = 2.0 * (1.0 - m) ** 2
-    return alpha, beta
+    return _gains_of_m(kalata_m(tracking_index))
+
+
+def _gains_of_m(m):
+    """Eqs 6, 7 in ``m = sqrt(1 - alpha)``: ``(1 - m^2, 2 (1 - m)^2)``."""
+    return 1.0 - m * m, 2.0 * (1.0 - m) ** 2
 
 
 def kalata_m(tracking_index):
@@ -341,9 +343,8 @@ def run_alpha_beta(t_s, z_m, detected=None, sigma_m=None, R_m2=None, q_m_s2=None
                     q_cur = np.where(m2[:, None], q_new, q_cur)
                 q_used = q_cur
                 with np.errstate(invalid="ignore", divide="ignore"):
-                    lam_k = tracking_index(q_cur, sk, dtD)
-                    a_k, b_k = kalata_gains(lam_k)
-                    m_k = kalata_m(lam_k)
+                    m_k = kalata_m(tracking_index(q_cur, sk, dtD))
+                    a_k, b_k = _gains_of_m(m_k)
             with np.errstate(invalid="ignore", divide="ignore"):
                 pos_ab = pos_pr + a_k * nu
                 vel_ab = vel_pr + b_k / dtD * nu
